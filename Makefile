@@ -1,0 +1,40 @@
+# tt: the two commands a newcomer runs are `make demo` and `make test`. Every target does its
+# own set-up (venv, pinned wheels, CMake path rewrite, colcon build), idempotently.
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+TOP := $(CURDIR)
+ENV := set +u; . $(TOP)/env.sh; set -u;
+SRC_PY := $(shell find src -name '*.py' -o -name '*.msg' -o -name 'setup.cfg' -o -name '*.yaml' -o -name 'package.xml' | grep -v __pycache__)
+
+.PHONY: all setup build lint test test-fast demo bench report clean
+
+all: build
+
+# Venv, requirements, CMake path rewrite and env.sh (no build).
+setup:
+	@scripts/setup_workspace.sh --no-build
+
+# colcon build, re-run when any package source changes.
+build: install/.tt-built
+install/.tt-built: $(SRC_PY) requirements.txt constraints.txt scripts/setup_workspace.sh
+	@scripts/setup_workspace.sh
+	@touch $@
+
+lint: setup
+	@$(ENV) ruff check src test scripts bench
+
+# The test command (CI runs exactly this): lint, unit tests, graph tests.
+test: build lint
+	@$(ENV) scripts/run_pytest.sh
+
+demo: build
+	@$(ENV) python -m tt_tools.demo
+
+bench: build
+	@$(ENV) python bench/run_all.py --out bench/results
+
+report: build
+	@$(ENV) tt-identify $(TOP)/data/mpi_launcher $(TOP)/data/mpi_pam --out $(TOP)/docs/report
+
+clean:
+	rm -rf build install log env.sh
