@@ -1,0 +1,152 @@
+"""The ball model's equations (MODEL.md), as small compiled functions on plain arrays.
+
+State vector ``s`` (9,): position p (m), velocity v (m/s), spin w (rad/s), table frame.
+Parameters: the packed array of :meth:`tt_prediction.params.ModelParams.packed`.
+The functions are numba-compiled (``cache=True``) so that the integrator can call them in its
+inner loop; they are also plain callables from Python.
+"""
+
+import math
+
+from numba import njit
+import numpy as np
+
+from .params import (DRAG_SPEED_REF, I_AREA, I_CD, I_CD_SLOPE, I_CM, I_CM_SLOPE, I_ER,
+                     I_ET, I_ET_SLOPE, I_GRAVITY, I_KP, I_MASS, I_MU, I_MU_SLOPE, I_RADIUS,
+                     I_RHO, I_SPIN_DECAY, I_WIND_X, I_WIND_Y, I_WIND_Z, IMPACT_SPEED_REF,
+                     LIFT_SPIN_RATIO_REF)
+
+_NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
+
+
+@njit(**_NJIT)
+def flight_derivative(s, P, out):
+    """Time derivative of the state in free flight, written into ``out`` (9,).
+
+    Eq. 8: m a = m g - 1/2 C_D rho A |u| u + 4/3 C_M pi rho r^3 (w x u), with u = v - wind
+    the air-relative velocity (u = v in the paper's still air), and dw/dt = -spin_decay w
+    (0 in the paper: constant spin).
+    """
+    m = P[I_MASS]
+    r = P[I_RADIUS]
+    rho = P[I_RHO]
+    ux = s[3] - P[I_WIND_X]
+    uy = s[4] - P[I_WIND_Y]
+    uz = s[5] - P[I_WIND_Z]
+    wx, wy, wz = s[6], s[7], s[8]
+    speed = math.sqrt(ux * ux + uy * uy + uz * uz)
+    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
+    c_m = P[I_CM]
+    if P[I_CM_SLOPE] != 0.0 and speed > 0.0:
+        spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+        c_m += P[I_CM_SLOPE] * (r * spin / speed - LIFT_SPIN_RATIO_REF)
+    drag = 0.5 * c_d * rho * P[I_AREA] * speed / m           # eq. 8, drag term / m
+    lift = 4.0 / 3.0 * c_m * math.pi * rho * r * r * r / m   # eq. 8, Magnus term / m
+    out[0] = s[3]
+    out[1] = s[4]
+    out[2] = s[5]
+    out[3] = -drag * ux + lift * (wy * uz - wz * uy)
+    out[4] = -drag * uy + lift * (wz * ux - wx * uz)
+    out[5] = -P[I_GRAVITY] - drag * uz + lift * (wx * uy - wy * ux)
+    k = P[I_SPIN_DECAY]
+    out[6] = -k * wx
+    out[7] = -k * wy
+    out[8] = -k * wz
+
+
+@njit(**_NJIT)
+def table_rebound_inplace(s, P):
+    """Apply the table rebound (eqs. 1-6, MODEL.md) to the velocity and spin of ``s``.
+
+    The contact point is (0, 0, -r) from the centre. Sliding when nu_s = 1 - 5/2 s > 0 with
+    alpha = s = mu (1 + e_t) |v_z| / |v_T|, rolling (alpha = 2/5) otherwise.
+    Impact-speed-dependent restitution and spin-dependent friction enter through e_t and mu.
+    """
+    r = P[I_RADIUS]
+    vx, vy, vz = s[3], s[4], s[5]
+    wx, wy, wz = s[6], s[7], s[8]
+    e_t = P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
+    e_t = min(max(e_t, 0.0), 1.0)
+    mu = P[I_MU]
+    if P[I_MU_SLOPE] != 0.0:
+        mu += P[I_MU_SLOPE] * math.sqrt(wx * wx + wy * wy + wz * wz)
+    mu = max(mu, 0.0)
+    vtx = vx - r * wy                                   # tangential contact velocity
+    vty = vy + r * wx
+    vt = math.sqrt(vtx * vtx + vty * vty)
+    alpha = 0.4                                         # rolling
+    if vt > 1e-12:
+        slip = mu * (1.0 + e_t) * abs(vz) / vt
+        if 1.0 - 2.5 * slip > 0.0:                      # nu_s > 0: sliding (fixed 5/2)
+            alpha = slip
+    s[3] = (1.0 - alpha) * vx + alpha * r * wy          # eq. 1-6, A_v (fixed row 2)
+    s[4] = (1.0 - alpha) * vy - alpha * r * wx
+    s[5] = -e_t * vz
+    s[6] = (1.0 - 1.5 * alpha) * wx - 1.5 * alpha / r * vy   # A_w
+    s[7] = (1.0 - 1.5 * alpha) * wy + 1.5 * alpha / r * vx
+    s[8] = wz
+
+
+@njit(**_NJIT)
+def racket_rebound_inplace(s, P, normal, racket_velocity):
+    """Apply the racket rubber rebound (eq. 7, MODEL.md) to the velocity and spin of ``s``.
+
+    ``normal``: unit face normal (world), pointing to the side the ball leaves from;
+    ``racket_velocity``: the racket's linear velocity at impact (world), m/s.
+    In the racket frame (z = normal) with v the ball velocity relative to the racket,
+    K_v = k_p / m, K_w = k_p / I:
+        v_t' = (1 - K_v) v_t + K_v r (w x n),   v_n' = -e_r v_n,
+        w_t' = (1 - K_w r^2) w_t + K_w r (n x v),   w_n' = w_n,
+    the frame-free form of eq. 7 (its rows for x and y are the components of these).
+    """
+    m = P[I_MASS]
+    r = P[I_RADIUS]
+    k_v = P[I_KP] / m
+    k_w = P[I_KP] / (2.0 / 3.0 * m * r * r)
+    nx, ny, nz = normal[0], normal[1], normal[2]
+    vx = s[3] - racket_velocity[0]
+    vy = s[4] - racket_velocity[1]
+    vz = s[5] - racket_velocity[2]
+    wx, wy, wz = s[6], s[7], s[8]
+    vn = vx * nx + vy * ny + vz * nz
+    wn = wx * nx + wy * ny + wz * nz
+    vtx, vty, vtz = vx - vn * nx, vy - vn * ny, vz - vn * nz
+    wtx, wty, wtz = wx - wn * nx, wy - wn * ny, wz - wn * nz
+    # w x n and n x v (tangential by construction)
+    cx, cy, cz = wy * nz - wz * ny, wz * nx - wx * nz, wx * ny - wy * nx
+    dx, dy, dz = ny * vz - nz * vy, nz * vx - nx * vz, nx * vy - ny * vx
+    e_r = P[I_ER]
+    s[3] = racket_velocity[0] + (1.0 - k_v) * vtx + k_v * r * cx - e_r * vn * nx
+    s[4] = racket_velocity[1] + (1.0 - k_v) * vty + k_v * r * cy - e_r * vn * ny
+    s[5] = racket_velocity[2] + (1.0 - k_v) * vtz + k_v * r * cz - e_r * vn * nz
+    a = 1.0 - k_w * r * r
+    s[6] = a * wtx + k_w * r * dx + wn * nx
+    s[7] = a * wty + k_w * r * dy + wn * ny
+    s[8] = a * wtz + k_w * r * dz + wn * nz
+
+
+def table_rebound(velocity, spin, params):
+    """Velocity and spin just after a table bounce (eqs. 1-6); arrays (3,) in and out."""
+    s = np.zeros(9)
+    s[3:6], s[6:9] = velocity, spin
+    table_rebound_inplace(s, params.packed())
+    return s[3:6].copy(), s[6:9].copy()
+
+
+def racket_rebound(velocity, spin, normal, racket_velocity, params):
+    """Ball velocity and spin just after the racket hit (eq. 7), world frame; arrays (3,)."""
+    normal = np.asarray(normal, dtype=float)
+    normal = normal / np.linalg.norm(normal)
+    s = np.zeros(9)
+    s[3:6], s[6:9] = velocity, spin
+    racket_rebound_inplace(s, params.packed(), normal,
+                           np.asarray(racket_velocity, dtype=float))
+    return s[3:6].copy(), s[6:9].copy()
+
+
+def flight_acceleration(position, velocity, spin, params):
+    """Ball acceleration in free flight (eq. 8), m/s^2; arrays (3,) in and out."""
+    s = np.concatenate([position, velocity, spin]).astype(float)
+    out = np.empty(9)
+    flight_derivative(s, params.packed(), out)
+    return out[3:6]
