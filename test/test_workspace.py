@@ -1,0 +1,85 @@
+"""The workspace set-up: CMake path rewrite, env file, message definitions."""
+
+import os
+import pathlib
+import subprocess
+import sys
+import sysconfig
+
+import numpy
+import pytest
+
+TOP = pathlib.Path(__file__).resolve().parents[1]
+
+STALE = ('INTERFACE_INCLUDE_DIRECTORIES "/opt/python/cp312-cp312/include/python3.12;'
+         '/opt/python/cp312-cp312/lib/python3.12/site-packages/numpy/_core/include"\n')
+
+
+def _patch(venv):
+    return subprocess.run([sys.executable, str(TOP / 'scripts' / 'patch_cmake_paths.py'),
+                           str(venv)], capture_output=True, text=True, check=True)
+
+
+def test_cmake_paths_point_at_this_interpreter_and_rewrite_is_idempotent(tmp_path):
+    target = tmp_path / 'share' / 'std_msgs' / 'cmake' / 'export.cmake'
+    target.parent.mkdir(parents=True)
+    target.write_text(STALE)
+    untouched = tmp_path / 'share' / 'other.cmake'
+    untouched.write_text('set(X 1)\n')
+
+    first = _patch(tmp_path)
+    text = target.read_text()
+    assert '/opt/python' not in text
+    assert sysconfig.get_paths()['include'] in text
+    assert numpy.get_include() in text
+    assert 'rewrote stale include paths in 1 ' in first.stderr
+
+    second = _patch(tmp_path)
+    assert target.read_text() == text
+    assert 'in 0 ' in second.stderr
+    assert untouched.read_text() == 'set(X 1)\n'
+
+
+def test_installed_wheels_have_no_stale_include_paths():
+    share = pathlib.Path(sys.prefix, 'share')
+    stale = [p for p in share.rglob('*.cmake') if '/opt/python/' in p.read_text()]
+    assert stale == []
+
+
+def test_env_file_keeps_discovery_on_this_machine():
+    env = (TOP / 'env.sh').read_text()
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' in env
+    out = subprocess.run(['bash', '-c', f'set +u; env -u ROS_AUTOMATIC_DISCOVERY_RANGE bash -c '
+                          f'". {TOP}/env.sh; echo $ROS_AUTOMATIC_DISCOVERY_RANGE"'],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == 'LOCALHOST'
+
+
+@pytest.mark.parametrize('name, fields', [
+    ('BallState', {'header', 'position', 'velocity', 'spin', 'covariance', 'track_id'}),
+    ('BallPrediction', {'status', 'bounce_point', 'bounce_zone', 'bounce_half', 'hit_point',
+                        'hit_velocity', 'hit_spin', 'zone_probabilities'}),
+    ('StrikeCommand', {'hit_time', 'racket_position', 'racket_orientation', 'racket_normal',
+                       'racket_velocity', 'ball_out_velocity', 'landing_point', 'landing_zone',
+                       'feasible', 'margin'}),
+])
+def test_messages_carry_the_fields_of_the_design(name, fields):
+    msgs = pytest.importorskip('tt_msgs.msg')
+    cls = getattr(msgs, name)
+    assert fields <= set(cls.get_fields_and_field_types())
+
+
+def test_every_field_of_every_message_is_documented():
+    for path in sorted((TOP / 'src' / 'tt_msgs' / 'msg').glob('*.msg')):
+        lines = path.read_text().splitlines()
+        for i, line in enumerate(lines):
+            if not line.strip() or line.lstrip().startswith('#'):
+                continue
+            documented = '#' in line or (i > 0 and lines[i - 1].lstrip().startswith('#'))
+            assert documented, f'{path.name}: field without a comment: {line!r}'
+
+
+def test_ball_state_covariance_is_9x9():
+    msgs = pytest.importorskip('tt_msgs.msg')
+    assert msgs.BallState.get_fields_and_field_types()['covariance'] == 'double[81]'
+    assert os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST'
