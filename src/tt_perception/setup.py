@@ -17,7 +17,10 @@ setup(
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',
-    description='Perception of the tt stack: capture from V4L2 cameras, image topics or video files, ball detection, triangulation and state estimation.',
+    description=(
+        'Perception of the tt stack: capture from V4L2 cameras, image topics or video '
+        'files, ball detection, triangulation and state estimation.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

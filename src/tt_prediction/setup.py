@@ -17,7 +17,11 @@ setup(
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',
-    description='Ball model of the tt stack: flight with drag and Magnus, table and racket rebounds, event-driven prediction of bounce, hit point and landing zone, and identification from measured data.',
+    description=(
+        'Ball model of the tt stack: flight with drag and Magnus, table and racket '
+        'rebounds, event-driven prediction of bounce, hit point and landing zone, and '
+        'identification from measured data.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,10 @@ setup(
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',
-    description='Strike solver of the tt stack: racket velocity and orientation that send the ball to a target zone.',
+    description=(
+        'Strike solver of the tt stack: racket velocity and orientation that send the '
+        'ball to a target zone.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,10 @@ setup(
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',
-    description='Tools of the tt stack: a ros2 command (run, topic, bag) for installs without ros2cli, bag record and replay on rosbags, demo and synthetic recordings.',
+    description=(
+        'Tools of the tt stack: a ros2 command (run, topic, bag) for installs without '
+        'ros2cli, bag record and replay on rosbags, demo and synthetic recordings.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

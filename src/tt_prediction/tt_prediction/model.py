@@ -11,10 +11,30 @@ import math
 from numba import njit
 import numpy as np
 
-from .params import (DRAG_SPEED_REF, I_AREA, I_CD, I_CD_SLOPE, I_CM, I_CM_SLOPE, I_ER,
-                     I_ET, I_ET_SLOPE, I_GRAVITY, I_KP, I_MASS, I_MU, I_MU_SLOPE, I_RADIUS,
-                     I_RHO, I_SPIN_DECAY, I_WIND_X, I_WIND_Y, I_WIND_Z, IMPACT_SPEED_REF,
-                     LIFT_SPIN_RATIO_REF)
+from .params import (
+    DRAG_SPEED_REF,
+    I_AREA,
+    I_CD,
+    I_CD_SLOPE,
+    I_CM,
+    I_CM_SLOPE,
+    I_ER,
+    I_ET,
+    I_ET_SLOPE,
+    I_GRAVITY,
+    I_KP,
+    I_MASS,
+    I_MU,
+    I_MU_SLOPE,
+    I_RADIUS,
+    I_RHO,
+    I_SPIN_DECAY,
+    I_WIND_X,
+    I_WIND_Y,
+    I_WIND_Z,
+    IMPACT_SPEED_REF,
+    LIFT_SPIN_RATIO_REF,
+)
 
 _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
 
