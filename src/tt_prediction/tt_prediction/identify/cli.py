@@ -1,0 +1,62 @@
+"""``tt-identify DATA... --out DIR``: identify the ball model from measured tracks.
+
+DATA are trajectory folders (CSV, DESIGN.md) or rosbag2 bags (BallState or PointStamped).
+Writes DIR/report.json, DIR/report.md, plots and DIR/model.yaml (the model for
+``--model`` of tt-predict and the nodes). Bad input: one line on stderr, exit status 2.
+"""
+
+import argparse
+import sys
+
+from ..params import load_model
+from .data import DataError, load
+from .pipeline import identify
+from .report import write_outputs
+
+
+def _progress_factory(enabled):
+    if not enabled:
+        return None
+
+    def make(total):
+        from tqdm import tqdm
+        bar = tqdm(total=total, desc='tt-identify: cross-validation fits', unit='fit',
+                   file=sys.stderr)
+        return lambda: bar.update(1)
+    return make
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog='tt-identify', description=__doc__.splitlines()[0])
+    parser.add_argument('data', nargs='+', metavar='DATA',
+                        help='trajectory folder or rosbag2 bag')
+    parser.add_argument('--out', required=True, metavar='DIR', help='output folder')
+    parser.add_argument('--model', default='', help='base model.yaml (default: nominal)')
+    parser.add_argument('--topic', default=None, help='bag topic (default: the only one)')
+    parser.add_argument('--folds', type=int, default=5,
+                        help='cross-validation folds (by trajectory), >= 2')
+    parser.add_argument('--hit-plane-x', type=float, default=-1.5,
+                        help='x of the hitting plane for the hit-plane error, m')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    args = parser.parse_args(argv)
+    if args.folds < 2:
+        parser.error('--folds must be at least 2')
+    try:
+        base = load_model(args.model)
+        tracks = load(args.data, args.topic)
+        result = identify(tracks, base, folds=args.folds, hit_plane_x=args.hit_plane_x,
+                          progress=_progress_factory(not args.no_progress))
+        write_outputs(result, args.out, args.data)
+    except (DataError, ValueError) as exc:
+        print(f'tt-identify: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('tt-identify: interrupted, nothing written', file=sys.stderr)
+        return 130
+    print(f'tt-identify: wrote {args.out} (selected effects: '
+          f"{', '.join(result['selected_effects']) or 'none'})", file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

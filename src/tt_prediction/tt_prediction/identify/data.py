@@ -1,0 +1,238 @@
+"""Loading measured ball tracks: trajectory folders (CSV) and rosbag2 bags.
+
+A *track* is one measured ball: sample times ``t`` (s, sorted), positions ``p`` (n, 3) in the
+table frame (m), the measured initial spin (rad/s) or None, and a label. Loading checks the
+format and raises :class:`DataError` with a one-line message naming the file; cleaning
+(sorting, duplicate stamps, non-finite rows) is explicit and counted in ``Track.notes``.
+"""
+
+import csv
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+
+class DataError(ValueError):
+    """Bad input: the message names the file and what is wrong."""
+
+
+@dataclasses.dataclass
+class Track:
+    """One measured ball track (table frame, SI units)."""
+
+    name: str
+    t: np.ndarray
+    """Sample times, s, strictly increasing."""
+    p: np.ndarray
+    """Measured ball-centre positions (n, 3), m."""
+    spin: np.ndarray = None
+    """Measured spin at t[0], rad/s (3,), or None when not measured."""
+    label: str = ''
+    notes: dict = dataclasses.field(default_factory=dict)
+    """Counts of what cleaning and segmentation dropped, by reason."""
+
+
+def clean_samples(name, t, p):
+    """Sort by time, merge duplicate stamps (mean position) and drop non-finite rows.
+
+    Returns ``(t, p, notes)`` with the number of rows affected by each step.
+    """
+    notes = {}
+    finite = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+    if not finite.all():
+        notes['non_finite_rows'] = int((~finite).sum())
+        t, p = t[finite], p[finite]
+    order = np.argsort(t, kind='stable')
+    if np.any(order != np.arange(len(t))):
+        notes['unsorted_rows'] = int(np.sum(order != np.arange(len(t))))
+        t, p = t[order], p[order]
+    unique, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
+    if len(unique) < len(t):
+        notes['duplicate_stamps_merged'] = int(len(t) - len(unique))
+        merged = np.zeros((len(unique), 3))
+        np.add.at(merged, inverse, p)
+        p = merged / counts[:, None]
+        t = unique
+    return t, p, notes
+
+
+def _read_csv(path):
+    """Rows of a CSV file as (header, list of rows); DataError when unreadable."""
+    try:
+        with open(path, newline='') as f:
+            rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+    except OSError as exc:
+        raise DataError(f'{path}: cannot read: {exc.strerror}') from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DataError(f'{path}: not a text CSV file: {exc}') from None
+    if not rows:
+        raise DataError(f'{path}: empty file')
+    return [c.strip() for c in rows[0]], rows[1:]
+
+
+def read_track_csv(path):
+    """Read one trajectory CSV (header ``t,x,y,z``) into ``(t, p)``."""
+    header, rows = _read_csv(path)
+    if header[:4] != ['t', 'x', 'y', 'z']:
+        raise DataError(f"{path}: header must start with 't,x,y,z', got '{','.join(header)}'")
+    values = np.empty((len(rows), 4))
+    for i, row in enumerate(rows):
+        if len(row) < 4:
+            raise DataError(f'{path}: line {i + 2} has {len(row)} columns, expected 4')
+        for j in range(4):
+            try:
+                values[i, j] = float(row[j])
+            except ValueError:
+                raise DataError(f"{path}: line {i + 2}, column '{header[j]}': "
+                                f"'{row[j]}' is not a number") from None
+    return values[:, 0], values[:, 1:4]
+
+
+def _read_index(folder):
+    """index.csv of a trajectory folder: {file: (spin or None, label)}; {} when absent."""
+    path = os.path.join(folder, 'index.csv')
+    if not os.path.exists(path):
+        return {}
+    header, rows = _read_csv(path)
+    need = ['file', 'wx', 'wy', 'wz']
+    if header[:4] != need:
+        raise DataError(f"{path}: header must start with 'file,wx,wy,wz', "
+                        f"got '{','.join(header)}'")
+    label_col = header.index('label') if 'label' in header else None
+    index = {}
+    for i, row in enumerate(rows):
+        row = row + [''] * (len(header) - len(row))
+        cells = [c.strip() for c in row[1:4]]
+        spin = None
+        if any(cells):
+            try:
+                spin = np.array([float(c) for c in cells])
+            except ValueError:
+                raise DataError(f'{path}: line {i + 2}: spin {cells} is not three numbers'
+                                ) from None
+            if not np.all(np.isfinite(spin)):
+                raise DataError(f'{path}: line {i + 2}: spin {cells} is not finite')
+        label = row[label_col].strip() if label_col is not None else ''
+        index[row[0].strip()] = (spin, label)
+    return index
+
+
+def load_folder(folder):
+    """All tracks of a trajectory folder (one CSV per track plus optional index.csv)."""
+    files = sorted(f for f in os.listdir(folder)
+                   if f.endswith('.csv') and f != 'index.csv')
+    if not files:
+        raise DataError(f'{folder}: no trajectory CSV files in the folder')
+    index = _read_index(folder)
+    tracks = []
+    for name in files:
+        path = os.path.join(folder, name)
+        t, p = read_track_csv(path)
+        t, p, notes = clean_samples(path, t, p)
+        if len(t) < 2:
+            raise DataError(f'{path}: {len(t)} valid sample(s); a trajectory needs at least 2')
+        spin, label = index.get(name, (None, ''))
+        source = os.path.basename(os.path.normpath(folder))
+        tracks.append(Track(f'{source}/{name}', t, p, spin, label, notes))
+    return tracks
+
+
+def _bag_typestore():
+    """A rosbags typestore for Jazzy with tt_msgs registered from the package's .msg files."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msg_dir = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'tt_msgs', 'msg')
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        msg_dir = os.path.join(get_package_share_directory('tt_msgs'), 'msg')
+    except Exception:   # ament_index absent or tt_msgs not installed: use the source tree
+        pass
+    types = {}
+    if os.path.isdir(msg_dir):
+        for f in sorted(os.listdir(msg_dir)):
+            if f.endswith('.msg'):
+                with open(os.path.join(msg_dir, f)) as fh:
+                    types.update(get_types_from_msg(fh.read(), f'tt_msgs/msg/{f[:-4]}'))
+    store.register(types)
+    return store
+
+
+BAG_TYPES = ('tt_msgs/msg/BallState', 'geometry_msgs/msg/PointStamped')
+TRACK_GAP = 0.25
+"""A bag's stream is split into tracks at gaps longer than this, or at a new track_id, s."""
+
+
+def load_bag(path, topic=None):
+    """Tracks from a rosbag2 bag of BallState or PointStamped (header stamps).
+
+    ``topic``: the topic to read; by default the only topic of a supported type. BallState
+    messages are split by ``track_id``; PointStamped streams at gaps over TRACK_GAP.
+    """
+    from rosbags.highlevel import AnyReader
+    try:
+        reader = AnyReader([os.path.abspath(path)], default_typestore=_bag_typestore())
+        reader.open()
+    except Exception as exc:     # rosbags raises several unrelated types for a bad bag
+        raise DataError(f'{path}: not a readable rosbag2 bag: {exc}') from None
+    try:
+        conns = [c for c in reader.connections if c.msgtype in BAG_TYPES
+                 and (topic is None or c.topic == topic)]
+        if not conns:
+            present = ', '.join(sorted({f'{c.topic} ({c.msgtype})'
+                                        for c in reader.connections})) or 'none'
+            want = f"topic '{topic}'" if topic else 'a BallState or PointStamped topic'
+            raise DataError(f'{path}: no {want} in the bag (topics: {present})')
+        if len({c.topic for c in conns}) > 1:
+            raise DataError(f'{path}: several candidate topics, choose one with --topic')
+        rows = []
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            point = msg.position if hasattr(msg, 'position') else msg.point
+            spin = msg.spin if hasattr(msg, 'spin') else None
+            rows.append((getattr(msg, 'track_id', 0), stamp, point.x, point.y, point.z,
+                         (spin.x, spin.y, spin.z) if spin is not None else None))
+    finally:
+        reader.close()
+    return _tracks_from_stream(path, rows)
+
+
+def _tracks_from_stream(path, rows):
+    """Split (track_id, t, x, y, z, spin) rows into tracks by id and by gaps."""
+    source = os.path.basename(os.path.normpath(path))
+    tracks = []
+    for track_id in sorted({r[0] for r in rows}):
+        sel = sorted((r for r in rows if r[0] == track_id), key=lambda r: r[1])
+        t = np.array([r[1] for r in sel])
+        p = np.array([r[2:5] for r in sel], dtype=float)
+        cuts = np.flatnonzero(np.diff(t) > TRACK_GAP) + 1
+        for k, (a, b) in enumerate(zip([0, *cuts], [*cuts, len(t)], strict=True)):
+            tt, pp, notes = clean_samples(path, t[a:b], p[a:b])
+            if len(tt) < 2:
+                continue
+            spin = sel[a][5]
+            # A BallState's spin is an estimate; all zeros means the publisher did not have one.
+            spin = np.array(spin) if spin is not None and any(spin) else None
+            tracks.append(Track(f'{source}/{track_id}.{k}', tt - tt[0], pp, spin, '', notes))
+    if not tracks:
+        raise DataError(f'{path}: no track with at least 2 samples in the bag')
+    return tracks
+
+
+def load(paths, topic=None):
+    """Tracks of every DATA argument (trajectory folder or bag); DataError on bad input."""
+    tracks = []
+    for path in paths:
+        if not os.path.exists(path):
+            raise DataError(f'{path}: no such file or folder')
+        is_bag = os.path.isfile(path) or os.path.exists(os.path.join(path, 'metadata.yaml'))
+        tracks.extend(load_bag(path, topic) if is_bag else load_folder(path))
+    return tracks
+
+
+def nominal_rate(tracks):
+    """Median sample rate over the tracks, Hz."""
+    dts = np.concatenate([np.diff(tr.t) for tr in tracks])
+    return 1.0 / float(np.median(dts)) if len(dts) else math.nan

@@ -1,0 +1,143 @@
+"""Held-out evaluation by trajectory-wise K-fold cross-validation.
+
+Two held-out measures, both with the global parameters fitted on the other folds only:
+
+- *fit RMS*: the held-out track's initial state is fitted to its whole track, the global
+  parameters stay fixed; the RMS position residual (m) measures how well the model's physics,
+  not a track's own state, explains the track. Effect selection uses it.
+- *prediction*: what a robot sees. The state is estimated from the first PREDICT_WINDOW s
+  only (unmeasured spin held by a prior from the training folds' fitted spins, per label),
+  the model predicts the rest; errors are the position RMS along the rest of the track, the
+  first bounce point, the crossing of the hitting plane, and the 9-area criterion.
+"""
+
+import numpy as np
+
+from ..integrate import rollout
+from ..table import zone_of
+from . import fitting
+
+PREDICT_WINDOW = 0.1
+"""Length of the start of a track from which the held-out prediction starts, s."""
+SPIN_PRIOR_FLOOR = 20.0
+"""Smallest standard deviation of the training-fold spin prior, rad/s."""
+
+
+def fold_ids(n, k, seed=0):
+    """Fold index of each of n tracks: a seeded shuffle dealt into k folds."""
+    ids = np.empty(n, dtype=int)
+    ids[np.random.default_rng(seed).permutation(n)] = np.arange(n) % k
+    return ids
+
+
+def cross_validate(tracks, globals_, states, folds, max_nfev=20, progress=None):
+    """Fit the globals on each training split; returns (held-out fit RMS m, fold fits).
+
+    ``fold_fits[f] = (globals, {track index: state})`` with the states of the training
+    tracks of fold f. ``progress``: called once per fold.
+    """
+    sq, n = 0.0, 0
+    fold_fits = []
+    for f in range(folds.max() + 1):
+        train = np.flatnonzero(folds != f)
+        g, st = fitting.fit_pooled([tracks[i] for i in train], globals_,
+                                   [states[i] for i in train], max_nfev=max_nfev)
+        fold_fits.append((g, dict(zip(train.tolist(), st, strict=True))))
+        P = g.packed()
+        for i in np.flatnonzero(folds == f):
+            _, rms = fitting.fit_state(tracks[i], P, x0=states[i], spin_scale=g.spin_scale,
+                                       max_nfev=30)
+            m = int(tracks[i].mask.sum())
+            sq += rms ** 2 * m
+            n += m
+        if progress:
+            progress()
+    return float(np.sqrt(sq / max(n, 1))), fold_fits
+
+
+def spin_prior(tracks, states, track):
+    """Mean and std (3,) of the fitted spins of training tracks with ``track``'s label (all
+    training tracks when fewer than 3 share it), rad/s; None when spin is measured."""
+    if track.spin is not None:
+        return None
+    same = [states[i][6:9] for i in states if tracks[i].label == track.label
+            and tracks[i].spin is None]
+    if len(same) < 3:
+        same = [states[i][6:9] for i in states if tracks[i].spin is None]
+    if len(same) < 2:
+        return np.zeros(3), np.full(3, fitting.SPIN_PRIOR)
+    w = np.array(same)
+    return w.mean(axis=0), np.maximum(w.std(axis=0), SPIN_PRIOR_FLOOR)
+
+
+def plane_crossing(t, p, plane_x):
+    """First crossing of x = plane_x by the measured track, linearly interpolated: (t, p)."""
+    g = p[:, 0] - plane_x
+    idx = np.flatnonzero(np.sign(g[:-1]) * np.sign(g[1:]) < 0)
+    if not len(idx):
+        return None
+    i = idx[0]
+    w = g[i] / (g[i] - g[i + 1])
+    return t[i] + w * (t[i + 1] - t[i]), (1 - w) * p[i] + w * p[i + 1]
+
+
+def predict_track(track, globals_, prior, hit_plane_x, window=PREDICT_WINDOW):
+    """Held-out prediction errors of one track from its first ``window`` s (None if the
+    track is too short): dict with rms (m), bounce and hit errors (m), zones."""
+    rest = track.mask & (track.t > window)
+    if (track.mask & (track.t <= window)).sum() < 5 or rest.sum() < 5:
+        return None
+    P, k = globals_.packed(), globals_.spin_scale
+    x, _ = fitting.fit_state(track, P, spin_scale=k, upto=window, prior=prior, max_nfev=40)
+    s0 = fitting.full_state(track, x, k)
+    pred = fitting.simulate(s0, P, track.t, track.n_bounces + 1)[:, :3]
+    err = np.linalg.norm(pred[rest] - track.p[rest], axis=1)
+    err[~np.isfinite(err)] = fitting.MISSING_RESIDUAL
+    out = {'rms': float(np.sqrt(np.mean(err ** 2))), 'residual_t': track.t[rest],
+           'residual': pred[rest] - track.p[rest]}
+    if track.bounces and track.bounces[0].t > window:
+        events, _ = rollout(s0, P, stop_at_plane=False, stop_at_net=False, max_bounces=1)
+        b = track.bounces[0]
+        if events[-1].kind in ('bounce', 'roll'):
+            out['bounce_err'] = float(np.linalg.norm(events[-1].state[:2] - b.p[:2]))
+            out['zone_true'] = zone_of(*b.p[:2])
+            out['zone_pred'] = zone_of(*events[-1].state[:2])
+    crossing = plane_crossing(track.t, track.p, hit_plane_x)
+    if crossing is not None and crossing[0] > window:
+        events, _ = rollout(s0, P, plane_x=hit_plane_x, stop_at_net=False,
+                            max_bounces=track.n_bounces + 1)
+        if events[-1].kind == 'plane':
+            out['hit_err'] = float(np.linalg.norm(events[-1].state[:3] - crossing[1]))
+    return out
+
+
+def predictive_errors(tracks, folds, fold_fits, hit_plane_x):
+    """Held-out prediction errors of every track with its fold's globals.
+
+    Returns ``(summary, per_track)``: summary with rms_mm (mean over tracks of the RMS
+    along the rest of each track), bounce_err_mm, hit_err_mm (means; None where the data
+    has none), zone_accuracy (fraction of first bounces predicted in the measured area and
+    half), and counts.
+    """
+    per_track = [None] * len(tracks)
+    for f, (g, train_states) in enumerate(fold_fits):
+        for i in np.flatnonzero(folds == f):
+            prior = spin_prior(tracks, train_states, tracks[i])
+            per_track[i] = predict_track(tracks[i], g, prior, hit_plane_x)
+    done = [r for r in per_track if r is not None]
+    bounce = [r['bounce_err'] for r in done if 'bounce_err' in r]
+    hit = [r['hit_err'] for r in done if 'hit_err' in r]
+    zones = [r['zone_true'] == r['zone_pred'] for r in done if 'zone_true' in r]
+
+    def mm(values):
+        return round(1e3 * float(np.mean(values)), 2) if values else None
+
+    summary = {
+        'rms_mm': mm([r['rms'] for r in done]),
+        'bounce_err_mm': mm(bounce),
+        'hit_err_mm': mm(hit),
+        'hit_err_median_mm': round(1e3 * float(np.median(hit)), 2) if hit else None,
+        'zone_accuracy': round(float(np.mean(zones)), 3) if zones else None,
+        'n_tracks': len(done), 'n_bounces': len(bounce), 'n_hits': len(hit),
+    }
+    return summary, per_track

@@ -1,0 +1,186 @@
+"""The identification run: prepare, fit the baseline, test the effects, select, report data.
+
+``identify(tracks, ...)`` returns a plain dict (the content of report.json plus arrays for the
+plots under the key ``_plots``). Selection is greedy forward: each applicable effect of the
+library is added to the current model and scored by the held-out fit RMS of K-fold
+cross-validation; the best one is kept if its relative gain exceeds PENALTY_PER_PARAM per
+added parameter, then the remaining effects that also paid are tried on top of it.
+"""
+
+import numpy as np
+
+from ..params import ModelParams
+from . import diagnose, evaluate, fitting
+from .data import DataError
+from .effects import LIBRARY, applicable
+from .segment import segment
+
+PENALTY_PER_PARAM = 0.02
+"""Relative held-out gain an effect must bring per added parameter to be selected."""
+MAX_EFFECTS = 2
+"""At most this many effects are selected (greedy rounds)."""
+
+
+def prepare(tracks, radius):
+    """Segment tracks; returns (prepared, dropped {name: reason}, notes totals)."""
+    prepared, dropped, notes = [], {}, {}
+    for tr in tracks:
+        seg, bounces = segment(tr, radius)
+        if seg is None:
+            dropped[tr.name] = bounces
+            continue
+        for key, n in seg.notes.items():
+            notes[key] = notes.get(key, 0) + n
+        prepared.append(fitting.Prepared(seg.name, seg.t - seg.t[0], seg.p, seg.spin,
+                                         len(bounces), seg.label, bounces=[
+                                             _shift(b, seg.t[0]) for b in bounces]))
+    return prepared, dropped, notes
+
+
+def _shift(bounce, t0):
+    bounce.t -= t0
+    return bounce
+
+
+def _mean_std(values):
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return None
+    return {'mean': round(float(values.mean()), 4), 'std': round(float(values.std()), 4),
+            'n': int(len(values))}
+
+
+def _round(d, nd=5):
+    return {k: round(float(v), nd) for k, v in d.items()}
+
+
+def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nfev=20):
+    """Run the whole identification; ``progress(total)`` returns a callable ticked per fold
+    fit (a progress bar), or None."""
+    base = base or ModelParams()
+    prepared, dropped, notes = prepare(tracks, base.radius)
+    if len(prepared) < 2:
+        raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
+                        f'({len(tracks)} loaded); identification needs at least 2')
+    has_spin = any(tr.spin is not None for tr in prepared)
+    has_bounces = any(tr.n_bounces for tr in prepared)
+    folds = int(min(folds, len(prepared)))
+    names = ['c_d'] + (['c_m'] if has_spin else []) + (['e_t', 'mu'] if has_bounces else [])
+
+    # Per-track start with the nominal model, gating of gross outliers, pooled baseline fit.
+    P0 = base.packed()
+    states = [fitting.fit_state(tr, P0)[0] for tr in prepared]
+    notes['samples_gated_by_fit'] = fitting.gate(prepared, states, P0)
+    g_base, states = fitting.fit_pooled(prepared, fitting.Globals(base, names), states,
+                                        max_nfev=2 * max_nfev)
+    base_states = list(states)
+    per_track = fitting.fit_each(prepared, g_base, states,
+                                 ['c_d', 'c_m'] if has_spin else ['c_d'])
+    paper = {'c_d': _mean_std(per_track[:, 0])}
+    if has_spin:
+        paper['c_m'] = _mean_std(per_track[:, 1])
+    else:
+        spins = np.array([np.linalg.norm(x[6:9]) for x in states])
+        paper['c_m'] = {'fixed': base.c_m, 'note': (
+            'spin not measured: C_M and spin are not separately identifiable from a flight '
+            '(the Magnus force is their product); C_M is fixed at the nominal value and each '
+            "track's spin is estimated jointly with its state")}
+        paper['spin_abs_rad_s'] = _mean_std(spins)
+    fold_of = evaluate.fold_ids(len(prepared), folds)
+
+    candidates = []
+    for effect in LIBRARY:
+        reason = applicable(effect, has_bounces, has_spin)
+        candidates.append((effect, reason))
+    n_test = sum(1 for _, reason in candidates if not reason)
+    tick = progress(folds * (2 + n_test + MAX_EFFECTS)) if progress else None
+
+    base_rms, base_folds = evaluate.cross_validate(prepared, g_base, states, fold_of,
+                                                   max_nfev, tick)
+    tested = []
+    current, cur_rms, cur_folds, cur_globals = [], base_rms, base_folds, g_base
+    pool = [e for e, reason in candidates if not reason]
+    for e, reason in candidates:
+        if reason:
+            tested.append({'name': e.name, 'mechanism': e.mechanism, 'tested': False,
+                           'reason': reason, 'params': {}, 'heldout_gain': 0.0})
+    for round_ in range(MAX_EFFECTS):
+        results = []
+        for e in pool:
+            # The effect's parameters start off (at the base); the rest at the current fit.
+            g = fitting.Globals(cur_globals.params(), cur_globals.names + list(e.params))
+            g.values[:len(cur_globals.names)] = cur_globals.values
+            g, e_states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
+            rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev,
+                                                tick)
+            gain = 1.0 - rms / cur_rms
+            entry = {
+                'name': e.name, 'mechanism': e.mechanism, 'tested': True, 'round': round_ + 1,
+                'on_top_of': list(current),
+                'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in e.params},
+                'params_fold_std': {p: round(float(np.std([f[0].values[f[0].names.index(p)]
+                                                           for f in fits])), 5)
+                                    for p in e.params},
+                'heldout_rms_mm': round(1e3 * rms, 3),
+                'heldout_gain': round(gain, 4),
+                'penalty': PENALTY_PER_PARAM * len(e.params),
+                'pays': bool(gain > PENALTY_PER_PARAM * len(e.params)),
+            }
+            tested.append(entry)
+            results.append((gain - entry['penalty'], e, rms, fits, g, e_states))
+        paying = sorted([r for r in results if r[0] > 0.0], key=lambda r: -r[0])
+        if not paying:
+            break
+        _, best, cur_rms, cur_folds, cur_globals, states = paying[0]
+        current.append(best.name)
+        pool = [r[1] for r in paying[1:]]
+        if not pool:
+            break
+
+    before, before_tracks = evaluate.predictive_errors(prepared, fold_of, base_folds,
+                                                       hit_plane_x)
+    if current:
+        after, after_tracks = evaluate.predictive_errors(prepared, fold_of, cur_folds,
+                                                         hit_plane_x)
+    else:
+        after, after_tracks = before, before_tracks
+    g_final = cur_globals
+    diag_before = diagnose.flight_residuals(prepared, g_base, base_states)
+    diag_after = diagnose.flight_residuals(prepared, g_final, states)
+    result = {
+        'data': {
+            'tracks_loaded': len(tracks), 'tracks_used': len(prepared),
+            'tracks_dropped': dropped, 'samples_dropped': notes,
+            'samples_used': int(sum(tr.mask.sum() for tr in prepared)),
+            'bounces': int(sum(tr.n_bounces for tr in prepared)),
+            'spin_measured': has_spin, 'folds': folds, 'hit_plane_x': hit_plane_x,
+            'predict_window_s': evaluate.PREDICT_WINDOW,
+        },
+        'paper_style': {'per_trajectory': paper, 'pooled': _round(g_base.as_dict())},
+        'baseline': {'params': _round(g_base.as_dict()), 'heldout_fit_rms_mm':
+                     round(1e3 * base_rms, 3), **before,
+                     'residual': diagnose.flight_summary(diag_before),
+                     'rebound': _strip(diagnose.rebound_summary(prepared, g_base, base_states))},
+        'final': {'params': _round(g_final.as_dict()), 'heldout_fit_rms_mm':
+                  round(1e3 * cur_rms, 3), **after,
+                  'residual': diagnose.flight_summary(diag_after),
+                  'rebound': _strip(diagnose.rebound_summary(prepared, g_final, states))},
+        'effects_tested': tested,
+        'selected_effects': current,
+        'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
+                           f'held-out fit RMS ({folds}-fold, by trajectory) exceeds '
+                           f'{PENALTY_PER_PARAM} per added parameter'),
+    }
+    result['_model'] = g_final.params()
+    result['_plots'] = {'diag_before': diag_before, 'diag_after': diag_after,
+                        'pred_before': before_tracks, 'pred_after': after_tracks,
+                        'rebound': diagnose.rebound_summary(prepared, g_final, states)}
+    return result
+
+
+def _strip(summary):
+    """Rebound summary without its per-bounce arrays (kept for the plots only)."""
+    if summary is None:
+        return None
+    return {k: v for k, v in summary.items() if not isinstance(v, list)}

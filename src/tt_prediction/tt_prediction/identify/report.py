@@ -1,0 +1,214 @@
+"""Writing the identification's outputs: report.json, report.md, PNG plots and model.yaml.
+
+Everything is written into a fresh temporary folder next to DIR and renamed into place at the
+end, so an interrupted or failed run never leaves a half-written report that looks complete.
+"""
+
+import json
+import os
+import shutil
+import tempfile
+
+import matplotlib
+import numpy as np
+
+from .diagnose import binned
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interactive backend)
+
+PLOTS = ('residual_vs_time.png', 'residual_acceleration.png', 'landing_errors.png',
+         'rebound.png')
+
+
+def write_outputs(result, out_dir, sources):
+    """Write the report of ``result`` (pipeline.identify) atomically into ``out_dir``."""
+    out_dir = os.path.abspath(out_dir)
+    parent = os.path.dirname(out_dir)
+    os.makedirs(parent, exist_ok=True)
+    tmp = tempfile.mkdtemp(prefix='.tt-identify-', dir=parent)
+    try:
+        public = {k: v for k, v in result.items() if not k.startswith('_')}
+        public['sources'] = list(sources)
+        with open(os.path.join(tmp, 'report.json'), 'w') as f:
+            json.dump(public, f, indent=2)
+        result['_model'].save(os.path.join(tmp, 'model.yaml'), meta={
+            'written_by': 'tt-identify', 'sources': list(sources),
+            'selected_effects': list(result['selected_effects'])})
+        plot_all(result, tmp)
+        with open(os.path.join(tmp, 'report.md'), 'w') as f:
+            f.write(markdown(public))
+        old = None
+        if os.path.exists(out_dir):
+            old = tempfile.mkdtemp(prefix='.tt-identify-old-', dir=parent)
+            os.rename(out_dir, os.path.join(old, 'report'))
+        os.rename(tmp, out_dir)
+        if old:
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _fmt(value, nd=3):
+    if value is None:
+        return '–'
+    if isinstance(value, float):
+        return f'{value:.{nd}g}' if abs(value) < 1e-2 and value != 0 else f'{value:.{nd}f}'
+    return str(value)
+
+
+def markdown(r):
+    """The human-readable report (tables of errors, parameters, effects, plots)."""
+    d, b, f = r['data'], r['baseline'], r['final']
+    lines = ['# tt-identify report', '',
+             f"Sources: {', '.join(r['sources'])}", '',
+             '## Data', '',
+             f"{d['tracks_used']} of {d['tracks_loaded']} tracks used, {d['samples_used']} "
+             f"samples, {d['bounces']} table bounces located; spin measured: "
+             f"{'yes' if d['spin_measured'] else 'no'}.", '']
+    if d['samples_dropped']:
+        lines += ['| samples dropped | count |', '|---|---|']
+        lines += [f'| {k} | {v} |' for k, v in d['samples_dropped'].items()]
+        lines.append('')
+    for name, reason in d['tracks_dropped'].items():
+        lines.append(f'- dropped track {name}: {reason}')
+    p = r['paper_style']['per_trajectory']
+    lines += ['', '## Paper-style coefficients (eq. 9)', '',
+              f"Per trajectory: C_D = {p['c_d']['mean']:.3f} ± {p['c_d']['std']:.3f} "
+              f"(n = {p['c_d']['n']}); paper 0.54 ± 0.074."]
+    if 'mean' in p['c_m']:
+        lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f}; paper "
+                     f'0.069 ± 0.029.')
+    else:
+        lines.append(f"C_M fixed at {p['c_m']['fixed']}: {p['c_m']['note']}. Fitted |ω| = "
+                     f"{p['spin_abs_rad_s']['mean']:.0f} ± {p['spin_abs_rad_s']['std']:.0f}"
+                     ' rad/s.')
+    reb = b.get('rebound')
+    if reb:
+        lines.append(f"Per bounce (from the flights on both sides): e_t = {reb['e_t_mean']:.3f}"
+                     f" ± {reb['e_t_std']:.3f}, μ = {reb['mu_mean']:.3f} ± {reb['mu_std']:.3f}"
+                     f" (n = {reb['n_bounces']}).")
+    lines += ['', 'Pooled: ' + ', '.join(f'{k} = {_fmt(v, 4)}'
+                                         for k, v in r['paper_style']['pooled'].items()), '',
+              '## Residual of the baseline model', '',
+              'Residual acceleration (second derivative of measured − model along each free '
+              'flight), m/s², and its correlation with time, air speed, spin, spin ratio and '
+              'heading:', '',
+              '| axis | RMS mm | mean acc | std acc | r(t) | r(speed) | r(spin) | r(ratio) '
+              '| r(heading) |', '|---|---|---|---|---|---|---|---|---|']
+    for axis, s in b['residual'].items():
+        c = s['correlation']
+        lines.append(f"| {axis} | {_fmt(s['rms_mm'], 2)} | {_fmt(s['acc_mean'])} | "
+                     f"{_fmt(s['acc_std'])} | {c['t']} | {c['speed']} | {c['spin']} | "
+                     f"{c['spin_ratio']} | {c['heading']} |")
+    if reb:
+        lines += ['', f"Rebound: restitution residual correlates with impact speed "
+                      f"r = {reb['corr_impact_speed']}, with spin r = {reb['corr_spin']}."]
+    lines += ['', '## Effects tested', '', r['selection_rule'] + '.', '',
+              '| effect | round | fitted parameters (mean over folds) | held-out gain | '
+              'penalty | pays |', '|---|---|---|---|---|---|']
+    for e in r['effects_tested']:
+        if not e['tested']:
+            lines.append(f"| {e['name']} | – | not tested: {e['reason']} | – | – | – |")
+            continue
+        params = ', '.join(f'{k} = {_fmt(v, 4)}' for k, v in e['params'].items())
+        lines.append(f"| {e['name']} | {e['round']} | {params} | {100 * e['heldout_gain']:.1f} %"
+                     f" | {100 * e['penalty']:.0f} % | {'yes' if e['pays'] else 'no'} |")
+    sel = r['selected_effects']
+    lines += ['', '**Selected:** ' + (', '.join(sel) if sel else
+                                     'none. No effect of the library pays for its parameters '
+                                     'on held-out data; the residual shape is shown below.'),
+              '', '## Held-out errors before and after', '',
+              f"{d['folds']}-fold cross-validation by trajectory; prediction from the first "
+              f"{1e3 * d['predict_window_s']:.0f} ms of each track; hitting plane "
+              f"x = {d['hit_plane_x']} m.", '',
+              '| | fit RMS mm | prediction RMS mm | bounce error mm | hit-plane error mm '
+              '(median) | 9-area accuracy |', '|---|---|---|---|---|---|']
+    for name, s in (('baseline', b), ('final', f)):
+        lines.append(f"| {name} | {_fmt(s['heldout_fit_rms_mm'], 2)} | {_fmt(s['rms_mm'], 1)}"
+                     f" | {_fmt(s['bounce_err_mm'], 1)} | {_fmt(s['hit_err_mm'], 1)} "
+                     f"({_fmt(s['hit_err_median_mm'], 1)}) | {_fmt(s['zone_accuracy'])} |")
+    names = list(dict.fromkeys([*b['params'], *f['params']]))
+    lines += ['', '## Parameters', '', '| parameter | baseline | final |', '|---|---|---|']
+    lines += [f"| {n} | {_fmt(b['params'].get(n), 4)} | {_fmt(f['params'].get(n), 4)} |"
+              for n in names]
+    lines += ['', '## Plots', ''] + [f'![{p[:-4]}]({p})' for p in PLOTS] + ['']
+    return '\n'.join(lines)
+
+
+def plot_all(result, folder):
+    """The report's plots as PNG files in ``folder``."""
+    pl = result['_plots']
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+    for j, ax in enumerate(axes):
+        for key, label in (('diag_before', 'baseline'), ('diag_after', 'final')):
+            dg = pl[key]
+            c, m, s = binned(dg['t'], 1e3 * dg['res'][:, j]) if len(dg['t']) else (
+                [], [], [])
+            ax.errorbar(c, m, yerr=s, capsize=2, marker='o', label=label)
+        ax.axhline(0, color='k', lw=0.5)
+        ax.set_ylabel(f'{"xyz"[j]} residual, mm')
+    axes[0].legend()
+    axes[0].set_title('Measured − model along the tracks (full-data fit, mean ± std)')
+    axes[-1].set_xlabel('time since track start, s')
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, 'residual_vs_time.png'), dpi=90)
+    plt.close(fig)
+
+    dg = pl['diag_before']
+    fig, axes = plt.subplots(3, 3, figsize=(10, 7), sharey='row')
+    for j in range(3):
+        ok = np.isfinite(dg['acc'][:, j])
+        for k, feat in enumerate(('t', 'speed', 'spin_ratio')):
+            ax = axes[j, k]
+            if ok.any():
+                c, m, s = binned(dg[feat][ok], dg['acc'][ok, j])
+                ax.errorbar(c, m, yerr=s, capsize=2, marker='o')
+            ax.axhline(0, color='k', lw=0.5)
+            if k == 0:
+                ax.set_ylabel(f'{"xyz"[j]} residual acc, m/s²')
+            if j == 2:
+                ax.set_xlabel({'t': 'time, s', 'speed': 'speed, m/s',
+                               'spin_ratio': 'spin ratio r|ω|/|v|'}[feat])
+    fig.suptitle('Baseline residual acceleration against time, speed and spin ratio')
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, 'residual_acceleration.png'), dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for shift, (key, label) in zip((-0.2, 0.2), (('pred_before', 'baseline'),
+                                                 ('pred_after', 'final')), strict=True):
+        errs = {}
+        for tr in pl[key]:
+            if tr and 'bounce_err' in tr:
+                errs.setdefault(tr['zone_true'][0], []).append(1e3 * tr['bounce_err'])
+        zones = sorted(errs)
+        ax.bar(np.array(zones) + shift, [np.mean(errs[z]) for z in zones], width=0.4,
+               label=label)
+    ax.set_xticks(range(0, 10))
+    ax.set_xlabel('measured landing area (0 = off the table)')
+    ax.set_ylabel('mean bounce-point error, mm')
+    ax.set_title('Held-out first-bounce error per area (prediction from the first 100 ms)')
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, 'landing_errors.png'), dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    reb = pl['rebound']
+    if reb:
+        speed = np.array(reb['impact_speed'])
+        ax.plot(speed, reb['e_t_measured'], '.', label='measured bounces')
+        grid = np.linspace(speed.min(), speed.max(), 20)
+        for key in ('baseline', 'final'):
+            prm = result[key]['params']
+            e = prm.get('e_t', 0.93) + prm.get('e_t_speed_slope', 0.0) * (grid - 3.0)
+            ax.plot(grid, e, label=f'{key} model')
+        ax.legend()
+    ax.set_xlabel('normal impact speed |v_z|, m/s')
+    ax.set_ylabel('table restitution e_t')
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, 'rebound.png'), dpi=90)
+    plt.close(fig)
+
