@@ -10,6 +10,7 @@ import csv
 import dataclasses
 import math
 import os
+import pathlib
 
 import numpy as np
 
@@ -172,7 +173,7 @@ def load_bag(path, topic=None):
     """
     from rosbags.highlevel import AnyReader
     try:
-        reader = AnyReader([os.path.abspath(path)], default_typestore=_bag_typestore())
+        reader = AnyReader([pathlib.Path(path)], default_typestore=_bag_typestore())
         reader.open()
     except Exception as exc:     # rosbags raises several unrelated types for a bad bag
         raise DataError(f'{path}: not a readable rosbag2 bag: {exc}') from None

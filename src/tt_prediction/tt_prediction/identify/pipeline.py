@@ -55,26 +55,22 @@ def _round(d, nd=5):
     return {k: round(float(v), nd) for k, v in d.items()}
 
 
-def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nfev=20):
-    """Run the whole identification; ``progress(total)`` returns a callable ticked per fold
-    fit (a progress bar), or None."""
-    base = base or ModelParams()
-    prepared, dropped, notes = prepare(tracks, base.radius)
-    if len(prepared) < 2:
-        raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
-                        f'({len(tracks)} loaded); identification needs at least 2')
+def fit_baseline(prepared, base, notes, max_nfev=40):
+    """The paper's identification (eq. 9) on prepared tracks: per-track starts with the
+    nominal model, gating of isolated outliers (counted in ``notes``), the pooled fit of
+    the baseline globals (c_d; c_m where spin is measured; e_t, mu where the data bounce),
+    and per-trajectory C_D (and C_M) for the paper's mean +- std.
+
+    Returns ``(globals, states, paper)``.
+    """
     has_spin = any(tr.spin is not None for tr in prepared)
     has_bounces = any(tr.n_bounces for tr in prepared)
-    folds = int(min(folds, len(prepared)))
     names = ['c_d'] + (['c_m'] if has_spin else []) + (['e_t', 'mu'] if has_bounces else [])
-
-    # Per-track start with the nominal model, gating of gross outliers, pooled baseline fit.
     P0 = base.packed()
     states = [fitting.fit_state(tr, P0)[0] for tr in prepared]
     notes['samples_gated_by_fit'] = fitting.gate(prepared, states, P0)
     g_base, states = fitting.fit_pooled(prepared, fitting.Globals(base, names), states,
-                                        max_nfev=2 * max_nfev)
-    base_states = list(states)
+                                        max_nfev=max_nfev)
     per_track = fitting.fit_each(prepared, g_base, states,
                                  ['c_d', 'c_m'] if has_spin else ['c_d'])
     paper = {'c_d': _mean_std(per_track[:, 0])}
@@ -87,6 +83,22 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
             '(the Magnus force is their product); C_M is fixed at the nominal value and each '
             "track's spin is estimated jointly with its state")}
         paper['spin_abs_rad_s'] = _mean_std(spins)
+    return g_base, states, paper
+
+
+def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nfev=20):
+    """Run the whole identification; ``progress(total)`` returns a callable ticked per fold
+    fit (a progress bar), or None."""
+    base = base or ModelParams()
+    prepared, dropped, notes = prepare(tracks, base.radius)
+    if len(prepared) < 2:
+        raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
+                        f'({len(tracks)} loaded); identification needs at least 2')
+    has_spin = any(tr.spin is not None for tr in prepared)
+    has_bounces = any(tr.n_bounces for tr in prepared)
+    folds = int(min(folds, len(prepared)))
+    g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
+    base_states = list(states)
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
     candidates = []

@@ -106,7 +106,7 @@ def markdown(r):
         lines += ['', f"Rebound: restitution residual correlates with impact speed "
                       f"r = {reb['corr_impact_speed']}, with spin r = {reb['corr_spin']}."]
     lines += ['', '## Effects tested', '', r['selection_rule'] + '.', '',
-              '| effect | round | fitted parameters (mean over folds) | held-out gain | '
+              '| effect | round | fitted parameters (all tracks) | held-out gain | '
               'penalty | pays |', '|---|---|---|---|---|---|']
     for e in r['effects_tested']:
         if not e['tested']:

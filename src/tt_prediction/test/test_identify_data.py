@@ -1,0 +1,181 @@
+"""tt-identify input handling: loading, cleaning, segmentation, bad input, atomic output."""
+
+import math
+import os
+
+import numpy as np
+import pytest
+from tt_prediction.identify import report as report_module
+from tt_prediction.identify.cli import main
+from tt_prediction.identify.data import clean_samples, load, load_bag
+from tt_prediction.identify.segment import segment
+from tt_prediction.identify.synthetic import launch_states
+from tt_prediction.integrate import rollout
+from tt_prediction.model import racket_rebound
+from tt_prediction.params import ModelParams
+
+
+def _run(capsys, args):
+    code = main([*args, '--no-progress'])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err
+
+
+def _folder(tmp_path, files):
+    folder = tmp_path / 'data'
+    folder.mkdir()
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    return folder
+
+
+@pytest.mark.parametrize('files, expect', [
+    ({}, 'no trajectory CSV'),
+    ({'a.csv': 'time,x,y,z\n0,0,0,0.3\n0.01,0.1,0,0.3\n'}, 'a.csv: header must start'),
+    ({'a.csv': 't,x,y,z\n0,0,0,0.3\n0.01,abc,0,0.3\n'}, "a.csv: line 3, column 'x'"),
+    ({'a.csv': 't,x,y,z\n0,0,0,0.3\n'}, 'a.csv: 1 valid sample(s)'),
+], ids=['empty folder', 'wrong header', 'text in number', 'one sample'])
+def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
+    folder = _folder(tmp_path, files)
+    out = tmp_path / 'out'
+    code, err = _run(capsys, [str(folder), '--out', str(out)])
+    assert code != 0
+    assert len(err) == 1 and expect in err[0] and 'Traceback' not in err[0]
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ['data']   # no temp folder left
+
+
+def _write_bag(path, topic, msgtype, messages):
+    """A rosbag2 (MCAP) bag with one topic; messages built by the typestore's classes."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection(topic, msgtype, typestore=store)
+        for stamp_ns, msg in messages(store):
+            writer.write(conn, stamp_ns, store.serialize_cdr(msg, msgtype))
+
+
+def _point_messages(t, p):
+    def build(store):
+        Point = store.types['geometry_msgs/msg/Point']
+        PointStamped = store.types['geometry_msgs/msg/PointStamped']
+        Header = store.types['std_msgs/msg/Header']
+        Time = store.types['builtin_interfaces/msg/Time']
+        for ti, pi in zip(t, p, strict=True):
+            ns = int(round((100.0 + ti) * 1e9))
+            header = Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id='table')
+            yield ns, PointStamped(header=header, point=Point(x=pi[0], y=pi[1], z=pi[2]))
+    return build
+
+
+def test_bag_of_point_stamped_loads_as_tracks(tmp_path):
+    t = np.arange(0.0, 0.5, 1 / 150.0)
+    p = np.column_stack([1.0 - 5.0 * t, 0.1 * t, 0.3 + t - 4.9 * t ** 2])
+    bag = tmp_path / 'bag'
+    _write_bag(bag, '/ball/position', 'geometry_msgs/msg/PointStamped', _point_messages(t, p))
+    (track,) = load_bag(str(bag))
+    assert track.spin is None
+    np.testing.assert_allclose(track.t, t - t[0], atol=2e-9)
+    np.testing.assert_allclose(track.p, p)
+
+
+def test_bag_without_the_topic_is_an_error(tmp_path, capsys):
+    bag = tmp_path / 'bag'
+
+    def strings(store):
+        String = store.types['std_msgs/msg/String']
+        yield 1, String(data='hello')
+    _write_bag(bag, '/chatter', 'std_msgs/msg/String', strings)
+    out = tmp_path / 'out'
+    code, err = _run(capsys, [str(bag), '--out', str(out)])
+    assert code != 0 and len(err) == 1
+    assert str(bag) in err[0] and 'no a BallState or PointStamped topic' in err[0]
+    assert '/chatter' in err[0]
+    assert not out.exists()
+
+
+def test_cleaning_sorts_and_merges_duplicate_stamps():
+    t = np.array([0.02, 0.0, 0.01, 0.01, np.nan])
+    p = np.array([[2.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [9.0, 0, 0]])
+    t2, p2, notes = clean_samples('x', t, p)
+    np.testing.assert_array_equal(t2, [0.0, 0.01, 0.02])
+    np.testing.assert_array_equal(p2[:, 0], [0.0, 2.0, 2.0])    # duplicates averaged
+    assert notes == {'non_finite_rows': 1, 'unsorted_rows': 4, 'duplicate_stamps_merged': 1}
+
+
+def _measured(t_samples, state, params, noise=0.0, seed=0):
+    _, s = rollout(state, params, sample_times=t_samples, stop_at_plane=False,
+                   stop_at_net=False, max_bounces=2, t_max=t_samples[-1] + 0.01)
+    ok = np.all(np.isfinite(s[:, :3]), axis=1)
+    rng = np.random.default_rng(seed)
+    return t_samples[ok], s[ok, :3] + rng.normal(0.0, noise, (ok.sum(), 3))
+
+
+def test_bounce_time_and_point_come_from_the_flights_not_the_nearest_sample():
+    from tt_prediction.identify.data import Track
+    params = ModelParams()
+    errors_t, errors_p = [], []
+    for k, state in enumerate(launch_states(6, np.random.default_rng(3))):
+        t = np.arange(0.0, 0.8, 1 / 150.0) + 0.37 / 150.0 * k    # sampling phase varies
+        t, p = _measured(t, state, params, noise=0.0005, seed=k)
+        events, _ = rollout(state, params, stop_at_plane=False, stop_at_net=False,
+                            max_bounces=1)
+        true = events[0]
+        assert true.kind == 'bounce'
+        seg, bounces = segment(Track('b', t, p))
+        assert len(bounces) == 1
+        errors_t.append(abs(bounces[0].t - true.t))
+        errors_p.append(np.linalg.norm(bounces[0].p[:2] - true.state[:2]))
+    # The nearest sample is up to half a frame (3.3 ms, ~2 cm at 6 m/s) away.
+    assert max(errors_t) < 1e-3
+    assert max(errors_p) < 5e-3
+
+
+def test_racket_contact_ends_the_track_and_rolling_is_cut():
+    from tt_prediction.identify.data import Track
+    params = ModelParams()
+    state = np.array([1.2, 0.0, 0.35, -5.5, 0.0, 0.8, 0.0, -150.0, 0.0])  # topspin serve
+    events, _ = rollout(state, params, plane_x=-1.3, stop_at_net=False, max_bounces=2)
+    hit = events[-1]
+    assert hit.kind == 'plane'
+    v, w = racket_rebound(hit.state[3:6], hit.state[6:9], [1.0, 0.0, 0.0],
+                          [3.0, 0.0, 0.5], params)
+    t1 = np.arange(0.0, hit.t, 1 / 150.0)
+    t1, p1 = _measured(t1, state, params)
+    after = np.concatenate([hit.state[:3], v, w])
+    t2 = np.arange(1 / 300.0, 0.3, 1 / 150.0)
+    t2, p2 = _measured(t2, after, params)
+    rolling = np.column_stack([np.linspace(0.5, 0.8, 30), np.zeros(30), np.full(30, 0.0205)])
+    track = Track('hit', np.concatenate([t1, hit.t + t2]), np.vstack([p1, p2]))
+    seg, bounces = segment(track)
+    assert seg.t[-1] <= hit.t and seg.t[-1] >= hit.t - 0.05
+    assert seg.notes['samples_after_racket_contact'] >= len(t2)
+    assert len(bounces) == 1
+    t_roll = np.concatenate([t1, t1[-1] + np.arange(1, 31) / 150.0])
+    seg, _ = segment(Track('roll', t_roll, np.vstack([p1, rolling])))
+    assert seg.notes['samples_rolling'] >= 25
+
+
+def test_interrupted_report_leaves_nothing_as_if_complete(tmp_path, monkeypatch):
+    from tt_prediction.identify.pipeline import identify
+    from tt_prediction.identify.synthetic import make_tracks
+    result = identify(make_tracks(4, ModelParams(), seed=5), folds=2)
+
+    def broken(*_):
+        raise RuntimeError('disk full')
+    monkeypatch.setattr(report_module, 'plot_all', broken)
+    out = tmp_path / 'out'
+    with pytest.raises(RuntimeError):
+        report_module.write_outputs(result, str(out), ['synthetic'])
+    assert os.listdir(tmp_path) == []
+
+
+def test_loads_the_real_sets_format():
+    here = os.path.dirname(__file__)
+    folder = os.path.join(here, '..', '..', '..', 'data', 'mpi_launcher')
+    if not os.path.isdir(folder):
+        pytest.skip('data/mpi_launcher not present')
+    tracks = load([folder])
+    assert len(tracks) == 88
+    assert all(tr.spin is None and math.isfinite(tr.t[-1]) for tr in tracks)
