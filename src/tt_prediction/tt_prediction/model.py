@@ -16,6 +16,7 @@ from .params import (
     I_AREA,
     I_CD,
     I_CD_SLOPE,
+    I_CD_SPIN_SLOPE,
     I_CM,
     I_CM_SLOPE,
     I_ER,
@@ -57,9 +58,11 @@ def flight_derivative(s, P, out):
     speed = math.sqrt(ux * ux + uy * uy + uz * uz)
     c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
     c_m = P[I_CM]
-    if P[I_CM_SLOPE] != 0.0 and speed > 0.0:
+    if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
         spin = math.sqrt(wx * wx + wy * wy + wz * wz)
-        c_m += P[I_CM_SLOPE] * (r * spin / speed - LIFT_SPIN_RATIO_REF)
+        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
+        c_m += P[I_CM_SLOPE] * ratio
+        c_d += P[I_CD_SPIN_SLOPE] * ratio
     drag = 0.5 * c_d * rho * P[I_AREA] * speed / m           # eq. 8, drag term / m
     lift = 4.0 / 3.0 * c_m * math.pi * rho * r * r * r / m   # eq. 8, Magnus term / m
     out[0] = s[3]

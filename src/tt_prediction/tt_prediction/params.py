@@ -24,13 +24,15 @@ IMPACT_SPEED_REF = 3.0
 # Index of each field in the packed array (order of PACKED_FIELDS; wind takes three slots).
 PACKED_FIELDS = ('mass', 'radius', 'gravity', 'air_density', 'area', 'c_d', 'c_m', 'e_t', 'mu',
                  'e_r', 'k_p', 'spin_decay', 'wind_x', 'wind_y', 'wind_z', 'c_d_speed_slope',
-                 'c_m_spin_ratio_slope', 'e_t_speed_slope', 'mu_spin_slope')
+                 'c_m_spin_ratio_slope', 'e_t_speed_slope', 'mu_spin_slope',
+                 'c_d_spin_ratio_slope')
 (I_MASS, I_RADIUS, I_GRAVITY, I_RHO, I_AREA, I_CD, I_CM, I_ET, I_MU, I_ER, I_KP, I_SPIN_DECAY,
- I_WIND_X, I_WIND_Y, I_WIND_Z, I_CD_SLOPE, I_CM_SLOPE, I_ET_SLOPE, I_MU_SLOPE) = range(19)
+ I_WIND_X, I_WIND_Y, I_WIND_Z, I_CD_SLOPE, I_CM_SLOPE, I_ET_SLOPE, I_MU_SLOPE,
+ I_CD_SPIN_SLOPE) = range(20)
 N_PACKED = len(PACKED_FIELDS)
 
 EFFECT_FIELDS = ('spin_decay', 'wind', 'c_d_speed_slope', 'c_m_spin_ratio_slope',
-                 'e_t_speed_slope', 'mu_spin_slope')
+                 'e_t_speed_slope', 'mu_spin_slope', 'c_d_spin_ratio_slope')
 
 
 @dataclasses.dataclass
@@ -74,6 +76,8 @@ class ModelParams:
     s/m."""
     mu_spin_slope: float = 0.0
     """Spin-dependent table friction: mu(w) = mu + slope |w|, s/rad."""
+    c_d_spin_ratio_slope: float = 0.0
+    """Spin-dependent drag: C_D += slope (r|w|/|v - wind| - LIFT_SPIN_RATIO_REF)."""
 
     def __post_init__(self):
         self.wind = tuple(float(w) for w in self.wind)
