@@ -33,8 +33,11 @@ demo: build
 bench: build
 	@$(ENV) python bench/run_all.py --out bench/results
 
+# One report per measured set (different launchers, tables and trackers); the hitting plane
+# is at x = -1.2 m because the recorded tracks end near the robot's end line (x = -1.37 m).
 report: build
-	@$(ENV) tt-identify $(TOP)/data/mpi_launcher $(TOP)/data/mpi_pam --out $(TOP)/docs/report
+	@$(ENV) cd $(TOP) && for set in mpi_launcher mpi_pam; do \
+		tt-identify data/$$set --out docs/report/$$set --hit-plane-x -1.2 || exit 1; done
 
 clean:
 	rm -rf build install log env.sh

@@ -22,8 +22,8 @@ def flight_residuals(tracks, globals_, states):
 
     Returns a dict of arrays over the used samples of free flights: ``t`` (s since the
     track's first sample), ``res`` (n, 3) measured - model (m), ``acc`` (n, 3) residual
-    acceleration (m/s^2, NaN on short flights), ``speed`` (m/s), ``spin`` |w| (rad/s),
-    ``spin_ratio`` r|w|/|v|, ``heading`` (v_x / |v|).
+    acceleration (m/s^2, NaN on short flights), ``speed`` (m/s), ``spin`` |w_perp|, the spin
+    across the velocity (rad/s), ``spin_ratio`` r|w_perp|/|v|, ``heading`` (v_x / |v|).
     """
     P, k = globals_.packed(), globals_.spin_scale
     r = globals_.base.radius
@@ -42,7 +42,9 @@ def flight_residuals(tracks, globals_, states):
                 acc[sel] = 6.0 * coef[0] * ts[:, None] + 2.0 * coef[1]
         v, w = model[:, 3:6], model[:, 6:9]
         speed = np.linalg.norm(v, axis=1)
-        spin = np.linalg.norm(w, axis=1)
+        v_hat = v / np.maximum(speed, 1e-6)[:, None]
+        # Spin across the velocity: the part that makes lift (the part along it is unobserved).
+        spin = np.linalg.norm(w - np.sum(w * v_hat, axis=1)[:, None] * v_hat, axis=1)
         cols['t'].append(tr.t[ok])
         cols['res'].append(res[ok])
         cols['acc'].append(acc[ok])

@@ -31,6 +31,9 @@ LIBRARY = (
     Effect('drag_reynolds', ('c_d_speed_slope',),
            'drag coefficient varies with air speed (Reynolds number): '
            'C_D = c_d + slope (|v| - 6 m/s)'),
+    Effect('drag_spin', ('c_d_spin_ratio_slope',),
+           'drag coefficient varies with the spin ratio (the spinning boundary layer): '
+           'C_D = c_d + slope (r|w|/|v| - 0.3)'),
     Effect('lift_spin_ratio', ('c_m_spin_ratio_slope',),
            'Magnus coefficient varies with the spin ratio: C_M = c_m + slope (r|w|/|v| - 0.3)'),
     Effect('table_restitution_speed', ('e_t_speed_slope',),

@@ -37,7 +37,8 @@ GLOBAL_BOUNDS = {
     'c_d': (0.1, 1.5), 'c_m': (-0.5, 0.5), 'e_t': (0.5, 1.0), 'mu': (0.0, 1.0),
     'gravity': (8.0, 12.0), 'spin_decay': (0.0, 10.0), 'wind_x': (-5.0, 5.0),
     'wind_y': (-5.0, 5.0), 'wind_z': (-5.0, 5.0), 'c_d_speed_slope': (-0.2, 0.2),
-    'c_m_spin_ratio_slope': (-1.0, 1.0), 'e_t_speed_slope': (-0.3, 0.3),
+    'c_m_spin_ratio_slope': (-1.0, 1.0), 'c_d_spin_ratio_slope': (-1.0, 1.0),
+    'e_t_speed_slope': (-0.3, 0.3),
     'mu_spin_slope': (-2e-3, 2e-3), SPIN_SCALE: (-0.5, 0.5),
 }
 """Physical ranges of the global parameters (SI units; slopes per the params.py docs)."""

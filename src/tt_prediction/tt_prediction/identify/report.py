@@ -93,8 +93,8 @@ def markdown(r):
                                          for k, v in r['paper_style']['pooled'].items()), '',
               '## Residual of the baseline model', '',
               'Residual acceleration (second derivative of measured − model along each free '
-              'flight), m/s², and its correlation with time, air speed, spin, spin ratio and '
-              'heading:', '',
+              'flight), m/s², and its correlation with time, air speed, spin across the '
+              'velocity |ω⊥|, spin ratio r|ω⊥|/|v| and heading v_x/|v|:', '',
               '| axis | RMS mm | mean acc | std acc | r(t) | r(speed) | r(spin) | r(ratio) '
               '| r(heading) |', '|---|---|---|---|---|---|---|---|---|']
     for axis, s in b['residual'].items():
@@ -170,7 +170,7 @@ def plot_all(result, folder):
                 ax.set_ylabel(f'{"xyz"[j]} residual acc, m/s²')
             if j == 2:
                 ax.set_xlabel({'t': 'time, s', 'speed': 'speed, m/s',
-                               'spin_ratio': 'spin ratio r|ω|/|v|'}[feat])
+                               'spin_ratio': 'spin ratio r|ω⊥|/|v|'}[feat])
     fig.suptitle('Baseline residual acceleration against time, speed and spin ratio')
     fig.tight_layout()
     fig.savefig(os.path.join(folder, 'residual_acceleration.png'), dpi=90)
