@@ -7,6 +7,8 @@ cross-validation; the best one is kept if its relative gain exceeds PENALTY_PER_
 added parameter, then the remaining effects that also paid are tried on top of it.
 """
 
+import dataclasses
+
 import numpy as np
 
 from ..params import ModelParams
@@ -25,21 +27,17 @@ def prepare(tracks, radius):
     """Segment tracks; returns (prepared, dropped {name: reason}, notes totals)."""
     prepared, dropped, notes = [], {}, {}
     for tr in tracks:
-        seg, bounces = segment(tr, radius)
+        seg, found = segment(tr, radius)
         if seg is None:
-            dropped[tr.name] = bounces
+            dropped[tr.name] = found        # the reason
             continue
         for key, n in seg.notes.items():
             notes[key] = notes.get(key, 0) + n
-        prepared.append(fitting.Prepared(seg.name, seg.t - seg.t[0], seg.p, seg.spin,
-                                         len(bounces), seg.label, bounces=[
-                                             _shift(b, seg.t[0]) for b in bounces]))
+        t0 = seg.t[0]
+        bounces = [dataclasses.replace(b, t=b.t - t0) for b in found]
+        prepared.append(fitting.Prepared(seg.name, seg.t - t0, seg.p, seg.spin, len(bounces),
+                                         seg.label, bounces=bounces))
     return prepared, dropped, notes
-
-
-def _shift(bounce, t0):
-    bounce.t -= t0
-    return bounce
 
 
 def _mean_std(values):
@@ -101,54 +99,31 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
     base_states = list(states)
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
-    candidates = []
-    for effect in LIBRARY:
-        reason = applicable(effect, has_bounces, has_spin)
-        candidates.append((effect, reason))
+    candidates = [(e, applicable(e, has_bounces, has_spin)) for e in LIBRARY]
     n_test = sum(1 for _, reason in candidates if not reason)
     tick = progress(folds * (2 + n_test + MAX_EFFECTS)) if progress else None
-
     base_rms, base_folds = evaluate.cross_validate(prepared, g_base, states, fold_of,
                                                    max_nfev, tick)
-    tested = []
-    current, cur_rms, cur_folds, cur_globals = [], base_rms, base_folds, g_base
+    tested = [{'name': e.name, 'mechanism': e.mechanism, 'tested': False, 'reason': reason,
+               'params': {}, 'heldout_gain': 0.0} for e, reason in candidates if reason]
+    current, best = [], (None, base_rms, base_folds, g_base, states)
     pool = [e for e, reason in candidates if not reason]
-    for e, reason in candidates:
-        if reason:
-            tested.append({'name': e.name, 'mechanism': e.mechanism, 'tested': False,
-                           'reason': reason, 'params': {}, 'heldout_gain': 0.0})
     for round_ in range(MAX_EFFECTS):
         results = []
         for e in pool:
-            # The effect's parameters start off (at the base); the rest at the current fit.
-            g = fitting.Globals(cur_globals.params(), cur_globals.names + list(e.params))
-            g.values[:len(cur_globals.names)] = cur_globals.values
-            g, e_states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
-            rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev,
-                                                tick)
-            gain = 1.0 - rms / cur_rms
-            entry = {
-                'name': e.name, 'mechanism': e.mechanism, 'tested': True, 'round': round_ + 1,
-                'on_top_of': list(current),
-                'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in e.params},
-                'params_fold_std': {p: round(float(np.std([f[0].values[f[0].names.index(p)]
-                                                           for f in fits])), 5)
-                                    for p in e.params},
-                'heldout_rms_mm': round(1e3 * rms, 3),
-                'heldout_gain': round(gain, 4),
-                'penalty': PENALTY_PER_PARAM * len(e.params),
-                'pays': bool(gain > PENALTY_PER_PARAM * len(e.params)),
-            }
-            tested.append(entry)
-            results.append((gain - entry['penalty'], e, rms, fits, g, e_states))
-        paying = sorted([r for r in results if r[0] > 0.0], key=lambda r: -r[0])
-        if not paying:
+            entry, fit = _test_effect(prepared, e, best, fold_of, max_nfev, tick)
+            tested.append({**entry, 'round': round_ + 1, 'on_top_of': list(current)})
+            if entry['pays']:
+                results.append((entry['heldout_gain'] - entry['penalty'], e, fit))
+        if not results:
             break
-        _, best, cur_rms, cur_folds, cur_globals, states = paying[0]
-        current.append(best.name)
-        pool = [r[1] for r in paying[1:]]
+        results.sort(key=lambda r: -r[0])
+        best = results[0][2]
+        current.append(results[0][1].name)
+        pool = [r[1] for r in results[1:]]
         if not pool:
             break
+    _, cur_rms, cur_folds, g_final, states = best
 
     before, before_tracks = evaluate.predictive_errors(prepared, fold_of, base_folds,
                                                        hit_plane_x)
@@ -157,9 +132,10 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
                                                          hit_plane_x)
     else:
         after, after_tracks = before, before_tracks
-    g_final = cur_globals
     diag_before = diagnose.flight_residuals(prepared, g_base, base_states)
     diag_after = diagnose.flight_residuals(prepared, g_final, states)
+    rebound_before = diagnose.rebound_summary(prepared, g_base, base_states)
+    rebound_after = diagnose.rebound_summary(prepared, g_final, states)
     result = {
         'data': {
             'tracks_loaded': len(tracks), 'tracks_used': len(prepared),
@@ -173,11 +149,11 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
         'baseline': {'params': _round(g_base.as_dict()), 'heldout_fit_rms_mm':
                      round(1e3 * base_rms, 3), **before,
                      'residual': diagnose.flight_summary(diag_before),
-                     'rebound': _strip(diagnose.rebound_summary(prepared, g_base, base_states))},
+                     'rebound': _strip(rebound_before)},
         'final': {'params': _round(g_final.as_dict()), 'heldout_fit_rms_mm':
                   round(1e3 * cur_rms, 3), **after,
                   'residual': diagnose.flight_summary(diag_after),
-                  'rebound': _strip(diagnose.rebound_summary(prepared, g_final, states))},
+                  'rebound': _strip(rebound_after)},
         'effects_tested': tested,
         'selected_effects': current,
         'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
@@ -187,8 +163,34 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
     result['_model'] = g_final.params()
     result['_plots'] = {'diag_before': diag_before, 'diag_after': diag_after,
                         'pred_before': before_tracks, 'pred_after': after_tracks,
-                        'rebound': diagnose.rebound_summary(prepared, g_final, states)}
+                        'rebound': rebound_after}
     return result
+
+
+def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
+    """Add ``effect`` to the current fit, fit it on all tracks (its parameters start off),
+    cross-validate. ``current`` = (_, held-out RMS, fold fits, globals, states).
+
+    Returns the report entry and the new fit in the form of ``current``.
+    """
+    _, cur_rms, _, cur_globals, states = current
+    g = fitting.Globals(cur_globals.params(), cur_globals.names + list(effect.params))
+    g.values[:len(cur_globals.names)] = cur_globals.values
+    g, e_states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
+    rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev, tick)
+    gain = 1.0 - rms / cur_rms
+    penalty = PENALTY_PER_PARAM * len(effect.params)
+    fold_values = {p: [f[0].values[f[0].names.index(p)] for f in fits] for p in effect.params}
+    entry = {
+        'name': effect.name, 'mechanism': effect.mechanism, 'tested': True,
+        'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in effect.params},
+        'params_fold_std': {p: round(float(np.std(v)), 5) for p, v in fold_values.items()},
+        'heldout_rms_mm': round(1e3 * rms, 3),
+        'heldout_gain': round(gain, 4),
+        'penalty': penalty,
+        'pays': bool(gain > penalty),
+    }
+    return entry, (effect, rms, fits, g, e_states)
 
 
 def _strip(summary):
