@@ -80,6 +80,36 @@ def test_bag_of_point_stamped_loads_as_tracks(tmp_path):
     np.testing.assert_allclose(track.p, p)
 
 
+def test_bag_of_ball_state_splits_tracks_by_id_and_keeps_spin(tmp_path):
+    from tt_prediction.identify.data import _bag_typestore
+    store = _bag_typestore()
+    msgtype = 'tt_msgs/msg/BallState'
+    t = np.arange(0.0, 0.3, 1 / 150.0)
+    bag = tmp_path / 'bag'
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/ball/state', msgtype, typestore=store)
+        BallState = store.types[msgtype]
+        Header = store.types['std_msgs/msg/Header']
+        Time = store.types['builtin_interfaces/msg/Time']
+        Point = store.types['geometry_msgs/msg/Point']
+        Vector3 = store.types['geometry_msgs/msg/Vector3']
+        for track_id, spin in ((1, (0.0, 150.0, 0.0)), (2, (0.0, 0.0, 0.0))):
+            for ti in t:
+                ns = int(round((track_id + ti) * 1e9))
+                msg = BallState(
+                    header=Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9),
+                                  frame_id='table'),
+                    position=Point(x=1.0 - 5.0 * ti, y=0.0, z=0.3),
+                    velocity=Vector3(x=-5.0, y=0.0, z=0.0), spin=Vector3(*spin),
+                    covariance=np.zeros(81), track_id=track_id)
+                writer.write(conn, ns, store.serialize_cdr(msg, msgtype))
+    first, second = load_bag(str(bag))
+    assert len(first.t) == len(second.t) == len(t)
+    np.testing.assert_allclose(first.spin, [0.0, 150.0, 0.0])
+    assert second.spin is None          # all-zero spin: not measured
+
+
 def test_bag_without_the_topic_is_an_error(tmp_path, capsys):
     bag = tmp_path / 'bag'
 

@@ -117,6 +117,7 @@ class Globals:
         return {n: float(v) for n, v in zip(self.names, self.values, strict=True)}
 
 
+# Scratch buffers for the kernel's events, which identification does not read.
 _EV_KIND = np.zeros(8, dtype=np.int64)
 _EV_T = np.zeros(8)
 _EV_S = np.zeros((8, 9))
@@ -232,9 +233,9 @@ def fit_pooled(tracks, globals_, states, max_nfev=40):
 
 def fit_each(tracks, globals_, states, names):
     """Per-trajectory fit (the paper's eq. 9 done track by track): the globals ``names``
-    and the track's state, the other globals fixed. Returns an array (n_tracks, len(names))
-    (NaN where a fit failed)."""
-    out = np.full((len(tracks), len(names)), np.nan)
+    and the track's state, the other globals fixed. Returns an array (n_tracks, len(names)).
+    """
+    out = np.empty((len(tracks), len(names)))
     idx = [globals_.names.index(n) for n in names]
     lo, hi = globals_.bounds()
     for i, (tr, x) in enumerate(zip(tracks, states, strict=True)):
@@ -247,12 +248,9 @@ def fit_each(tracks, globals_, states, names):
             return track_residual(z[:n_s], tr, g.packed(), g.spin_scale)
 
         z0 = np.concatenate([x, globals_.values[idx]])
-        try:
-            sol = least_squares(residual, z0, loss='soft_l1', f_scale=NOISE_SCALE,
-                                max_nfev=80, x_scale='jac',
-                                bounds=(np.concatenate([np.full(n_s, -np.inf), lo[idx]]),
-                                        np.concatenate([np.full(n_s, np.inf), hi[idx]])))
-        except ValueError:
-            continue
+        sol = least_squares(residual, z0, loss='soft_l1', f_scale=NOISE_SCALE,
+                            max_nfev=80, x_scale='jac',
+                            bounds=(np.concatenate([np.full(n_s, -np.inf), lo[idx]]),
+                                    np.concatenate([np.full(n_s, np.inf), hi[idx]])))
         out[i] = sol.x[n_s:]
     return out
