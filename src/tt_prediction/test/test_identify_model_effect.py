@@ -6,6 +6,7 @@ and the lift must not change.
 """
 
 import numpy as np
+from tt_prediction.integrate import rollout
 from tt_prediction.model import flight_acceleration
 from tt_prediction.params import LIFT_SPIN_RATIO_REF, ModelParams
 
@@ -34,3 +35,15 @@ def test_spin_dependent_drag_round_trips_through_model_yaml(tmp_path):
     assert loaded.c_d_spin_ratio_slope == 0.25
     assert loaded.active_effects() == ['c_d_spin_ratio_slope']
     assert ModelParams.from_packed(params.packed()) == params
+
+
+def test_integrator_applies_spin_dependent_drag():
+    # A backspin ball flying towards -x: more drag leaves it short of the nominal path.
+    state = np.array([1.2, 0.0, 0.3, -5.0, 0.0, 1.0, 0.0, 300.0, 0.0])
+    times = np.array([0.5])
+    _, plain = rollout(state, ModelParams(), sample_times=times, stop_at_net=False)
+    _, spun = rollout(state, ModelParams(c_d_spin_ratio_slope=0.5), sample_times=times,
+                      stop_at_net=False)
+    ratio = 0.02 * 300.0 / np.linalg.norm(state[3:6])       # 1.18 > 0.3: C_D grows
+    assert ratio > LIFT_SPIN_RATIO_REF
+    assert spun[0, 0] > plain[0, 0] + 0.01
