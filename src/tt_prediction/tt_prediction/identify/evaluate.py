@@ -93,8 +93,7 @@ def predict_track(track, globals_, prior, hit_plane_x, window=PREDICT_WINDOW):
     pred = fitting.simulate(s0, P, track.t, track.n_bounces + 1)[:, :3]
     err = np.linalg.norm(pred[rest] - track.p[rest], axis=1)
     err[~np.isfinite(err)] = fitting.MISSING_RESIDUAL
-    out = {'rms': float(np.sqrt(np.mean(err ** 2))), 'residual_t': track.t[rest],
-           'residual': pred[rest] - track.p[rest]}
+    out = {'rms': float(np.sqrt(np.mean(err ** 2)))}
     if track.bounces and track.bounces[0].t > window:
         events, _ = rollout(s0, P, stop_at_plane=False, stop_at_net=False, max_bounces=1)
         b = track.bounces[0]
