@@ -96,19 +96,21 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
     has_bounces = any(tr.n_bounces for tr in prepared)
     folds = int(min(folds, len(prepared)))
     g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
-    base_states = list(states)
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
     candidates = [(e, applicable(e, has_bounces, has_spin)) for e in LIBRARY]
     n_test = sum(1 for _, reason in candidates if not reason)
     tick = progress(folds * (2 + n_test + MAX_EFFECTS)) if progress else None
-    base_rms, base_folds = evaluate.cross_validate(prepared, g_base, states, fold_of,
-                                                   max_nfev, tick)
     tested = [{'name': e.name, 'mechanism': e.mechanism, 'tested': False, 'reason': reason,
                'params': {}, 'heldout_gain': 0.0} for e, reason in candidates if reason]
-    current, best = [], (None, base_rms, base_folds, g_base, states)
+    current, best = [], (None, None, None, g_base, states)
     pool = [e for e, reason in candidates if not reason]
     for round_ in range(MAX_EFFECTS):
+        # The reference gets the same fitting budget as each effect, so that a gain is the
+        # effect's and not that of more iterations on the tracks' states.
+        best = _refit(prepared, best, fold_of, max_nfev, tick)
+        if round_ == 0:
+            base_rms, base_folds, g_base, base_states = best[1:]
         results = []
         for e in pool:
             entry, fit = _test_effect(prepared, e, best, fold_of, max_nfev, tick)
@@ -165,6 +167,15 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
                         'pred_before': before_tracks, 'pred_after': after_tracks,
                         'rebound': rebound_after}
     return result
+
+
+def _refit(prepared, current, fold_of, max_nfev, tick):
+    """The current model refitted on all tracks and cross-validated, no parameter added;
+    in and out in the form (effect, held-out RMS, fold fits, globals, states)."""
+    effect, _, _, g, states = current
+    g, states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
+    rms, fits = evaluate.cross_validate(prepared, g, states, fold_of, max_nfev, tick)
+    return effect, rms, fits, g, states
 
 
 def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
