@@ -4,7 +4,8 @@
 plots under the key ``_plots``). Selection is greedy forward: each applicable effect of the
 library is added to the current model and scored by the held-out fit RMS of K-fold
 cross-validation; the best one is kept if its relative gain exceeds PENALTY_PER_PARAM per
-added parameter, then the remaining effects that also paid are tried on top of it.
+added parameter and it moves the modelled tracks by more than MIN_EFFECT_SIZE, then the
+remaining effects that also paid are tried on top of it.
 """
 
 import dataclasses
@@ -19,6 +20,9 @@ from .segment import segment
 
 PENALTY_PER_PARAM = 0.02
 """Relative held-out gain an effect must bring per added parameter to be selected."""
+MIN_EFFECT_SIZE = 0.002
+"""An effect must move the modelled tracks by more than this RMS (about the measurement
+noise) to be selected, m."""
 MAX_EFFECTS = 2
 """At most this many effects are selected (greedy rounds)."""
 
@@ -160,7 +164,9 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
         'selected_effects': current,
         'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
                            f'held-out fit RMS ({folds}-fold, by trajectory) exceeds '
-                           f'{PENALTY_PER_PARAM} per added parameter'),
+                           f'{PENALTY_PER_PARAM} per added parameter and switching it off '
+                           f'moves the fitted tracks by more than '
+                           f'{1e3 * MIN_EFFECT_SIZE:.0f} mm RMS'),
     }
     result['_model'] = g_final.params()
     result['_plots'] = {'diag_before': diag_before, 'diag_after': diag_after,
@@ -178,6 +184,26 @@ def _refit(prepared, current, fold_of, max_nfev, tick):
     return effect, rms, fits, g, states
 
 
+def effect_size(prepared, globals_, effect, states):
+    """RMS change of the modelled tracks when the effect's fitted parameters are switched
+    back off (to the base model's values), m. A held-out gain without a change of the tracks
+    is not the effect's (it is the optimiser's path), so it cannot select the effect."""
+    off = globals_.with_values(globals_.values.copy())
+    for p in effect.params:
+        off.values[off.names.index(p)] = off.default(p)
+    P_on, P_off, k = globals_.packed(), off.packed(), globals_.spin_scale
+    sq, n = 0.0, 0
+    for tr, x in zip(prepared, states, strict=True):
+        s0 = fitting.full_state(tr, x, k)
+        on = fitting.simulate(s0, P_on, tr.t, tr.n_bounces + 1)[:, :3]
+        s0 = fitting.full_state(tr, x, off.spin_scale)
+        diff = on - fitting.simulate(s0, P_off, tr.t, tr.n_bounces + 1)[:, :3]
+        diff = diff[np.all(np.isfinite(diff), axis=1)]
+        sq += float(np.sum(diff ** 2))
+        n += len(diff)
+    return float(np.sqrt(sq / max(n, 1)))
+
+
 def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
     """Add ``effect`` to the current fit, fit it on all tracks (its parameters start off),
     cross-validate. ``current`` = (_, held-out RMS, fold fits, globals, states).
@@ -191,6 +217,7 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
     rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev, tick)
     gain = 1.0 - rms / cur_rms
     penalty = PENALTY_PER_PARAM * len(effect.params)
+    size = effect_size(prepared, g, effect, e_states)
     fold_values = {p: [f[0].values[f[0].names.index(p)] for f in fits] for p in effect.params}
     entry = {
         'name': effect.name, 'mechanism': effect.mechanism, 'tested': True,
@@ -199,7 +226,8 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
         'heldout_rms_mm': round(1e3 * rms, 3),
         'heldout_gain': round(gain, 4),
         'penalty': penalty,
-        'pays': bool(gain > penalty),
+        'effect_size_mm': round(1e3 * size, 2),
+        'pays': bool(gain > penalty and size > MIN_EFFECT_SIZE),
     }
     return entry, (effect, rms, fits, g, e_states)
 

@@ -107,14 +107,15 @@ def markdown(r):
                       f"r = {reb['corr_impact_speed']}, with spin r = {reb['corr_spin']}."]
     lines += ['', '## Effects tested', '', r['selection_rule'] + '.', '',
               '| effect | round | fitted parameters (all tracks) | held-out gain | '
-              'penalty | pays |', '|---|---|---|---|---|---|']
+              'penalty | effect size mm | pays |', '|---|---|---|---|---|---|---|']
     for e in r['effects_tested']:
         if not e['tested']:
-            lines.append(f"| {e['name']} | – | not tested: {e['reason']} | – | – | – |")
+            lines.append(f"| {e['name']} | – | not tested: {e['reason']} | – | – | – | – |")
             continue
         params = ', '.join(f'{k} = {_fmt(v, 4)}' for k, v in e['params'].items())
         lines.append(f"| {e['name']} | {e['round']} | {params} | {100 * e['heldout_gain']:.1f} %"
-                     f" | {100 * e['penalty']:.0f} % | {'yes' if e['pays'] else 'no'} |")
+                     f" | {100 * e['penalty']:.0f} % | {e['effect_size_mm']:.1f} | "
+                     f"{'yes' if e['pays'] else 'no'} |")
     sel = r['selected_effects']
     lines += ['', '**Selected:** ' + (', '.join(sel) if sel else
                                      'none. No effect of the library pays for its parameters '
