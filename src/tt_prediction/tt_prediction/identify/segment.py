@@ -138,9 +138,9 @@ def segment(track, radius=0.02):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
     Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track;
-    a contact away from the table (racket, net: velocity jump over HIT_SPEED_CHANGE) ends
-    it; rolling ends it; a ball below the table surface ends it. Returns ``(track, bounces)``
-    or ``(None, reason)`` when too little is left.
+    a ball below the table surface ends it; a contact away from the table (racket, net: the
+    velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it.
+    Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left.
     """
     notes = dict(track.notes)
     t, p = drop_outliers(track.t, track.p, notes)
@@ -161,6 +161,8 @@ def segment(track, radius=0.02):
         if len(hits):
             _count(notes, 'samples_after_racket_contact', len(t) - hits[0] + 1)
             t, p = t[:hits[0] - 1], p[:hits[0] - 1]
+    if len(t) < 8:
+        return None, f'{len(t)} samples left after cleaning'
     bounces = []
     z = p[:, 2]
     minima = [i for i in range(1, len(t) - 1)
@@ -183,6 +185,7 @@ def segment(track, radius=0.02):
         t, p = t[:end], p[:end]
         bounces = [b for b in bounces if b.t < t[-1]]
     if len(t) < 8 or t[-1] - t[0] < MIN_DURATION:
-        return None, f'{len(t)} samples over {t[-1] - t[0]:.3f} s left after cleaning'
+        return None, f'{len(t)} samples over {np.ptp(t) if len(t) else 0.0:.3f} s left ' \
+                     'after cleaning'
     out = Track(track.name, t, p, track.spin, track.label, notes)
     return out, bounces
