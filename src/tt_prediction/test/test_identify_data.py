@@ -34,7 +34,10 @@ def _folder(tmp_path, files):
     ({'a.csv': 'time,x,y,z\n0,0,0,0.3\n0.01,0.1,0,0.3\n'}, 'a.csv: header must start'),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n0.01,abc,0,0.3\n'}, "a.csv: line 3, column 'x'"),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n'}, 'a.csv: 1 valid sample(s)'),
-], ids=['empty folder', 'wrong header', 'text in number', 'one sample'])
+    ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,-0.1\n' for i in range(20)),
+      'b.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,0.021\n' for i in range(20))},
+     '0 usable trajectory(ies) after cleaning (2 loaded)'),
+], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)
     out = tmp_path / 'out'
