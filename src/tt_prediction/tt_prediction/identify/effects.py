@@ -44,7 +44,7 @@ LIBRARY = (
     Effect('spin_measurement_bias', ('spin_scale',),
            'measured spin is off by a scale: w_true = (1 + spin_scale) w_measured',
            needs='spin'),
-    Effect('time_offset', ('time_offset',),
+    Effect('time_offset', (),
            'measurement time stamps lag the model clock by a constant'),
     Effect('gravity_or_scale', ('gravity',),
            'gravity, or equivalently a position-scale error of the calibration '
