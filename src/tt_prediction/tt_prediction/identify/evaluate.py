@@ -97,9 +97,10 @@ def predict_track(track, globals_, prior, hit_plane_x, window=PREDICT_WINDOW):
     if track.bounces and track.bounces[0].t > window:
         events, _ = rollout(s0, P, stop_at_plane=False, stop_at_net=False, max_bounces=1)
         b = track.bounces[0]
+        out['zone_true'] = zone_of(*b.p[:2])
+        out['zone_pred'] = (0, 0)                   # predicted to miss the table
         if events[-1].kind in ('bounce', 'roll'):
             out['bounce_err'] = float(np.linalg.norm(events[-1].state[:2] - b.p[:2]))
-            out['zone_true'] = zone_of(*b.p[:2])
             out['zone_pred'] = zone_of(*events[-1].state[:2])
     crossing = plane_crossing(track.t, track.p, hit_plane_x)
     if crossing is not None and crossing[0] > window:
