@@ -50,6 +50,10 @@ def main(argv=None):
     except (DataError, ValueError) as exc:
         print(f'tt-identify: {exc}', file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f'tt-identify: {exc.filename or args.out}: {exc.strerror or exc}',
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print('tt-identify: interrupted, nothing written', file=sys.stderr)
         return 130
