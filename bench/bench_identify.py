@@ -14,6 +14,7 @@ dependent restitution), where a second round runs; these two have no target.
 import time
 
 from tt_prediction.identify import pipeline
+from tt_prediction.identify.blas import blas_threads
 from tt_prediction.identify.synthetic import make_tracks
 from tt_prediction.params import ModelParams
 
@@ -26,8 +27,9 @@ def run():
     tracks = make_tracks(N_TRACKS, params, seed=7, spin_known=False)
     make_tracks(2, params, seed=8)          # compile the numba kernels outside the timing
     start = time.perf_counter()
-    prepared, _, notes = pipeline.prepare(tracks, params.radius)
-    globals_, _, paper = pipeline.fit_baseline(prepared, params, notes)
+    with blas_threads(1):           # as pipeline.identify does
+        prepared, _, notes = pipeline.prepare(tracks, params.radius)
+        globals_, _, paper = pipeline.fit_baseline(prepared, params, notes)
     identify_s = time.perf_counter() - start
     start = time.perf_counter()
     result = pipeline.identify(tracks, params, folds=5)

@@ -212,3 +212,15 @@ def test_loads_the_real_sets_format():
     tracks = load([folder])
     assert len(tracks) == 88
     assert all(tr.spin is None and math.isfinite(tr.t[-1]) for tr in tracks)
+
+
+def test_blas_threads_are_limited_inside_and_restored_after():
+    from tt_prediction.identify.blas import _loaded_openblas, blas_threads
+    np.ones(4) @ np.ones(4)                 # numpy's OpenBLAS is loaded by now
+    pairs = _loaded_openblas()
+    if not pairs:
+        pytest.skip('no OpenBLAS library in this process')
+    before = [get() for _, get in pairs]
+    with blas_threads(1):
+        assert [get() for _, get in pairs] == [1] * len(pairs)
+    assert [get() for _, get in pairs] == before

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..params import ModelParams
 from . import diagnose, evaluate, fitting
+from .blas import blas_threads
 from .data import DataError
 from .effects import LIBRARY, applicable
 from .segment import segment
@@ -90,7 +91,12 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
 
 def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nfev=20):
     """Run the whole identification; ``progress(total)`` returns a callable ticked per fold
-    fit (a progress bar), or None."""
+    fit (a progress bar), or None. OpenBLAS runs on one thread meanwhile (see blas.py)."""
+    with blas_threads(1):
+        return _identify(tracks, base, folds, hit_plane_x, progress, max_nfev)
+
+
+def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     base = base or ModelParams()
     prepared, dropped, notes = prepare(tracks, base.radius)
     if len(prepared) < 2:
