@@ -1,0 +1,158 @@
+"""``ros2 bag record | play | info`` on rclpy and rosbags (rosbag2's on-disk format)."""
+
+import sys
+import time
+
+from rclpy.duration import Duration
+
+from tt_tools.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
+from tt_tools.introspect import import_message_type
+from tt_tools.rosutil import CliNode, qos_from_bag, qos_matching, qos_to_bag
+
+
+def _say(text):
+    print(text, file=sys.stderr, flush=True)
+
+
+def bag_info(args):
+    reader = open_bag(args.bag)
+    try:
+        print(format_info(reader, args.bag), flush=True)
+    finally:
+        reader.close()
+    return 0
+
+
+def bag_record(args):
+    if not args.all and not args.topics:
+        raise BagError('give the topics to record, or -a for all')
+    wanted = {t if t.startswith('/') else '/' + t for t in args.topics}
+    out = args.output or default_bag_name()
+    with CliNode('bag_record') as cli:
+        own = cli.node.get_name()
+        writer = BagWriter(out, args.storage)
+        subscribed, skipped = {}, set()
+
+        def subscribe(topic):
+            pubs = [p for p in cli.node.get_publishers_info_by_topic(topic)
+                    if p.node_name != own]
+            if not pubs:
+                return
+            msgtype = pubs[0].topic_type
+            try:
+                cls = import_message_type(msgtype)
+                conn = writer.add_topic(topic, msgtype, [qos_to_bag(p.qos_profile) for p in pubs],
+                                        str(pubs[0].topic_type_hash))
+            except (ValueError, BagError) as exc:
+                skipped.add(topic)
+                _say(f"[WARN] not recording '{topic}': {exc}")
+                return
+            clock = cli.node.get_clock()
+
+            def on_message(data):
+                writer.write(conn, clock.now().nanoseconds, data)
+
+            subscribed[topic] = cli.node.create_subscription(
+                cls, topic, on_message, qos_matching(pubs, depth=args.qos_depth), raw=True)
+            _say(f"[INFO] Subscribed to topic '{topic}' ({msgtype})")
+
+        def discover():
+            # Called between spins: subscribe to wanted topics as their publishers appear.
+            topics = ([name for name, _ in cli.node.get_topic_names_and_types()]
+                      if args.all else wanted)
+            for topic in topics:
+                if topic not in subscribed and topic not in skipped:
+                    subscribe(topic)
+            return False
+
+        _say(f"[INFO] Recording to '{out}' ({args.storage}); Ctrl-C or SIGTERM stops")
+        try:
+            cli.spin_until(discover)
+        finally:
+            for sub in subscribed.values():
+                cli.node.destroy_subscription(sub)
+            writer.close()
+    _say(f"[INFO] Recorded {writer.count} messages to '{out}'")
+    return 0
+
+
+def _playable(reader, topics):
+    """Connections to replay (those of ``topics`` when given) and their message classes."""
+    conns = [c for c in reader.connections if not topics or c.topic in topics]
+    if topics and not conns:
+        raise BagError(f'none of the topics {" ".join(sorted(topics))} is in the bag')
+    classes = {}
+    for conn in conns:
+        try:
+            classes[conn.id] = import_message_type(conn.msgtype)
+        except ValueError as exc:
+            _say(f"[WARN] not playing '{conn.topic}': {exc}")
+    if conns and not classes:
+        raise BagError('no topic of the bag has a message type installed here')
+    return [c for c in conns if c.id in classes], classes
+
+
+def bag_play(args):
+    if args.rate <= 0:
+        raise BagError(f'--rate must be positive, got {args.rate}')
+    topics = {t if t.startswith('/') else '/' + t for t in args.topics or []}
+    reader = open_bag(args.bag)
+    try:
+        conns, classes = _playable(reader, topics)
+        with CliNode('bag_play') as cli:
+            pubs = {}
+            for conn in conns:
+                qos = qos_from_bag(conn.ext.offered_qos_profiles, depth=args.qos_depth)
+                pubs[conn.id] = cli.node.create_publisher(classes[conn.id], conn.topic, qos)
+            if args.wait_for_subscribers and not cli.spin_until(
+                    lambda: all(p.get_subscription_count() > 0 for p in pubs.values())):
+                return 0
+            if args.delay > 0 and not cli.spin_until(timeout=args.delay) and cli.stopped:
+                return 0
+            first = reader.start_time + int(args.start_offset * 1e9)
+            while not cli.stopped:
+                t0 = time.monotonic()
+                for conn, stamp, data in reader.messages(connections=conns, start=first):
+                    due = t0 + (stamp - first) / 1e9 / args.rate
+                    cli.sleep_until(due)
+                    if cli.stopped:
+                        break
+                    pubs[conn.id].publish(bytes(data))
+                if not args.loop:
+                    break
+            for pub in pubs.values():  # let reliable subscribers fetch the last messages
+                pub.wait_for_all_acked(Duration(seconds=1.0))
+    finally:
+        reader.close()
+    return 0
+
+
+def add_arguments(bag_sub):
+    """Register the bag verbs on an argparse sub-parser."""
+    p = bag_sub.add_parser('record', help='record topics into a rosbag2 bag')
+    p.add_argument('topics', nargs='*', help='topics to record')
+    p.add_argument('-a', '--all', action='store_true', help='record every topic')
+    p.add_argument('-o', '--output', help='bag directory (default rosbag2_<date>-<time>)')
+    p.add_argument('-s', '--storage', choices=sorted(STORAGES), default='mcap',
+                   help='storage format (default mcap)')
+    p.add_argument('--qos-depth', type=int, default=1000,
+                   help='subscription queue depth (default 1000)')
+    p.set_defaults(func=bag_record)
+
+    p = bag_sub.add_parser('play', help='replay a rosbag2 bag')
+    p.add_argument('bag', help='bag directory')
+    p.add_argument('-r', '--rate', type=float, default=1.0, help='playback speed factor')
+    p.add_argument('-l', '--loop', action='store_true', help='play again from the start')
+    p.add_argument('--topics', nargs='+', help='replay only these topics')
+    p.add_argument('--start-offset', type=float, default=0.0,
+                   help='start this many seconds after the beginning of the bag')
+    p.add_argument('-d', '--delay', type=float, default=0.0,
+                   help='wait this many seconds before playing')
+    p.add_argument('--wait-for-subscribers', action='store_true',
+                   help='(tt) wait until every topic has a matched subscription')
+    p.add_argument('--qos-depth', type=int, default=100, help='publisher queue depth')
+    p.set_defaults(func=bag_play)
+
+    p = bag_sub.add_parser('info', help='summary of a rosbag2 bag')
+    p.add_argument('bag', help='bag directory')
+    p.set_defaults(func=bag_info)

@@ -1,0 +1,240 @@
+"""Message introspection without rosidl_runtime_py: type strings, message <-> dict, YAML.
+
+Pure module (no rclpy): it needs only the generated Python message classes. A message becomes
+an insertion-ordered dict keyed by the names of ``get_fields_and_field_types()``; nested
+messages become nested dicts, fixed arrays and sequences become lists, ``builtin_interfaces``
+Time/Duration are ordinary nested messages (``sec``, ``nanosec``) as in ``ros2 topic echo``.
+"""
+
+import array
+import importlib
+
+import numpy as np
+from rosidl_parser.definition import (
+    AbstractNestedType,
+    AbstractString,
+    AbstractWString,
+    Array,
+    BasicType,
+    BoundedSequence,
+    NamespacedType,
+)
+import yaml
+
+_INTEGER_TYPES = {
+    'int8', 'uint8', 'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64', 'char', 'octet',
+}
+_FLOAT_TYPES = {'float', 'double', 'long double'}
+
+
+def split_type(type_str):
+    """``'pkg/msg/Type'`` or ``'pkg/Type'`` -> ``('pkg', 'msg', 'Type')``; ValueError if bad."""
+    parts = type_str.strip('/').split('/')
+    if len(parts) == 2:
+        parts.insert(1, 'msg')
+    if len(parts) != 3 or not all(p.isidentifier() for p in parts):
+        raise ValueError(f"bad message type '{type_str}': expected 'package/msg/Type'")
+    return tuple(parts)
+
+
+def import_message_type(type_str):
+    """The Python message class named by ``'pkg/msg/Type'`` (or ``'pkg/Type'``).
+
+    Raises ValueError with a one-line message when the package or type is unknown.
+    """
+    pkg, sub, name = split_type(type_str)
+    try:
+        module = importlib.import_module(f'{pkg}.{sub}')
+    except ImportError:
+        raise ValueError(f"unknown message package '{pkg}' (in type '{type_str}')") from None
+    cls = getattr(module, name, None)
+    if cls is None or not hasattr(cls, 'get_fields_and_field_types'):
+        raise ValueError(f"unknown message type '{type_str}'")
+    return cls
+
+
+def type_string(msg_or_cls):
+    """``'pkg/msg/Type'`` of a message instance or class."""
+    cls = msg_or_cls if isinstance(msg_or_cls, type) else type(msg_or_cls)
+    pkg, sub = cls.__module__.split('.')[:2]
+    return f'{pkg}/{sub}/{cls.__name__}'
+
+
+def _nested_class(slot_type):
+    return import_message_type('/'.join([*slot_type.namespaces, slot_type.name]))
+
+
+def _fields(msg):
+    """(name, rosidl slot type) pairs of a message, in declaration order."""
+    return zip(msg.get_fields_and_field_types(), msg.SLOT_TYPES, strict=True)
+
+
+def _value_to_plain(value, slot_type, truncate_length):
+    if isinstance(slot_type, NamespacedType):
+        return message_to_dict(value, truncate_length)
+    if isinstance(slot_type, AbstractNestedType):
+        items = list(value)
+        truncated = truncate_length is not None and len(items) > truncate_length
+        if truncated:
+            items = items[:truncate_length]
+        out = [_value_to_plain(v, slot_type.value_type, truncate_length) for v in items]
+        if truncated:
+            out.append('...')
+        return out
+    if isinstance(value, bytes):  # 'byte' fields
+        return value[0] if len(value) == 1 else list(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, str) and truncate_length is not None and len(value) > truncate_length:
+        return value[:truncate_length] + '...'
+    return value
+
+
+def message_to_dict(msg, truncate_length=None):
+    """Insertion-ordered dict of a message; lists for arrays/sequences, dicts for nested types.
+
+    ``truncate_length``: longer arrays and strings are cut and end in ``'...'`` (as echo does).
+    """
+    return {
+        name: _value_to_plain(getattr(msg, name), slot_type, truncate_length)
+        for name, slot_type in _fields(msg)
+    }
+
+
+def get_field(msg, path):
+    """The value at a dotted field path (``'position.x'``) of a message; KeyError if absent."""
+    value = msg
+    for part in path.split('.') if path else []:
+        if not hasattr(value, 'get_fields_and_field_types') or (
+            part not in value.get_fields_and_field_types()
+        ):
+            raise KeyError(f"no field '{path}' in {type_string(msg)}")
+        value = getattr(value, part)
+    return value
+
+
+def _convert_basic(value, slot_type, where):
+    kind = slot_type.typename if isinstance(slot_type, BasicType) else None
+    try:
+        if isinstance(slot_type, AbstractString | AbstractWString):
+            if not isinstance(value, str):
+                raise TypeError
+            return value
+        if kind == 'boolean':
+            if not isinstance(value, bool):
+                raise TypeError
+            return value
+        if kind == 'byte':
+            return bytes([int(value)]) if not isinstance(value, bytes) else value
+        if kind in _INTEGER_TYPES:
+            if isinstance(value, bool) or int(value) != value:
+                raise TypeError
+            return int(value)
+        if kind in _FLOAT_TYPES:
+            if isinstance(value, bool):
+                raise TypeError
+            return float(value)
+    except (TypeError, ValueError):
+        pass
+    raise ValueError(f"field '{where}': {value!r} is not a valid {kind or 'string'}")
+
+
+def _plain_to_value(value, slot_type, where, now):
+    if isinstance(slot_type, NamespacedType):
+        cls = _nested_class(slot_type)
+        is_time = type_string(cls) == 'builtin_interfaces/msg/Time'
+        if value == 'now' and now is not None and is_time:
+            return now()
+        if not isinstance(value, dict):
+            raise ValueError(f"field '{where}': expected a mapping for {type_string(cls)}")
+        return dict_to_message(value, cls, now, prefix=where + '.')
+    if isinstance(slot_type, AbstractNestedType):
+        if not isinstance(value, list | tuple):
+            raise ValueError(f"field '{where}': expected a list")
+        if isinstance(slot_type, Array) and len(value) != slot_type.size:
+            raise ValueError(
+                f"field '{where}': expected {slot_type.size} values, got {len(value)}")
+        if isinstance(slot_type, BoundedSequence) and len(value) > slot_type.maximum_size:
+            raise ValueError(f"field '{where}': at most {slot_type.maximum_size} values")
+        return [
+            _plain_to_value(v, slot_type.value_type, f'{where}[{i}]', now)
+            for i, v in enumerate(value)
+        ]
+    return _convert_basic(value, slot_type, where)
+
+
+def dict_to_message(values, cls, now=None, prefix=''):
+    """A new message of class ``cls`` with the fields given in ``values`` (others default).
+
+    ``now``: optional callable returning a ``builtin_interfaces/Time``, used where a Time field
+    is given as the string ``'now'``. Raises ValueError naming the first bad field.
+    """
+    msg = cls()
+    if values is None:
+        return msg
+    if not isinstance(values, dict):
+        raise ValueError(f'expected a mapping of fields for {type_string(cls)}, got {values!r}')
+    slots = dict(_fields(msg))
+    for name, value in values.items():
+        if name not in slots:
+            raise ValueError(f"{type_string(cls)} has no field '{prefix}{name}'")
+        setattr(msg, name, _plain_to_value(value, slots[name], prefix + name, now))
+    return msg
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+def _represent_float(dumper, value):
+    # Like ros2 topic echo: repr() of the float (1.0, 0.1, 1e-05), .nan / .inf for specials.
+    if value != value:
+        return dumper.represent_scalar('tag:yaml.org,2002:float', '.nan')
+    if value in (float('inf'), float('-inf')):
+        return dumper.represent_scalar('tag:yaml.org,2002:float', '.inf' if value > 0 else '-.inf')
+    return dumper.represent_scalar('tag:yaml.org,2002:float', repr(value))
+
+
+_Dumper.add_representer(float, _represent_float)
+
+
+def to_yaml(value):
+    """Block-style YAML of a plain value (dict in field order), as ``ros2 topic echo`` prints."""
+    return yaml.dump(value, Dumper=_Dumper, default_flow_style=False, sort_keys=False,
+                     allow_unicode=True, width=float('inf'))
+
+
+def message_to_yaml(msg, truncate_length=128, field=None):
+    """YAML text of a message (or of one dotted ``field`` of it), without the ``---`` line."""
+    if field:
+        value = get_field(msg, field)
+        plain = (message_to_dict(value, truncate_length)
+                 if hasattr(value, 'get_fields_and_field_types') else _plain_scalar(value))
+    else:
+        plain = message_to_dict(msg, truncate_length)
+    text = to_yaml(plain)
+    return text[:-len('...\n')] if text.endswith('\n...\n') else text
+
+
+def _plain_scalar(value):
+    if isinstance(value, np.ndarray | array.array | list | tuple):
+        return [_plain_scalar(v) for v in value]
+    if hasattr(value, 'get_fields_and_field_types'):
+        return message_to_dict(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def parse_yaml_values(text):
+    """Parse the YAML (or JSON) field values given on a command line; ValueError if invalid."""
+    try:
+        values = yaml.safe_load(text) if text and text.strip() else {}
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0]
+        raise ValueError(f'invalid YAML for the message: {first}') from None
+    if values is None:
+        return {}
+    if not isinstance(values, dict):
+        raise ValueError(f"message values must be a YAML mapping like '{{x: 1.0}}', got {text!r}")
+    return values

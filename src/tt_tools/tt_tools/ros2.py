@@ -1,0 +1,80 @@
+"""tt's ``ros2`` command: run, topic, node and bag verbs where ros2cli is not installed.
+
+Where a real ros2cli is importable, ``main`` hands the whole command line to it (set
+``TT_ROS2_NO_HANDOVER=1`` to keep tt's own). Errors are one line on stderr and exit 1.
+"""
+
+import argparse
+import importlib
+import importlib.util
+import os
+import sys
+
+HANDOVER_ENV = 'TT_ROS2_NO_HANDOVER'
+
+
+def real_ros2cli_main():
+    """ros2cli's ``main`` when a real ros2cli is importable (and handover allowed), else None."""
+    if os.environ.get(HANDOVER_ENV, '') not in ('', '0'):
+        return None
+    if importlib.util.find_spec('ros2cli') is None:
+        return None
+    return importlib.import_module('ros2cli.cli').main
+
+
+def build_parser():
+    from tt_tools import bag, topic
+
+    parser = argparse.ArgumentParser(
+        prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, bag)")
+    verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
+
+    p = verbs.add_parser('run', help='run an executable of a package')
+    p.add_argument('--prefix', help="prefix command, e.g. 'gdb -ex run --args'")
+    p.add_argument('package')
+    p.add_argument('executable')
+    p.add_argument('argv', nargs=argparse.REMAINDER,
+                   help='arguments for the executable (including --ros-args ...)')
+    p.set_defaults(func=_run)
+
+    p = verbs.add_parser('topic', help='inspect and publish topics')
+    topic_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
+    p = verbs.add_parser('node', help='inspect nodes')
+    node_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
+    topic.add_arguments(topic_sub, node_sub)
+
+    p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
+    bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
+    return parser
+
+
+def _run(args):
+    from tt_tools import run
+
+    run.main(args)  # only returns on error (exec replaces the process)
+    return 1
+
+
+def main(argv=None):
+    """Entry point of the ``ros2`` console script; returns the exit code."""
+    real = real_ros2cli_main()
+    if real is not None:
+        return real()
+    from tt_tools.bag import BagError
+    from tt_tools.run import RunError
+    from tt_tools.topic import TopicError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (RunError, TopicError, BagError, ValueError, OSError) as exc:
+        print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
+    except KeyError as exc:  # an unknown message field
+        print(f'ros2 {args.verb}: {exc.args[0]}', file=sys.stderr)
+    except KeyboardInterrupt:
+        return 0
+    return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

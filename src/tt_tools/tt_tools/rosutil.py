@@ -1,0 +1,157 @@
+"""ROS glue shared by the ``ros2`` verbs: a short-lived node with clean SIGINT/SIGTERM, QoS."""
+
+import os
+import signal
+import time
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.signals import SignalHandlerOptions
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+
+RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
+               'best_effort': ReliabilityPolicy.BEST_EFFORT,
+               'system_default': ReliabilityPolicy.SYSTEM_DEFAULT}
+DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
+              'transient_local': DurabilityPolicy.TRANSIENT_LOCAL,
+              'system_default': DurabilityPolicy.SYSTEM_DEFAULT}
+
+
+class CliNode:
+    """A hidden node in its own context; SIGINT/SIGTERM set ``stopped`` instead of raising.
+
+    Use as a context manager; ``spin_until(condition)`` spins in 0.1 s steps, so a signal is
+    noticed between callbacks (never inside one: a bag being written stays consistent).
+    """
+
+    def __init__(self, name):
+        self.stopped = False
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(f'_ros2cli_{name}_{os.getpid()}', context=self.context,
+                                      start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def _on_signal(self, signum, frame):
+        self.stopped = True
+
+    def spin_until(self, condition=lambda: False, timeout=None, step=0.1):
+        """Spin until ``condition()`` is true (True), or a signal or ``timeout`` s (False)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self.stopped:
+            if condition():
+                return True
+            left = step if deadline is None else min(step, deadline - time.monotonic())
+            if left <= 0:
+                return False
+            self.executor.spin_once(timeout_sec=left)
+        return False
+
+    def sleep_until(self, when):
+        """Spin until ``time.monotonic()`` reaches ``when``; False if a signal came first."""
+        while not self.stopped:
+            left = when - time.monotonic()
+            if left <= 0:
+                return True
+            self.executor.spin_once(timeout_sec=min(left, 0.1))
+        return False
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def topic_type(node, topic):
+    """The type string of ``topic`` in the graph ('pkg/msg/Type'), or None if not seen yet."""
+    for name, types in node.get_topic_names_and_types():
+        if name == topic and types:
+            return types[0]
+    return None
+
+
+def qos_matching(publishers, reliability=None, durability=None, depth=10):
+    """A subscription QoS that matches every publisher in ``publishers`` (endpoint infos).
+
+    Reliable only if all publishers offer reliable, transient-local only if all do (what
+    ros2cli and rosbag2 choose); ``reliability`` / ``durability`` names override.
+    """
+    offered = [p.qos_profile for p in publishers]
+    if reliability is None:
+        rel = (ReliabilityPolicy.RELIABLE
+               if offered and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+               else ReliabilityPolicy.BEST_EFFORT)
+    else:
+        rel = RELIABILITY[reliability]
+    if durability is None:
+        dur = (DurabilityPolicy.TRANSIENT_LOCAL
+               if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                  for q in offered)
+               else DurabilityPolicy.VOLATILE)
+    else:
+        dur = DURABILITY[durability]
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
+                      durability=dur)
+
+
+def _qos_time(duration):
+    ns = duration.nanoseconds
+    return QosTime(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def qos_to_bag(profile):
+    """rclpy QoSProfile -> rosbags Qos (the offered_qos_profiles entry of metadata.yaml)."""
+    return Qos(
+        history=QosHistory(int(profile.history)),
+        depth=int(profile.depth),
+        reliability=QosReliability(int(profile.reliability)),
+        durability=QosDurability(int(profile.durability)),
+        deadline=_qos_time(profile.deadline),
+        lifespan=_qos_time(profile.lifespan),
+        liveliness=QosLiveliness(int(profile.liveliness)),
+        liveliness_lease_duration=_qos_time(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
+def qos_from_bag(profiles, depth=100):
+    """Publisher QoS for replaying a topic recorded with ``profiles`` (rosbags Qos list).
+
+    Reliability and durability are kept (best-effort if any recorded publisher offered it,
+    transient-local only if every one did; reliable when the bag has no profiles); deadline,
+    lifespan and liveliness are left at the defaults.
+    """
+    rel_ok = not profiles or all(q.reliability == QosReliability.RELIABLE for q in profiles)
+    dur_ok = bool(profiles) and all(
+        q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if rel_ok else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if dur_ok else DurabilityPolicy.VOLATILE,
+        liveliness=LivelinessPolicy.AUTOMATIC, lifespan=Duration(),
+    )

@@ -1,0 +1,55 @@
+"""``ros2 run <package> <executable> [args...]``: find it through the ament index, exec it."""
+
+import os
+
+
+class RunError(Exception):
+    """A package or executable that cannot be run (one-line message)."""
+
+
+def package_prefix(package, ament_prefix_path=None):
+    """The install prefix holding ``package`` in the ament index, or None when unknown.
+
+    ``ament_prefix_path``: the search path (default: ``$AMENT_PREFIX_PATH``), ``os.pathsep``
+    separated; the first prefix registering the package wins, as in ament_index_python.
+    """
+    search = os.environ.get('AMENT_PREFIX_PATH', '') if ament_prefix_path is None else (
+        ament_prefix_path)
+    for prefix in filter(None, search.split(os.pathsep)):
+        marker = os.path.join(prefix, 'share', 'ament_index', 'resource_index', 'packages',
+                              package)
+        if os.path.isfile(marker):
+            return prefix
+    return None
+
+
+def executables(package, ament_prefix_path=None):
+    """Sorted names of the executables installed in ``<prefix>/lib/<package>``."""
+    prefix = package_prefix(package, ament_prefix_path)
+    if prefix is None:
+        raise RunError(f"Package '{package}' not found")
+    libdir = os.path.join(prefix, 'lib', package)
+    if not os.path.isdir(libdir):
+        return []
+    return sorted(name for name in os.listdir(libdir)
+                  if os.path.isfile(os.path.join(libdir, name))
+                  and os.access(os.path.join(libdir, name), os.X_OK))
+
+
+def find_executable(package, executable, ament_prefix_path=None):
+    """Absolute path of ``executable`` of ``package``; RunError with a one-line reason."""
+    prefix = package_prefix(package, ament_prefix_path)
+    if prefix is None:
+        raise RunError(f"Package '{package}' not found")
+    if executable not in executables(package, ament_prefix_path):
+        raise RunError(f"No executable '{executable}' found in package '{package}'")
+    return os.path.join(prefix, 'lib', package, executable)
+
+
+def main(args):
+    """Replace this process with the executable (signals then reach it directly)."""
+    path = find_executable(args.package, args.executable)
+    argv = [path, *args.argv]
+    if args.prefix:
+        argv = [*args.prefix.split(), *argv]
+    os.execvp(argv[0], argv)

@@ -1,0 +1,259 @@
+"""``ros2 topic list | echo | hz | info | pub`` and ``ros2 node list`` on rclpy."""
+
+import collections
+import sys
+import time
+
+from rclpy.duration import Duration
+from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.serialization import deserialize_message
+
+from tt_tools.introspect import (
+    dict_to_message,
+    get_field,
+    import_message_type,
+    message_to_yaml,
+    parse_yaml_values,
+)
+from tt_tools.rate import format_stats, rate_stats
+from tt_tools.rosutil import DURABILITY, RELIABILITY, CliNode, qos_matching, topic_type
+
+
+class TopicError(Exception):
+    """A bad topic request (one-line message)."""
+
+
+def _full_name(topic):
+    return topic if topic.startswith('/') else '/' + topic
+
+
+def _write(text):
+    """Write to stdout now; False when the reader has gone (``| head``)."""
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return True
+    except BrokenPipeError:
+        return False
+
+
+def _wait_for_publishers(cli, topic, type_str):
+    """Spin until ``topic`` has a publisher; return (message class, publisher infos) or None."""
+    state = {}
+
+    def found():
+        pubs = cli.node.get_publishers_info_by_topic(topic)
+        if pubs:
+            state['pubs'] = pubs
+            state['type'] = type_str or topic_type(cli.node, topic) or pubs[0].topic_type
+        return bool(pubs)
+
+    if not cli.spin_until(found):
+        return None
+    return import_message_type(state['type']), state['pubs']
+
+
+def topic_list(args):
+    with CliNode('topic_list') as cli:
+        cli.spin_until(timeout=args.spin_time)
+        for name, types in sorted(cli.node.get_topic_names_and_types()):
+            _write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+    return 0
+
+
+def node_list(args):
+    with CliNode('node_list') as cli:
+        cli.spin_until(timeout=args.spin_time)
+        names = []
+        for name, ns in cli.node.get_node_names_and_namespaces():
+            if name.startswith('_') and not args.all:
+                continue
+            names.append(f'{ns.rstrip("/")}/{name}')
+    for name in sorted(set(names)):
+        _write(name + '\n')
+    return 0
+
+
+def topic_info(args):
+    topic = _full_name(args.topic)
+    with CliNode('topic_info') as cli:
+        cli.spin_until(lambda: topic_type(cli.node, topic) is not None, timeout=args.spin_time)
+        type_str = topic_type(cli.node, topic)
+        if type_str is None:
+            raise TopicError(f"Unknown topic '{topic}'")
+        pubs = cli.node.get_publishers_info_by_topic(topic)
+        subs = [s for s in cli.node.get_subscriptions_info_by_topic(topic)
+                if s.node_name != cli.node.get_name()]
+    lines = [f'Type: {type_str}']
+    for label, infos in (('Publisher', pubs), ('Subscription', subs)):
+        lines.append(('\n' if args.verbose else '') + f'{label} count: {len(infos)}')
+        if args.verbose:
+            lines.extend('\n' + str(info) for info in infos)
+    _write('\n'.join(lines) + '\n')
+    return 0
+
+
+def topic_echo(args):
+    topic = _full_name(args.topic)
+    if args.type:
+        import_message_type(args.type)  # a bad type fails before any waiting
+    with CliNode('echo') as cli:
+        found = _wait_for_publishers(cli, topic, args.type)
+        if found is None:  # interrupted while waiting: a clean exit
+            return 0
+        cls, pubs = found
+        if args.field:
+            get_field(cls(), args.field)
+        qos = qos_matching(pubs, args.qos_reliability, args.qos_durability, args.qos_depth)
+        state = {'count': 0, 'done': False}
+
+        def on_message(data):
+            if state['done']:
+                return
+            msg = deserialize_message(data, cls)
+            text = message_to_yaml(msg, None if args.full_length else args.truncate_length,
+                                   args.field)
+            state['count'] += 1
+            state['done'] = not _write(text + '---\n') or (
+                args.once or (args.times and state['count'] >= args.times))
+
+        cli.node.create_subscription(cls, topic, on_message, qos, raw=True)
+        cli.spin_until(lambda: state['done'])
+    return 0
+
+
+def topic_hz(args):
+    topic = _full_name(args.topic)
+    with CliNode('hz') as cli:
+        found = _wait_for_publishers(cli, topic, args.type)
+        if found is None:
+            return 0
+        cls, pubs = found
+        arrivals = collections.deque(maxlen=args.window)
+        state = {'new': False, 'next': time.monotonic() + 1.0}
+
+        def on_message(_data):
+            arrivals.append(time.monotonic())
+            state['new'] = True
+
+        def report_due():
+            return time.monotonic() >= state['next']
+
+        cli.node.create_subscription(cls, topic, on_message,
+                                     qos_matching(pubs, depth=args.window), raw=True)
+        while cli.spin_until(report_due):
+            state['next'] += 1.0
+            stats = rate_stats(list(arrivals))
+            if state['new'] and stats is not None:
+                if not _write(format_stats(stats) + '\n'):
+                    break
+            state['new'] = False
+    return 0
+
+
+def topic_pub(args):
+    topic = _full_name(args.topic)
+    cls = import_message_type(args.type)
+    values = parse_yaml_values(args.values)
+    times = 1 if args.once else args.times
+    wait_subs = args.wait_matching_subscriptions
+    if wait_subs is None:
+        wait_subs = 1 if times else 0
+    with CliNode('pub') as cli:
+        def build():
+            return dict_to_message(values, cls, now=lambda: cli.node.get_clock().now().to_msg())
+
+        build()  # a bad value fails before anything is published
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=args.qos_depth,
+                         reliability=RELIABILITY[args.qos_reliability],
+                         durability=DURABILITY[args.qos_durability])
+        pub = cli.node.create_publisher(cls, topic, qos)
+        if not cli.spin_until(lambda: pub.get_subscription_count() >= wait_subs):
+            return 0
+        _write('publisher: beginning loop\n')
+        state = {'count': 0}
+
+        def tick():
+            msg = build()
+            pub.publish(msg)
+            state['count'] += 1
+            _write(f'publishing #{state["count"]}: {msg}\n\n')
+
+        period = 1.0 / args.rate if args.rate > 0 else None
+        tick()
+        if period is not None:
+            cli.node.create_timer(period, tick)
+        cli.spin_until(lambda: bool(times) and state['count'] >= times)
+        if times and args.qos_reliability == 'reliable':
+            pub.wait_for_all_acked(Duration(seconds=args.keep_alive))
+    return 0
+
+
+def add_arguments(topic_sub, node_sub):
+    """Register the topic and node verbs on argparse sub-parsers."""
+    def qos_args(p, reliability_default=None, durability_default=None):
+        p.add_argument('--qos-reliability', choices=sorted(RELIABILITY),
+                       default=reliability_default,
+                       help='QoS reliability (default: match the publishers)'
+                       if reliability_default is None else 'QoS reliability')
+        p.add_argument('--qos-durability', choices=sorted(DURABILITY),
+                       default=durability_default,
+                       help='QoS durability (default: match the publishers)'
+                       if durability_default is None else 'QoS durability')
+        p.add_argument('--qos-depth', type=int, default=10, help='QoS history depth')
+
+    def spin_arg(p):
+        p.add_argument('--spin-time', type=float, default=1.0,
+                       help='seconds to wait for discovery (default 1.0)')
+
+    p = topic_sub.add_parser('list', help='list the topics in the graph')
+    p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
+    spin_arg(p)
+    p.set_defaults(func=topic_list)
+
+    p = topic_sub.add_parser('info', help='type and endpoints of a topic')
+    p.add_argument('topic')
+    p.add_argument('-v', '--verbose', action='store_true', help='print every endpoint and QoS')
+    spin_arg(p)
+    p.set_defaults(func=topic_info)
+
+    p = topic_sub.add_parser('echo', help='print the messages of a topic as YAML')
+    p.add_argument('topic')
+    p.add_argument('type', nargs='?', help="message type 'pkg/msg/Type' (default: from graph)")
+    p.add_argument('--once', action='store_true', help='print one message and exit')
+    p.add_argument('--times', type=int, default=0, help='print N messages and exit')
+    p.add_argument('--field', help="print only this dotted field, e.g. 'position.x'")
+    p.add_argument('--truncate-length', type=int, default=128,
+                   help='cut arrays and strings longer than this (default 128)')
+    p.add_argument('--full-length', action='store_true', help='never cut arrays or strings')
+    qos_args(p)
+    p.set_defaults(func=topic_echo)
+
+    p = topic_sub.add_parser('hz', help='print the average publishing rate of a topic')
+    p.add_argument('topic')
+    p.add_argument('type', nargs='?', help='message type (default: from graph)')
+    p.add_argument('--window', '-w', type=int, default=10000,
+                   help='number of messages in the rolling window (default 10000)')
+    p.set_defaults(func=topic_hz)
+
+    p = topic_sub.add_parser('pub', help='publish a message given as YAML')
+    p.add_argument('topic')
+    p.add_argument('type', help="message type 'pkg/msg/Type'")
+    p.add_argument('values', nargs='?', default='{}',
+                   help="field values as YAML, e.g. '{position: {x: 1.0}}' "
+                        "(a Time field may be 'now')")
+    p.add_argument('-r', '--rate', type=float, default=1.0, help='publishing rate, Hz')
+    p.add_argument('-1', '--once', action='store_true', help='publish one message and exit')
+    p.add_argument('-t', '--times', type=int, default=0, help='publish N messages and exit')
+    p.add_argument('-w', '--wait-matching-subscriptions', type=int, default=None,
+                   help='wait for N matching subscriptions first (default 1 with --once or '
+                        '--times, else 0)')
+    p.add_argument('--keep-alive', type=float, default=1.0,
+                   help='with --once/--times, wait up to this long (s) for delivery')
+    qos_args(p, 'reliable', 'volatile')
+    p.set_defaults(func=topic_pub)
+
+    p = node_sub.add_parser('list', help='list the nodes in the graph')
+    p.add_argument('-a', '--all', action='store_true', help='also hidden nodes')
+    spin_arg(p)
+    p.set_defaults(func=node_list)
