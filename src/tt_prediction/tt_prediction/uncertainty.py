@@ -1,0 +1,140 @@
+"""Uncertainty of a prediction from the state covariance: zone probabilities, hit covariance.
+
+The 9x9 covariance of (p, v, w) is propagated through the (non-linear, event-driven) flight
+by the unscented transform: 2n + 1 = 19 sigma points (n = 9) at the mean and at
+mean +- sqrt(n + kappa) times the columns of a square root of the covariance, with kappa = 1,
+so every weight is positive (1/10 at the mean, 1/20 elsewhere) and the points may be read as
+a small weighted ensemble. All 19 go through one compiled batch call.
+
+- Hit point: weighted mean and 3x3 covariance of the plane crossings of the points whose
+  status is ok, and the standard deviation of the hit time. ``hit_fraction`` is the weight of
+  those points (1: every point reaches the plane after one bounce).
+- Zone probabilities: the first table contacts on the half where most weight lands give the
+  mean and 2x2 covariance of the contact point; the probability of each of the 9 areas is
+  that Gaussian's mass in the area (1024 fixed standard-normal draws, so the result is smooth
+  in the state and deterministic), times the weight of the points with a contact on that half.
+  Index 0 is the rest: off the table, no contact, or a contact on the other half.
+
+Sigma points under the table's surface are lifted on to it (the state estimate cannot put
+the ball inside the table); their spin is not limited, as a large spin variance only means
+the spin is not observed yet (BallState).
+"""
+
+import dataclasses
+
+import numpy as np
+
+from .params import ModelParams
+from .predict import DEFAULT_HIT_PLANE_X, OK, predict_batch
+from .table import HALF_LENGTH, HALF_WIDTH, ZONE_LENGTH, ZONE_WIDTH
+
+N_STATE = 9
+KAPPA = 1.0
+"""Unscented-transform spread: points at sqrt(9 + 1) = 3.16 standard deviations."""
+N_DRAWS = 1024
+_DRAWS = np.random.default_rng(20240601).standard_normal((N_DRAWS, 2))
+
+
+@dataclasses.dataclass
+class Uncertainty:
+    """Result of :func:`predict_uncertainty`.
+
+    zone_probabilities (10,): index 0 off the table / no contact, 1..9 the areas of
+    ``zone_half`` (+1 opponent, -1 robot); hit_covariance (3, 3) m^2 (zeros when no point
+    hits); hit_time_std s; hit_fraction the sigma-point weight that reaches the plane.
+    """
+
+    zone_probabilities: np.ndarray
+    zone_half: int
+    hit_covariance: np.ndarray
+    hit_time_std: float
+    hit_fraction: float
+
+
+def sigma_points(mean, cov, kappa=KAPPA):
+    """Unscented sigma points (2n+1, n) and weights (2n+1,) of N(mean, cov).
+
+    The square root is the symmetric one (eigen-decomposition), which copes with singular
+    covariances (unobserved or exactly known components). Raises ValueError for a covariance
+    that is not finite, not square, or clearly not positive semi-definite.
+    """
+    mean = np.asarray(mean, dtype=float)
+    n = mean.shape[0]
+    cov = np.asarray(cov, dtype=float).reshape(n, n)
+    if not np.all(np.isfinite(cov)):
+        raise ValueError('covariance is not finite')
+    cov = 0.5 * (cov + cov.T)
+    eigval, eigvec = np.linalg.eigh(cov)
+    scale = max(float(np.abs(eigval).max()), 1e-300)
+    if eigval.min() < -1e-9 * scale:
+        raise ValueError(f'covariance is not positive semi-definite (eigenvalue '
+                         f'{eigval.min():.3g})')
+    root = eigvec * np.sqrt(np.clip(eigval, 0.0, None) * (n + kappa))
+    points = np.empty((2 * n + 1, n))
+    points[0] = mean
+    points[1:n + 1] = mean + root.T
+    points[n + 1:] = mean - root.T
+    weights = np.full(2 * n + 1, 0.5 / (n + kappa))
+    weights[0] = kappa / (n + kappa)
+    return points, weights
+
+
+def zone_probabilities_gaussian(mean_xy, cov_xy, half):
+    """Probability of areas 0..9 on ``half`` for a contact point ~ N(mean_xy, cov_xy), (10,)."""
+    eigval, eigvec = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
+    root = eigvec * np.sqrt(np.clip(eigval, 0.0, None))
+    xy = mean_xy + _DRAWS @ root.T
+    x, y = xy[:, 0], xy[:, 1]
+    on = (half * x >= 0.0) & (half * x <= HALF_LENGTH) & (np.abs(y) <= HALF_WIDTH)
+    row = np.minimum((np.abs(x) / ZONE_LENGTH).astype(int), 2)
+    col = np.clip(((HALF_WIDTH - y) / ZONE_WIDTH).astype(int), 0, 2)
+    zone = np.where(on, 3 * row + col + 1, 0)
+    return np.bincount(zone, minlength=10) / N_DRAWS
+
+
+def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
+                        bounced=False, outgoing=False):
+    """Zone probabilities and hit-point covariance of a ball ~ N(state9, cov) at time t0.
+
+    ``cov`` (9, 9) or 81 numbers row-major, SI units (BallState.covariance). ``outgoing``:
+    the landing of a ball leaving the racket (zone probabilities on the opponent's half;
+    no hit). Raises ValueError for a bad covariance.
+    """
+    params = ModelParams() if params is None else params
+    radius = params.radius if isinstance(params, ModelParams) else float(params[1])
+    points, weights = sigma_points(state9, cov)
+    over = (np.abs(points[:, 0]) <= HALF_LENGTH) & (np.abs(points[:, 1]) <= HALF_WIDTH)
+    points[:, 2] = np.where(over, np.maximum(points[:, 2], radius), points[:, 2])
+    batch = predict_batch(points, params, t0, hit_plane_x, bounced=bounced, outgoing=outgoing,
+                          parallel=False, validate=False)
+    # Hit point.
+    hit = batch.status == OK if not outgoing else np.zeros(len(weights), dtype=bool)
+    hit_fraction = float(weights[hit].sum())
+    hit_cov = np.zeros((3, 3))
+    hit_time_std = 0.0
+    if hit.sum() >= 2:
+        w = weights[hit] / hit_fraction
+        p = batch.hit_p[hit]
+        dp = p - w @ p
+        hit_cov = (w[:, None] * dp).T @ dp
+        t = batch.hit_t[hit]
+        hit_time_std = float(np.sqrt(w @ (t - w @ t) ** 2))
+    # Zone probabilities on the half where most weight makes contact.
+    contact = batch.bounce_half != 0
+    probs = np.zeros(10)
+    half = 1 if outgoing else -1
+    if contact.any():
+        w_pos = weights[contact & (batch.bounce_half > 0)].sum()
+        w_neg = weights[contact & (batch.bounce_half < 0)].sum()
+        if w_pos != w_neg:
+            half = 1 if w_pos > w_neg else -1
+        on_half = contact & (batch.bounce_half == half)
+        w_half = float(weights[on_half].sum())
+        if w_half > 0.0:
+            w = weights[on_half] / w_half
+            xy = batch.bounce_p[on_half, :2]
+            mean = w @ xy
+            d = xy - mean
+            probs = w_half * zone_probabilities_gaussian(mean, (w[:, None] * d).T @ d, half)
+    probs[0] = max(0.0, 1.0 - probs[1:].sum())
+    return Uncertainty(probs, half, hit_cov, hit_time_std, hit_fraction)
