@@ -1,0 +1,260 @@
+"""Calibrated pinhole cameras and the rig file (DESIGN.md, "Data formats").
+
+A camera maps a point X (m, ``table`` frame) to its optical frame by X_cam = R X + t (z
+forward, x right, y down) and then to pixels by the pinhole matrix K and OpenCV's
+plumb-bob distortion (k1, k2, p1, p2, k3). Intrinsics come from the ROS camera_info YAML (the
+format ``camera_calibration`` writes); the rig file gives each camera's pose and source.
+Every loading error is a :class:`CalibrationError` with a one-line message naming the file
+and the field.
+"""
+
+import dataclasses
+import os
+
+import cv2
+import numpy as np
+import yaml
+
+# OpenCV 5 takes the criteria in undistortPoints; OpenCV 4 has them in undistortPointsIter.
+_undistort = getattr(cv2, 'undistortPointsIter', cv2.undistortPoints)
+_EYE = np.eye(3)
+
+
+class CalibrationError(ValueError):
+    """A camera_info or rig file that is missing, unreadable or inconsistent."""
+
+
+UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)
+"""Iteration criteria of the undistortion: at most 20 iterations or a step below 1e-9."""
+
+
+@dataclasses.dataclass
+class Camera:
+    """One calibrated camera: intrinsics, distortion and pose in the ``table`` frame."""
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    """3x3 camera matrix, pixels."""
+    dist: np.ndarray
+    """Distortion coefficients (k1, k2, p1, p2, k3), plumb-bob model."""
+    R: np.ndarray
+    """3x3 rotation, table -> optical frame."""
+    t: np.ndarray
+    """Translation (3,), m: X_cam = R X_table + t."""
+    source: str = ''
+    time_offset: float | None = None
+    """This camera's clock minus camera 0's, s (None: unknown)."""
+
+    def __post_init__(self):
+        self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
+        self.dist = np.asarray(self.dist, dtype=float).ravel()
+        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=float).ravel()
+        self._rvec = cv2.Rodrigues(self.R)[0]
+        self.P = self.K @ np.hstack([self.R, self.t[:, None]])
+        """3x4 projection matrix of the undistorted image."""
+        self.centre = -self.R.T @ self.t
+        """Optical centre in the table frame, m."""
+
+    @property
+    def focal(self):
+        """Mean focal length, pixels."""
+        return 0.5 * (self.K[0, 0] + self.K[1, 1])
+
+    def to_camera(self, points):
+        """Table-frame points (n, 3) -> optical-frame points (n, 3), m."""
+        return np.atleast_2d(points) @ self.R.T + self.t
+
+    def project(self, points):
+        """Table-frame points (n, 3), m -> distorted pixel coordinates (n, 2)."""
+        pts = np.ascontiguousarray(np.atleast_2d(points), dtype=float).reshape(-1, 1, 3)
+        px, _ = cv2.projectPoints(pts, self._rvec, self.t, self.K, self.dist)
+        return px.reshape(-1, 2)
+
+    def normalise(self, pixels):
+        """Distorted pixels (n, 2) -> undistorted normalised coordinates (n, 2) (x/z, y/z).
+
+        Uses OpenCV's iterative ``undistortPoints`` with the explicit
+        :data:`UNDISTORT_CRITERIA` (``undistortPointsIter`` in OpenCV 4).
+        """
+        pts = np.ascontiguousarray(np.atleast_2d(pixels), dtype=float).reshape(-1, 1, 2)
+        out = _undistort(pts, self.K, self.dist, R=_EYE, P=_EYE, criteria=UNDISTORT_CRITERIA)
+        return out.reshape(-1, 2)
+
+    def in_front(self, points):
+        """True where the table-frame points (n, 3) lie in front of the camera."""
+        return self.to_camera(points)[:, 2] > 1e-3
+
+
+def _read_yaml(path, what):
+    if not os.path.isfile(path):
+        raise CalibrationError(f'{what} {path}: no such file')
+    try:
+        with open(path, encoding='utf-8') as f:
+            data = yaml.safe_load(f)
+    except (OSError, yaml.YAMLError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CalibrationError(f'{what} {path}: not readable YAML ({first})') from None
+    if not isinstance(data, dict):
+        raise CalibrationError(f'{what} {path}: expected a mapping at the top level')
+    return data
+
+
+def _matrix(data, key, rows, cols, path):
+    entry = data.get(key)
+    values = entry.get('data') if isinstance(entry, dict) else entry
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise CalibrationError(f'camera_info {path}: {key} is not a list of numbers') from None
+    if array.size != rows * cols:
+        raise CalibrationError(
+            f'camera_info {path}: {key} needs {rows * cols} numbers, has {array.size}')
+    if not np.all(np.isfinite(array)):
+        raise CalibrationError(f'camera_info {path}: {key} has a non-finite number')
+    return array.reshape(rows, cols)
+
+
+def load_camera_info(path):
+    """Read a ROS camera_info YAML -> dict(width, height, K (3,3), dist (5,), name).
+
+    Raises :class:`CalibrationError` (one line) when the file is missing or inconsistent.
+    """
+    data = _read_yaml(path, 'camera_info')
+    try:
+        width, height = int(data['image_width']), int(data['image_height'])
+    except (KeyError, TypeError, ValueError):
+        raise CalibrationError(
+            f'camera_info {path}: image_width/image_height missing or not integers') from None
+    if width <= 0 or height <= 0:
+        raise CalibrationError(f'camera_info {path}: image size {width}x{height} not positive')
+    K = _matrix(data, 'camera_matrix', 3, 3, path)
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1.0 or np.any(K[2, :2] != 0):
+        raise CalibrationError(f'camera_info {path}: camera_matrix is not a pinhole matrix '
+                               '(fx, fy > 0, last row 0 0 1)')
+    model = data.get('distortion_model', 'plumb_bob')
+    if model not in ('plumb_bob', 'rational_polynomial'):
+        raise CalibrationError(f'camera_info {path}: distortion_model {model!r} not supported '
+                               '(plumb_bob or rational_polynomial)')
+    entry = data.get('distortion_coefficients', {'data': [0.0] * 5})
+    dist = np.asarray(entry.get('data') if isinstance(entry, dict) else entry, dtype=float)
+    if dist.size not in (4, 5, 8) or not np.all(np.isfinite(dist)):
+        raise CalibrationError(f'camera_info {path}: distortion_coefficients needs 5 numbers')
+    return {'width': width, 'height': height, 'K': K, 'dist': dist,
+            'name': str(data.get('camera_name', ''))}
+
+
+def save_camera_info(path, name, width, height, K, dist):
+    """Write a ROS camera_info YAML (the layout ``camera_calibration`` writes)."""
+    K = np.asarray(K, dtype=float)
+    P = np.hstack([K, np.zeros((3, 1))])
+    data = {
+        'image_width': int(width), 'image_height': int(height), 'camera_name': name,
+        'camera_matrix': {'rows': 3, 'cols': 3, 'data': K.ravel().tolist()},
+        'distortion_model': 'plumb_bob',
+        'distortion_coefficients': {'rows': 1, 'cols': 5,
+                                    'data': np.asarray(dist, dtype=float).ravel().tolist()},
+        'rectification_matrix': {'rows': 3, 'cols': 3, 'data': np.eye(3).ravel().tolist()},
+        'projection_matrix': {'rows': 3, 'cols': 4, 'data': P.ravel().tolist()},
+    }
+    with open(path, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(data, f, sort_keys=False)
+
+
+@dataclasses.dataclass
+class Rig:
+    """The cameras of a rig file, in file order (camera 0 is the time reference)."""
+
+    cameras: list
+    fps: float
+    frame_id: str = 'table'
+    path: str = ''
+
+
+def load_rig(path):
+    """Read and validate a rig file (DESIGN.md) and its camera_info files -> :class:`Rig`.
+
+    Raises :class:`CalibrationError` with one line naming the file and the field at fault.
+    """
+    data = _read_yaml(path, 'rig')
+    base = os.path.dirname(os.path.abspath(path))
+    try:
+        fps = float(data.get('fps', 0.0))
+    except (TypeError, ValueError):
+        raise CalibrationError(f'rig {path}: fps is not a number') from None
+    if not fps > 0.0:
+        raise CalibrationError(f'rig {path}: fps must be a positive number')
+    entries = data.get('cameras')
+    if not isinstance(entries, list) or not entries:
+        raise CalibrationError(f'rig {path}: cameras must be a non-empty list')
+    cameras = []
+    for i, entry in enumerate(entries):
+        where = f'rig {path}: cameras[{i}]'
+        if not isinstance(entry, dict):
+            raise CalibrationError(f'{where} is not a mapping')
+        name = str(entry.get('name', f'cam{i}'))
+        if 'camera_info' not in entry:
+            raise CalibrationError(f'{where} ({name}): camera_info missing')
+        info = load_camera_info(os.path.join(base, str(entry['camera_info'])))
+        try:
+            R = np.asarray(entry.get('rotation'), dtype=float).reshape(3, 3)
+            t = np.asarray(entry.get('translation'), dtype=float).reshape(3)
+        except (TypeError, ValueError):
+            raise CalibrationError(f'{where} ({name}): rotation needs 9 numbers and '
+                                   'translation 3') from None
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            raise CalibrationError(f'{where} ({name}): pose has a non-finite number')
+        if (np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1.0) > 1e-4):
+            raise CalibrationError(f'{where} ({name}): rotation is not a rotation matrix '
+                                   '(R R^T = I, det R = 1)')
+        offset = entry.get('time_offset')
+        if offset is not None:
+            try:
+                offset = float(offset)
+            except (TypeError, ValueError):
+                raise CalibrationError(f'{where} ({name}): time_offset is not a number') \
+                    from None
+        source = str(entry.get('source', ''))
+        cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
+                              R, t, source=source, time_offset=offset))
+    names = [c.name for c in cameras]
+    if len(set(names)) != len(names):
+        raise CalibrationError(f'rig {path}: camera names are not unique: {names}')
+    return Rig(cameras, fps, str(data.get('frame_id', 'table')), os.path.abspath(path))
+
+
+def save_rig(path, rig, camera_info_files=None):
+    """Write a rig file; ``camera_info_files`` lists each camera's info path (relative)."""
+    entries = []
+    for i, cam in enumerate(rig.cameras):
+        entry = {
+            'name': cam.name,
+            'camera_info': (camera_info_files[i] if camera_info_files
+                            else f'{cam.name}.yaml'),
+            'source': cam.source,
+            'rotation': [float(v) for v in cam.R.ravel()],
+            'translation': [float(v) for v in cam.t],
+        }
+        if cam.time_offset is not None:
+            entry['time_offset'] = float(cam.time_offset)
+        entries.append(entry)
+    data = {'frame_id': rig.frame_id, 'fps': float(rig.fps), 'cameras': entries}
+    with open(path, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(data, f, sort_keys=False, default_flow_style=None)
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)):
+    """Rotation R and translation t of a camera at ``eye`` looking at ``target`` (table frame).
+
+    The optical z axis points at the target, x to the right of the view, y down.
+    """
+    eye = np.asarray(eye, dtype=float)
+    z = np.asarray(target, dtype=float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=float))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.vstack([x, y, z])
+    return R, -R @ eye

@@ -1,0 +1,174 @@
+"""Ball detection in one camera's frames: motion against a background model, then colour and
+size, with a sub-pixel centre.
+
+A pixel is a candidate when its grey level differs from the running background by more than
+``diff_threshold``; 8-connected candidate pixels form blobs. A blob is kept when its area lies
+within [min_area, max_area] pixels, its mean colour matches the ball's (white: the three
+channels close and bright; orange: red well above blue), and its width (twice the square root
+of the smaller eigenvalue of its second moments, the diameter of a disc whatever the motion
+blur along the path) is within range. The centre is the difference-weighted centroid, which for
+a motion-blurred disc is the centre at mid-exposure. When the caller knows where the ball
+should be (the tracker's prediction) only a region of interest around it is searched.
+
+The background follows slow changes of lighting (exponential average, ``background_rate`` per
+update, one update every ``background_every`` frames) except under the blobs found, so a ball
+that hovers does not fade into it.
+"""
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+
+@dataclasses.dataclass
+class DetectorConfig:
+    """Thresholds of :class:`BallDetector` (pixels, grey levels)."""
+
+    diff_threshold: float = 22.0
+    """Minimum grey-level change against the background for a ball pixel."""
+    min_area: int = 4
+    """Smallest blob area, pixels."""
+    max_area: int = 900
+    """Largest blob area, pixels (a near, motion-blurred ball)."""
+    max_width: float = 30.0
+    """Largest blob width across its motion (ball diameter), pixels."""
+    colour: str = 'any'
+    """Ball colour: 'white', 'orange' or 'any'."""
+    background_rate: float = 0.1
+    """Weight of a new frame in the running background (per update)."""
+    background_every: int = 3
+    """Frames between two updates of the background."""
+    roi_half_size: int = 40
+    """Half size of the search window around a predicted position, pixels."""
+    max_candidates: int = 4
+    """Most blobs returned per frame (the largest differences first)."""
+
+
+@dataclasses.dataclass
+class Detection:
+    """One ball candidate: sub-pixel centre (u, v) in the distorted image, pixels."""
+
+    u: float
+    v: float
+    area: float
+    width: float
+    """Blob width across the motion blur (the ball's diameter), pixels."""
+    strength: float
+    """Mean grey-level difference against the background."""
+
+
+def colour_matches(bgr, colour):
+    """True when the mean colour ``bgr`` (3,) is that of a ``colour`` ball ('white', 'orange',
+    'any')."""
+    b, g, r = (float(c) for c in bgr)
+    if colour == 'white':
+        return min(b, g, r) > 0.72 * max(b, g, r) and max(b, g, r) > 90.0
+    if colour == 'orange':
+        return r > 90.0 and r > 1.6 * b + 20.0 and r > g
+    return True
+
+
+def _grey(image):
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+
+class BallDetector:
+    """Detector of one camera (it keeps that camera's background)."""
+
+    def __init__(self, config=None):
+        self.config = config or DetectorConfig()
+        self.background = None
+        self._bg8 = None
+        self._count = 0
+
+    def reset(self):
+        """Forget the background (e.g. after the camera was reopened)."""
+        self.background = None
+        self._bg8 = None
+
+    def detect(self, frame, roi_centre=None, update_background=True):
+        """Ball candidates in ``frame`` (H x W x 3 BGR or H x W grey uint8).
+
+        ``roi_centre`` (u, v): search only the window of ``roi_half_size`` around it.
+        ``update_background``: False for a second search of the same frame.
+        Returns a list of :class:`Detection` (best first); a frame that is not an image of the
+        background's size raises ValueError.
+        """
+        cfg = self.config
+        if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.ndim not in (
+                2, 3) or frame.size == 0:
+            raise ValueError('frame is not an 8-bit image')
+        h, w = frame.shape[:2]
+        if self.background is None:
+            gray = _grey(frame)
+            self.background = gray.astype(np.float32)
+            self._bg8 = gray.copy()
+            return []
+        if (h, w) != self.background.shape:
+            raise ValueError(f"frame size {w}x{h} differs from the camera's "
+                             f'{self.background.shape[1]}x{self.background.shape[0]}')
+        self._count += 1
+        update = update_background and self._count % cfg.background_every == 0
+        if roi_centre is not None and np.all(np.isfinite(roi_centre)):
+            half = cfg.roi_half_size
+            x0 = int(min(max(roi_centre[0] - half, 0), w))
+            y0 = int(min(max(roi_centre[1] - half, 0), h))
+            x1, y1 = int(min(x0 + 2 * half, w)), int(min(y0 + 2 * half, h))
+        else:
+            x0, y0, x1, y1 = 0, 0, w, h
+        gray = _grey(frame) if update else None
+        found = []
+        mask = None
+        if x1 > x0 and y1 > y0:
+            window = gray[y0:y1, x0:x1] if update else _grey(frame[y0:y1, x0:x1])
+            diff = cv2.absdiff(window, self._bg8[y0:y1, x0:x1])
+            _, mask = cv2.threshold(diff, cfg.diff_threshold, 255, cv2.THRESH_BINARY)
+            bx, by, bw, bh = cv2.boundingRect(mask)
+            if bw > 0 and bh > 0:      # label only the part of the window that changed
+                found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
+                                    mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by)
+        if update:
+            self._update_background(gray, mask, x0, y0)
+        return found
+
+    def _blobs(self, frame, diff, mask, x0, y0):
+        cfg = self.config
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        out = []
+        for i in range(1, n):
+            area = stats[i, cv2.CC_STAT_AREA]
+            if area < cfg.min_area or area > cfg.max_area:
+                continue
+            bx, by, bw, bh = stats[i, :4]
+            sub = labels[by:by + bh, bx:bx + bw] == i
+            weight = diff[by:by + bh, bx:bx + bw].astype(np.float64) * sub
+            total = weight.sum()
+            ys, xs = np.mgrid[by:by + bh, bx:bx + bw]
+            cu = (weight * xs).sum() / total
+            cv = (weight * ys).sum() / total
+            # Width across the motion from the blob's second moments (pixel mask, 1/12 per px).
+            mx, my = xs[sub] - cu, ys[sub] - cv
+            cxx, cyy, cxy = (mx * mx).mean(), (my * my).mean(), (mx * my).mean()
+            small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
+            width = 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)   # disc: var = r^2 / 4
+            if width > cfg.max_width:
+                continue
+            if cfg.colour != 'any' and frame.ndim == 3:
+                patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
+                if not colour_matches(patch[sub].mean(axis=0), cfg.colour):
+                    continue
+            out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
+                                 float(total / area)))
+        out.sort(key=lambda d: -d.strength * d.area)
+        return out[:cfg.max_candidates]
+
+    def _update_background(self, gray, mask, x0, y0):
+        """Exponential average of the frame into the background, except under blobs."""
+        keep = None
+        if mask is not None and mask.any():
+            keep = np.full(gray.shape, 255, np.uint8)
+            h, w = mask.shape
+            keep[y0:y0 + h, x0:x0 + w] = cv2.dilate(mask, np.ones((5, 5), np.uint8)) ^ 255
+        cv2.accumulateWeighted(gray, self.background, self.config.background_rate, mask=keep)
+        self._bg8 = cv2.convertScaleAbs(self.background)

@@ -1,0 +1,291 @@
+"""Frames -> detections -> time-matched 3-D points -> tracks of ball states.
+
+:class:`Pipeline` takes frames one at a time, ``process(t, camera_index, frame)``, in time order
+(t: exposure time, s), and returns the ball states it estimated from them. Its stages:
+
+1. per camera, a :class:`tt_perception.detect.BallDetector`, searching only a window around
+   the tracked ball's predicted image position while a track runs;
+2. a :class:`Matcher` that groups each frame of camera 0 (the time reference) with the other
+   cameras' detections at the same instant: the frame with the same stamp when the cameras are
+   synchronised, otherwise the detections of the frames just before and after, interpolated
+   linearly in time along the ball's image track (never the nearest frame taken blindly);
+3. triangulation of every combination of candidates of >= 2 cameras, gated on the
+   reprojection error and on the blob width against the ball's diameter at that depth;
+4. a :class:`Tracker`: track start from two points at a plausible speed, EKF
+   (:mod:`tt_perception.estimator`) with Mahalanobis gating, confirmation after
+   ``confirm_updates`` updates, end after ``max_coast`` s without a measurement or when the
+   ball leaves the volume above the floor.
+"""
+
+import collections
+import dataclasses
+import itertools
+
+import numpy as np
+from tt_prediction.params import ModelParams
+
+from .detect import BallDetector, DetectorConfig
+from .estimator import BallFilter, FilterConfig
+from .triangulate import triangulate
+
+GRAVITY = np.array([0.0, 0.0, -9.8])
+
+
+@dataclasses.dataclass
+class BallEstimate:
+    """One published state: time (s), state [p, v, w] (9,), covariance (9, 9), track id."""
+
+    t: float
+    state: np.ndarray
+    covariance: np.ndarray
+    track_id: int
+
+
+@dataclasses.dataclass
+class TrackerConfig:
+    """Track management (SI units)."""
+
+    confirm_updates: int = 3
+    """Filter updates after the start before states are published."""
+    max_coast: float = 0.06
+    """Time without an accepted measurement after which a track ends, s."""
+    min_speed: float = 1.0
+    """Slowest speed of a new track (a ball in play), m/s."""
+    max_speed: float = 40.0
+    """Fastest speed of a new track, m/s."""
+    min_z: float = -0.3
+    """A track ends below this height (the ball has left the table's volume), m."""
+    pixel_sigma: float = 0.4
+    """Standard deviation of a detection's centre, pixels."""
+    max_reprojection: float = 2.5
+    """Largest reprojection error of a triangulated point, pixels."""
+    width_ratio: tuple = (0.45, 1.9)
+    """Accepted range of blob width over the ball's expected image diameter."""
+
+
+class Matcher:
+    """Groups detections of all cameras at the instants of camera 0's frames."""
+
+    def __init__(self, n_cameras, frame_period, tolerance=None, max_wait=3):
+        self.n = n_cameras
+        self.period = frame_period
+        self.tol = tolerance if tolerance is not None else 0.1 * frame_period
+        self.max_wait = max_wait * frame_period
+        self.frames = [collections.deque() for _ in range(n_cameras)]
+        self.pending = collections.deque()
+        self.latest = [-np.inf] * n_cameras
+
+    def add(self, k, t, detections):
+        """Add camera ``k``'s frame at ``t`` with its detections (list of arrays
+        [x_n, y_n, width]); returns the groups now complete: ``(t, [per-camera list])``."""
+        self.frames[k].append((t, detections))
+        self.latest[k] = max(self.latest[k], t)
+        if k == 0:
+            self.pending.append(t)
+        out = []
+        while self.pending:
+            t0 = self.pending[0]
+            group = self._group(t0)
+            if group is None:
+                break
+            self.pending.popleft()
+            out.append((t0, group))
+        self._prune()
+        return out
+
+    def _group(self, t0):
+        group = []
+        for k in range(self.n):
+            frames = self.frames[k]
+            same = [d for t, d in frames if abs(t - t0) <= self.tol]
+            if same:
+                group.append(same[0])
+                continue
+            before = [(t, d) for t, d in frames if t < t0]
+            after = [(t, d) for t, d in frames if t > t0]
+            if before and after and after[0][0] - before[-1][0] <= 2.5 * self.period:
+                group.append(self._interpolate(before[-1], after[0], t0))
+                continue
+            if not after and self.latest[0] - t0 < self.max_wait:
+                return None                   # camera k's next frame is still to come
+            group.append([])
+        return group
+
+    @staticmethod
+    def _interpolate(a, b, t0):
+        """Detections at t0 between frames a and b: each of a with its nearest in b."""
+        (ta, da), (tb, db) = a, b
+        out = []
+        frac = (t0 - ta) / (tb - ta)
+        for x in da:
+            if not db:
+                break
+            j = int(np.argmin([np.hypot(*(y[:2] - x[:2])) for y in db]))
+            if np.hypot(*(db[j][:2] - x[:2])) < 0.1:       # normalised units (~6 degrees)
+                out.append(x + frac * (db[j] - x))
+        return out
+
+    def _prune(self):
+        oldest = self.pending[0] if self.pending else max(self.latest)
+        for frames in self.frames:
+            while len(frames) > 2 and frames[1][0] < oldest - self.period:
+                frames.popleft()
+
+
+class Tracker:
+    """Starts, updates and ends the track of one ball at a time."""
+
+    def __init__(self, fps, params=None, filter_config=None, config=None):
+        self.params = params or ModelParams()
+        self.filter_config = filter_config or FilterConfig()
+        self.config = config or TrackerConfig()
+        self.period = 1.0 / fps
+        self.filter = None
+        self.track_id = 0
+        self.updates = 0
+        self.last_update = -np.inf
+        self.seeds = []
+
+    @property
+    def active(self):
+        return self.filter is not None
+
+    def predicted_position(self, t):
+        """Where the tracked ball should be at ``t`` (ballistic guess), or None."""
+        if self.filter is None:
+            return None
+        dt = t - self.filter.t
+        x = self.filter.x
+        return x[:3] + x[3:6] * dt + 0.5 * GRAVITY * dt * dt
+
+    def end(self):
+        self.filter = None
+        self.updates = 0
+
+    def add(self, t, points):
+        """Fuse the 3-D points (list of (X, cov)) seen at ``t``; returns a
+        :class:`BallEstimate` when a confirmed track was updated, else None."""
+        cfg = self.config
+        if self.filter is not None:
+            if t - self.last_update > cfg.max_coast:
+                self.end()
+            else:
+                self.filter.predict(t)
+                if self.filter.x[2] < cfg.min_z:
+                    self.end()
+        if self.filter is not None:
+            best = None
+            for X, R in points:
+                d2 = self.filter.innovation(X, R)[2]
+                if best is None or d2 < best[0]:
+                    best = (d2, X, R)
+            if best is not None and self.filter.update(best[1], best[2]):
+                self.updates += 1
+                self.last_update = t
+                if self.updates >= cfg.confirm_updates:
+                    f = self.filter
+                    return BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
+            return None
+        self._seed(t, points)
+        return None
+
+    def _seed(self, t, points):
+        """Start a track from a previous point and one of ``points`` at a plausible speed."""
+        cfg = self.config
+        self.seeds = [s for s in self.seeds if 0.0 < t - s[0] <= 2.5 * self.period]
+        for (t1, X1, R1), (X2, R2) in itertools.product(self.seeds, points):
+            dt = t - t1
+            v = (X2 - X1) / dt + 0.5 * GRAVITY * dt       # velocity at t (constant accel.)
+            if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
+                self.track_id += 1
+                self.filter = BallFilter(self.params, self.filter_config)
+                self.filter.start(t, X2, v, R2, (R1 + R2) / dt ** 2 + np.eye(3) * 0.05)
+                self.updates = 0
+                self.last_update = t
+                self.seeds = []
+                return
+        self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
+        self.seeds.extend((t, X, R) for X, R in points)
+
+
+class Pipeline:
+    """The whole perception chain for one rig (see the module docstring)."""
+
+    def __init__(self, rig, params=None, detector_config=None, filter_config=None,
+                 tracker_config=None):
+        self.rig = rig
+        self.cameras = rig.cameras
+        self.params = params or ModelParams()
+        dcfg = detector_config or DetectorConfig()
+        self.detectors = [BallDetector(dataclasses.replace(dcfg)) for _ in self.cameras]
+        self.matcher = Matcher(len(self.cameras), 1.0 / rig.fps)
+        self.tracker = Tracker(rig.fps, self.params, filter_config, tracker_config)
+        self.config = self.tracker.config
+        self.offsets = [c.time_offset or 0.0 for c in self.cameras]
+        self.last_error = None
+
+    def process(self, t, k, frame):
+        """Process camera ``k``'s frame stamped ``t`` (s, its own clock); returns the list of
+        :class:`BallEstimate` it completes. A missing or corrupt frame (None, wrong size, not
+        8-bit) is skipped: ``last_error`` says why, nothing is estimated from it."""
+        t = float(t) - self.offsets[k]
+        self.last_error = None
+        detections = []
+        if frame is None:
+            self.last_error = f'camera {self.cameras[k].name}: no frame'
+        else:
+            try:
+                detections = self._detect(t, k, frame)
+            except ValueError as exc:
+                self.last_error = f'camera {self.cameras[k].name}: {exc}'
+                detections = []
+        out = []
+        for t0, group in self.matcher.add(k, t, detections):
+            points = self._points(group)
+            est = self.tracker.add(t0, points)
+            if est is not None:
+                out.append(est)
+        return out
+
+    def _detect(self, t, k, frame):
+        cam = self.cameras[k]
+        roi = None
+        predicted = self.tracker.predicted_position(t)
+        if predicted is not None and cam.in_front(predicted[None])[0]:
+            roi = cam.project(predicted[None])[0]
+        dets = self.detectors[k].detect(frame, roi)
+        if not dets and roi is not None:
+            dets = self.detectors[k].detect(frame, None, update_background=False)
+        if not dets:
+            return []
+        uv = np.array([[d.u, d.v] for d in dets])
+        xy = cam.normalise(uv)
+        return [np.array([x, y, d.width]) for (x, y), d in zip(xy, dets, strict=True)]
+
+    def _points(self, group):
+        """Triangulated, gated candidate points (X, cov) of one time-matched group."""
+        cfg = self.config
+        options = [list(dets) + [None] for dets in group]
+        points = []
+        for combo in itertools.product(*options):
+            used = [k for k, d in enumerate(combo) if d is not None]
+            if len(used) < 2:
+                continue
+            cams = [self.cameras[k] for k in used]
+            obs = np.array([combo[k] for k in used])
+            result = triangulate(cams, obs[:, :2], cfg.pixel_sigma, cfg.max_reprojection)
+            if result is None or len(result[3]) < len(used):
+                continue
+            X, cov, _, _ = result
+            ok = True
+            for cam, o in zip(cams, obs, strict=True):
+                depth = (cam.R @ X + cam.t)[2]
+                expected = 2.0 * cam.focal * self.params.radius / depth
+                if not cfg.width_ratio[0] <= o[2] / expected <= cfg.width_ratio[1]:
+                    ok = False
+            if ok:
+                points.append((len(used), X, cov))
+        if not points:
+            return []
+        most = max(n for n, _, _ in points)
+        return [(X, cov) for n, X, cov in points if n == most]
