@@ -309,6 +309,7 @@ def _batch_body(states, t0, valid, P, plane_x, bounced, outgoing, out):
     for i in prange(states.shape[0]):
         if not valid[i]:
             out[i, _O_STATUS] = INVALID
+            out[i, _O_NET_Z] = math.nan
             continue
         if outgoing:
             landing_kernel(states[i], t0[i], P, out[i])
@@ -376,8 +377,9 @@ def _reason(status, row, bounce, plane_x, outgoing):
     if status == OK:
         if outgoing:
             return f"lands in zone {bounce.zone} of the opponent's half at t = {bounce.t:.3f} s"
-        return (f"bounces in zone {bounce.zone} of the robot's half, crosses x = {plane_x:.3f}"
-                f' at t = {row[_O_HIT_T]:.3f} s')
+        where = 'after the bounce' if bounce is None else (
+            f"after a bounce in zone {bounce.zone} of the robot's half")
+        return f'crosses x = {plane_x:.3f} at t = {row[_O_HIT_T]:.3f} s {where}'
     if status == NET:
         return f'hits the net at {stop_p}, t = {stop_t:.3f} s'
     if status == NO_BOUNCE:
@@ -511,7 +513,7 @@ def predict_batch(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
     else:
         valid = np.all(np.isfinite(states), axis=1)
     states = _touching(states, valid, P[I_RADIUS])
-    out = np.empty((n, _N_OUT))
+    out = np.zeros((n, _N_OUT))
     use_parallel = n >= PARALLEL_MIN if parallel is None else parallel
     kernel = _batch_parallel if use_parallel else _batch_serial
     kernel(states, times, valid, P, float(hit_plane_x), bool(bounced), bool(outgoing), out)

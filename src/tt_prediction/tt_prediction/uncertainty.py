@@ -129,7 +129,7 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
         if w_pos != w_neg:
             half = 1 if w_pos > w_neg else -1
         on_half = contact & (batch.bounce_half == half)
-        w_half = float(weights[on_half].sum())
+        w_half = min(float(weights[on_half].sum()), 1.0)
         if w_half > 0.0:
             w = weights[on_half] / w_half
             xy = batch.bounce_p[on_half, :2]

@@ -1,0 +1,153 @@
+"""predict / predict_landing / predict_batch: outcomes, exact events, reference agreement,
+bad input."""
+
+import math
+
+import numpy as np
+import pytest
+from tt_prediction.integrate import rollout
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import STATUSES, check_state, predict, predict_batch, predict_landing
+from tt_prediction.reference import reference_predict
+from tt_prediction.table import HALF_LENGTH, NET_HEIGHT
+
+NOMINAL = ModelParams()
+R = NOMINAL.radius
+# A served ball from behind the opponent's end: bounces on the robot's half, reaches x = -1.5.
+GOOD = np.array([1.6, 0.1, 0.3, -6.0, 0.0, 1.5, 0.0, 100.0, 0.0])
+
+
+def random_incoming(rng, n):
+    return np.column_stack([
+        rng.uniform(1.3, 1.7, n), rng.uniform(-0.4, 0.4, n), rng.uniform(0.2, 0.4, n),
+        rng.uniform(-8.0, -4.0, n), rng.uniform(-1.0, 1.0, n), rng.uniform(0.5, 2.0, n),
+        rng.uniform(-300, 300, (n, 3))])
+
+
+def test_ok_ball_bounces_on_the_robots_half_then_crosses_the_plane_exactly():
+    pred = predict(GOOD, NOMINAL, t0=10.0, hit_plane_x=-1.45)
+    assert pred.status == 'ok', pred.reason
+    assert pred.bounce.half == -1 and 1 <= pred.bounce.zone <= 9
+    assert pred.bounce.p[2] == R and -HALF_LENGTH <= pred.bounce.p[0] < 0.0
+    assert pred.landing == pred.bounce
+    assert 10.0 < pred.bounce.t < pred.hit.t < 11.0
+    assert pred.hit.p[0] == pytest.approx(-1.45, abs=1e-9)
+    assert pred.hit.v[0] < 0.0 and pred.hit.p[2] > R
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_agrees_with_the_scipy_reference_on_events_and_hit_point(seed):
+    rng = np.random.default_rng(seed)
+    n_ok = 0
+    for state in random_incoming(rng, 12):
+        fast, ref = predict(state, NOMINAL), reference_predict(state, NOMINAL)
+        assert fast.status == ref.status
+        if ref.bounce is not None:
+            assert fast.bounce.t == pytest.approx(ref.bounce.t, abs=1e-8)
+            np.testing.assert_allclose(fast.bounce.p, ref.bounce.p, atol=1e-7)
+            assert fast.bounce.zone == ref.bounce.zone
+        if ref.hit is not None:
+            n_ok += 1
+            assert np.abs(fast.hit.p - ref.hit.p).max() < 1e-4     # 0.1 mm
+            assert fast.hit.t == pytest.approx(ref.hit.t, abs=1e-8)
+            np.testing.assert_allclose(fast.hit.v, ref.hit.v, atol=1e-6)
+    assert n_ok >= 6
+
+
+def test_net_no_bounce_miss_wrong_half_double_bounce():
+    # Low and flat: into the net.
+    net = predict([0.5, 0.0, 0.16, -8.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert net.status == 'net' and net.bounce is None and net.hit is None
+    # Fast and rising: over the whole table.
+    assert predict([1.2, 0.0, 0.4, -9.0, 0.0, 2.5, 0, 0, 0]).status == 'no_bounce'
+    # Wide: passes beside the table to the floor.
+    miss = predict([1.2, 1.2, 0.3, -5.0, 0.0, 0.5, 0, 0, 0])
+    assert miss.status == 'miss' and miss.bounce is None
+    # Short and steep: first contact on the opponent's half.
+    wrong = predict([1.2, 0.0, 0.3, -2.0, 0.0, -1.0, 0, 0, 0])
+    assert wrong.status == 'wrong_half' and wrong.bounce.half == 1
+    # Slow over the net, low bounce: bounces twice before the plane.
+    double = predict([-0.1, 0.0, 0.25, -1.5, 0.0, 0.0, 0, 0, 0])
+    assert double.status == 'double_bounce' and double.bounce.half == -1
+
+
+def test_a_ball_tracked_after_its_bounce_is_still_hit():
+    pred = predict(GOOD, NOMINAL)
+    t1 = pred.bounce.t + 0.05
+    _, samples = rollout(GOOD, NOMINAL, sample_times=[t1])     # the state 50 ms after
+    after = predict(samples[0], NOMINAL, t0=t1, bounced=True)
+    assert after.status == 'ok', after.reason
+    assert after.bounce is None
+    assert after.hit.t == pytest.approx(pred.hit.t, abs=1e-9)
+    np.testing.assert_allclose(after.hit.p, pred.hit.p, atol=1e-8)
+    # Without the flag the same state has no bounce ahead of it.
+    assert predict(samples[0], NOMINAL, t0=t1).status == 'no_bounce'
+
+
+def test_path_starts_at_the_state_and_ends_at_the_plane():
+    pred = predict(GOOD, NOMINAL, path_dt=0.01)
+    np.testing.assert_allclose(pred.path[0], GOOD[:3])
+    assert pred.path[-1][0] >= -1.5 and len(pred.path) == int(pred.hit.t / 0.01) + 1
+    assert pred.path[:, 2].min() >= R - 1e-9
+
+
+@pytest.mark.parametrize('state, words', [
+    ([math.nan, 0, 0.3, -6, 0, 1, 0, 0, 0], 'position is not finite'),
+    ([1.2, 0, 0.3, -math.inf, 0, 1, 0, 0, 0], 'velocity is not finite'),
+    ([1.2, 0, 0.3, -6, 0, 1, 0, math.nan, 0], 'spin is not finite'),
+    ([0.5, 0, -0.05, -6, 0, 1, 0, 0, 0], 'below the table'),
+    ([1.2, 0, 0.3, 0, 0, 0, 0, 0, 0], 'at rest'),
+    ([1.2, 0, 0.3, -90, 0, 0, 0, 0, 0], 'not a table-tennis ball'),
+    ([1.2, 0, 0.3], '9 numbers'),
+])
+def test_bad_input_is_invalid_with_a_reason(state, words):
+    for pred in (predict(state), predict_landing(state)):
+        assert pred.status == 'invalid'
+        assert words in pred.reason
+        assert pred.bounce is None and pred.hit is None and pred.landing is None
+
+
+def test_a_ball_a_millimetre_into_the_surface_is_taken_as_touching():
+    assert check_state([0.5, 0.0, R - 1e-3, -3.0, 0.0, -1.0, 0, 0, 0], R) == ''
+    pred = predict([-0.5, 0.0, R - 1e-3, -3.0, 0.0, -1.0, 0, 0, 0], t0=1.0)
+    assert pred.bounce.t == 1.0 and pred.bounce.p[2] == R
+
+
+def test_landing_of_a_returned_ball_and_its_net_clearance():
+    # From the racket at the robot's end towards the opponent.
+    out = predict_landing([-1.4, 0.0, 0.25, 6.0, 0.0, 1.5, 0.0, 150.0, 0.0], NOMINAL, t0=3.0)
+    assert out.status == 'ok', out.reason
+    assert out.landing.half == 1 and 1 <= out.landing.zone <= 9 and out.landing.t > 3.0
+    assert out.bounce is None and out.hit is None
+    # Clearance is the ball's bottom above the net top: cross-check with the no-air parabola.
+    no_air = NOMINAL.replace(c_d=0.0, c_m=0.0)
+    flat = predict_landing([-1.4, 0.0, 0.25, 6.0, 0.0, 1.5, 0, 0, 0], no_air)
+    t = 1.4 / 6.0
+    z = 0.25 + 1.5 * t - 0.5 * no_air.gravity * t * t
+    assert flat.net_clearance == pytest.approx(z - R - NET_HEIGHT, abs=1e-9)
+    assert predict_landing([-0.5, 0, 0.16, 8.0, 0, 0.0, 0, 0, 0]).status == 'net'
+    assert predict_landing([-1.4, 0, 0.3, 3.0, 0, -1.5, 0, 0, 0]).status == 'wrong_half'
+    assert predict_landing([-1.4, 0, 0.3, 12.0, 0, 2.0, 0, 0, 0]).status == 'miss'
+
+
+def test_batch_matches_single_predictions_serial_and_parallel():
+    rng = np.random.default_rng(7)
+    states = random_incoming(rng, 300)
+    states[5, 3] = math.nan
+    states[9, :3] = [1.0, 0.0, -0.3]
+    for parallel in (False, True):
+        batch = predict_batch(states, NOMINAL, t0=np.arange(300) * 0.1, parallel=parallel)
+        for i in range(0, 300, 7):
+            single = predict(states[i], NOMINAL, t0=i * 0.1)
+            assert STATUSES[batch.status[i]] == single.status
+            if single.hit is not None:
+                np.testing.assert_array_equal(batch.hit_p[i], single.hit.p)
+                assert batch.hit_t[i] == single.hit.t
+            else:
+                assert np.isnan(batch.hit_t[i])
+        assert STATUSES[batch.status[5]] == 'invalid' and STATUSES[batch.status[9]] == 'invalid'
+
+
+def test_batch_rejects_a_bad_shape():
+    with pytest.raises(ValueError, match=r'\(N, 9\)'):
+        predict_batch(np.zeros((3, 6)))

@@ -1,0 +1,76 @@
+"""Uncertainty of the prediction: sigma points, hit covariance, zone probabilities."""
+
+import numpy as np
+import pytest
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+from tt_prediction.table import HALF_WIDTH, ZONE_WIDTH
+from tt_prediction.uncertainty import predict_uncertainty, sigma_points
+
+NOMINAL = ModelParams()
+GOOD = np.array([1.6, 0.1, 0.3, -6.0, 0.0, 1.5, 0.0, 100.0, 0.0])
+
+
+def test_sigma_points_reproduce_mean_and_covariance():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(9, 9))
+    cov = a @ a.T
+    cov[8] = cov[:, 8] = 0.0                  # a singular one: an exactly known component
+    points, weights = sigma_points(GOOD, cov)
+    assert np.all(weights > 0.0) and weights.sum() == pytest.approx(1.0)
+    mean = weights @ points
+    np.testing.assert_allclose(mean, GOOD, atol=1e-12)
+    d = points - mean
+    np.testing.assert_allclose((weights[:, None] * d).T @ d, cov, atol=1e-9)
+
+
+def test_bad_covariance_is_an_error():
+    with pytest.raises(ValueError, match='positive semi-definite'):
+        predict_uncertainty(GOOD, -np.eye(9))
+    with pytest.raises(ValueError, match='not finite'):
+        predict_uncertainty(GOOD, np.full((9, 9), np.nan))
+
+
+def test_known_state_gives_a_certain_zone_and_no_spread():
+    nominal = predict(GOOD, NOMINAL)
+    u = predict_uncertainty(GOOD, np.zeros(81), NOMINAL)
+    assert u.zone_half == -1
+    assert u.zone_probabilities[nominal.bounce.zone] == pytest.approx(1.0, abs=1e-12)
+    assert u.zone_probabilities.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(u.hit_covariance, 0.0, atol=1e-20)
+    assert u.hit_time_std == pytest.approx(0.0, abs=1e-12) and u.hit_fraction == 1.0
+
+
+def test_a_sideways_offset_carries_over_to_the_hit_point_unchanged():
+    # Nothing in the model depends on y: an offset dy moves the whole flight by dy, so the
+    # hit point's y variance equals the state's and its x and z are unaffected.
+    sigma = 0.01
+    cov = np.zeros((9, 9))
+    cov[1, 1] = sigma ** 2
+    u = predict_uncertainty(GOOD, cov, NOMINAL)
+    assert u.hit_covariance[1, 1] == pytest.approx(sigma ** 2, rel=1e-6)
+    assert abs(u.hit_covariance[0, 0]) < 1e-18 and abs(u.hit_covariance[2, 2]) < 1e-18
+    assert u.hit_time_std < 1e-9
+
+
+def test_a_bounce_on_a_zone_border_splits_the_probability_between_the_two_areas():
+    nominal = predict(GOOD, NOMINAL)
+    border = HALF_WIDTH - ZONE_WIDTH                  # between columns 0 and 1
+    state = GOOD.copy()
+    state[1] += border - nominal.bounce.p[1]          # vy = 0: y stays put
+    zone = predict(state, NOMINAL).bounce.zone
+    row = (zone - 1) // 3
+    cov = np.diag([1e-6, 4e-4, 1e-6, 1e-4, 1e-6, 1e-4, 1.0, 1.0, 1.0])
+    u = predict_uncertainty(state, cov, NOMINAL)
+    left, right = u.zone_probabilities[3 * row + 1], u.zone_probabilities[3 * row + 2]
+    assert left == pytest.approx(0.5, abs=0.06) and right == pytest.approx(0.5, abs=0.06)
+    assert u.zone_probabilities.sum() == pytest.approx(1.0)
+
+
+def test_a_wide_spread_puts_probability_off_the_table():
+    cov = np.diag([1e-4, 0.3, 1e-4, 1.0, 1.0, 1.0, 100.0, 100.0, 100.0])
+    u = predict_uncertainty(GOOD, cov, NOMINAL)
+    assert u.zone_probabilities[0] > 0.05
+    assert u.zone_probabilities.sum() == pytest.approx(1.0)
+    assert np.all(u.zone_probabilities >= 0.0)
+    assert np.all(np.linalg.eigvalsh(u.hit_covariance) >= -1e-15)
