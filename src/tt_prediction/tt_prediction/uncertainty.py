@@ -109,7 +109,7 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
                           parallel=False, validate=False)
     # Hit point.
     hit = batch.status == OK if not outgoing else np.zeros(len(weights), dtype=bool)
-    hit_fraction = float(weights[hit].sum())
+    hit_fraction = min(float(weights[hit].sum()), 1.0)
     hit_cov = np.zeros((3, 3))
     hit_time_std = 0.0
     if hit.sum() >= 2:
