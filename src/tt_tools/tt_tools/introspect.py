@@ -21,8 +21,10 @@ from rosidl_parser.definition import (
 )
 import yaml
 
-_INTEGER_TYPES = {
-    'int8', 'uint8', 'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64', 'char', 'octet',
+_INTEGER_RANGES = {
+    'int8': (-2**7, 2**7), 'uint8': (0, 2**8), 'char': (0, 2**8), 'octet': (0, 2**8),
+    'int16': (-2**15, 2**15), 'uint16': (0, 2**16), 'int32': (-2**31, 2**31),
+    'uint32': (0, 2**32), 'int64': (-2**63, 2**63), 'uint64': (0, 2**64),
 }
 _FLOAT_TYPES = {'float', 'double', 'long double'}
 
@@ -126,8 +128,9 @@ def _convert_basic(value, slot_type, where):
             return value
         if kind == 'byte':
             return bytes([int(value)]) if not isinstance(value, bytes) else value
-        if kind in _INTEGER_TYPES:
-            if isinstance(value, bool) or int(value) != value:
+        if kind in _INTEGER_RANGES:
+            low, high = _INTEGER_RANGES[kind]
+            if isinstance(value, bool) or int(value) != value or not low <= value < high:
                 raise TypeError
             return int(value)
         if kind in _FLOAT_TYPES:

@@ -8,6 +8,7 @@ import argparse
 import importlib
 import importlib.util
 import os
+import signal
 import sys
 
 HANDOVER_ENV = 'TT_ROS2_NO_HANDOVER'
@@ -55,8 +56,24 @@ def _run(args):
     return 1
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
-    """Entry point of the ``ros2`` console script; returns the exit code."""
+    """Entry point of the ``ros2`` console script; returns the exit code.
+
+    Ctrl-C or SIGTERM before a verb has started (while importing) ends quietly with exit 0;
+    once a verb runs, its node handles both signals itself (see ``rosutil.CliNode``).
+    """
+    signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        return 0
+
+
+def _main(argv):
     real = real_ros2cli_main()
     if real is not None:
         return real()
@@ -71,8 +88,6 @@ def main(argv=None):
         print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
     except KeyError as exc:  # an unknown message field
         print(f'ros2 {args.verb}: {exc.args[0]}', file=sys.stderr)
-    except KeyboardInterrupt:
-        return 0
     return 1
 
 

@@ -203,8 +203,8 @@ def add_arguments(topic_sub, node_sub):
         p.add_argument('--qos-depth', type=int, default=10, help='QoS history depth')
 
     def spin_arg(p):
-        p.add_argument('--spin-time', type=float, default=1.0,
-                       help='seconds to wait for discovery (default 1.0)')
+        p.add_argument('--spin-time', type=float, default=2.0,
+                       help='seconds to wait for discovery (default 2.0)')
 
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')

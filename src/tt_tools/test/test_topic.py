@@ -1,0 +1,112 @@
+"""ros2 topic echo / hz / list / info / pub and ros2 node list against a live graph."""
+
+import signal
+
+import pytest
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from tt_tools.introspect import dict_to_message
+import yaml
+
+from tt_msgs.msg import BallState
+
+pytestmark = pytest.mark.graph
+
+STATE = {
+    'header': {'stamp': {'sec': 1700000000, 'nanosec': 5}, 'frame_id': 'table'},
+    'position': {'x': -1.0, 'y': 0.2, 'z': 0.3},
+    'velocity': {'x': 5.0, 'y': 0.0, 'z': 1.5},
+    'spin': {'x': 0.0, 'y': 120.0, 'z': 0.0},
+    'covariance': [float(i) for i in range(81)],
+    'track_id': 17,
+}
+
+
+def test_echo_once_prints_a_published_ball_state_as_yaml(graph, procs, topic):
+    echo = procs('topic', 'echo', topic, '--once')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    msg = dict_to_message(STATE, BallState)
+
+    def printed():
+        if '---' not in echo.stdout and echo.proc.poll() is None:
+            pub.publish(msg)  # until the subscription has matched and one got through
+            return False
+        return True
+
+    graph.spin_until(printed, 60, 'echo to print a message')
+    assert echo.wait() == 0, echo.stderr
+    first = echo.stdout.split('---\n')[0]
+    assert yaml.safe_load(first) == STATE
+    assert echo.stdout.count('---\n') == 1  # --once
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_echo_without_publisher_waits_and_exits_cleanly_on_signal(graph, procs, topic, sig):
+    echo = procs('topic', 'echo', topic)
+    graph.spin_until(lambda: graph.node_running(echo), 60, 'the echo node in the graph')
+    assert echo.proc.poll() is None  # still waiting for a publisher
+    echo.signal(sig)
+    assert echo.wait() in (0, 130)
+    assert 'Traceback' not in echo.stderr and echo.stdout == ''
+
+
+def test_hz_reports_the_rate_of_a_timer_publisher(graph, procs, topic):
+    rate_hz = 20.0
+    pub = graph.node.create_publisher(BallState, topic, qos_profile_sensor_data)
+    graph.node.create_timer(1.0 / rate_hz, lambda: pub.publish(BallState()))
+    hz = procs('topic', 'hz', topic, '--window', '40')
+    graph.spin_until(lambda: hz.stdout.count('average rate') >= 3, 60, 'three hz reports')
+    hz.signal(signal.SIGINT)
+    assert hz.wait() == 0
+    last = hz.stdout.strip().splitlines()[-2:]
+    rate = float(last[0].split(':')[1])
+    assert rate == pytest.approx(rate_hz, rel=0.1)
+    fields = last[1].split()
+    assert fields[0] == 'min:' and fields[2] == 'max:' and fields[4:6] == ['std', 'dev:']
+    assert float(fields[1][:-1]) <= 1 / rate_hz <= float(fields[3][:-1])
+    assert 2 <= int(fields[-1]) <= 40  # window: arrivals in the rolling window
+
+
+def test_list_and_info_show_type_and_offered_qos(graph, topic):
+    graph.node.create_publisher(BallState, topic, qos_profile_sensor_data)
+    from conftest import Ros2Process
+
+    def run(*args):
+        proc = Ros2Process(*args, '--spin-time', '5')
+        graph.spin_until(lambda: proc.proc.poll() is not None, 60, f'ros2 {args[0]} {args[1]}')
+        assert proc.wait() == 0, proc.stderr
+        return proc.stdout
+
+    assert f'{topic} [tt_msgs/msg/BallState]' in run('topic', 'list', '-t').splitlines()
+    info = run('topic', 'info', topic, '-v')
+    assert info.startswith('Type: tt_msgs/msg/BallState\n')
+    assert 'Publisher count: 1' in info and 'Subscription count: 0' in info
+    assert '  Reliability: BEST_EFFORT' in info
+    assert f'/{graph.node.get_name()}' in run('node', 'list').splitlines()
+
+
+def test_info_on_an_unknown_topic_is_one_line_and_exit_1(topic):
+    from conftest import ros2
+
+    rc, out, err = ros2('topic', 'info', topic, '--spin-time', '0.5')
+    assert rc == 1 and out == ''
+    assert err.strip().count('\n') == 0 and 'Unknown topic' in err
+
+
+def test_pub_once_delivers_the_yaml_values(graph, procs, topic):
+    got = []
+    graph.node.create_subscription(BallState, topic, got.append, QoSProfile(depth=10))
+    pub = procs('topic', 'pub', topic, 'tt_msgs/msg/BallState',
+                '{position: {x: 1.5, z: 0.2}, track_id: 9, header: {frame_id: table}}', '--once')
+    graph.spin_until(lambda: got, 60, 'the published message')
+    assert pub.wait() == 0, pub.stderr
+    assert (got[0].position.x, got[0].position.z, got[0].track_id) == (1.5, 0.2, 9)
+    assert got[0].header.frame_id == 'table'
+
+
+def test_pub_bad_values_fail_before_publishing(topic):
+    from conftest import ros2
+
+    rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{track_id: 1.5}')
+    assert rc == 1 and 'track_id' in err and err.strip().count('\n') == 0
+    rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/NoSuch', '{}')
+    assert rc == 1 and 'unknown message type' in err
