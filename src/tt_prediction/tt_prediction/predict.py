@@ -238,6 +238,7 @@ def predict_kernel(s0, t0, P, plane_x, bounced, sample_t, samples, out):
                     out[_O_HIT_P + j] = ev_s[i, j]
                     out[_O_HIT_V + j] = ev_s[i, 3 + j]
                     out[_O_HIT_W + j] = ev_s[i, 6 + j]
+                out[_O_HIT_P] = plane_x     # located to 1e-12 m: the plane by definition
             else:
                 status = NO_BOUNCE
             break

@@ -1,0 +1,90 @@
+"""tt-predict: the JSON Lines contract of DESIGN.md and its errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+
+from tt_prediction import cli
+
+GOOD = {'t': 2.0, 'p': [1.6, 0.1, 0.3], 'v': [-6.0, 0.0, 1.5], 'w': [0.0, 100.0, 0.0]}
+
+
+def run_main(capsys, text, *args, tmp_path=None):
+    path = tmp_path / 'in.jsonl'
+    path.write_text(text)
+    rc = cli.main(['--input', str(path), *args])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_one_output_line_per_input_line(capsys, tmp_path):
+    lines = [GOOD, {**GOOD, 'p': [0.5, 0.0, 0.16], 'v': [-8.0, 0.0, 0.0]}]
+    text = '\n'.join(json.dumps(x) for x in lines) + '\n\n'
+    rc, out, err = run_main(capsys, text, tmp_path=tmp_path)
+    assert rc == 0 and err == ''
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert [r['status'] for r in rows] == ['ok', 'net']
+    ok = rows[0]
+    assert set(ok) >= {'status', 'bounce', 'hit', 'landing'}
+    assert ok['hit']['p'][0] == -1.5 and ok['hit']['t'] > ok['bounce']['t'] > 2.0
+    assert ok['bounce']['half'] == -1 and 1 <= ok['bounce']['zone'] <= 9
+    assert ok['landing'] == ok['bounce']
+    assert rows[1]['hit'] is None and rows[1]['bounce'] is None
+
+
+def test_hit_plane_and_model_options(capsys, tmp_path):
+    model = tmp_path / 'model.yaml'
+    ModelParams(c_d=0.0, c_m=0.0).save(model)
+    rc, out, _ = run_main(capsys, json.dumps(GOOD), '--hit-plane-x', '-1.4', '--model',
+                          str(model), tmp_path=tmp_path)
+    assert rc == 0
+    row = json.loads(out)
+    assert row['hit']['p'][0] == -1.4
+    # Without air the bounce is that of the parabola (no drag: x moves at constant speed).
+    g, r = 9.8, 0.02
+    t_b = (1.5 + np.sqrt(1.5 ** 2 + 2 * g * (0.3 - r))) / g
+    assert row['bounce']['p'][0] == pytest.approx(1.6 - 6.0 * t_b, abs=1e-8)
+
+
+@pytest.mark.parametrize('line, words', [
+    ('{"t": 0, "p": [1, 0, 0.3]', 'not valid JSON'),
+    ('[1, 2, 3]', 'JSON object'),
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0]}', 'missing "w"'),
+    ('{"t": 0, "p": [1, 0], "v": [-5, 0, 0], "w": [0, 0, 0]}', '"p" must be an array of 3'),
+    ('{"t": "now", "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0]}', '"t" must be a number'),
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [NaN, 0, 0], "w": [0, 0, 0]}', 'velocity is not finite'),
+    ('{"t": 0, "p": [1, 0, -0.2], "v": [-5, 0, 0], "w": [0, 0, 0]}', 'below the table'),
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [0, 0, 0], "w": [0, 0, 0]}', 'at rest'),
+])
+def test_a_bad_line_is_a_one_line_error_naming_it_and_nothing_is_written(
+        capsys, tmp_path, line, words):
+    text = json.dumps(GOOD) + '\n' + line + '\n'
+    rc, out, err = run_main(capsys, text, tmp_path=tmp_path)
+    assert rc == 2
+    assert out == ''
+    assert err.count('\n') == 1 and 'line 2' in err and words in err
+
+
+def test_bad_model_file_is_a_one_line_error(capsys, tmp_path):
+    model = tmp_path / 'model.yaml'
+    model.write_text('ball: {c_d: fast}\n')
+    rc, _, err = run_main(capsys, json.dumps(GOOD), '--model', str(model), tmp_path=tmp_path)
+    assert rc == 2 and err.count('\n') == 1 and 'model.yaml' in err
+
+
+def test_console_script_reads_stdin_and_exits_non_zero_on_bad_input():
+    cmd = [sys.executable, '-m', 'tt_prediction.cli']
+    good = subprocess.run(cmd, input=json.dumps(GOOD) + '\n', capture_output=True, text=True,
+                          timeout=120)
+    assert good.returncode == 0, good.stderr
+    row = json.loads(good.stdout)
+    expected = predict([*GOOD['p'], *GOOD['v'], *GOOD['w']], t0=2.0)
+    assert row['status'] == expected.status == 'ok'
+    bad = subprocess.run(cmd, input='nonsense\n', capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stdout == ''
+    assert bad.stderr.strip() == 'tt-predict: line 1: not valid JSON: Expecting value'

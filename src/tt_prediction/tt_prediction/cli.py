@@ -1,0 +1,100 @@
+"""tt-predict: predict bounce, hit point and landing for ball states given as JSON Lines.
+
+Input (stdin or --input FILE), one ball state per line, table frame, SI units:
+    {"t": 0.0, "p": [x, y, z], "v": [vx, vy, vz], "w": [wx, wy, wz]}
+Output (stdout), one line per input line:
+    {"status": ..., "reason": ..., "bounce": {t, p, zone, half} | null,
+     "hit": {t, p, v, w} | null, "landing": {t, p, zone, half} | null}
+``hit`` is where the ball, after one bounce on the robot's half, crosses x = --hit-plane-x;
+``landing`` is the first table contact. Blank lines are skipped. Every line is checked before
+anything is written: a bad line (not JSON, a missing or malformed field, a state that is not
+a ball in flight) stops the command with a one-line reason naming the line, exit status 2.
+"""
+
+import argparse
+import json
+import math
+import sys
+
+from .params import load_model
+from .predict import DEFAULT_HIT_PLANE_X, check_state, predict
+
+FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
+
+
+class InputError(ValueError):
+    """A bad input line; the message names it."""
+
+
+def parse_line(text, lineno, radius):
+    """(t, state9) of one JSON line; raises InputError naming the line."""
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f'line {lineno}: not valid JSON: {exc.msg}') from None
+    if not isinstance(data, dict):
+        raise InputError(f'line {lineno}: expected a JSON object with t, p, v, w')
+    values = []
+    for key, size in FIELDS:
+        if key not in data:
+            raise InputError(f'line {lineno}: missing "{key}"')
+        value = data[key]
+        items = [value] if size == 1 else value
+        if (not isinstance(items, list) or len(items) != size
+                or not all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                           for c in items)):
+            what = 'a number' if size == 1 else f'an array of {size} numbers'
+            raise InputError(f'line {lineno}: "{key}" must be {what}, got {value!r}')
+        values.extend(float(c) for c in items)
+    if not math.isfinite(values[0]):
+        raise InputError(f'line {lineno}: "t" is not finite')
+    reason = check_state(values[1:], radius)
+    if reason:
+        raise InputError(f'line {lineno}: {reason}')
+    return values[0], values[1:]
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='tt-predict', description=__doc__.splitlines()[0],
+        epilog='Input and output formats: see docs/prediction.md.')
+    parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
+    parser.add_argument('--model', metavar='FILE',
+                        help='model.yaml written by tt-identify (default: nominal model)')
+    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,
+                        metavar='X', help='hitting plane x, m (default: %(default)s)')
+    args = parser.parse_args(argv)
+    if not math.isfinite(args.hit_plane_x):
+        print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
+        return 2
+    try:
+        params = load_model(args.model)
+    except ValueError as exc:
+        print(f'tt-predict: {exc}', file=sys.stderr)
+        return 2
+    try:
+        if args.input:
+            with open(args.input) as f:
+                lines = f.readlines()
+        else:
+            lines = sys.stdin.readlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        print(f'tt-predict: cannot read {args.input or "stdin"}: {exc}', file=sys.stderr)
+        return 2
+    try:
+        states = [parse_line(line, i, params.radius)
+                  for i, line in enumerate(lines, start=1) if line.strip()]
+    except InputError as exc:
+        print(f'tt-predict: {exc}', file=sys.stderr)
+        return 2
+    out = []
+    for t, state in states:
+        pred = predict(state, params, t0=t, hit_plane_x=args.hit_plane_x)
+        out.append(json.dumps(pred.to_dict()))
+    if out:
+        sys.stdout.write('\n'.join(out) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
