@@ -33,8 +33,7 @@ class FilterConfig:
     """Noise and gating of :class:`BallFilter` (SI units)."""
 
     accel_noise: float = 0.05
-    """Spectral density of unmodelled acceleration, (m/s^2)^2 per Hz... as its std over 1 s,
-    m/s^2 / sqrt(s)."""
+    """Unmodelled acceleration as a white-noise density, m/s^2 / sqrt(Hz)."""
     spin_noise: float = 2.0
     """Random walk of the spin, rad/s / sqrt(s)."""
     spin_prior: float = 250.0
@@ -45,6 +44,8 @@ class FilterConfig:
     """Standard deviation added to each spin component at a bounce, rad/s."""
     gate: float = 25.0
     """Squared Mahalanobis distance above which a measurement is an outlier (3 dof)."""
+    robust: float = 9.0
+    """Squared Mahalanobis distance above which a measurement's covariance is inflated."""
     max_step: float = 1.0 / 300.0
     """Longest integration step, s."""
 
@@ -169,6 +170,11 @@ class BallFilter:
         y, S, d2 = self.innovation(z, R)
         if d2 > self.config.gate:
             return False
+        if d2 > self.config.robust:
+            # Huber-like: a measurement far out in its distribution (a ball crossing a line
+            # of the same colour) counts with a proportionally inflated covariance.
+            R = R * (d2 / self.config.robust)
+            S = self.P[:3, :3] + R
         K = np.linalg.solve(S, self.P[:3, :]).T        # P H^T S^-1, H = [I 0 0]
         self.x = self.x + K @ y
         IKH = np.eye(9)

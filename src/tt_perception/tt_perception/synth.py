@@ -170,17 +170,18 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                  time_offsets=None, params=None, drop=None, seed=0):
     """Render the balls of ``states`` (each (9,), table frame) launched at ``launch_times`` (s).
 
-    Returns ``(frames, truth)``: ``frames`` is an iterator of ``(t, camera_index, frame)`` in
-    time order (``frame`` uint8 H x W x 3 BGR; ``t`` the middle of the exposure, s, in camera
-    0's clock: camera k's frames are at ``n / fps + time_offsets[k]``); ``truth`` is a list,
-    one dict per ball, with ``t`` (k,), ``state`` (k, 9) at camera 0's frame times while the
-    ball is in play, and ``events`` (the rollout's bounces and stop).
+    With no balls the scene holds only the background and the distractor, from ``-lead_in`` to
+    ``duration``. Returns ``(frames, truth)``: ``frames`` is an iterator of
+    ``(t, camera_index, frame)`` in time order (``frame`` uint8 H x W x 3 BGR; ``t`` the middle
+    of the exposure, s: camera k's frames are at ``n / fps + time_offsets[k]``); ``truth`` is a
+    list, one dict per ball, with ``t`` (k,), ``state`` (k, 9) at camera 0's frame times while
+    the ball is in play, and ``events`` (the rollout's bounces and stop).
 
     ``exposure`` (s) sets the motion blur, ``noise`` the pixel noise (grey levels, std),
-    ``lighting`` the relative change of illumination over the scene (a slow ramp),
-    ``distractor`` adds a swinging ball-coloured disc of racket size, ``drop`` is a set of
-    camera indices whose frames are replaced by ``None`` (a camera that vanishes), given as
-    ``{camera_index: (t_from, t_to)}``.
+    ``lighting`` the relative fall of illumination over the scene (a slow ramp),
+    ``distractor`` adds a swinging ball-coloured disc of racket size, and ``drop``
+    (``{camera_index: (t_from, t_to)}``) replaces that camera's frames in the interval by
+    ``None`` (a camera that vanishes).
     """
     params = params or ModelParams()
     rng = np.random.default_rng(seed)
@@ -188,8 +189,9 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
     fps = rig.fps
     offsets = np.zeros(len(cams)) if time_offsets is None else np.asarray(time_offsets, float)
     launch_times = np.asarray(launch_times, dtype=float)
-    t_begin = float(launch_times.min()) - lead_in
-    t_end = float(launch_times.max()) + duration
+    first, last = (launch_times.min(), launch_times.max()) if launch_times.size else (0.0, 0.0)
+    t_begin = float(first) - lead_in
+    t_end = float(last) + duration
     n_frames = int(np.floor((t_end - t_begin) * fps)) + 1
     frame_t = t_begin + np.arange(n_frames) / fps
     n_sub = 5
@@ -201,7 +203,7 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                                         for o in offsets] + [frame_t]))
         keep = times >= t0
         events, samples = rollout(np.asarray(state, dtype=float), params, t0=t0,
-                                  t_max=duration, stop_at_net=True, max_bounces=2,
+                                  t_max=t0 + duration, stop_at_net=True, max_bounces=2,
                                   sample_times=times[keep])
         tracks.append((times[keep], samples))
         in_frame = (frame_t >= t0)

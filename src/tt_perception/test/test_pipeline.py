@@ -1,0 +1,185 @@
+"""Perception on rendered scenes (two cameras at 150 fps, 640 x 480): the issue's accuracy,
+spin and robustness criteria, each checked against the model's truth of the scene."""
+
+import numpy as np
+import pytest
+from tt_perception.detect import DetectorConfig
+from tt_perception.pipeline import Pipeline
+
+from tt_perception import synth
+
+TOPSPIN_RPS = 40.0     # |w_perp| >= 30 rps, as the issue asks
+FILTER_SETTLE = 0.05   # s after a track's start (and after a bounce) before velocity is judged
+
+
+def run(rig, frames, colour='any', **kwargs):
+    pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour), **kwargs)
+    estimates, errors = [], []
+    for t, k, frame in frames:
+        estimates += pipe.process(t, k, frame)
+        if pipe.last_error:
+            errors.append(pipe.last_error)
+    return estimates, errors
+
+
+def matched(estimates, truth):
+    """Estimates with the true state at their time (camera 0's frames)."""
+    out = []
+    for e in estimates:
+        i = np.searchsorted(truth['t'], e.t - 1e-9)
+        if i < len(truth['t']) and abs(truth['t'][i] - e.t) < 1e-6:
+            out.append((e, truth['state'][i]))
+    return out
+
+
+@pytest.fixture(scope='module')
+def white_scene():
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=8.0, topspin_rps=TOPSPIN_RPS, sidespin_rps=10.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], colour='white', duration=1.0)
+    estimates, errors = run(rig, frames, colour='white')
+    return truth[0], estimates
+
+
+def test_position_rms_within_2_mm(white_scene):
+    truth, estimates = white_scene
+    pairs = matched(estimates, truth)
+    assert len(pairs) > 60          # the ball is in both views for ~0.55 s at 150 fps
+    err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in pairs])
+    assert np.sqrt(np.mean(err ** 2)) <= 2e-3
+
+
+def test_velocity_within_5_cm_per_s_after_50_ms(white_scene):
+    truth, estimates = white_scene
+    bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
+    start = estimates[0].t
+    # After a bounce the velocity depends on the spin along the incoming velocity, which flight
+    # cannot observe: the filter needs the same settling time after it as after the start.
+    judged = [(e, s) for e, s in matched(estimates, truth)
+              if e.t >= start + FILTER_SETTLE and not bounce <= e.t < bounce + FILTER_SETTLE]
+    assert len(judged) > 40
+    err = max(np.linalg.norm(e.state[3:6] - s[3:6]) for e, s in judged)
+    assert err <= 0.05
+
+
+def test_one_track_and_nothing_from_the_distractor(white_scene):
+    truth, estimates = white_scene
+    assert {e.track_id for e in estimates} == {1}
+    # Every published state is the ball's (the distractor swings 1 m away from its path).
+    assert all(np.linalg.norm(e.state[:3] - s[:3]) < 0.02 for e, s in matched(estimates, truth))
+    assert len(matched(estimates, truth)) == len(estimates)
+
+
+def test_spin_across_velocity_after_200_ms(white_scene):
+    truth, estimates = white_scene
+    bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
+    start = estimates[0].t
+    judged = [(e, s) for e, s in matched(estimates, truth) if start + 0.2 <= e.t < bounce]
+    assert judged
+    for e, s in judged:
+        u = s[3:6] / np.linalg.norm(s[3:6])
+        true_perp = s[6:] - (s[6:] @ u) * u
+        est_perp = e.state[6:] - (e.state[6:] @ u) * u
+        assert np.linalg.norm(true_perp) >= 30 * 2 * np.pi
+        ratio = np.linalg.norm(est_perp) / np.linalg.norm(true_perp)
+        angle = np.degrees(np.arccos(np.clip(
+            est_perp @ true_perp / np.linalg.norm(est_perp) / np.linalg.norm(true_perp), -1, 1)))
+        assert 0.8 <= ratio <= 1.2 and angle <= 20.0
+
+
+def test_spin_along_velocity_unknown_until_the_bounce(white_scene):
+    truth, estimates = white_scene
+    bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
+    before = [e for e in estimates if e.t < bounce]
+    after = [e for e in estimates if e.t > bounce + 0.1]
+    assert before and after
+
+    def sigmas(e):
+        u = e.state[3:6] / np.linalg.norm(e.state[3:6])
+        cov = e.covariance[6:, 6:]
+        along = np.sqrt(u @ cov @ u)
+        across = np.sqrt(np.trace(cov) - along ** 2) / np.sqrt(2.0)
+        return along, across, e.state[6:] @ u
+
+    late = [sigmas(e) for e in before if e.t > before[0].t + 0.2]
+    # Prior 250 rad/s: across the velocity it shrinks to a few tens of rad/s; along it stays
+    # large (it falls slowly only as gravity turns the velocity), and the value along the
+    # velocity stays within its own uncertainty (no invented spin).
+    assert all(a > 120.0 and a > 3.0 * c and abs(w) < 2.0 * a for a, c, w in late)
+    assert all(sigmas(e)[0] < 60.0 for e in after)
+
+
+def test_orange_ball_with_unsynchronised_cameras():
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=10.0, topspin_rps=-20.0, y0=-0.2, target=(-0.9, 0.2))
+    half_frame = 0.5 / rig.fps
+    frames, truth = synth.render_balls(rig, [state], [0.0], colour='orange', duration=0.7,
+                                       time_offsets=[0.0, half_frame], seed=3)
+    estimates, _ = run(rig, frames, colour='orange')
+    pairs = matched(estimates, truth[0])
+    assert len(pairs) > 40
+    err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in pairs])
+    assert np.sqrt(np.mean(err ** 2)) <= 2e-3
+
+
+def test_two_balls_get_two_tracks():
+    rig = synth.demo_rig()
+    a = synth.incoming_ball(speed=9.0, y0=0.3, target=(-0.6, 0.3))
+    b = synth.incoming_ball(speed=7.0, y0=-0.3, target=(-0.8, -0.3))
+    frames, truth = synth.render_balls(rig, [a, b], [0.0, 0.8], duration=0.7, distractor=False)
+    estimates, _ = run(rig, frames)
+    ids = sorted({e.track_id for e in estimates})
+    assert len(ids) == 2
+    for track_id, tr in zip(ids, truth, strict=True):
+        pairs = matched([e for e in estimates if e.track_id == track_id], tr)
+        assert pairs and all(np.linalg.norm(e.state[:3] - s[:3]) < 0.01 for e, s in pairs)
+
+
+def test_no_ball_no_state():
+    rig = synth.demo_rig()
+    frames, _ = synth.render_balls(rig, [], [], duration=1.0)
+    estimates, errors = run(rig, frames)
+    assert estimates == [] and errors == []
+
+
+def test_one_camera_only_publishes_nothing():
+    rig = synth.demo_rig()
+    state = synth.incoming_ball()
+    frames, _ = synth.render_balls(rig, [state], [0.0], duration=0.5, drop={1: (-1.0, 1.0)})
+    estimates, errors = run(rig, frames)
+    assert estimates == []
+    assert errors and all(err == 'camera cam1: no frame' for err in errors)
+
+
+def test_corrupt_frames_are_skipped_and_the_track_goes_on():
+    rig = synth.demo_rig()
+    state = synth.incoming_ball()
+    frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.5)
+    corrupt = {0.1: np.zeros((10, 10, 3), np.uint8), 0.2: np.zeros((480, 640, 3), np.float32)}
+
+    def damaged():
+        for t, k, frame in frames:
+            bad = [f for tc, f in corrupt.items() if k == 0 and abs(t - tc) < 1e-6]
+            yield t, k, (bad[0] if bad else frame)
+
+    estimates, errors = run(rig, damaged())
+    assert any('differs from the camera' in e for e in errors)
+    assert any('not an 8-bit image' in e for e in errors)
+    assert {e.track_id for e in estimates} == {1}
+    err = [np.linalg.norm(e.state[:3] - s[:3]) for e, s in matched(estimates, truth[0])]
+    assert max(err) < 0.01
+
+
+def test_vanishing_camera_stops_states_and_they_resume():
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=7.0)
+    gone = (0.12, 0.25)
+    frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.6, drop={1: gone})
+    estimates, errors = run(rig, frames)
+    assert 'camera cam1: no frame' in errors
+    # While camera 1 is away nothing is triangulated: at most the coasting limit passes with no
+    # new state, then states come back (a new track) and they are right.
+    assert not [e for e in estimates if gone[0] + 1e-6 < e.t < gone[1]]
+    assert [e for e in estimates if e.t > gone[1]]
+    err = [np.linalg.norm(e.state[:3] - s[:3]) for e, s in matched(estimates, truth[0])]
+    assert max(err) < 0.01
