@@ -1,0 +1,298 @@
+"""prediction_node: /ball/state -> /ball/prediction, /ball/predicted_path, /tt/markers.
+
+The ROS glue around :mod:`tt_prediction.predict` and :mod:`tt_prediction.uncertainty`:
+parameters, QoS, message conversion. Each BallState (sensor-data QoS) gives one
+BallPrediction stamped with the state's stamp; the path and markers follow at a lower rate.
+Invalid or stale states are dropped with a throttled warning (nothing is published for them).
+"""
+
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, PoseStamped
+from nav_msgs.msg import Path
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from visualization_msgs.msg import Marker, MarkerArray
+
+from tt_msgs.msg import BallPrediction, BallState
+
+from .params import load_model
+from .predict import DEFAULT_HIT_PLANE_X, check_state, predict
+from .uncertainty import predict_uncertainty
+
+BOUNCE_MARGIN_S = 0.02
+"""A track's state stamped this long after its predicted bounce on the robot's half is taken
+to be past that bounce (so the plane crossing ahead is the hit), s."""
+MAX_TRACKS = 8
+"""Tracks remembered (the last predicted bounce and uncertainty of each)."""
+
+
+def _time(ns):
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def _point(p):
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _set_vec(msg, v):
+    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
+
+
+class _Track:
+    """What the node remembers of one track: its predicted bounce and last uncertainty."""
+
+    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns')
+
+    def __init__(self):
+        self.bounce = None
+        self.bounce_ns = None
+        self.uncertainty = None
+        self.uncertainty_ns = None
+
+
+class PredictionNode(Node):
+    """Predicts bounce, hit point and landing zone for every ball state it receives."""
+
+    def __init__(self, **kwargs):
+        super().__init__('prediction_node', **kwargs)
+
+        def rng(lo, hi):
+            return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+
+        self.declare_parameter('hit_plane_x', DEFAULT_HIT_PLANE_X, ParameterDescriptor(
+            description="x of the hitting plane on the robot's side (table frame), m",
+            floating_point_range=rng(-3.0, 0.0)))
+        self.declare_parameter('model_file', '', ParameterDescriptor(
+            description='model.yaml written by tt-identify; empty: the nominal model',
+            read_only=True))
+        self.declare_parameter('max_rate_hz', 0.0, ParameterDescriptor(
+            description="highest prediction rate per the states' stamps, Hz; 0: every state",
+            floating_point_range=rng(0.0, 2000.0)))
+        self.declare_parameter('uncertainty', True, ParameterDescriptor(
+            description='propagate the state covariance: zone probabilities, hit covariance'))
+        self.declare_parameter('uncertainty_rate_hz', 50.0, ParameterDescriptor(
+            description='rate of the uncertainty propagation per track (19 predictions '
+                        'each), Hz; in between the last result of the track is reused; 0: '
+                        'every state', floating_point_range=rng(0.0, 2000.0)))
+        self.declare_parameter('stale_after_s', 0.5, ParameterDescriptor(
+            description='drop states whose stamp is older than this against the node clock '
+                        '(set use_sim_time for bag replay), s; 0: never drop',
+            floating_point_range=rng(0.0, 60.0)))
+        self.declare_parameter('path_rate_hz', 30.0, ParameterDescriptor(
+            description='rate of /ball/predicted_path (and markers), Hz; 0: every state',
+            floating_point_range=rng(0.0, 2000.0)))
+        self.declare_parameter('path_step_s', 0.02, ParameterDescriptor(
+            description='time between the poses of the predicted path, s',
+            floating_point_range=rng(0.001, 0.2)))
+        self.declare_parameter('publish_markers', False, ParameterDescriptor(
+            description='publish visualization markers on /tt/markers'))
+
+        try:
+            self.params = load_model(self.get_parameter('model_file').value)
+        except ValueError as exc:
+            raise SystemExit(f'prediction_node: {exc}') from None
+        # Compile (or load from numba's cache) the kernels now, not on the first ball.
+        warm = np.array([1.6, 0.0, 0.3, -6.0, 0.0, 1.5, 0.0, 0.0, 0.0])
+        predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
+        predict(warm, self.params, path_dt=0.02)
+        self.tracks = {}
+        self.last_ns = None
+        self.last_path_ns = None
+        self.n_predicted = 0
+        self.n_dropped = 0
+
+        reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = self.create_publisher(BallPrediction, '/ball/prediction', reliable)
+        self.pub_path = self.create_publisher(Path, '/ball/predicted_path', reliable)
+        self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
+        self.sub = self.create_subscription(BallState, '/ball/state', self.on_state,
+                                            qos_profile_sensor_data)
+        self.get_logger().info(
+            f'predicting /ball/state -> /ball/prediction, hitting plane x = '
+            f'{self.get_parameter("hit_plane_x").value:.3f} m, model '
+            f'{self.get_parameter("model_file").value or "nominal"}')
+
+    def _drop(self, why):
+        self.n_dropped += 1
+        self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
+
+    @staticmethod
+    def _due(now_ns, last_ns, rate_hz):
+        return (rate_hz <= 0.0 or last_ns is None or now_ns < last_ns
+                or now_ns - last_ns >= 1e9 / rate_hz)
+
+    def on_state(self, msg):
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if not self._due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
+            return
+        if msg.header.frame_id not in ('', 'table'):
+            self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
+            return
+        stale = self.get_parameter('stale_after_s').value
+        if stale > 0.0:
+            age = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9
+            if age > stale:
+                self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
+                return
+        p, v, w = msg.position, msg.velocity, msg.spin
+        state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
+        reason = check_state(state, self.params.radius)
+        if reason:
+            self._drop(reason)
+            return
+        self.last_ns = stamp_ns
+        track = self.tracks.get(msg.track_id)
+        if track is None:
+            if len(self.tracks) >= MAX_TRACKS:
+                self.tracks.pop(next(iter(self.tracks)))
+            track = self.tracks[msg.track_id] = _Track()
+        plane_x = self.get_parameter('hit_plane_x').value
+        want_path = self._due(stamp_ns, self.last_path_ns,
+                              self.get_parameter('path_rate_hz').value)
+        step = self.get_parameter('path_step_s').value
+        # Times are relative to the stamp inside the integrator (float64 keeps sub-ns
+        # resolution there) and added to the integer stamp on output.
+        bounced = (track.bounce_ns is not None
+                   and stamp_ns > track.bounce_ns + BOUNCE_MARGIN_S * 1e9)
+        pred = predict(state, self.params, 0.0, plane_x, bounced=bounced,
+                       path_dt=step if want_path else None)
+        if pred.status == 'invalid':
+            self._drop(pred.reason)
+            return
+        if not bounced:
+            track.bounce = None
+            track.bounce_ns = None
+            if pred.bounce is not None and pred.bounce.half < 0:
+                track.bounce = pred.bounce
+                track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
+        out = self._prediction_msg(msg, stamp_ns, pred, track, plane_x)
+        self._add_uncertainty(out, msg, state, stamp_ns, pred, track, plane_x, bounced)
+        self.pub.publish(out)
+        self.n_predicted += 1
+        if want_path:
+            self.last_path_ns = stamp_ns
+            self._publish_path(msg, stamp_ns, pred, step)
+
+    def _prediction_msg(self, msg, stamp_ns, pred, track, plane_x):
+        out = BallPrediction()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = msg.header.frame_id or 'table'
+        out.track_id = msg.track_id
+        out.status = pred.status
+        out.hit_plane_x = float(plane_x)
+        if pred.bounce is not None:
+            bounce, bounce_ns = pred.bounce, stamp_ns + round(pred.bounce.t * 1e9)
+        else:
+            bounce, bounce_ns = track.bounce, track.bounce_ns     # the bounce already past
+        if bounce is not None:
+            out.bounce_valid = True
+            out.bounce_time = _time(bounce_ns)
+            out.bounce_point = _point(bounce.p)
+            out.bounce_zone = bounce.zone
+            out.bounce_half = bounce.half
+        if pred.hit is not None:
+            out.hit_valid = True
+            out.hit_time = _time(stamp_ns + round(pred.hit.t * 1e9))
+            out.hit_point = _point(pred.hit.p)
+            _set_vec(out.hit_velocity, pred.hit.v)
+            _set_vec(out.hit_spin, pred.hit.w)
+        return out
+
+    def _add_uncertainty(self, out, msg, state, stamp_ns, pred, track, plane_x, bounced):
+        unc = None
+        if self.get_parameter('uncertainty').value:
+            if self._due(stamp_ns, track.uncertainty_ns,
+                         self.get_parameter('uncertainty_rate_hz').value):
+                try:
+                    unc = predict_uncertainty(state, np.asarray(msg.covariance), self.params,
+                                              0.0, plane_x, bounced=bounced)
+                    track.uncertainty, track.uncertainty_ns = unc, stamp_ns
+                except ValueError as exc:
+                    self.get_logger().warning(f'covariance ignored: {exc}',
+                                              throttle_duration_sec=1.0)
+                    track.uncertainty = None
+            else:
+                unc = track.uncertainty
+        if unc is not None:
+            out.zone_probabilities = unc.zone_probabilities.tolist()
+            out.zone_probabilities_half = int(unc.zone_half)
+            out.hit_covariance = unc.hit_covariance.ravel().tolist()
+            out.hit_time_std = float(unc.hit_time_std)
+        elif out.bounce_valid:
+            probs = [0.0] * 10
+            probs[out.bounce_zone] = 1.0
+            out.zone_probabilities = probs
+            out.zone_probabilities_half = out.bounce_half
+        else:
+            out.zone_probabilities = [1.0] + [0.0] * 9
+            out.zone_probabilities_half = -1
+
+    def _publish_path(self, msg, stamp_ns, pred, step):
+        frame = msg.header.frame_id or 'table'
+        path = Path()
+        path.header.stamp = msg.header.stamp
+        path.header.frame_id = frame
+        for k, p in enumerate(pred.path):
+            pose = PoseStamped()
+            pose.header.stamp = _time(stamp_ns + round(k * step * 1e9))
+            pose.header.frame_id = frame
+            pose.pose.position = _point(p)
+            pose.pose.orientation.w = 1.0
+            path.poses.append(pose)
+        self.pub_path.publish(path)
+        if self.get_parameter('publish_markers').value:
+            self.pub_markers.publish(self._markers(msg, pred))
+
+    def _markers(self, msg, pred):
+        frame = msg.header.frame_id or 'table'
+        markers = MarkerArray()
+
+        def marker(mid, kind, rgb, scale):
+            m = Marker()
+            m.header.stamp = msg.header.stamp
+            m.header.frame_id = frame
+            m.ns = 'ball_prediction'
+            m.id = mid
+            m.type = kind
+            m.action = Marker.ADD
+            m.pose.orientation.w = 1.0
+            m.scale.x = m.scale.y = m.scale.z = scale
+            m.color.r, m.color.g, m.color.b = rgb
+            m.color.a = 1.0
+            m.lifetime.nanosec = 500_000_000
+            markers.markers.append(m)
+            return m
+
+        ball = marker(0, Marker.SPHERE, (1.0, 0.55, 0.0), 2 * self.params.radius)
+        ball.pose.position = msg.position
+        line = marker(1, Marker.LINE_STRIP, (0.2, 0.6, 1.0), 0.005)
+        line.points = [_point(p) for p in pred.path]
+        if pred.bounce is not None:
+            marker(2, Marker.CYLINDER, (1.0, 1.0, 0.0), 0.06).pose.position = _point(
+                pred.bounce.p)
+        if pred.hit is not None:
+            marker(3, Marker.SPHERE, (0.0, 1.0, 0.3), 0.05).pose.position = _point(pred.hit.p)
+        return markers
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PredictionNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
