@@ -68,6 +68,7 @@ def bag_record(args):
         _say(f"[INFO] Recording to '{out}' ({args.storage}); Ctrl-C or SIGTERM stops")
         try:
             cli.spin_until(discover)
+            cli.drain(lambda: writer.count)
         finally:
             for sub in subscribed.values():
                 cli.node.destroy_subscription(sub)

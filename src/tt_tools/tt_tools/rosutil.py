@@ -73,6 +73,16 @@ class CliNode:
             self.executor.spin_once(timeout_sec=min(left, 0.1))
         return False
 
+    def drain(self, progress, idle_rounds=3):
+        """Run callbacks already waiting (messages received before a stop) without blocking.
+
+        ``progress()`` counts handled messages; stops after ``idle_rounds`` spins without one.
+        """
+        idle, last = 0, progress()
+        while idle < idle_rounds:
+            self.executor.spin_once(timeout_sec=0.0)
+            idle, last = (idle + 1, last) if progress() == last else (0, progress())
+
     def close(self):
         self.executor.shutdown()
         self.node.destroy_node()

@@ -1,0 +1,255 @@
+"""ros2 bag record / info / play round trips, readers, signals and bad bags."""
+
+import os
+import shutil
+import signal
+
+from conftest import Graph, Ros2Process, ros2
+from mcap.reader import make_reader
+import pytest
+from rclpy.duration import Duration
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosReliability
+from rosbags.rosbag2 import Reader
+from sensor_msgs.msg import CameraInfo
+from tt_tools.bagfile import BagError, BagWriter, open_bag
+
+from tt_msgs.msg import BallState
+
+pytestmark = pytest.mark.graph
+
+N_STATES = 20
+RATE_HZ = 20.0
+
+
+def _state(i):
+    msg = BallState()
+    msg.header.stamp.sec, msg.header.frame_id = 1000 + i, 'table'
+    msg.position.x, msg.spin.y, msg.track_id = -1.0 + 0.05 * i, 10.0 * i, i
+    msg.covariance[i] = float(i)
+    return msg
+
+
+def _info(i):
+    msg = CameraInfo()
+    msg.width, msg.height, msg.distortion_model = 640 + i, 480, 'plumb_bob'
+    msg.d = [0.01 * i, 0.0, 0.0, 0.0, 0.0]
+    return msg
+
+
+def _record(out, storage, prefix):
+    """Record N_STATES BallStates (reliable) and CameraInfos (best effort) published at 20 Hz."""
+    topics = {'state': f'{prefix}/state', 'info': f'{prefix}/info'}
+    g = Graph()
+    rec = Ros2Process('bag', 'record', '-o', str(out), '-s', storage, *topics.values())
+    try:
+        state_pub = g.node.create_publisher(BallState, topics['state'], QoSProfile(depth=50))
+        info_pub = g.node.create_publisher(CameraInfo, topics['info'], qos_profile_sensor_data)
+        g.spin_until(lambda: state_pub.get_subscription_count() >= 1
+                     and info_pub.get_subscription_count() >= 1, 60, 'the recorder to subscribe')
+        sent = {'state': [], 'info': []}
+
+        def tick():
+            i = len(sent['state'])
+            if i < N_STATES:
+                sent['state'].append(_state(i))
+                sent['info'].append(_info(i))
+                state_pub.publish(sent['state'][-1])
+                info_pub.publish(sent['info'][-1])
+
+        g.node.create_timer(1.0 / RATE_HZ, tick)
+        g.spin_until(lambda: len(sent['state']) == N_STATES, 60, 'all messages published')
+        assert state_pub.wait_for_all_acked(Duration(seconds=10))
+        rec.signal(signal.SIGINT)
+        assert rec.wait() == 0, rec.stderr
+    finally:
+        rec.stop()
+        g.close()
+    assert 'Traceback' not in rec.stderr
+    return topics, sent
+
+
+@pytest.fixture(scope='module')
+def recorded(tmp_path_factory):
+    out = tmp_path_factory.mktemp('bag') / 'session'
+    topics, sent = _record(out, 'mcap', f'/tt_bag_test_{os.getpid()}')
+    return out, topics, sent
+
+
+def _bag_messages(path):
+    """{topic: [(timestamp ns, raw bytes)]} read with rosbags."""
+    out = {}
+    with Reader(path) as reader:
+        for conn, stamp, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((stamp, bytes(raw)))
+    return out
+
+
+def _is_subsequence(part, whole):
+    it = iter(whole)
+    return all(any(x == y for y in it) for x in part)
+
+
+def test_info_counts_every_reliable_message(recorded):
+    out, topics, sent = recorded
+    rc, text, err = ros2('bag', 'info', str(out))
+    assert rc == 0, err
+    lines = dict(line.split(':', 1) for line in text.splitlines() if line[:1] != ' ')
+    assert lines['Storage id'].strip() == 'mcap'
+    n_info = len(_bag_messages(out)[topics['info']])
+    assert int(lines['Messages']) == N_STATES + n_info
+    assert (f'Topic: {topics["state"]} | Type: tt_msgs/msg/BallState | Count: {N_STATES} | '
+            'Serialization Format: cdr') in text
+
+
+def test_rosbags_and_mcap_read_the_same_messages_that_were_published(recorded):
+    out, topics, sent = recorded
+    bag = _bag_messages(out)
+    # Reliable topic: every message, in order, as sent (CDR padding bytes are arbitrary, so
+    # the comparison is on the decoded messages).
+    assert [deserialize_message(raw, BallState) for _, raw in bag[topics['state']]] == (
+        sent['state'])
+    # Best-effort topic: what arrived is a subset of what was sent, in order.
+    infos = [deserialize_message(raw, CameraInfo) for _, raw in bag[topics['info']]]
+    assert infos and _is_subsequence(infos, sent['info'])
+    with Reader(out) as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles[0].reliability for c in reader.connections}
+    assert qos == {topics['state']: QosReliability.RELIABLE,
+                   topics['info']: QosReliability.BEST_EFFORT}
+    # rosbags decodes with the definitions stored in the bag only (no tt_msgs needed).
+    with AnyReader([out]) as reader:
+        decoded = [reader.deserialize(raw, conn.msgtype)
+                   for conn, _, raw in reader.messages()
+                   if conn.topic == topics['state']]
+    assert [m.track_id for m in decoded] == list(range(N_STATES))
+    assert [m.position.x for m in decoded] == [m.position.x for m in sent['state']]
+    # The mcap reader sees the same messages with a ros2msg schema (what Foxglove decodes).
+    (mcap_file,) = out.glob('*.mcap')
+    seen = {}
+    with open(mcap_file, 'rb') as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            seen.setdefault(channel.topic, []).append((message.log_time, message.data))
+            if channel.topic == topics['state']:
+                assert (schema.name, schema.encoding) == ('tt_msgs/msg/BallState', 'ros2msg')
+                assert b'geometry_msgs/Point position' in schema.data
+                assert b'MSG: geometry_msgs/Point' in schema.data
+    assert seen == {k: [(t, raw) for t, raw in v] for k, v in bag.items()}
+
+
+def test_play_replays_content_and_timing_scaled_by_rate(recorded, graph, procs):
+    out, topics, sent = recorded
+    got = []
+    graph.node.create_subscription(
+        BallState, topics['state'],
+        lambda m: got.append((graph.node.get_clock().now().nanoseconds, m)),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    graph.node.create_subscription(CameraInfo, topics['info'], lambda m: None,
+                                   qos_profile_sensor_data)  # every topic has a subscriber
+    play = procs('bag', 'play', str(out), '--rate', '2', '--wait-for-subscribers')
+    graph.spin_until(lambda: len(got) == N_STATES, 60, 'the replayed states')
+    assert play.wait() == 0, play.stderr
+    assert [m for _, m in got] == sent['state']
+    stamps = [t for t, _ in _bag_messages(out)[topics['state']]]
+    recorded_span = (stamps[-1] - stamps[0]) / 1e9
+    played_span = (got[-1][0] - got[0][0]) / 1e9
+    assert played_span == pytest.approx(recorded_span / 2, abs=0.15)
+
+
+def test_play_selected_topics_from_an_offset(recorded, graph, procs):
+    out, topics, sent = recorded
+    bag = _bag_messages(out)
+    start = min(t for msgs in bag.values() for t, _ in msgs)
+    stamps = [t for t, _ in bag[topics['state']]]
+    offset_ns = stamps[N_STATES // 2] - start - 1000
+    expected = [sent['state'][i] for i, t in enumerate(stamps) if t >= start + offset_ns]
+    assert 0 < len(expected) < N_STATES
+    got = []
+    graph.node.create_subscription(BallState, topics['state'], got.append,
+                                   QoSProfile(depth=100))
+    play = procs('bag', 'play', str(out), '--topics', topics['state'], '--start-offset',
+                 f'{offset_ns / 1e9:.9f}', '--wait-for-subscribers')
+    graph.spin_until(lambda: len(got) == len(expected), 60, 'the replayed states')
+    # The player offers only the selected topic.
+    assert graph.node.get_publishers_info_by_topic(topics['info']) == []
+    assert play.wait() == 0, play.stderr
+    assert got == expected
+
+
+def test_sqlite3_storage_round_trip(tmp_path):
+    out = tmp_path / 'db'
+    topics, sent = _record(out, 'sqlite3', f'/tt_bag_sqlite_{os.getpid()}')
+    assert list(out.glob('*.db3'))
+    bag = _bag_messages(out)
+    assert [deserialize_message(raw, BallState) for _, raw in bag[topics['state']]] == (
+        sent['state'])
+    rc, text, _ = ros2('bag', 'info', str(out))
+    assert rc == 0 and 'Storage id:        sqlite3' in text
+
+
+def test_sigterm_while_recording_leaves_a_complete_bag(graph, procs, tmp_path, topic):
+    out = tmp_path / 'cut_short'
+    rec = procs('bag', 'record', '-o', str(out), topic)
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=100))
+    graph.spin_until(lambda: pub.get_subscription_count() >= 1, 60, 'the recorder')
+    sent = []
+
+    def tick():
+        sent.append(_state(len(sent) % 81))
+        pub.publish(sent[-1])
+
+    graph.node.create_timer(0.01, tick)
+    graph.spin_until(lambda: len(sent) >= 30, 60, '30 messages published')
+    assert pub.wait_for_all_acked(Duration(seconds=10))
+    acked = len(sent)
+    rec.signal(signal.SIGTERM)  # the publisher keeps going while the recorder stops
+    graph.spin_until(lambda: rec.proc.poll() is not None, 60, 'the recorder to exit')
+    assert rec.wait() == 0 and 'Traceback' not in rec.stderr
+    reader = open_bag(str(out))  # raises if metadata and storage disagree
+    try:
+        got = [deserialize_message(raw, BallState) for _, _, raw in reader.messages()]
+    finally:
+        reader.close()
+    assert acked <= len(got) <= len(sent)
+    assert got == sent[:len(got)]
+
+
+def _small_bag(path, storage):
+    writer = BagWriter(str(path), storage)
+    conn = writer.add_topic('/ball/state', 'tt_msgs/msg/BallState')
+    for i in range(300):
+        writer.write(conn, 10**18 + i * 10**7, serialize_message(_state(i % 81)))
+    writer.close()
+    return path
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_truncated_bag_is_a_one_line_error(tmp_path, storage):
+    bag = _small_bag(tmp_path / 'whole', storage)
+    assert open_bag(str(bag)).message_count == 300
+    cut = tmp_path / 'cut'
+    shutil.copytree(bag, cut)
+    (storage_file,) = [p for p in cut.iterdir() if p.name != 'metadata.yaml']
+    os.truncate(storage_file, storage_file.stat().st_size * 6 // 10)
+    for verb in ('info', 'play'):
+        rc, out, err = ros2('bag', verb, str(cut))
+        assert rc == 1 and out == ''
+        assert err.count('\n') == 1 and 'truncated or corrupt' in err, err
+
+
+def test_foreign_paths_are_one_line_errors(tmp_path):
+    random_file = tmp_path / 'noise.mcap'
+    random_file.write_bytes(os.urandom(4096))
+    empty_dir = tmp_path / 'empty'
+    empty_dir.mkdir()
+    fake = shutil.copytree(_small_bag(tmp_path / 'good', 'mcap'), tmp_path / 'fake')
+    (storage_file,) = fake.glob('*.mcap')
+    storage_file.write_bytes(os.urandom(4096))
+    cases = [(random_file, 'not a rosbag2 bag'), (empty_dir, 'no metadata.yaml'),
+             (tmp_path / 'missing', 'does not exist'), (fake, 'truncated or corrupt')]
+    for path, words in cases:
+        with pytest.raises(BagError, match=words):
+            open_bag(str(path))
+    rc, out, err = ros2('bag', 'info', str(random_file))
+    assert rc == 1 and err.count('\n') == 1 and 'not a rosbag2 bag' in err

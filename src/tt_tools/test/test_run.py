@@ -1,0 +1,79 @@
+"""ros2 run: ament-index lookup, error paths, exec with arguments; handover to a real ros2cli."""
+
+import os
+import pathlib
+import shutil
+import subprocess
+
+from conftest import ROS2, ros2
+import pytest
+from tt_tools.procs import ros_env
+from tt_tools.run import RunError, executables, find_executable, package_prefix
+
+
+def _fake_prefix(root, package, exes):
+    marker = root / 'share' / 'ament_index' / 'resource_index' / 'packages' / package
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text('')
+    lib = root / 'lib' / package
+    lib.mkdir(parents=True, exist_ok=True)
+    for name, mode in exes.items():
+        (lib / name).write_text('#!/bin/sh\necho "$0 $@"\n')
+        (lib / name).chmod(mode)
+    return root
+
+
+def test_lookup_follows_the_ament_prefix_path_in_order(tmp_path):
+    first = _fake_prefix(tmp_path / 'a', 'demo_pkg', {'talker': 0o755, 'notes.txt': 0o644})
+    second = _fake_prefix(tmp_path / 'b', 'demo_pkg', {'listener': 0o755})
+    search = os.pathsep.join([str(tmp_path / 'empty'), str(first), str(second)])
+    assert package_prefix('demo_pkg', search) == str(first)
+    assert executables('demo_pkg', search) == ['talker']  # not the non-executable file
+    assert find_executable('demo_pkg', 'talker', search) == str(first / 'lib/demo_pkg/talker')
+    with pytest.raises(RunError, match="No executable 'listener'"):
+        find_executable('demo_pkg', 'listener', search)
+    with pytest.raises(RunError, match="Package 'other' not found"):
+        find_executable('other', 'talker', search)
+
+
+@pytest.mark.parametrize('args, words', [
+    (('no_such_package', 'node'), "Package 'no_such_package' not found"),
+    (('tt_tools', 'no_such_executable'), "No executable 'no_such_executable'"),
+])
+def test_unknown_package_or_executable_is_one_line_and_exit_1(args, words):
+    rc, out, err = ros2('run', *args)
+    assert rc == 1 and out == ''
+    assert err.count('\n') == 1 and words in err
+
+
+def test_run_execs_the_installed_executable_with_its_arguments(tmp_path):
+    prefix = _fake_prefix(tmp_path, 'demo_pkg', {'talker': 0o755})
+    env = {'AMENT_PREFIX_PATH': str(prefix)}
+    rc, out, err = ros2('run', 'demo_pkg', 'talker', 'x', '--ros-args', '-p', 'a:=1', env=env)
+    assert rc == 0, err
+    assert out == f'{prefix}/lib/demo_pkg/talker x --ros-args -p a:=1\n'
+
+
+def test_hands_over_to_a_real_ros2cli_when_importable(tmp_path):
+    fake = tmp_path / 'ros2cli'
+    fake.mkdir()
+    (fake / '__init__.py').write_text('')
+    (fake / 'cli.py').write_text('import sys\n\ndef main():\n'
+                                 '    print("real ros2cli", sys.argv[1:])\n    return 3\n')
+    env = ros_env({'PYTHONPATH': f'{tmp_path}{os.pathsep}{os.environ.get("PYTHONPATH", "")}'})
+    env.pop('TT_ROS2_NO_HANDOVER', None)
+    out = subprocess.run([*ROS2, 'topic', 'list'], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 3 and out.stdout == "real ros2cli ['topic', 'list']\n"
+    env['TT_ROS2_NO_HANDOVER'] = '1'
+    out = subprocess.run([*ROS2, 'run', 'no_such_package', 'x'], env=env, capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 1 and 'not found' in out.stderr
+
+
+def test_ros2_on_path_is_the_workspace_script():
+    found = shutil.which('ros2')
+    if found is None:
+        pytest.skip('env.sh not sourced: no ros2 on PATH')
+    top = pathlib.Path(__file__).resolve().parents[3]
+    assert pathlib.Path(found).resolve().is_relative_to(top / 'install' / 'tt_tools'), found
