@@ -103,6 +103,7 @@ class PredictionNode(Node):
         self.tracks = {}
         self.last_ns = None
         self.last_path_ns = None
+        self.n_received = 0
         self.n_predicted = 0
         self.n_dropped = 0
 
@@ -127,6 +128,7 @@ class PredictionNode(Node):
                 or now_ns - last_ns >= 1e9 / rate_hz)
 
     def on_state(self, msg):
+        self.n_received += 1
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if not self._due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
             return
@@ -288,6 +290,11 @@ def main(args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT or SIGTERM while starting (compiling the kernels) shuts the context down
+        # first; what fails after that is the shutdown, not an error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -1,0 +1,196 @@
+"""prediction_node on a live graph: fresh Context per test, executors spun until a condition
+holds (no sleeps), topics remapped to names no other test on this machine uses."""
+
+import math
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+import uuid
+
+from nav_msgs.msg import Path
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from tt_prediction.node import PredictionNode
+from tt_prediction.predict import predict
+import yaml
+
+from tt_msgs.msg import BallPrediction, BallState
+
+CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'prediction.yaml'
+GOOD = [1.6, 0.1, 0.3, -6.0, 0.0, 1.5, 0.0, 100.0, 0.0]
+COV = np.diag([1e-6] * 3 + [1e-2] * 3 + [100.0] * 3)
+
+
+class Graph:
+    """A prediction node and a test node in one fresh context and executor."""
+
+    def __init__(self, overrides=(), args=None):
+        self.prefix = f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, args=args)
+        remap = ['--ros-args']
+        for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
+            remap += ['-r', f'{topic}:={self.prefix}{topic}']
+        self.node = PredictionNode(context=self.context, cli_args=remap,
+                                   parameter_overrides=list(overrides))
+        self.test = rclpy.create_node(f'test_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.predictions, self.paths = [], []
+        self.test.create_subscription(BallPrediction, f'{self.prefix}/ball/prediction',
+                                      self.predictions.append, 50)
+        self.test.create_subscription(Path, f'{self.prefix}/ball/predicted_path',
+                                      self.paths.append, 50)
+        self.pub = self.test.create_publisher(BallState, f'{self.prefix}/ball/state',
+                                              qos_profile_sensor_data)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.spin_until(lambda: self.pub.get_subscription_count() > 0
+                        and self.test.count_publishers(f'{self.prefix}/ball/prediction') > 0,
+                        10.0, 'discovery')
+
+    def spin_until(self, condition, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def state(self, values, stamp_ns=None, track_id=1, cov=COV):
+        msg = BallState()
+        stamp_ns = self.node.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        msg.header.frame_id = 'table'
+        (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y,
+         msg.velocity.z, msg.spin.x, msg.spin.y, msg.spin.z) = [float(v) for v in values]
+        msg.covariance = np.asarray(cov, dtype=float).ravel().tolist()
+        msg.track_id = track_id
+        return msg
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.test.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def graph():
+    g = Graph()
+    yield g
+    g.close()
+
+
+def ns(t):
+    return t.sec * 1_000_000_000 + t.nanosec
+
+
+def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
+    msg = graph.state(GOOD, track_id=7)
+    graph.pub.publish(msg)
+    graph.spin_until(lambda: graph.predictions and graph.paths, 10.0, 'prediction and path')
+    out = graph.predictions[0]
+    stamp = ns(msg.header.stamp)
+    expected = predict(GOOD)                     # the same ball, times relative to the stamp
+    assert out.header.stamp == msg.header.stamp and out.track_id == 7
+    assert out.status == 'ok' and out.bounce_valid and out.hit_valid
+    assert ns(out.bounce_time) - stamp == pytest.approx(expected.bounce.t * 1e9, abs=2)
+    assert ns(out.hit_time) - stamp == pytest.approx(expected.hit.t * 1e9, abs=2)
+    assert out.hit_point.x == -1.5 and out.hit_plane_x == -1.5
+    assert out.bounce_half == -1 and out.bounce_zone == expected.bounce.zone
+    # Uncertainty from the covariance: a distribution over the areas, a symmetric covariance.
+    assert sum(out.zone_probabilities) == pytest.approx(1.0)
+    assert out.zone_probabilities_half == -1
+    assert max(out.zone_probabilities) == out.zone_probabilities[out.bounce_zone]
+    cov = np.asarray(out.hit_covariance).reshape(3, 3)
+    np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+    assert cov[1, 1] > 0.0 and out.hit_time_std > 0.0
+    path = graph.paths[0]
+    assert path.header.stamp == msg.header.stamp and path.header.frame_id == 'table'
+    first = path.poses[0].pose.position
+    assert (first.x, first.y, first.z) == pytest.approx(GOOD[:3])
+    assert path.poses[-1].pose.position.x >= -1.5
+
+
+def test_bad_and_stale_states_publish_nothing(graph):
+    now = graph.node.get_clock().now().nanoseconds
+    bad = [
+        graph.state([math.nan, 0, 0.3, -6, 0, 1, 0, 0, 0]),
+        graph.state([0.5, 0.0, -0.1, -6, 0, 1, 0, 0, 0]),            # below the table
+        graph.state([1.0, 0.0, 0.3, 0, 0, 0, 0, 0, 0]),               # at rest
+        graph.state(GOOD, stamp_ns=now - 10_000_000_000),             # 10 s old
+    ]
+    for msg in bad:
+        graph.pub.publish(msg)
+    good = graph.state(GOOD)
+    graph.pub.publish(good)
+    graph.spin_until(lambda: graph.predictions, 10.0, 'the prediction of the good state')
+    # Messages of one publisher arrive in order: anything for the bad ones would come first.
+    assert [p.header.stamp for p in graph.predictions] == [good.header.stamp]
+    assert graph.node.n_dropped == len(bad) and graph.node.n_predicted == 1
+
+
+def test_a_bad_covariance_still_gives_the_prediction(graph):
+    graph.pub.publish(graph.state(GOOD, cov=-np.eye(9)))
+    graph.spin_until(lambda: graph.predictions, 10.0, 'prediction')
+    out = graph.predictions[0]
+    assert out.status == 'ok'
+    assert out.zone_probabilities[out.bounce_zone] == 1.0     # the nominal zone, no spread
+    assert not any(out.hit_covariance)
+
+
+def test_max_rate_skips_states_by_their_stamps():
+    g = Graph(overrides=[rclpy.parameter.Parameter('max_rate_hz', value=100.0)])
+    try:
+        t0 = g.node.get_clock().now().nanoseconds
+        for k in range(11):                                  # 500 Hz by the stamps
+            g.pub.publish(g.state(GOOD, stamp_ns=t0 + k * 2_000_000))
+            g.spin_until(lambda k=k: g.node.n_received == k + 1, 10.0, f'state {k}')
+        g.spin_until(lambda: len(g.predictions) == g.node.n_predicted, 10.0, 'predictions')
+        assert [ns(p.header.stamp) - t0 for p in g.predictions] == [0, 10_000_000, 20_000_000]
+    finally:
+        g.close()
+
+
+def test_the_config_file_sets_the_parameters():
+    g = Graph(args=['--ros-args', '--params-file', str(CONFIG)])
+    try:
+        expected = yaml.safe_load(CONFIG.read_text())['prediction_node']['ros__parameters']
+        for name, value in expected.items():
+            assert g.node.get_parameter(name).value == value, name
+    finally:
+        g.close()
+
+
+def test_a_bad_model_file_stops_the_node_with_a_one_line_reason(tmp_path):
+    model = tmp_path / 'model.yaml'
+    model.write_text('ball: [1, 2]\n')
+    with pytest.raises(SystemExit, match='model.yaml'):
+        Graph(overrides=[rclpy.parameter.Parameter('model_file', value=str(model))])
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node'], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        # Started once it logs its topics (after compiling or loading the kernels).
+        line = ''
+        deadline = time.monotonic() + 120
+        while 'predicting' not in line and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, 'node exited early'
+        proc.send_signal(sig)
+        rest, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, rest
+    assert 'Traceback' not in rest
