@@ -1,0 +1,140 @@
+"""perception_node in a live graph: rendered images in on the rig's topics, BallState out.
+
+Launch-free, a fresh rclpy Context per test; the test spins the executor until each published
+image has reached the node (no sleeps)."""
+
+import os
+import time
+import uuid
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from tt_perception.camera import load_rig
+from tt_perception.node import PerceptionNode
+
+from tt_msgs.msg import BallState
+from tt_perception import synth
+
+T0 = 1000.0      # stamp of the scene's time 0, s
+
+
+def unique_topics():
+    """Topic names of this test alone (other graphs may run on the same machine)."""
+    ns = f'/tt_perception_test_{os.getpid()}_{uuid.uuid4().hex[:8]}'
+    return ns, [f'{ns}/cam{k}/image_raw' for k in range(2)], f'{ns}/ball/state'
+
+
+@pytest.fixture
+def graph():
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(uuid.uuid4().int % 100) + 1)
+    executor = SingleThreadedExecutor(context=ctx)
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+
+    yield ctx, executor, add
+    for node in nodes:
+        executor.remove_node(node)
+        node.destroy_node()
+    executor.shutdown()
+    rclpy.shutdown(context=ctx)
+
+
+def spin_until(executor, condition, timeout=5.0):
+    end = time.monotonic() + timeout
+    while not condition() and time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.01)
+    return condition()
+
+
+def image_msg(t, frame):
+    msg = Image()
+    ns = int(round((T0 + t) * 1e9))
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    msg.header.frame_id = 'cam'
+    msg.height, msg.width = frame.shape[:2]
+    msg.encoding = 'bgr8'
+    msg.step = frame.shape[1] * 3
+    msg.data = frame.tobytes()
+    return msg
+
+
+def test_images_in_ball_states_out(graph, tmp_path):
+    ctx, executor, add = graph
+    ns, topics, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    rig = load_rig(rig_path)
+    state = synth.incoming_ball(speed=8.0, topspin_rps=30.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.45, lead_in=0.1)
+    node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
+                                                     f'/ball/state:={state_topic}'],
+                              parameter_overrides=[Parameter('rig_file', value=rig_path)]))
+    peer = add(rclpy.create_node('image_player', context=ctx))
+    pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
+    got = []
+    peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
+    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
+    sent = 0
+    for t, k, frame in frames:
+        pubs[k].publish(image_msg(t, frame))
+        sent += 1
+        assert spin_until(executor, lambda n=sent: node.frames_received >= n), 'image lost'
+    assert spin_until(executor, lambda: len(got) >= node.states_published > 30)
+    tr = truth[0]
+    for msg in got:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - T0
+        i = int(np.argmin(np.abs(tr['t'] - t)))
+        assert abs(tr['t'][i] - t) < 1e-6          # stamped with a camera-0 exposure time
+        p = np.array([msg.position.x, msg.position.y, msg.position.z])
+        assert np.linalg.norm(p - tr['state'][i, :3]) < 0.005
+        cov = np.array(msg.covariance).reshape(9, 9)
+        assert np.allclose(cov, cov.T) and np.all(np.diag(cov) > 0)
+        assert msg.track_id == 1 and msg.header.frame_id == 'table'
+
+
+def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
+    ctx, executor, add = graph
+    ns, topics, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    rig = load_rig(rig_path)
+    frames, _ = synth.render_balls(rig, [synth.incoming_ball()], [0.0], duration=0.3,
+                                   lead_in=0.05)
+    node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
+                                                     f'/ball/state:={state_topic}'],
+                              parameter_overrides=[Parameter('rig_file', value=rig_path)]))
+    peer = add(rclpy.create_node('image_player', context=ctx))
+    pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
+    info_pub = peer.create_publisher(CameraInfo, f'{ns}/cam1/camera_info', QoSProfile(depth=5))
+    got = []
+    peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
+    assert spin_until(executor, lambda: info_pub.get_subscription_count() > 0
+                      and all(p.get_subscription_count() > 0 for p in pubs))
+    info = CameraInfo(width=1280, height=720)        # another camera's calibration
+    info.k = [900.0, 0.0, 640.0, 0.0, 900.0, 360.0, 0.0, 0.0, 1.0]
+    info_pub.publish(info)
+    assert spin_until(executor, lambda: 1 in node._disabled)
+    sent = 0
+    for t, k, frame in frames:
+        pubs[k].publish(image_msg(t, frame))
+        sent += 1
+        assert spin_until(executor, lambda n=sent: node.frames_received >= n)
+    assert node.states_published == 0 and got == []
+
+
+def test_missing_rig_file_publishes_nothing(graph, tmp_path):
+    ctx, executor, add = graph
+    node = add(PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=str(tmp_path / 'absent.yaml'))]))
+    assert node.pipeline is None
+    executor.spin_once(timeout_sec=0.05)
+    assert node.states_published == 0

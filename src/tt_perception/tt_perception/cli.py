@@ -1,0 +1,169 @@
+"""tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
+
+    tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
+
+Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
+``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
+image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id``; the spin
+columns are left empty: perception estimates spin, it does not measure it). Bad input: one line
+on stderr, exit status 2 for the rig or calibration, 1 for the data; nothing is written then.
+"""
+
+import argparse
+import csv
+import os
+import pathlib
+import sys
+
+import numpy as np
+
+from .camera import CalibrationError, load_rig
+from .detect import DetectorConfig
+from .pipeline import Pipeline
+from .sources import VideoFileSource, image_to_bgr, source_kind
+
+
+class InputError(Exception):
+    """Video files or bag that cannot be read."""
+
+
+def file_frames(rig):
+    """(t, camera_index, frame) of the rig's video files, camera by camera at each frame index.
+
+    ``t`` is the frame index over the rig's fps, on the camera's own clock; the pipeline moves it
+    to camera 0's clock with the camera's ``time_offset``.
+    """
+    base = os.path.dirname(rig.path)
+    sources = []
+    for cam in rig.cameras:
+        if source_kind(cam.source) != 'file':
+            raise InputError(f'camera {cam.name}: source {cam.source!r} is not a video file '
+                             '(use --bag for image topics)')
+        path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
+        try:
+            sources.append(VideoFileSource(path, rig.fps).open())
+        except OSError as exc:
+            raise InputError(f'camera {cam.name}: {exc}') from None
+    try:
+        live = set(range(len(sources)))
+        while live:
+            for k in sorted(live):
+                t, frame = sources[k].read()
+                if frame is None:
+                    live.discard(k)
+                    continue
+                yield t, k, frame
+    finally:
+        for s in sources:
+            s.close()
+
+
+def bag_frames(rig, bag):
+    """(t, camera_index, frame) of the sensor_msgs/Image messages on the rig's image topics,
+    in the bag's order, ``t`` the header stamp (s)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
+    try:
+        reader = AnyReader([pathlib.Path(bag)],
+                           default_typestore=get_typestore(Stores.ROS2_JAZZY))
+        reader.open()
+    except Exception as exc:     # rosbags raises several unrelated types for a bad bag
+        raise InputError(f'{bag}: not a readable rosbag2 bag: {exc}') from None
+    try:
+        conns = [c for c in reader.connections
+                 if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image']
+        if not conns:
+            present = ', '.join(sorted(c.topic for c in reader.connections)) or 'none'
+            raise InputError(f"{bag}: no sensor_msgs/Image on the rig's topics "
+                             f'{sorted(topics)} (topics: {present})')
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            try:
+                frame = image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+            except ValueError:
+                frame = None          # the pipeline reports the camera's missing frame
+            yield t, topics[conn.topic], frame
+    finally:
+        reader.close()
+
+
+def run(rig, frames, pipeline):
+    """All estimates of the pipeline over ``frames``, and the first error met per camera."""
+    estimates, errors = [], {}
+    t_ref = None
+    for t, k, frame in frames:
+        if t_ref is None:
+            t_ref = float(np.floor(t))     # keep sub-microsecond resolution on epoch stamps
+        estimates += [(t_ref, e) for e in pipeline.process(t - t_ref, k, frame)]
+        if pipeline.last_error and k not in errors:
+            errors[k] = pipeline.last_error
+    return estimates, errors
+
+
+def write_tracks(out, estimates, label):
+    """Write one CSV per track and index.csv into ``out``; returns the file names."""
+    os.makedirs(out, exist_ok=True)
+    tracks = {}
+    for t_ref, e in estimates:
+        tracks.setdefault(e.track_id, []).append((t_ref + e.t, e.state))
+    names = []
+    for n, track_id in enumerate(sorted(tracks), start=1):
+        name = f'track_{n:03d}.csv'
+        with open(os.path.join(out, name), 'w', newline='', encoding='utf-8') as f:
+            w = csv.writer(f)
+            w.writerow(['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])
+            for t, s in tracks[track_id]:
+                w.writerow([f'{t:.6f}'] + [f'{v:.6f}' for v in s])
+        names.append(name)
+    with open(os.path.join(out, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
+        w = csv.writer(f)
+        w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id'])
+        for name, track_id in zip(names, sorted(tracks), strict=True):
+            w.writerow([name, '', '', '', label, track_id])
+    return names
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='tt-perceive',
+        description='Ball tracks (position, velocity, spin) from the video files or the bag of '
+                    'a camera rig.')
+    parser.add_argument('--rig', required=True, help='rig file (DESIGN.md)')
+    parser.add_argument('--out', required=True, help='output trajectory folder')
+    parser.add_argument('--bag', help="rosbag2 bag with sensor_msgs/Image on the rig's topics")
+    parser.add_argument('--colour', default='any', choices=('white', 'orange', 'any'),
+                        help='ball colour (default: any)')
+    parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')
+    args = parser.parse_args(argv)
+    try:
+        rig = load_rig(args.rig)
+        if len(rig.cameras) < 2:
+            raise CalibrationError(f'rig {args.rig}: needs at least two cameras, has '
+                                   f'{len(rig.cameras)}')
+    except CalibrationError as exc:
+        print(f'tt-perceive: {exc}', file=sys.stderr)
+        return 2
+    try:
+        from tt_prediction.params import load_model
+        params = load_model(args.model)
+    except Exception as exc:      # the model loader's own one-line errors
+        print(f'tt-perceive: model {args.model}: {exc}', file=sys.stderr)
+        return 2
+    pipeline = Pipeline(rig, params=params, detector_config=DetectorConfig(colour=args.colour))
+    try:
+        frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
+        estimates, errors = run(rig, frames, pipeline)
+    except InputError as exc:
+        print(f'tt-perceive: {exc}', file=sys.stderr)
+        return 1
+    for message in errors.values():
+        print(f'tt-perceive: warning: {message}', file=sys.stderr)
+    names = write_tracks(args.out, estimates, 'tt-perceive')
+    print(f'tt-perceive: {len(names)} track(s), {len(estimates)} states -> {args.out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

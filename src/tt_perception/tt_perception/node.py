@@ -1,0 +1,308 @@
+"""perception_node: ball state from the rig's cameras, published on /ball/state.
+
+ROS glue only (the math is in the pure modules). Each camera of the rig file comes from its
+``source``: an image topic (sensor_msgs/Image on the source, CameraInfo on the sibling
+``camera_info`` topic, sensor-data QoS), a V4L2 device or a video file (read by a thread per
+camera). Every frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is
+published as tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives
+from (the image header stamp), 9x9 covariance row-major (position, velocity, spin).
+
+Bad input never produces a state: a missing or invalid rig file is logged and the node stays
+idle; a CameraInfo that disagrees with the calibration disables that camera with an error; a
+frame of the wrong size or encoding is dropped with a warning; a camera that stops delivering
+is reported (and a device reopened) while the node keeps running.
+"""
+
+import math
+import os
+import queue
+import threading
+import time
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+
+from tt_msgs.msg import BallState
+
+from .camera import CalibrationError, load_rig
+from .detect import DetectorConfig
+from .estimator import FilterConfig
+from .pipeline import Pipeline, TrackerConfig
+from .sources import image_to_bgr, open_source, source_kind
+
+STATE_TOPIC = '/ball/state'
+
+
+def _floats(lo, hi):
+    return [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+
+
+def _ints(lo, hi):
+    return [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+
+
+# name: (default, description, range)
+PARAMETERS = {
+    'rig_file': ('', 'Rig file (DESIGN.md): camera poses, camera_info files and sources', None),
+    'model_file': ('', 'Ball model YAML written by tt-identify (empty: nominal model)', None),
+    'ball_colour': ('any', 'Ball colour: white, orange or any', None),
+    'diff_threshold': (22.0, 'Grey-level change against the background of a ball pixel',
+                       _floats(2, 200)),
+    'min_area': (4, 'Smallest ball blob, pixels', _ints(1, 10000)),
+    'max_area': (900, 'Largest ball blob (near, motion-blurred), pixels', _ints(4, 1000000)),
+    'max_width': (30.0, 'Largest ball diameter in the image, pixels', _floats(2, 1000)),
+    'roi_half_size': (40, 'Half size of the search window around the predicted ball, pixels',
+                      _ints(8, 2000)),
+    'pixel_sigma': (0.15, 'Standard deviation of a detected centre, pixels', _floats(0.01, 10)),
+    'max_reprojection': (2.5, 'Largest reprojection error of a triangulated ball, pixels',
+                         _floats(0.1, 50)),
+    'accel_noise': (0.05, 'Unmodelled acceleration of the filter, m/s^2/sqrt(Hz)',
+                    _floats(0.0, 100)),
+    'spin_prior': (250.0, 'Prior standard deviation of each spin component, rad/s',
+                   _floats(1, 5000)),
+    'confirm_updates': (3, 'Filter updates before a track is published', _ints(1, 100)),
+    'max_coast': (0.06, 'Time without a measurement that ends a track, s', _floats(0.001, 5)),
+    'camera_timeout': (1.0, 'Time without frames after which a camera is reported lost, s',
+                       _floats(0.05, 60)),
+    'reopen_interval': (1.0, 'Time between attempts to reopen a lost V4L2 device, s',
+                        _floats(0.05, 60)),
+    'device_width': (640, 'V4L2 frame width, pixels', _ints(16, 8192)),
+    'device_height': (480, 'V4L2 frame height, pixels', _ints(16, 8192)),
+    'device_fourcc': ('MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)', None),
+    'device_exposure': (-1.0, 'V4L2 exposure (driver units; negative: automatic)',
+                        _floats(-1, 100000)),
+}
+
+
+class PerceptionNode(Node):
+    """Cameras in, /ball/state out (see the module docstring)."""
+
+    def __init__(self, **kwargs):
+        super().__init__('perception_node', **kwargs)
+        for name, (default, text, ranges) in PARAMETERS.items():
+            descriptor = ParameterDescriptor(description=text)
+            if ranges and isinstance(default, float):
+                descriptor.floating_point_range = ranges
+            elif ranges:
+                descriptor.integer_range = ranges
+            if isinstance(default, str):
+                descriptor.type = ParameterType.PARAMETER_STRING
+            self.declare_parameter(name, default, descriptor)
+        self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
+        self.frames_received = 0
+        self.states_published = 0
+        self.pipeline = None
+        self.rig = None
+        self._t_ref = None
+        self._stop = threading.Event()
+        self._queue = queue.Queue(maxsize=64)
+        self._threads = []
+        self._last_frame = {}
+        self._lost = set()
+        self._disabled = set()
+        self._warned = set()
+        self._setup()
+
+    def _p(self, name):
+        return self.get_parameter(name).value
+
+    def _setup(self):
+        rig_file = self._p('rig_file')
+        if not rig_file:
+            self.get_logger().error('parameter rig_file is empty: no cameras, no state')
+            return
+        try:
+            rig = load_rig(rig_file)
+            if len(rig.cameras) < 2:
+                raise CalibrationError(f'rig {rig_file}: needs two cameras or more, has '
+                                       f'{len(rig.cameras)}')
+            from tt_prediction.params import load_model
+            params = load_model(self._p('model_file') or None)
+        except (CalibrationError, OSError, ValueError) as exc:
+            self.get_logger().error(f'{exc}; no state will be published')
+            return
+        colour = self._p('ball_colour')
+        if colour not in ('white', 'orange', 'any'):
+            self.get_logger().warning(f'ball_colour {colour!r} unknown: using any')
+            colour = 'any'
+        detector = DetectorConfig(
+            diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
+            max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
+            roi_half_size=self._p('roi_half_size'))
+        filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'))
+        tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
+                                max_coast=self._p('max_coast'),
+                                pixel_sigma=self._p('pixel_sigma'),
+                                max_reprojection=self._p('max_reprojection'))
+        self.rig = rig
+        self.pipeline = Pipeline(rig, params, detector, filt, tracker)
+        base = os.path.dirname(rig.path)
+        for k, cam in enumerate(rig.cameras):
+            kind = source_kind(cam.source)
+            if kind == 'topic':
+                self.create_subscription(Image, cam.source,
+                                         lambda msg, k=k: self._on_image(k, msg),
+                                         qos_profile_sensor_data)
+                info_topic = cam.source.rsplit('/', 1)[0] + '/camera_info'
+                self.create_subscription(CameraInfo, info_topic,
+                                         lambda msg, k=k: self._on_info(k, msg),
+                                         qos_profile_sensor_data)
+            else:
+                thread = threading.Thread(target=self._read_device,
+                                          args=(k, cam.source, base, rig.fps), daemon=True)
+                self._threads.append(thread)
+            self._last_frame[k] = time.monotonic()
+        self.create_timer(0.002, self._drain)
+        self.create_timer(0.25, self._watch_cameras)
+        for thread in self._threads:
+            thread.start()
+        names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
+        self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
+
+    # --- frames in ---------------------------------------------------------------------
+
+    def _on_info(self, k, msg):
+        cam = self.rig.cameras[k]
+        fx, fy = msg.k[0], msg.k[4]
+        size_ok = (msg.width, msg.height) == (cam.width, cam.height)
+        focal_ok = fx <= 0 or abs(fx - cam.K[0, 0]) <= 0.02 * cam.K[0, 0] and \
+            abs(fy - cam.K[1, 1]) <= 0.02 * cam.K[1, 1]
+        if not (size_ok and focal_ok):
+            if k not in self._disabled:
+                self.get_logger().error(
+                    f'camera {cam.name}: camera_info ({msg.width}x{msg.height}, fx {fx:.1f}) '
+                    f'disagrees with its calibration ({cam.width}x{cam.height}, fx '
+                    f'{cam.K[0, 0]:.1f}); its frames are ignored')
+            self._disabled.add(k)
+        elif k in self._disabled:
+            self._disabled.discard(k)
+            self.get_logger().info(f'camera {cam.name}: camera_info agrees again')
+
+    def _on_image(self, k, msg):
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        try:
+            frame = image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+        except ValueError as exc:
+            self._warn_once(('encoding', k), f'camera {self.rig.cameras[k].name}: {exc}')
+            frame = None
+        self._process(k, stamp if stamp > 0 else time.time(), frame)
+
+    def _read_device(self, k, source, base, fps):
+        cam = self.rig.cameras[k]
+        exposure = self._p('device_exposure')
+        options = {}
+        if source_kind(source) == 'v4l2':
+            options = {'width': self._p('device_width'), 'height': self._p('device_height'),
+                       'fourcc': self._p('device_fourcc'),
+                       'exposure': exposure if exposure >= 0 else None,
+                       'reopen_interval': self._p('reopen_interval')}
+        try:
+            src = open_source(source, base, fps, **options)
+        except OSError as exc:
+            self.get_logger().error(f'camera {cam.name}: {exc}')
+            return
+        status = ''
+        while not self._stop.is_set():
+            t, frame = src.read()
+            if src.status != status:
+                status = src.status
+                self.get_logger().warning(f'camera {cam.name}: {status}')
+            if frame is None:
+                if source_kind(source) == 'file':
+                    self.get_logger().info(f'camera {cam.name}: end of {source}')
+                    break
+                self._stop.wait(0.01)
+                continue
+            try:
+                self._queue.put((k, t, frame), timeout=0.5)
+            except queue.Full:
+                self._warn_once(('queue', k), f'camera {cam.name}: processing falls behind, '
+                                'frames dropped')
+            if source_kind(source) == 'file':
+                self._stop.wait(1.0 / fps)
+        src.close()
+
+    def _drain(self):
+        while True:
+            try:
+                k, t, frame = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            self._process(k, t, frame)
+
+    # --- processing and output ---------------------------------------------------------
+
+    def _process(self, k, stamp, frame):
+        if self.pipeline is None:
+            return
+        self.frames_received += 1
+        self._last_frame[k] = time.monotonic()
+        if k in self._lost:
+            self._lost.discard(k)
+            self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
+        if k in self._disabled:
+            frame = None
+        if self._t_ref is None:
+            self._t_ref = math.floor(stamp)   # keeps sub-microsecond resolution in float64
+        estimates = self.pipeline.process(stamp - self._t_ref, k, frame)
+        if self.pipeline.last_error and k not in self._disabled:
+            self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
+        for est in estimates:
+            self.publisher.publish(self._message(est))
+            self.states_published += 1
+
+    def _message(self, est):
+        msg = BallState()
+        ns = int(self._t_ref) * 1_000_000_000 + int(round(est.t * 1e9))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+        msg.header.frame_id = self.rig.frame_id
+        s = est.state
+        msg.position.x, msg.position.y, msg.position.z = (float(v) for v in s[:3])
+        msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(v) for v in s[3:6])
+        msg.spin.x, msg.spin.y, msg.spin.z = (float(v) for v in s[6:9])
+        msg.covariance = [float(v) for v in est.covariance.ravel()]
+        msg.track_id = int(est.track_id)
+        return msg
+
+    def _watch_cameras(self):
+        now = time.monotonic()
+        timeout = self._p('camera_timeout')
+        for k, last in self._last_frame.items():
+            if now - last > timeout and k not in self._lost and self.frames_received:
+                self._lost.add(k)
+                cam = self.rig.cameras[k]
+                self.get_logger().warning(f'camera {cam.name}: no frame for {timeout:.2f} s '
+                                          f'from {cam.source}; waiting for it to come back')
+
+    def _warn_once(self, key, text):
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def destroy_node(self):
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        return super().destroy_node()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PerceptionNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,196 @@
+"""Frame sources behind one interface: V4L2 devices, video files and image sequences, and
+sensor_msgs/Image messages (from a topic or a bag).
+
+A rig camera's ``source`` string is classified by :func:`source_kind`:
+
+- ``/dev/videoN`` or a bare integer: a V4L2 device, opened through OpenCV's ``cv2.CAP_V4L2``
+  backend with pixel format (FOURCC, e.g. MJPG), resolution, frame rate and exposure set;
+- a path with a video or image extension, a printf pattern (``cam0/%06d.png``) or a directory
+  of images: a file source (relative paths are relative to the rig file);
+- anything else starting with ``/`` or a letter (``/cam0/image_raw``): an image topic.
+
+:meth:`FrameSource.read` returns ``(t, frame)``: ``t`` the frame's time in s (V4L2: the
+driver's buffer timestamp, CLOCK_MONOTONIC, moved to the wall clock; files: frame index over
+the frame rate) and ``frame`` a BGR uint8 image, or ``None`` when no frame came. A device that
+stops delivering is released and reopened every ``reopen_interval`` s; ``status`` says what
+happened last, for the caller to report.
+"""
+
+import os
+import time
+
+import cv2
+import numpy as np
+
+VIDEO_EXTENSIONS = ('.avi', '.mp4', '.mkv', '.mov', '.webm', '.png', '.jpg', '.jpeg', '.bmp')
+
+
+def source_kind(source):
+    """'v4l2', 'file' or 'topic' for a rig camera's ``source`` string."""
+    s = str(source).strip()
+    if s.startswith('/dev/') or s.isdigit():
+        return 'v4l2'
+    if '%' in s or os.path.splitext(s)[1].lower() in VIDEO_EXTENSIONS or os.path.isdir(s):
+        return 'file'
+    return 'topic'
+
+
+class FrameSource:
+    """Common interface: ``open()``, ``read() -> (t, frame or None)``, ``close()``."""
+
+    status = ''
+
+    def open(self):
+        raise NotImplementedError
+
+    def read(self):
+        raise NotImplementedError
+
+    def close(self):
+        pass
+
+
+class VideoFileSource(FrameSource):
+    """A video file or an image sequence (printf pattern or a directory of images)."""
+
+    def __init__(self, path, fps):
+        self.path = path
+        self.fps = float(fps)
+        self.capture = None
+        self.index = 0
+
+    def open(self):
+        path = self.path
+        if os.path.isdir(path):
+            names = sorted(n for n in os.listdir(path)
+                           if os.path.splitext(n)[1].lower() in VIDEO_EXTENSIONS)
+            if not names:
+                raise OSError(f'{path}: no images in the directory')
+            path = os.path.join(path, names[0])
+            digits = ''.join(c for c in os.path.splitext(names[0])[0] if c.isdigit())
+            if digits:
+                stem = os.path.splitext(names[0])[0]
+                path = os.path.join(self.path, stem[:-len(digits)] + f'%0{len(digits)}d'
+                                    + os.path.splitext(names[0])[1])
+        elif '%' not in path and not os.path.isfile(path):
+            raise OSError(f'{path}: no such video file')
+        self.capture = cv2.VideoCapture(path)
+        if not self.capture.isOpened():
+            raise OSError(f'{path}: cannot be opened as a video or image sequence')
+        self.index = 0
+        return self
+
+    def read(self):
+        """Next frame ``(t, frame)``; ``(None, None)`` at the end of the file."""
+        ok, frame = self.capture.read()
+        if not ok:
+            return None, None
+        t = self.index / self.fps
+        self.index += 1
+        return t, frame
+
+    def close(self):
+        if self.capture is not None:
+            self.capture.release()
+            self.capture = None
+
+
+class V4L2Source(FrameSource):
+    """A V4L2 camera through OpenCV, reopened when it vanishes."""
+
+    def __init__(self, device, width=640, height=480, fps=150.0, fourcc='MJPG',
+                 exposure=None, reopen_interval=1.0):
+        self.device = int(device) if str(device).isdigit() else str(device)
+        self.width, self.height, self.fps = int(width), int(height), float(fps)
+        self.fourcc = fourcc
+        self.exposure = exposure
+        self.reopen_interval = reopen_interval
+        self.capture = None
+        self._next_try = 0.0
+        # V4L2 buffer timestamps are CLOCK_MONOTONIC; this moves them to the wall clock.
+        self._clock_offset = time.time() - time.monotonic()
+
+    def open(self):
+        cap = cv2.VideoCapture(self.device, cv2.CAP_V4L2)
+        if not cap.isOpened():
+            cap.release()
+            raise OSError(f'{self.device}: V4L2 device cannot be opened')
+        if self.fourcc:
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*self.fourcc))
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
+        cap.set(cv2.CAP_PROP_FPS, self.fps)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 2)
+        if self.exposure is not None:
+            cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)            # V4L2 manual mode
+            cap.set(cv2.CAP_PROP_EXPOSURE, float(self.exposure))
+        self.capture = cap
+        self.status = f'{self.device}: opened'
+        return self
+
+    def read(self):
+        """Next frame ``(t, frame)``, or ``(None, None)`` while the device is away."""
+        if self.capture is None:
+            now = time.monotonic()
+            if now < self._next_try:
+                return None, None
+            self._next_try = now + self.reopen_interval
+            try:
+                self.open()
+                self.status = f'{self.device}: reopened'
+            except OSError as exc:
+                self.status = str(exc)
+                return None, None
+        ok, frame = self.capture.read()
+        if not ok or frame is None:
+            self.status = f'{self.device}: camera stopped delivering frames, reopening'
+            self.close()
+            self._next_try = time.monotonic() + self.reopen_interval
+            return None, None
+        stamp_ms = self.capture.get(cv2.CAP_PROP_POS_MSEC)
+        t = stamp_ms * 1e-3 + self._clock_offset if stamp_ms > 0 else time.time()
+        return t, frame
+
+    def close(self):
+        if self.capture is not None:
+            self.capture.release()
+            self.capture = None
+
+
+def open_source(source, base_dir, fps, **v4l2_options):
+    """The :class:`FrameSource` for a rig camera's ``source`` (file or V4L2), opened."""
+    kind = source_kind(source)
+    if kind == 'v4l2':
+        return V4L2Source(source, fps=fps, **v4l2_options).open()
+    if kind == 'file':
+        path = source if os.path.isabs(source) else os.path.join(base_dir, source)
+        return VideoFileSource(path, fps).open()
+    raise OSError(f'{source}: an image topic, not a device or file')
+
+
+def image_to_bgr(encoding, height, width, step, data):
+    """A sensor_msgs/Image's pixels as a BGR uint8 array (H, W, 3).
+
+    Supports bgr8, rgb8, bgra8, rgba8 and mono8; raises ValueError for other encodings or a
+    buffer of the wrong size.
+    """
+    channels = {'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4, 'mono8': 1}.get(encoding)
+    if channels is None:
+        raise ValueError(f'image encoding {encoding!r} not supported '
+                         '(bgr8, rgb8, bgra8, rgba8, mono8)')
+    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data,
+                        dtype=np.uint8)
+    if height <= 0 or width <= 0 or step < width * channels or buf.size < height * step:
+        raise ValueError(f'image buffer of {buf.size} bytes does not hold {width}x{height} '
+                         f'{encoding} with step {step}')
+    img = buf[:height * step].reshape(height, step)[:, :width * channels]
+    img = img.reshape(height, width, channels) if channels > 1 else img.reshape(height, width)
+    if encoding == 'rgb8':
+        return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    if encoding == 'bgra8':
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if encoding == 'rgba8':
+        return cv2.cvtColor(img, cv2.COLOR_RGBA2BGR)
+    if encoding == 'mono8':
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    return np.ascontiguousarray(img)
