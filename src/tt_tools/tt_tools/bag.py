@@ -1,5 +1,6 @@
 """``ros2 bag record | play | info`` on rclpy and rosbags (rosbag2's on-disk format)."""
 
+import os
 import sys
 import time
 
@@ -28,6 +29,8 @@ def bag_record(args):
         raise BagError('give the topics to record, or -a for all')
     wanted = {t if t.startswith('/') else '/' + t for t in args.topics}
     out = args.output or default_bag_name()
+    if os.path.exists(out):
+        raise BagError(f"output '{out}' already exists")
     with CliNode('bag_record') as cli:
         own = cli.node.get_name()
         writer = BagWriter(out, args.storage)
