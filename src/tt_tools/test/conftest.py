@@ -76,9 +76,9 @@ def ros2(*args, timeout=60, env=None):
 class Graph:
     """A node in a fresh rclpy Context, spun by the test itself."""
 
-    def __init__(self):
+    def __init__(self, domain_id=None):
         self.context = rclpy.context.Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node(f'tt_tools_test_{uuid.uuid4().hex[:8]}',
                                       context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)

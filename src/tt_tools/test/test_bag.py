@@ -13,6 +13,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosReliability
 from rosbags.rosbag2 import Reader
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
 from tt_tools.bagfile import BagError, BagWriter, open_bag
 
@@ -175,6 +176,33 @@ def test_play_selected_topics_from_an_offset(recorded, graph, procs):
     assert graph.node.get_publishers_info_by_topic(topics['info']) == []
     assert play.wait() == 0, play.stderr
     assert got == expected
+
+
+def test_play_publishes_the_bag_time_on_clock(recorded, procs):
+    out, topics, sent = recorded
+    domain = 50 + os.getpid() % 50  # /clock is shared: keep this test in its own domain
+    g = Graph(domain_id=domain)
+    try:
+        clocks, got = [], []
+        g.node.create_subscription(
+            Clock, '/clock', lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+        g.node.create_subscription(BallState, topics['state'], got.append, QoSProfile(depth=100))
+        g.node.create_subscription(CameraInfo, topics['info'], lambda m: None,
+                                   qos_profile_sensor_data)
+        play = procs('bag', 'play', str(out), '--clock', '100', '--wait-for-subscribers',
+                     env={'ROS_DOMAIN_ID': str(domain)})
+        g.spin_until(lambda: len(got) == N_STATES and play.proc.poll() is not None, 60,
+                     'the replay to end')
+    finally:
+        g.close()
+    assert play.wait() == 0, play.stderr
+    bag = _bag_messages(out)
+    start = min(t for msgs in bag.values() for t, _ in msgs)
+    end = max(t for msgs in bag.values() for t, _ in msgs)
+    assert len(clocks) >= 10
+    assert clocks == sorted(clocks)
+    assert start <= clocks[0] and clocks[-1] <= end + 50_000_000
 
 
 def test_sqlite3_storage_round_trip(tmp_path):

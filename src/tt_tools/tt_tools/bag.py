@@ -5,6 +5,7 @@ import sys
 import time
 
 from rclpy.duration import Duration
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tt_tools.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 from tt_tools.introspect import import_message_type
@@ -99,6 +100,8 @@ def _playable(reader, topics):
 def bag_play(args):
     if args.rate <= 0:
         raise BagError(f'--rate must be positive, got {args.rate}')
+    if args.clock is not None and args.clock <= 0:
+        raise BagError(f'--clock must be a positive rate in Hz, got {args.clock}')
     topics = {t if t.startswith('/') else '/' + t for t in args.topics or []}
     reader = open_bag(args.bag)
     try:
@@ -114,21 +117,44 @@ def bag_play(args):
             if args.delay > 0 and not cli.spin_until(timeout=args.delay) and cli.stopped:
                 return 0
             first = reader.start_time + int(args.start_offset * 1e9)
+            # Bag time now = first + (monotonic time since t0) * rate.
+            state = {'t0': time.monotonic()}
+            if args.clock is not None:
+                _publish_clock(cli, args.clock,
+                               lambda: first + int((time.monotonic() - state['t0'])
+                                                   * args.rate * 1e9))
             while not cli.stopped:
-                t0 = time.monotonic()
+                state['t0'] = time.monotonic()
+                played = 0
                 for conn, stamp, data in reader.messages(connections=conns, start=first):
-                    due = t0 + (stamp - first) / 1e9 / args.rate
-                    cli.sleep_until(due)
+                    cli.sleep_until(state['t0'] + (stamp - first) / 1e9 / args.rate)
                     if cli.stopped:
                         break
                     pubs[conn.id].publish(bytes(data))
-                if not args.loop:
+                    played += 1
+                if not args.loop or not played:
                     break
             for pub in pubs.values():  # let reliable subscribers fetch the last messages
                 pub.wait_for_all_acked(Duration(seconds=1.0))
     finally:
         reader.close()
     return 0
+
+
+def _publish_clock(cli, rate_hz, bag_time_ns):
+    """Publish rosgraph_msgs/Clock on /clock at ``rate_hz`` with the bag time (ClockQoS)."""
+    from rosgraph_msgs.msg import Clock
+
+    pub = cli.node.create_publisher(
+        Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+    def tick():
+        ns = bag_time_ns()
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
+        pub.publish(msg)
+
+    cli.node.create_timer(1.0 / rate_hz, tick)
 
 
 def add_arguments(bag_sub):
@@ -154,6 +180,8 @@ def add_arguments(bag_sub):
                    help='wait this many seconds before playing')
     p.add_argument('--wait-for-subscribers', action='store_true',
                    help='(tt) wait until every topic has a matched subscription')
+    p.add_argument('--clock', type=float, nargs='?', const=40.0, default=None, metavar='HZ',
+                   help='publish the bag time on /clock at HZ (default 40 when given)')
     p.add_argument('--qos-depth', type=int, default=100, help='publisher queue depth')
     p.set_defaults(func=bag_play)
 
