@@ -46,6 +46,8 @@ class Camera:
     source: str = ''
     time_offset: float | None = None
     """This camera's clock minus camera 0's, s (None: unknown)."""
+    info_file: str = ''
+    """The camera_info file as the rig names it (relative to the rig file)."""
 
     def __post_init__(self):
         self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
@@ -218,21 +220,21 @@ def load_rig(path):
                     from None
         source = str(entry.get('source', ''))
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
-                              R, t, source=source, time_offset=offset))
+                              R, t, source=source, time_offset=offset,
+                              info_file=str(entry['camera_info'])))
     names = [c.name for c in cameras]
     if len(set(names)) != len(names):
         raise CalibrationError(f'rig {path}: camera names are not unique: {names}')
     return Rig(cameras, fps, str(data.get('frame_id', 'table')), os.path.abspath(path))
 
 
-def save_rig(path, rig, camera_info_files=None):
-    """Write a rig file; ``camera_info_files`` lists each camera's info path (relative)."""
+def save_rig(path, rig):
+    """Write a rig file (camera_info paths: each camera's ``info_file``, else NAME.yaml)."""
     entries = []
-    for i, cam in enumerate(rig.cameras):
+    for cam in rig.cameras:
         entry = {
             'name': cam.name,
-            'camera_info': (camera_info_files[i] if camera_info_files
-                            else f'{cam.name}.yaml'),
+            'camera_info': cam.info_file or f'{cam.name}.yaml',
             'source': cam.source,
             'rotation': [float(v) for v in cam.R.ravel()],
             'translation': [float(v) for v in cam.t],

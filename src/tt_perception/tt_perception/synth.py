@@ -296,13 +296,11 @@ def write_scene(directory, rig_path, frames, truth, fmt='avi'):
     for w in writers.values():
         w.release()
     out_rig = os.path.join(directory, 'rig.yaml')
-    infos = []
     for cam in rig.cameras:
-        info = f'{cam.name}.yaml'
-        save_camera_info(os.path.join(directory, info), cam.name, cam.width, cam.height,
-                         cam.K, cam.dist)
-        infos.append(info)
-    save_rig(out_rig, rig, infos)
+        cam.info_file = f'{cam.name}.yaml'
+        save_camera_info(os.path.join(directory, cam.info_file), cam.name, cam.width,
+                         cam.height, cam.K, cam.dist)
+    save_rig(out_rig, rig)
     with open(os.path.join(directory, 'truth.csv'), 'w', newline='', encoding='utf-8') as f:
         w = csv.writer(f)
         w.writerow(['ball', 't', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])

@@ -1,0 +1,150 @@
+"""Cameras, rig files, triangulation, the filter's model and the pose command, each against
+geometry or tt_prediction's integrator."""
+
+import numpy as np
+import pytest
+from tt_perception.camera import CalibrationError, load_rig
+from tt_perception.estimator import BallFilter
+from tt_perception.triangulate import triangulate
+from tt_prediction.integrate import rollout
+from tt_prediction.params import ModelParams
+import yaml
+
+from tt_perception import calibrate, synth
+
+RNG = np.random.default_rng(5)
+
+
+def points_in_view(n=20):
+    """Points over the robot's half of the table, where both demo cameras look."""
+    return np.column_stack([RNG.uniform(-1.3, 0.5, n), RNG.uniform(-0.6, 0.6, n),
+                            RNG.uniform(0.05, 0.6, n)])
+
+
+def test_undistortion_inverts_the_lens_model():
+    cam = synth.demo_rig().cameras[0]
+    X = points_in_view()
+    Xc = cam.to_camera(X)
+    pinhole = Xc[:, :2] / Xc[:, 2:]
+    assert np.abs(cam.dist).max() > 0.01      # a real distortion to undo
+    assert np.allclose(cam.normalise(cam.project(X)), pinhole, atol=1e-8)
+
+
+def test_triangulation_recovers_points_and_drops_a_wrong_camera():
+    rig = synth.demo_rig()
+    third = synth.demo_rig().cameras[1]
+    third.name = 'cam2'
+    for X in points_in_view(5):
+        obs = np.array([c.normalise(c.project(X))[0] for c in rig.cameras])
+        Xt, cov, residual, used = triangulate(rig.cameras, obs)
+        assert np.linalg.norm(Xt - X) < 1e-7 and residual.max() < 1e-4
+        assert np.all(np.linalg.eigvalsh(cov) > 0)
+        bad = third.normalise(third.project(X) + [15.0, -10.0])[0]     # 18 px off
+        result = triangulate(rig.cameras + [third], np.vstack([obs, bad]))
+        assert result[3] == [0, 1] and np.linalg.norm(result[0] - X) < 1e-7
+
+
+def test_rig_round_trip(tmp_path):
+    path = synth.make_rig(str(tmp_path), time_offsets=[0.0, 0.002])
+    rig = load_rig(path)
+    ref = synth.demo_rig()
+    for a, b in zip(rig.cameras, ref.cameras, strict=True):
+        assert np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.K, b.K)
+        assert np.allclose(a.dist, b.dist) and a.source == b.source
+    assert rig.cameras[1].time_offset == 0.002 and rig.fps == 150.0
+
+
+@pytest.mark.parametrize('change, expect', [
+    (lambda rig, info: rig.unlink(), 'no such file'),
+    (lambda rig, info: info.unlink(), 'cam0.yaml: no such file'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(rotation=[1] * 9)),
+     'rotation is not a rotation matrix'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(translation=['a', 0, 0])),
+     'cameras[1] (cam1): rotation needs 9 numbers and translation 3'),
+    (lambda rig, info: _edit(info, lambda d: d['camera_matrix'].update(data=[0] * 9)),
+     'camera_matrix is not a pinhole matrix'),
+    (lambda rig, info: _edit(info, lambda d: d.pop('image_width')),
+     'image_width/image_height missing'),
+    (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
+    (lambda rig, info: _edit(rig, lambda d: d.update(fps=-1)), 'fps must be a positive'),
+], ids=['missing rig', 'missing camera_info', 'bad rotation', 'bad translation',
+        'bad camera matrix', 'no image size', 'broken yaml', 'bad fps'])
+def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
+    path = tmp_path / 'rig.yaml'
+    synth.make_rig(str(tmp_path))
+    change(path, tmp_path / 'cam0.yaml')
+    with pytest.raises(CalibrationError) as err:
+        load_rig(str(path))
+    assert expect in str(err.value) and '\n' not in str(err.value)
+
+
+def _edit(path, fn):
+    data = yaml.safe_load(path.read_text())
+    fn(data)
+    path.write_text(yaml.safe_dump(data))
+
+
+def test_filter_prediction_follows_the_model_through_a_bounce():
+    params = ModelParams()
+    state = synth.incoming_ball(speed=8.0, topspin_rps=30.0, sidespin_rps=15.0)
+    times = np.array([0.2, 0.5])
+    events, samples = rollout(state, params, sample_times=times)
+    bounce = [e for e in events if e.kind == 'bounce'][0]
+    assert times[0] < bounce.t < times[1]
+    f = BallFilter(params)
+    f.start(0.0, state[:3], state[3:6], np.eye(3) * 1e-6, np.eye(3) * 1e-4)
+    f.x[6:] = state[6:]
+    f.predict(times[0])
+    assert np.allclose(f.x, samples[0], atol=1e-6)       # flight: same eq. 8, RK4
+    f.predict(times[1])
+    assert f.bounces == 1
+    # Through the bounce: contact time located within the step, rebound of eqs. 1-6.
+    assert np.linalg.norm(f.x[:3] - samples[1][:3]) < 1e-3
+    assert np.linalg.norm(f.x[3:6] - samples[1][3:6]) < 1e-2
+
+
+def _background(rig, k):
+    frames, _ = synth.render_balls(rig, [], [], duration=0.0, lead_in=0.0, distractor=False)
+    return [f for _, i, f in frames if i == k][0]
+
+
+def test_pose_from_the_table_outline(tmp_path):
+    k = 0            # the camera that sees the whole table
+    import cv2
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    true = rig.cameras[k]
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(rig, k))
+    # Spoil the pose in the rig, then let the command find it again.
+    data = yaml.safe_load(open(path))
+    data['cameras'][k]['translation'] = [0.0, 0.0, 3.0]
+    yaml.safe_dump(data, open(path, 'w'))
+    assert calibrate.main(['--rig', path, '--camera', true.name, '--image', str(image)]) == 0
+    found = load_rig(path).cameras[k]
+    assert np.linalg.norm(found.centre - true.centre) < 0.03
+    angle = np.degrees(np.arccos((np.trace(found.R @ true.R.T) - 1) / 2))
+    assert angle < 0.5
+
+
+def test_pose_from_named_points(tmp_path, capsys):
+    import cv2
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    cam = rig.cameras[0]
+    names = ['robot_left', 'robot_right', 'net_left', 'net_right', 'net_post_left_top',
+             'net_post_right_top']
+    pixels = cam.project(np.array([calibrate.TABLE_POINTS[n] for n in names]))
+    points = tmp_path / 'points.yaml'
+    points.write_text(yaml.safe_dump({n: p.tolist() for n, p in zip(names, pixels,
+                                                                    strict=True)}))
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(rig, 0))
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
+                           '--points', str(points)]) == 0
+    assert np.allclose(load_rig(path).cameras[0].centre, cam.centre, atol=1e-4)
+    points.write_text(yaml.safe_dump({'corner_7': [1, 2]}))
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
+                           '--points', str(points)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'unknown point names' in err[0]

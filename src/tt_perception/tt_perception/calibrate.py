@@ -1,0 +1,161 @@
+"""A camera's pose in the ``table`` frame from the table seen in one image (solvePnP).
+
+    python -m tt_perception.calibrate --rig RIG.yaml --camera cam0 --image IMG \\
+        [--points POINTS.yaml] [--robot-end near|far]
+
+The known points are the table's (MODEL.md frame, z = 0 on the surface): the four corners,
+the ends of the centre line, the net's ends on the side lines and the tops of the net posts
+(:data:`TABLE_POINTS`). ``--points`` gives their pixels by name (a YAML mapping, e.g.
+``robot_left: [102.5, 388.0]``, any 4 or more of them); without it the four corners are found
+in the image as the largest four-sided outline of the white edge lines. The rectangle's
+corners look the same turned by 180 degrees: the solution kept is the one whose robot end
+(x = -1.37) is nearer the camera (``--robot-end near``, a camera behind the robot) or farther
+(``far``). The pose is solved with SQPnP, refined by Levenberg-Marquardt, checked (RMS
+reprojection error at most ``--max-error`` pixels, camera above the table) and written into the
+rig file; the command prints the pose and the error. Errors: one line, exit status 1.
+"""
+
+import argparse
+import sys
+
+import cv2
+import numpy as np
+from tt_prediction.table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
+
+from .camera import CalibrationError, load_rig, save_rig
+
+L, W = HALF_LENGTH, HALF_WIDTH
+TABLE_POINTS = {
+    'robot_left': (-L, W, 0.0), 'robot_right': (-L, -W, 0.0),
+    'opponent_left': (L, W, 0.0), 'opponent_right': (L, -W, 0.0),
+    'robot_centre': (-L, 0.0, 0.0), 'opponent_centre': (L, 0.0, 0.0),
+    'net_left': (0.0, W, 0.0), 'net_right': (0.0, -W, 0.0),
+    'net_post_left_top': (0.0, NET_HALF_WIDTH, NET_HEIGHT),
+    'net_post_right_top': (0.0, -NET_HALF_WIDTH, NET_HEIGHT),
+}
+"""Known points of the table, table frame, m ('left' is +y, as seen from the robot's end)."""
+CORNERS = ('robot_left', 'opponent_left', 'opponent_right', 'robot_right')
+
+
+def solve_pose(camera, object_points, image_points):
+    """Rotation R (3, 3), translation t (3,) and RMS reprojection error (pixels) of a camera
+    from >= 4 known table points (n, 3) and their distorted pixels (n, 2)."""
+    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    if len(obj) < 4:
+        raise CalibrationError(f'{len(obj)} points: the pose needs 4 or more')
+    ok, rvec, tvec = cv2.solvePnP(obj, img, camera.K, camera.dist, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        raise CalibrationError('solvePnP found no pose for these points')
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, rvec, tvec)
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
+    rms = float(np.sqrt(np.mean(np.sum((proj - img).reshape(-1, 2) ** 2, axis=1))))
+    return cv2.Rodrigues(rvec)[0], tvec.ravel(), rms
+
+
+def find_table_corners(image):
+    """Pixels (4, 2) of the table's corners in a BGR image: the convex four-sided outline of
+    the bright edge lines, in cyclic order. None if not found (the whole table must be seen)."""
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    _, bright = cv2.threshold(grey, 150, 255, cv2.THRESH_BINARY)
+    bright = cv2.morphologyEx(bright, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    contours, _ = cv2.findContours(bright, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    # The net cuts the outline in two: the hull of every long line piece is the table's.
+    long = [c for c in contours if cv2.arcLength(c, False) > 0.05 * sum(grey.shape)]
+    if not long:
+        return None
+    hull = cv2.convexHull(np.vstack(long))
+    if cv2.contourArea(hull) < 0.01 * grey.size:
+        return None
+    quad = cv2.approxPolyDP(hull, 0.02 * cv2.arcLength(hull, True), True)
+    if len(quad) != 4:
+        return None
+    # Sub-pixel: refine each corner on the grey image.
+    refined = cv2.cornerSubPix(grey, quad.astype(np.float32).reshape(-1, 1, 2), (5, 5),
+                               (-1, -1), (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT,
+                                          30, 0.01))
+    return refined.reshape(4, 2).astype(float)
+
+
+def pose_from_corners(camera, corners, robot_end='near'):
+    """Pose (R, t, rms) from the 4 corner pixels in cyclic order, trying every assignment to
+    the table's corners and keeping the best that places the robot end as asked."""
+    obj = np.array([TABLE_POINTS[name] for name in CORNERS])
+    best = None
+    for shift in range(4):
+        for order in (1, -1):
+            idx = [(shift + order * i) % 4 for i in range(4)]
+            try:
+                R, t, rms = solve_pose(camera, obj, corners[idx])
+            except (CalibrationError, cv2.error):
+                continue
+            centre = -R.T @ t
+            if centre[2] <= 0:
+                continue
+            robot_near = abs(centre[0] + L) < abs(centre[0] - L)
+            if robot_near != (robot_end == 'near'):
+                continue
+            if best is None or rms < best[2]:
+                best = (R, t, rms)
+    if best is None:
+        raise CalibrationError('no pose of the table fits the corners found')
+    return best
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog='python -m tt_perception.calibrate',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--rig', required=True, help='rig file to update')
+    parser.add_argument('--camera', required=True, help='camera name in the rig')
+    parser.add_argument('--image', required=True, help='image of the table from that camera')
+    parser.add_argument('--points', help='YAML of known point names -> [u, v] pixels')
+    parser.add_argument('--robot-end', choices=('near', 'far'), default='near',
+                        help='whether the robot end of the table is the nearer one')
+    parser.add_argument('--max-error', type=float, default=3.0,
+                        help='largest accepted RMS reprojection error, pixels')
+    args = parser.parse_args(argv)
+    try:
+        rig = load_rig(args.rig)
+        cams = [c for c in rig.cameras if c.name == args.camera]
+        if not cams:
+            raise CalibrationError(f'rig {args.rig}: no camera named {args.camera!r}')
+        cam = cams[0]
+        image = cv2.imread(args.image, cv2.IMREAD_COLOR)
+        if image is None:
+            raise CalibrationError(f'{args.image}: not a readable image')
+        if image.shape[:2] != (cam.height, cam.width):
+            raise CalibrationError(f'{args.image}: {image.shape[1]}x{image.shape[0]} but '
+                                   f'{cam.name} is calibrated at {cam.width}x{cam.height}')
+        if args.points:
+            import yaml
+            with open(args.points, encoding='utf-8') as f:
+                marks = yaml.safe_load(f) or {}
+            unknown = sorted(set(marks) - set(TABLE_POINTS))
+            if unknown:
+                raise CalibrationError(f'{args.points}: unknown point names {unknown} '
+                                       f'(known: {sorted(TABLE_POINTS)})')
+            names = sorted(marks)
+            R, t, rms = solve_pose(cam, [TABLE_POINTS[n] for n in names],
+                                   [marks[n] for n in names])
+        else:
+            corners = find_table_corners(image)
+            if corners is None:
+                raise CalibrationError(f'{args.image}: the table outline was not found; '
+                                       'give the points with --points')
+            R, t, rms = pose_from_corners(cam, corners, args.robot_end)
+        if rms > args.max_error:
+            raise CalibrationError(f'reprojection error {rms:.2f} px exceeds {args.max_error} '
+                                   'px: the points do not fit the table')
+    except (CalibrationError, OSError, ValueError, TypeError) as exc:
+        print(f'tt_perception.calibrate: {exc}', file=sys.stderr)
+        return 1
+    cam.R, cam.t = R, t
+    save_rig(args.rig, rig)
+    centre = -R.T @ t
+    print(f'{cam.name}: camera at ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}) m, '
+          f'reprojection RMS {rms:.2f} px; written to {args.rig}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
