@@ -1,0 +1,92 @@
+"""tt-perceive over rendered video files and over a bag of sensor_msgs/Image (DESIGN.md
+contract: one CSV per track, columns t,x,y,z,vx,vy,vz,wx,wy,wz)."""
+
+import csv
+
+import numpy as np
+import pytest
+from tt_perception.camera import load_rig
+
+from tt_perception import cli, synth
+
+HEADER = ['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz']
+LEAD_IN = 0.1
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory):
+    base = tmp_path_factory.mktemp('scene')
+    rig_path = synth.make_rig(str(base / 'calib'))
+    rig = load_rig(rig_path)
+    state = synth.incoming_ball(speed=8.0, topspin_rps=30.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.5, lead_in=LEAD_IN)
+    frames = list(frames)
+    return base, rig_path, frames, truth[0]
+
+
+def read_track(path):
+    with open(path, newline='') as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == HEADER
+    return np.array(rows[1:], dtype=float)
+
+
+def assert_matches_truth(rows, truth, t_shift):
+    t = rows[:, 0] + t_shift
+    idx = np.array([int(np.argmin(np.abs(truth['t'] - ti))) for ti in t])
+    assert np.abs(truth['t'][idx] - t).max() < 1e-5
+    err = np.linalg.norm(rows[:, 1:4] - truth['state'][idx, :3], axis=1)
+    assert np.sqrt(np.mean(err ** 2)) < 2e-3 and len(rows) > 40
+
+
+@pytest.mark.parametrize('fmt', ['avi', 'png'])
+def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt=fmt)
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ['index.csv', 'track_001.csv']
+    # Video time runs from camera 0's first frame, which the scene took at -LEAD_IN.
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+    with open(out / 'index.csv', newline='') as f:
+        assert next(csv.reader(f)) == ['file', 'wx', 'wy', 'wz', 'label', 'source_id']
+
+
+def test_bag_of_images_gives_one_track(scene, tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    base, rig_path, frames, truth = scene
+    store = get_typestore(Stores.ROS2_JAZZY)
+    Image = store.types['sensor_msgs/msg/Image']
+    Header = store.types['std_msgs/msg/Header']
+    Time = store.types['builtin_interfaces/msg/Time']
+    bag = tmp_path / 'bag'
+    t0 = 500.0
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = [writer.add_connection(f'/cam{k}/image_raw', 'sensor_msgs/msg/Image',
+                                       typestore=store) for k in range(2)]
+        for t, k, frame in frames:
+            ns = int(round((t0 + t) * 1e9))
+            msg = Image(header=Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9),
+                                      frame_id=f'cam{k}'),
+                        height=frame.shape[0], width=frame.shape[1], encoding='bgr8',
+                        is_bigendian=0, step=frame.shape[1] * 3, data=frame.reshape(-1))
+            writer.write(conns[k], ns, store.serialize_cdr(msg, 'sensor_msgs/msg/Image'))
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag)]) == 0
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -t0)   # the bag's stamps
+
+
+@pytest.mark.parametrize('args, code, expect', [
+    (['--rig', '{tmp}/absent.yaml'], 2, 'absent.yaml: no such file'),
+    (['--rig', '{rig}'], 1, "source '/cam0/image_raw' is not a video file"),
+    (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
+], ids=['missing rig', 'topics without a bag', 'missing bag'])
+def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
+    base, rig_path, _, _ = scene
+    out = tmp_path / 'out'
+    args = [a.format(tmp=tmp_path, rig=rig_path) for a in args] + ['--out', str(out)]
+    assert cli.main(args) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expect in err[0]
+    assert not out.exists()
