@@ -52,6 +52,22 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
         assert next(csv.reader(f)) == ['file', 'wx', 'wy', 'wz', 'label', 'source_id']
 
 
+def test_time_offset_of_unsynchronised_videos_is_estimated(tmp_path, capsys):
+    rig_path = synth.make_rig(str(tmp_path / 'calib'))
+    lag = 0.0123                          # camera 1 exposes 1.85 frames after camera 0
+    frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball(speed=9.0)],
+                                       [0.0], duration=0.5, lead_in=LEAD_IN,
+                                       time_offsets=[0.0, lag])
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth)
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if 'time_offset' in line]
+    # Each file's clock starts at its first frame: camera 1's runs `lag` behind camera 0's.
+    estimated = float(note[0].split('time_offset ')[1].split(' ms')[0]) * 1e-3
+    assert abs(estimated - -lag) < 5e-4
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth[0], -LEAD_IN)
+
+
 def test_bag_of_images_gives_one_track(scene, tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore

@@ -148,3 +148,13 @@ def test_pose_from_named_points(tmp_path, capsys):
                            '--points', str(points)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'unknown point names' in err[0]
+
+
+def test_measured_spin_fills_in_the_unobservable_component():
+    f = BallFilter()
+    f.start(0.0, [1.0, 0.0, 0.3], [-8.0, 0.0, 1.0], np.eye(3) * 1e-6, np.eye(3) * 1e-3)
+    prior = f.spin_variance_along_velocity()
+    w = np.array([-150.0, -200.0, 30.0])        # 150 rad/s of it along the velocity (-x)
+    f.update_spin(w, np.eye(3) * 4.0)
+    assert f.spin_variance_along_velocity() < 5.0 < prior
+    assert np.allclose(f.x[6:], w, atol=0.5)

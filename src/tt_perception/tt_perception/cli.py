@@ -7,6 +7,10 @@ Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` wit
 image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id``; the spin
 columns are left empty: perception estimates spin, it does not measure it). Bad input: one line
 on stderr, exit status 2 for the rig or calibration, 1 for the data; nothing is written then.
+
+Video files have no common clock: a camera (other than camera 0) whose ``time_offset`` the
+rig leaves out gets it estimated from the ball first (:mod:`tt_perception.sync`, one extra
+pass of detection over the files), reported on stderr.
 """
 
 import argparse
@@ -18,9 +22,10 @@ import sys
 import numpy as np
 
 from .camera import CalibrationError, load_rig
-from .detect import DetectorConfig
+from .detect import BallDetector, DetectorConfig
 from .pipeline import Pipeline
 from .sources import VideoFileSource, image_to_bgr, source_kind
+from .sync import estimate_offset
 
 
 class InputError(Exception):
@@ -89,6 +94,40 @@ def bag_frames(rig, bag):
         reader.close()
 
 
+def detections_per_camera(rig, frames, colour):
+    """Single-candidate detections per camera over all frames: (times, normalised (n, 2))."""
+    detectors = [BallDetector(DetectorConfig(colour=colour)) for _ in rig.cameras]
+    found = [([], []) for _ in rig.cameras]
+    for t, k, frame in frames:
+        dets = detectors[k].detect(frame) if frame is not None else []
+        if len(dets) == 1:
+            found[k][0].append(t)
+            found[k][1].append(rig.cameras[k].normalise([[dets[0].u, dets[0].v]])[0])
+    return [(np.array(t), np.array(x).reshape(-1, 2)) for t, x in found]
+
+
+def estimate_offsets(rig, colour):
+    """Fill in the missing ``time_offset`` of the rig's cameras from the ball's detections
+    (:mod:`tt_perception.sync`); returns one line per camera estimated."""
+    missing = [k for k, cam in enumerate(rig.cameras) if k > 0 and cam.time_offset is None]
+    if not missing:
+        return []
+    found = detections_per_camera(rig, file_frames(rig), colour)
+    notes = []
+    for k in missing:
+        cam = rig.cameras[k]
+        offset, cost = estimate_offset(rig.cameras[0], cam, *found[0], *found[k], rig.fps)
+        if offset is None:
+            cam.time_offset = 0.0
+            notes.append(f'{cam.name}: too few ball detections to estimate its time offset, '
+                         'taken as 0')
+        else:
+            cam.time_offset = float(offset)
+            notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
+                         f'ball (median epipolar distance {cost * cam.focal:.2f} px)')
+    return notes
+
+
 def run(rig, frames, pipeline):
     """All estimates of the pipeline over ``frames``, and the first error met per camera."""
     estimates, errors = [], {}
@@ -151,8 +190,12 @@ def main(argv=None):
     except Exception as exc:      # the model loader's own one-line errors
         print(f'tt-perceive: model {args.model}: {exc}', file=sys.stderr)
         return 2
-    pipeline = Pipeline(rig, params=params, detector_config=DetectorConfig(colour=args.colour))
     try:
+        if not args.bag:
+            for note in estimate_offsets(rig, args.colour):
+                print(f'tt-perceive: {note}', file=sys.stderr)
+        pipeline = Pipeline(rig, params=params,
+                            detector_config=DetectorConfig(colour=args.colour))
         frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
         estimates, errors = run(rig, frames, pipeline)
     except InputError as exc:

@@ -182,6 +182,17 @@ class BallFilter:
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T     # Joseph form
         return True
 
+    def update_spin(self, w, R):
+        """Fuse a measured spin ``w`` (3,), rad/s, covariance ``R`` (3, 3) (e.g. from a marked
+        ball); it fills in the component along the velocity that flight cannot observe."""
+        y = np.asarray(w, dtype=float) - self.x[6:]
+        S = self.P[6:, 6:] + R
+        K = np.linalg.solve(S, self.P[6:, :]).T        # H = [0 0 I]
+        self.x = self.x + K @ y
+        IKH = np.eye(9)
+        IKH[:, 6:] -= K
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+
     def spin_variance_along_velocity(self):
         """Variance (rad/s)^2 of the spin component along the current velocity."""
         u = self.x[3:6] / max(np.linalg.norm(self.x[3:6]), 1e-9)

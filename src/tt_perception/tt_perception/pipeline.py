@@ -189,6 +189,15 @@ class Tracker:
         self._seed(t, points)
         return None
 
+    def measure_spin(self, t, w, R):
+        """Fuse a measured spin (rad/s, covariance R) at ``t`` into the running track, if any.
+        Returns True when it was used."""
+        if self.filter is None or t < self.filter.t - self.config.max_coast:
+            return False
+        self.filter.predict(max(t, self.filter.t))
+        self.filter.update_spin(w, R)
+        return True
+
     def _seed(self, t, points):
         """Start a track from a previous point and one of ``points`` at a plausible speed."""
         cfg = self.config

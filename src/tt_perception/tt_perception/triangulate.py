@@ -85,3 +85,10 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
             return None
         used.pop(worst)
     return None
+
+
+def relative_pose(cam_a, cam_b):
+    """Rotation and translation from camera a's optical frame to camera b's:
+    X_b = R X_a + t."""
+    R = cam_b.R @ cam_a.R.T
+    return R, cam_b.t - R @ cam_a.t
