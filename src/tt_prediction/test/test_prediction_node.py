@@ -90,11 +90,36 @@ def ns(t):
     return t.sec * 1_000_000_000 + t.nanosec
 
 
+def publish_until(graph, make_msg, condition, what, timeout=20.0):
+    """Publish states from make_msg(k), each once the node has taken the previous one, until
+    condition() holds."""
+    deadline = time.monotonic() + timeout
+    k = 0
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f'timed out waiting for {what}')
+        graph.pub.publish(make_msg(k))
+        k += 1
+        graph.spin_until(lambda k=k: graph.node.n_received >= k, 10.0, f'state {k}')
+        graph.spin_until(lambda: len(graph.predictions) + graph.node.n_dropped
+                         >= graph.node.n_received, 10.0, 'its prediction')
+
+
 def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
-    msg = graph.state(GOOD, track_id=7)
-    graph.pub.publish(msg)
-    graph.spin_until(lambda: graph.predictions and graph.paths, 10.0, 'prediction and path')
-    out = graph.predictions[0]
+    # The covariance is propagated in a worker thread: its result comes with a later
+    # prediction of the same track.
+    t0 = graph.node.get_clock().now().nanoseconds
+    msgs = []
+
+    def make(k):
+        msgs.append(graph.state(GOOD, stamp_ns=t0 + k * 25_000_000, track_id=7))
+        return msgs[-1]
+
+    publish_until(graph, make, lambda: graph.predictions and graph.paths
+                  and any(graph.predictions[-1].hit_covariance), 'uncertainty')
+    first = graph.predictions[0]
+    assert first.zone_probabilities[first.bounce_zone] == 1.0     # before any propagation
+    msg, out = msgs[-1], graph.predictions[-1]
     stamp = ns(msg.header.stamp)
     expected = predict(GOOD)                     # the same ball, times relative to the stamp
     assert out.header.stamp == msg.header.stamp and out.track_id == 7
@@ -111,7 +136,7 @@ def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
     np.testing.assert_allclose(cov, cov.T, atol=1e-15)
     assert cov[1, 1] > 0.0 and out.hit_time_std > 0.0
     path = graph.paths[0]
-    assert path.header.stamp == msg.header.stamp and path.header.frame_id == 'table'
+    assert path.header.stamp == msgs[0].header.stamp and path.header.frame_id == 'table'
     first = path.poses[0].pose.position
     assert (first.x, first.y, first.z) == pytest.approx(GOOD[:3])
     assert path.poses[-1].pose.position.x >= -1.5
@@ -136,12 +161,15 @@ def test_bad_and_stale_states_publish_nothing(graph):
 
 
 def test_a_bad_covariance_still_gives_the_prediction(graph):
-    graph.pub.publish(graph.state(GOOD, cov=-np.eye(9)))
-    graph.spin_until(lambda: graph.predictions, 10.0, 'prediction')
-    out = graph.predictions[0]
-    assert out.status == 'ok'
-    assert out.zone_probabilities[out.bounce_zone] == 1.0     # the nominal zone, no spread
-    assert not any(out.hit_covariance)
+    t0 = graph.node.get_clock().now().nanoseconds
+    publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000,
+                                               cov=-np.eye(9)),
+                  lambda: graph.node.worker.n_failed >= 1 and len(graph.predictions) >= 2,
+                  'the covariance to be rejected')
+    for out in graph.predictions:
+        assert out.status == 'ok'
+        assert out.zone_probabilities[out.bounce_zone] == 1.0     # the nominal zone only
+        assert not any(out.hit_covariance)
 
 
 def test_max_rate_skips_states_by_their_stamps():

@@ -7,13 +7,15 @@ Invalid or stale states are dropped with a throttled warning (nothing is publish
 """
 
 
+import threading
+
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
@@ -53,6 +55,54 @@ class _Track:
         self.bounce_ns = None
         self.uncertainty = None
         self.uncertainty_ns = None
+
+
+class _UncertaintyWorker:
+    """Propagates covariances in a thread of its own, so that a prediction never waits for
+    one (19 predictions, about 0.5 ms). Holds one request, the latest; the result goes to
+    the request's track and rides on that track's next predictions."""
+
+    def __init__(self, params, on_error):
+        self.params = params
+        self.on_error = on_error
+        self.n_done = 0
+        self.n_failed = 0
+        self._request = None
+        self._stop = False
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='uncertainty', daemon=True)
+        self._thread.start()
+
+    def submit(self, request):
+        with self._lock:
+            self._request = request
+        self._wake.set()
+
+    def _run(self):
+        while True:
+            self._wake.wait()
+            with self._lock:
+                request, self._request = self._request, None
+                self._wake.clear()
+            if self._stop:
+                return
+            if request is None:
+                continue
+            track, state, cov, plane_x, bounced = request
+            try:
+                track.uncertainty = predict_uncertainty(state, cov, self.params, 0.0, plane_x,
+                                                        bounced=bounced)
+                self.n_done += 1
+            except ValueError as exc:
+                track.uncertainty = None
+                self.n_failed += 1
+                self.on_error(f'covariance ignored: {exc}')
+
+    def stop(self):
+        self._stop = True
+        self._wake.set()
+        self._thread.join(timeout=5.0)
 
 
 class PredictionNode(Node):
@@ -100,6 +150,9 @@ class PredictionNode(Node):
         warm = np.array([1.6, 0.0, 0.3, -6.0, 0.0, 1.5, 0.0, 0.0, 0.0])
         predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
         predict(warm, self.params, path_dt=0.02)
+        self.packed = self.params.packed()
+        self.worker = _UncertaintyWorker(self.packed, lambda text: self.get_logger().warning(
+            text, throttle_duration_sec=1.0))
         self.tracks = {}
         self.last_ns = None
         self.last_path_ns = None
@@ -161,7 +214,7 @@ class PredictionNode(Node):
         # resolution there) and added to the integer stamp on output.
         bounced = (track.bounce_ns is not None
                    and stamp_ns > track.bounce_ns + BOUNCE_MARGIN_S * 1e9)
-        pred = predict(state, self.params, 0.0, plane_x, bounced=bounced,
+        pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced,
                        path_dt=step if want_path else None)
         if pred.status == 'invalid':
             self._drop(pred.reason)
@@ -173,7 +226,7 @@ class PredictionNode(Node):
                 track.bounce = pred.bounce
                 track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
         out = self._prediction_msg(msg, stamp_ns, pred, track, plane_x)
-        self._add_uncertainty(out, msg, state, stamp_ns, pred, track, plane_x, bounced)
+        self._add_uncertainty(out, msg, state, stamp_ns, track, plane_x, bounced)
         self.pub.publish(out)
         self.n_predicted += 1
         if want_path:
@@ -205,21 +258,14 @@ class PredictionNode(Node):
             _set_vec(out.hit_spin, pred.hit.w)
         return out
 
-    def _add_uncertainty(self, out, msg, state, stamp_ns, pred, track, plane_x, bounced):
+    def _add_uncertainty(self, out, msg, state, stamp_ns, track, plane_x, bounced):
         unc = None
         if self.get_parameter('uncertainty').value:
+            unc = track.uncertainty
             if self._due(stamp_ns, track.uncertainty_ns,
                          self.get_parameter('uncertainty_rate_hz').value):
-                try:
-                    unc = predict_uncertainty(state, np.asarray(msg.covariance), self.params,
-                                              0.0, plane_x, bounced=bounced)
-                    track.uncertainty, track.uncertainty_ns = unc, stamp_ns
-                except ValueError as exc:
-                    self.get_logger().warning(f'covariance ignored: {exc}',
-                                              throttle_duration_sec=1.0)
-                    track.uncertainty = None
-            else:
-                unc = track.uncertainty
+                track.uncertainty_ns = stamp_ns
+                self.worker.submit((track, state, np.array(msg.covariance), plane_x, bounced))
         if unc is not None:
             out.zone_probabilities = unc.zone_probabilities.tolist()
             out.zone_probabilities_half = int(unc.zone_half)
@@ -282,12 +328,19 @@ class PredictionNode(Node):
         return markers
 
 
+    def destroy_node(self):
+        self.worker.stop()
+        return super().destroy_node()
+
+
 def main(args=None):
     rclpy.init(args=args)
+    executor = SingleThreadedExecutor()    # before the node: a signal may come at any time
     node = None
     try:
         node = PredictionNode()
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -296,6 +349,7 @@ def main(args=None):
         if rclpy.ok():
             raise
     finally:
+        executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -1,0 +1,220 @@
+"""Speed of the prediction (issue 3): single, batch, against the scipy reference, node latency.
+
+- ``single_us``: median and p99 of one full :func:`predict` call (state -> bounce -> hitting
+  plane, status and Python result objects included) over varied incoming balls; targets
+  <= 50 and <= 200 us.
+- ``reference``: the same balls by :func:`reference_predict` (solve_ivp DOP853, rtol 1e-9,
+  terminal events) in the same run: speed-up of the medians (>= 30x) and the largest
+  hit-point disagreement (<= 0.1 mm).
+- ``batch_10k_s``: 10,000 states in one :func:`predict_batch` call (<= 0.5 s).
+- ``uncertainty_ms``: one :func:`predict_uncertainty` (19 sigma points), no target.
+- ``cold_start_s``: import + first prediction in a fresh process with an empty numba cache
+  (the compile time), and the same with the cache warm; no target.
+- ``node_latency_ms``: prediction_node in its own process, BallStates published at 500 Hz
+  from this process stamped with the time of publishing, latency = arrival of the
+  BallPrediction - its stamp (= the state's stamp); p50 and p99 (<= 2 ms).
+Runs in about 40 s. ``python bench/run_all.py --only prediction`` or this file directly.
+"""
+
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+
+import numpy as np
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict, predict_batch
+from tt_prediction.reference import reference_predict
+from tt_prediction.uncertainty import predict_uncertainty
+
+N_SINGLE = 3000
+N_REFERENCE = 40
+N_BATCH = 10_000
+NODE_RATE_HZ = 500.0
+NODE_SECONDS = 4.0
+TARGETS = {'single_median_us': 50.0, 'single_p99_us': 200.0, 'speedup': 30.0,
+           'max_hit_diff_mm': 0.1, 'batch_10k_s': 0.5, 'node_p99_ms': 2.0}
+
+
+def incoming(rng, n):
+    """Served balls from behind the opponent's end line, most of them reaching the robot."""
+    return np.column_stack([
+        rng.uniform(1.4, 1.8, n), rng.uniform(-0.5, 0.5, n), rng.uniform(0.2, 0.4, n),
+        rng.uniform(-8.0, -4.0, n), rng.uniform(-1.0, 1.0, n), rng.uniform(0.8, 2.0, n),
+        rng.uniform(-300, 300, (n, 3))])
+
+
+def time_single(states, params):
+    times = np.empty(len(states))
+    for i, s in enumerate(states):
+        start = time.perf_counter_ns()
+        predict(s, params)
+        times[i] = time.perf_counter_ns() - start
+    return times * 1e-3
+
+
+def time_reference(states, params):
+    times, diffs, agree = [], [], 0
+    for s in states:
+        start = time.perf_counter_ns()
+        ref = reference_predict(s, params)
+        times.append((time.perf_counter_ns() - start) * 1e-3)
+        fast = predict(s, params)
+        agree += fast.status == ref.status
+        if ref.hit is not None and fast.hit is not None:
+            diffs.append(float(np.abs(fast.hit.p - ref.hit.p).max()) * 1e3)
+    return np.array(times), diffs, agree
+
+
+COLD = ('import time; t = time.perf_counter(); from tt_prediction.predict import predict; '
+        'p = predict([1.6, 0.1, 0.3, -6, 0, 1.5, 0, 100, 0]); assert p.status == "ok"; '
+        'print(time.perf_counter() - t)')
+
+
+def cold_start():
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, 'NUMBA_CACHE_DIR': cache}
+        times = []
+        for _ in range(2):           # empty cache (compiles), then the cache it wrote
+            out = subprocess.run([sys.executable, '-c', COLD], env=env, capture_output=True,
+                                 text=True, timeout=300, check=True)
+            times.append(float(out.stdout.strip()))
+    return times
+
+
+def node_latency():
+    """(p50, p99, received, sent) of the node latency in ms at NODE_RATE_HZ."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import qos_profile_sensor_data
+
+    from tt_msgs.msg import BallPrediction, BallState
+
+    prefix = f'/bench_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    remap = []
+    for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
+        remap += ['-r', f'{topic}:={prefix}{topic}']
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node', '--ros-args',
+                             *remap], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node(f'bench_{uuid.uuid4().hex[:6]}', context=context)
+    latencies = []
+    clock = node.get_clock()
+
+    def on_prediction(msg):
+        now = clock.now().nanoseconds
+        latencies.append((now - (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec))
+                         * 1e-6)
+
+    node.create_subscription(BallPrediction, f'{prefix}/ball/prediction', on_prediction, 50)
+    pub = node.create_publisher(BallState, f'{prefix}/ball/state', qos_profile_sensor_data)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 120
+        while pub.get_subscription_count() == 0 or node.count_publishers(
+                f'{prefix}/ball/prediction') == 0:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                raise RuntimeError('prediction_node did not come up')
+            time.sleep(0.05)
+        msg = BallState()
+        msg.header.frame_id = 'table'
+        cov = np.diag([1e-6] * 3 + [1e-2] * 3 + [100.0] * 3)
+        msg.covariance = cov.ravel().tolist()
+        rng = np.random.default_rng(3)
+        states = incoming(rng, int(NODE_RATE_HZ * NODE_SECONDS))
+        # Warm-up second, not counted.
+        period = 1.0 / NODE_RATE_HZ
+        sent = 0
+        for phase in ('warm', 'measure'):
+            latencies.clear()
+            n = int(NODE_RATE_HZ) if phase == 'warm' else len(states)
+            next_t = time.perf_counter()
+            for i in range(n):
+                s = states[i % len(states)]
+                (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y,
+                 msg.velocity.z, msg.spin.x, msg.spin.y, msg.spin.z) = s.tolist()
+                msg.track_id = i // 100
+                msg.header.stamp = clock.now().to_msg()
+                pub.publish(msg)
+                next_t += period
+                delay = next_t - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)      # pacing the publisher, not synchronisation
+            sent = n
+            time.sleep(0.2)                # let the last answers arrive
+        lat = np.array(latencies)
+        return float(np.median(lat)), float(np.percentile(lat, 99)), len(lat), sent
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def run():
+    params = ModelParams()
+    rng = np.random.default_rng(11)
+    states = incoming(rng, N_SINGLE)
+    predict(states[0], params)                          # compiled outside the timing
+    predict_batch(states[:300], params)
+    single = time_single(states, params)
+    ref_times, diffs, agree = time_reference(states[:N_REFERENCE], params)
+    fast_ref = time_single(states[:N_REFERENCE], params)
+    batch_states = incoming(rng, N_BATCH)
+    start = time.perf_counter()
+    batch = predict_batch(batch_states, params)
+    batch_s = time.perf_counter() - start
+    cov = np.diag([1e-6] * 3 + [1e-2] * 3 + [100.0] * 3)
+    predict_uncertainty(states[0], cov, params)
+    start = time.perf_counter()
+    for s in states[:50]:
+        predict_uncertainty(s, cov, params)
+    unc_ms = (time.perf_counter() - start) / 50 * 1e3
+    cold, warm = cold_start()
+    p50, p99, received, sent = node_latency()
+    result = {
+        'single_us': {'median': round(float(np.median(single)), 1),
+                      'p99': round(float(np.percentile(single, 99)), 1),
+                      'n': N_SINGLE},
+        'status_counts': {name: int(c) for name, c in zip(
+            *np.unique(batch.status_names(), return_counts=True), strict=True)},
+        'reference': {'median_us': round(float(np.median(ref_times)), 1),
+                      'fast_median_us_same_states': round(float(np.median(fast_ref)), 1),
+                      'speedup': round(float(np.median(ref_times) / np.median(fast_ref)), 1),
+                      'max_hit_diff_mm': float(f'{max(diffs):.3g}'),
+                      'n': N_REFERENCE, 'n_hits': len(diffs), 'status_agree': agree},
+        'batch_10k_s': round(batch_s, 3),
+        'uncertainty_ms': round(unc_ms, 2),
+        'cold_start_s': {'empty_numba_cache': round(cold, 2), 'warm_cache': round(warm, 2)},
+        'node_latency_ms': {'p50': round(p50, 3), 'p99': round(p99, 3), 'rate_hz': NODE_RATE_HZ,
+                            'received': received, 'sent': sent},
+        'targets': {k: (f'>= {v}' if k == 'speedup' else f'<= {v}') for k, v in TARGETS.items()},
+    }
+    result['passed'] = bool(
+        result['single_us']['median'] <= TARGETS['single_median_us']
+        and result['single_us']['p99'] <= TARGETS['single_p99_us']
+        and result['reference']['speedup'] >= TARGETS['speedup']
+        and result['reference']['max_hit_diff_mm'] <= TARGETS['max_hit_diff_mm']
+        and agree == N_REFERENCE
+        and batch_s <= TARGETS['batch_10k_s']
+        and p99 <= TARGETS['node_p99_ms'] and received >= 0.95 * sent)
+    return result
+
+
+if __name__ == '__main__':
+    import json
+    print(json.dumps(run(), indent=2))
