@@ -77,7 +77,14 @@ def node_list(args):
 def topic_info(args):
     topic = _full_name(args.topic)
     with CliNode('topic_info') as cli:
-        cli.spin_until(lambda: topic_type(cli.node, topic) is not None, timeout=args.spin_time)
+        def known():
+            # The type, and with -v the names of the endpoints' nodes, which come a bit later.
+            endpoints = (cli.node.get_publishers_info_by_topic(topic)
+                         + cli.node.get_subscriptions_info_by_topic(topic))
+            return topic_type(cli.node, topic) is not None and not (
+                args.verbose and any(e.node_name == '_NODE_NAME_UNKNOWN_' for e in endpoints))
+
+        cli.spin_until(known, timeout=args.spin_time)
         type_str = topic_type(cli.node, topic)
         if type_str is None:
             raise TopicError(f"Unknown topic '{topic}'")
