@@ -138,3 +138,35 @@ def test_missing_rig_file_publishes_nothing(graph, tmp_path):
     assert node.pipeline is None
     executor.spin_once(timeout_sec=0.05)
     assert node.states_published == 0
+
+
+def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
+    ctx, executor, add = graph
+    ns, topics, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    frames, _ = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
+    frames = list(frames)
+    node = add(PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=rig_path), Parameter('camera_timeout', value=0.2)]))
+    peer = add(rclpy.create_node('image_player', context=ctx))
+    pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
+    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
+    sent = 0
+
+    def send(cameras):
+        nonlocal sent
+        for t, k, frame in frames:
+            if k in cameras:
+                pubs[k].publish(image_msg(t, frame))
+                sent += 1
+                assert spin_until(executor, lambda n=sent: node.frames_received >= n)
+
+    send({0, 1})
+    assert not node._lost
+    # Camera 1 stops: the watchdog reports it while camera 0 goes on.
+    deadline = time.monotonic() + 5.0
+    while 1 not in node._lost and time.monotonic() < deadline:
+        send({0})
+    assert node._lost == {1}
+    send({0, 1})
+    assert not node._lost

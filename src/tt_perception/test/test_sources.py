@@ -1,0 +1,58 @@
+"""Frame sources: classification of rig sources, image messages to BGR, files, and a V4L2
+device that is absent or vanishes (reported and retried, never raised from read)."""
+
+import cv2
+import numpy as np
+import pytest
+from tt_perception.sources import (
+    V4L2Source,
+    VideoFileSource,
+    image_to_bgr,
+    open_source,
+    source_kind,
+)
+
+
+@pytest.mark.parametrize('source, kind', [
+    ('/dev/video0', 'v4l2'), ('2', 'v4l2'), ('cam0.avi', 'file'), ('cam0/%06d.png', 'file'),
+    ('/cam0/image_raw', 'topic'), ('left/image_rect', 'topic')])
+def test_source_kind(source, kind):
+    assert source_kind(source) == kind
+
+
+def test_image_encodings_become_the_same_bgr():
+    rng = np.random.default_rng(1)
+    bgr = rng.integers(0, 255, (4, 5, 3), dtype=np.uint8)
+    rgb = bgr[:, :, ::-1]
+    padded = np.zeros((4, 16), np.uint8)          # step larger than width * channels
+    padded[:, :15] = bgr.reshape(4, 15)
+    assert np.array_equal(image_to_bgr('bgr8', 4, 5, 15, bgr.tobytes()), bgr)
+    assert np.array_equal(image_to_bgr('rgb8', 4, 5, 15, rgb.tobytes()), bgr)
+    assert np.array_equal(image_to_bgr('bgr8', 4, 5, 16, padded.tobytes()), bgr)
+    grey = image_to_bgr('mono8', 4, 5, 5, bgr[:, :, 0].tobytes())
+    assert np.array_equal(grey[:, :, 2], bgr[:, :, 0])
+    with pytest.raises(ValueError, match='encoding .yuv422. not supported'):
+        image_to_bgr('yuv422', 4, 5, 10, bytes(40))
+    with pytest.raises(ValueError, match='does not hold 5x4 bgr8'):
+        image_to_bgr('bgr8', 4, 5, 15, bytes(10))
+
+
+def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f'{i:04d}.png'), np.full((6, 8, 3), 40 * i, np.uint8))
+    src = open_source(str(tmp_path), '', 100.0)
+    got = [src.read() for _ in range(4)]
+    assert [t for t, _ in got[:3]] == [0.0, 0.01, 0.02]
+    assert [int(f[0, 0, 0]) for _, f in got[:3]] == [0, 40, 80]
+    assert got[3] == (None, None)
+    with pytest.raises(OSError, match='no such video file'):
+        VideoFileSource(str(tmp_path / 'absent.avi'), 100.0).open()
+
+
+def test_absent_v4l2_device_is_reported_and_retried():
+    src = V4L2Source('/dev/video_tt_absent', reopen_interval=0.0)
+    with pytest.raises(OSError, match='V4L2 device cannot be opened'):
+        src.open()
+    # read() never raises: it tries to reopen and says why nothing came.
+    assert src.read() == (None, None)
+    assert 'cannot be opened' in src.status
