@@ -87,6 +87,9 @@ def test_echo_truncates_long_arrays_and_selects_fields():
     cut = yaml.safe_load(message_to_yaml(msg, truncate_length=4))
     assert cut['covariance'] == [0.001, 0.002, 0.003, 0.004, '...']
     assert yaml.safe_load(message_to_yaml(msg, field='spin.y')) == -150.0
+    assert yaml.safe_load(message_to_yaml(msg, field='header.frame_id')) == 'table'
+    assert yaml.safe_load(message_to_yaml(msg, truncate_length=2, field='covariance')) == [
+        0.001, 0.002, '...']
     assert yaml.safe_load(message_to_yaml(msg, field='position')) == {'x': -1.2, 'y': 0.3,
                                                                       'z': 0.25}
     with pytest.raises(KeyError, match='spin.q'):
@@ -119,6 +122,7 @@ def test_type_strings():
     ({'covariance': [0.0] * 3}, 'expected 81 values'),
     ({'header': {'frame_id': 3}}, "'header.frame_id'"),
     ({'position': 2.0}, 'expected a mapping'),
+    ({'position': {'x': '1.5'}}, "'position.x'"),
 ])
 def test_bad_values_name_the_field(values, words):
     with pytest.raises(ValueError, match=words):

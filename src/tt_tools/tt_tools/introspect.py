@@ -6,7 +6,6 @@ messages become nested dicts, fixed arrays and sequences become lists, ``builtin
 Time/Duration are ordinary nested messages (``sec``, ``nanosec``) as in ``ros2 topic echo``.
 """
 
-import array
 import importlib
 
 import numpy as np
@@ -103,16 +102,20 @@ def message_to_dict(msg, truncate_length=None):
     }
 
 
+def _field_and_type(msg, path):
+    """(value, rosidl slot type) at a dotted field path; the slot type is None for ``''``."""
+    value, slot_type = msg, None
+    for part in path.split('.') if path else []:
+        slots = dict(_fields(value)) if hasattr(value, 'get_fields_and_field_types') else {}
+        if part not in slots:
+            raise KeyError(f"no field '{path}' in {type_string(msg)}")
+        value, slot_type = getattr(value, part), slots[part]
+    return value, slot_type
+
+
 def get_field(msg, path):
     """The value at a dotted field path (``'position.x'``) of a message; KeyError if absent."""
-    value = msg
-    for part in path.split('.') if path else []:
-        if not hasattr(value, 'get_fields_and_field_types') or (
-            part not in value.get_fields_and_field_types()
-        ):
-            raise KeyError(f"no field '{path}' in {type_string(msg)}")
-        value = getattr(value, part)
-    return value
+    return _field_and_type(msg, path)[0]
 
 
 def _convert_basic(value, slot_type, where):
@@ -134,7 +137,7 @@ def _convert_basic(value, slot_type, where):
                 raise TypeError
             return int(value)
         if kind in _FLOAT_TYPES:
-            if isinstance(value, bool):
+            if isinstance(value, bool | str):
                 raise TypeError
             return float(value)
     except (TypeError, ValueError):
@@ -209,24 +212,11 @@ def to_yaml(value):
 
 def message_to_yaml(msg, truncate_length=128, field=None):
     """YAML text of a message (or of one dotted ``field`` of it), without the ``---`` line."""
-    if field:
-        value = get_field(msg, field)
-        plain = (message_to_dict(value, truncate_length)
-                 if hasattr(value, 'get_fields_and_field_types') else _plain_scalar(value))
-    else:
-        plain = message_to_dict(msg, truncate_length)
+    value, slot_type = _field_and_type(msg, field)
+    plain = (message_to_dict(msg, truncate_length) if slot_type is None
+             else _value_to_plain(value, slot_type, truncate_length))
     text = to_yaml(plain)
     return text[:-len('...\n')] if text.endswith('\n...\n') else text
-
-
-def _plain_scalar(value):
-    if isinstance(value, np.ndarray | array.array | list | tuple):
-        return [_plain_scalar(v) for v in value]
-    if hasattr(value, 'get_fields_and_field_types'):
-        return message_to_dict(value)
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def parse_yaml_values(text):
