@@ -15,7 +15,7 @@ from rosbags.interfaces import QosReliability
 from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
-from tt_tools.bagfile import BagError, BagWriter, open_bag
+from tt_tools.bagfile import BagError, BagWriter, TypeRegistry, open_bag
 
 from tt_msgs.msg import BallState
 
@@ -117,6 +117,11 @@ def test_rosbags_and_mcap_read_the_same_messages_that_were_published(recorded):
     assert infos and _is_subsequence(infos, sent['info'])
     with Reader(out) as reader:
         qos = {c.topic: c.ext.offered_qos_profiles[0].reliability for c in reader.connections}
+        # The type hash seen in the graph (rclpy) is the hash of the stored definition.
+        registry = TypeRegistry()
+        for conn in reader.connections:
+            assert conn.digest.startswith('RIHS01_')
+            assert conn.digest == registry.definition(conn.msgtype)[1]
     assert qos == {topics['state']: QosReliability.RELIABLE,
                    topics['info']: QosReliability.BEST_EFFORT}
     # rosbags decodes with the definitions stored in the bag only (no tt_msgs needed).

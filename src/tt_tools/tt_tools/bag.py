@@ -127,7 +127,8 @@ def bag_play(args):
                 state['t0'] = time.monotonic()
                 played = 0
                 for conn, stamp, data in reader.messages(connections=conns, start=first):
-                    cli.sleep_until(state['t0'] + (stamp - first) / 1e9 / args.rate)
+                    due = state['t0'] + (stamp - first) / 1e9 / args.rate
+                    cli.spin_until(timeout=due - time.monotonic())
                     if cli.stopped:
                         break
                     pubs[conn.id].publish(bytes(data))

@@ -64,15 +64,6 @@ class CliNode:
             self.executor.spin_once(timeout_sec=left)
         return False
 
-    def sleep_until(self, when):
-        """Spin until ``time.monotonic()`` reaches ``when``; False if a signal came first."""
-        while not self.stopped:
-            left = when - time.monotonic()
-            if left <= 0:
-                return True
-            self.executor.spin_once(timeout_sec=min(left, 0.1))
-        return False
-
     def drain(self, progress, idle_rounds=3):
         """Run callbacks already waiting (messages received before a stop) without blocking.
 

@@ -147,7 +147,7 @@ def topic_hz(args):
             return time.monotonic() >= state['next']
 
         cli.node.create_subscription(cls, topic, on_message,
-                                     qos_matching(pubs, depth=args.window), raw=True)
+                                     qos_matching(pubs, depth=100), raw=True)
         while cli.spin_until(report_due):
             state['next'] += 1.0
             stats = rate_stats(list(arrivals))
