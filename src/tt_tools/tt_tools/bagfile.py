@@ -14,6 +14,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import yaml
 
+from tt_tools.run import package_prefix
+
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
@@ -22,14 +24,11 @@ class BagError(Exception):
 
 
 def _msg_file(msgtype, ament_prefix_path=None):
+    """The installed ``.msg`` file of ``pkg/msg/Type``, or None."""
     pkg, sub, name = msgtype.split('/')
-    search = os.environ.get('AMENT_PREFIX_PATH', '') if ament_prefix_path is None else (
-        ament_prefix_path)
-    for prefix in filter(None, search.split(os.pathsep)):
-        path = os.path.join(prefix, 'share', pkg, sub, name + '.msg')
-        if os.path.isfile(path):
-            return path
-    return None
+    prefix = package_prefix(pkg, ament_prefix_path)
+    path = prefix and os.path.join(prefix, 'share', pkg, sub, name + '.msg')
+    return path if path and os.path.isfile(path) else None
 
 
 def _referenced_types(fields):
