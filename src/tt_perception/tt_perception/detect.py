@@ -141,22 +141,23 @@ class BallDetector:
             if area < cfg.min_area or area > cfg.max_area:
                 continue
             bx, by, bw, bh = stats[i, :4]
-            sub = labels[by:by + bh, bx:bx + bw] == i
-            weight = diff[by:by + bh, bx:bx + bw].astype(np.float64) * sub
-            total = weight.sum()
-            ys, xs = np.mgrid[by:by + bh, bx:bx + bw]
-            cu = (weight * xs).sum() / total
-            cv = (weight * ys).sum() / total
+            sub = (labels[by:by + bh, bx:bx + bw] == i).astype(np.uint8)
+            weighted = cv2.moments(cv2.multiply(diff[by:by + bh, bx:bx + bw], sub))
+            total = weighted['m00']
+            if total <= 0.0:
+                continue
+            cu = bx + weighted['m10'] / total       # difference-weighted centroid
+            cv = by + weighted['m01'] / total
             # Width across the motion from the blob's second moments (pixel mask, 1/12 per px).
-            mx, my = xs[sub] - cu, ys[sub] - cv
-            cxx, cyy, cxy = (mx * mx).mean(), (my * my).mean(), (mx * my).mean()
+            shape = cv2.moments(sub, binaryImage=True)
+            cxx, cyy, cxy = (shape['mu20'] / area, shape['mu02'] / area, shape['mu11'] / area)
             small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
             width = 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)   # disc: var = r^2 / 4
             if width > cfg.max_width:
                 continue
             if cfg.colour != 'any' and frame.ndim == 3:
                 patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
-                if not colour_matches(patch[sub].mean(axis=0), cfg.colour):
+                if not colour_matches(cv2.mean(patch, mask=sub)[:3], cfg.colour):
                     continue
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
                                  float(total / area)))

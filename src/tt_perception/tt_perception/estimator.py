@@ -50,6 +50,10 @@ class FilterConfig:
     """Longest integration step, s."""
 
 
+_EYE9 = np.eye(9)
+_EYE3 = np.eye(3)
+
+
 def skew(a):
     """Cross-product matrix [a]x, so that [a]x b = a x b."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
@@ -71,6 +75,7 @@ class BallFilter:
         self.t = 0.0
         self.bounces = 0
         self._k = [np.empty(9) for _ in range(4)]
+        self._q_cache = {}
 
     def start(self, t, position, velocity, position_cov, velocity_cov):
         """Initialise at time ``t`` (s) from a position and velocity with covariances."""
@@ -88,8 +93,8 @@ class BallFilter:
         w = s[6:9]
         speed = max(np.linalg.norm(u), 1e-9)
         F = np.zeros((9, 9))
-        F[0:3, 3:6] = np.eye(3)
-        F[3:6, 3:6] = (-self.k_drag * (speed * np.eye(3) + np.outer(u, u) / speed)
+        F[0:3, 3:6] = _EYE3
+        F[3:6, 3:6] = (-self.k_drag * (speed * _EYE3 + np.outer(u, u) / speed)
                        + self.k_lift * skew(w))
         F[3:6, 6:9] = -self.k_lift * skew(u)
         return F
@@ -103,18 +108,26 @@ class BallFilter:
         flight_derivative(s + h * k3, P, k4)
         return s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
+    def _process_noise(self, h):
+        """Q (9, 9) of white unmodelled acceleration and a spin random walk over ``h`` s."""
+        Q = self._q_cache.get(h)
+        if Q is None:
+            q = self.config.accel_noise ** 2
+            Q = np.zeros((9, 9))
+            Q[:3, :3] = np.eye(3) * q * h ** 3 / 3.0
+            Q[:3, 3:6] = Q[3:6, :3] = np.eye(3) * q * h ** 2 / 2.0
+            Q[3:6, 3:6] = np.eye(3) * q * h
+            Q[6:, 6:] = np.eye(3) * self.config.spin_noise ** 2 * h
+            if len(self._q_cache) < 64:
+                self._q_cache[h] = Q
+        return Q
+
     def _propagate(self, h):
         """Advance state and covariance by ``h`` s of flight."""
         F = self._jacobian(self.x) * h
-        Phi = np.eye(9) + F + 0.5 * F @ F
+        Phi = _EYE9 + F + 0.5 * F @ F
         self.x = self._rk4(self.x, h)
-        q = self.config.accel_noise ** 2
-        Q = np.zeros((9, 9))
-        Q[:3, :3] = np.eye(3) * q * h ** 3 / 3.0
-        Q[:3, 3:6] = Q[3:6, :3] = np.eye(3) * q * h ** 2 / 2.0
-        Q[3:6, 3:6] = np.eye(3) * q * h
-        Q[6:, 6:] = np.eye(3) * self.config.spin_noise ** 2 * h
-        self.P = Phi @ self.P @ Phi.T + Q
+        self.P = Phi @ self.P @ Phi.T + self._process_noise(h)
 
     def _bounce(self):
         """Apply the table rebound (eqs. 1-6) to the state and its covariance."""

@@ -3,7 +3,7 @@
 Inputs are undistorted normalised image coordinates (x/z, y/z) from
 :meth:`tt_perception.camera.Camera.normalise` (OpenCV's iterative undistortion with explicit
 termination criteria). The point is the linear N-view DLT solution (each camera gives two rows
-x P3 - P1, y P3 - P2), refined by two Gauss-Newton steps on the reprojection error; its
+x P3 - P1, y P3 - P2), refined by a Gauss-Newton step on the reprojection error; its
 covariance is that of the pixel noise propagated through the rays. A camera whose reprojection
 error exceeds the gate is dropped when at least two others remain.
 """
@@ -11,52 +11,53 @@ error exceeds the gate is dropped when at least two others remain.
 import numpy as np
 
 
+def _stack(cameras):
+    """Rotations (N, 3, 3), translations (N, 3) and focal lengths (N,) of the cameras."""
+    return (np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+            np.array([c.focal for c in cameras]))
+
+
 def dlt(cameras, normalised):
     """Linear N-view triangulation: table-frame point (3,) from normalised coordinates (N, 2).
 
-    Solves A X = 0 (homogeneous X) in the least-squares sense by SVD, with the rows
-    x (R3 X + t3) - (R1 X + t1) and y (R3 X + t3) - (R2 X + t2) of every camera.
+    Least squares over the rows x (R3 X + t3) - (R1 X + t1) = 0 and
+    y (R3 X + t3) - (R2 X + t2) = 0 of every camera (the DLT with X's last coordinate 1,
+    which holds for a point in front of the cameras).
     """
-    rows = []
-    for cam, (x, y) in zip(cameras, normalised, strict=True):
-        P = np.hstack([cam.R, cam.t[:, None]])
-        rows.append(x * P[2] - P[0])
-        rows.append(y * P[2] - P[1])
-    A = np.asarray(rows)
-    # Equivalent inhomogeneous least squares (X[3] = 1) is faster and exact for a point in
-    # front of the cameras.
-    X, *_ = np.linalg.lstsq(A[:, :3], -A[:, 3], rcond=None)
-    return X
+    R, t, _ = _stack(cameras)
+    x, y = normalised[:, 0:1], normalised[:, 1:2]
+    A = np.vstack([x * R[:, 2] - R[:, 0], y * R[:, 2] - R[:, 1]])
+    b = np.concatenate([t[:, 0] - x[:, 0] * t[:, 2], t[:, 1] - y[:, 0] * t[:, 2]])
+    return np.linalg.solve(A.T @ A, A.T @ b)
 
 
-def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=2):
+def _reprojection(R, t, f, normalised, X):
+    """Pixel residuals (2N,) and their Jacobian (2N, 3) with respect to X."""
+    Xc = R @ X + t
+    z = Xc[:, 2:3]
+    uv = Xc[:, :2] / z
+    # d(x/z)/dX = (R1 - (x/z) R3) / z, scaled to pixels by f.
+    scale = (f[:, None] / z)
+    jx = scale * (R[:, 0] - uv[:, 0:1] * R[:, 2])
+    jy = scale * (R[:, 1] - uv[:, 1:2] * R[:, 2])
+    r = f[:, None] * (normalised - uv)
+    return np.concatenate([r[:, 0], r[:, 1]]), np.vstack([jx, jy])
+
+
+def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
     """Gauss-Newton on the pixel reprojection error from ``X``.
 
     Returns ``(X, covariance (3, 3) m^2, residuals (N,) pixels)``. The covariance is
-    sigma^2 (J^T J)^-1 with J the Jacobian of the pixel projections (f / z scaling).
+    sigma^2 (J^T J)^-1 with J the Jacobian of the pixel projections.
     """
-    for i in range(iterations + 1):
-        J = []
-        r = []
-        for cam, (x, y) in zip(cameras, normalised, strict=True):
-            Xc = cam.R @ X + cam.t
-            z = Xc[2]
-            f = cam.focal
-            u, v = Xc[0] / z, Xc[1] / z
-            # d(x/z)/dXc, d(y/z)/dXc, chained through R, scaled to pixels.
-            jx = f * (cam.R[0] - u * cam.R[2]) / z
-            jy = f * (cam.R[1] - v * cam.R[2]) / z
-            J.extend([jx, jy])
-            r.extend([f * (x - u), f * (y - v)])
-        J = np.asarray(J)
-        r = np.asarray(r)
-        JtJ = J.T @ J
-        step = np.linalg.solve(JtJ, J.T @ r)
-        if i == iterations:
-            break
-        X = X + step
-    residual = np.hypot(r[0::2], r[1::2])
-    return X, pixel_sigma ** 2 * np.linalg.inv(JtJ), residual
+    R, t, f = _stack(cameras)
+    for _ in range(iterations):
+        r, J = _reprojection(R, t, f, normalised, X)
+        X = X + np.linalg.solve(J.T @ J, J.T @ r)
+    r, J = _reprojection(R, t, f, normalised, X)
+    n = len(cameras)
+    residual = np.hypot(r[:n], r[n:])
+    return X, pixel_sigma ** 2 * np.linalg.inv(J.T @ J), residual
 
 
 def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
