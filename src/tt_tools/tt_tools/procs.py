@@ -1,0 +1,93 @@
+"""Start ROS processes for the demo and the end-to-end tests, and stop them cleanly."""
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+SHM_NEEDED = 1 << 30
+"""Free bytes in /dev/shm below which the large-message Fast DDS profile is not used."""
+
+
+def large_message_profile():
+    """Path of tt's Fast DDS profile for images (config/fastdds_large_messages.xml), or None
+    when /dev/shm is too small for its 32 MB segments (e.g. a container's default 64 MB)."""
+    try:
+        shm = shutil.disk_usage('/dev/shm')
+        from ament_index_python.packages import get_package_share_directory
+        path = os.path.join(get_package_share_directory('tt_tools'), 'config',
+                            'fastdds_large_messages.xml')
+    except (OSError, LookupError):
+        return None
+    return path if shm.free >= SHM_NEEDED and os.path.exists(path) else None
+
+
+def ros_env(extra=None, large_messages=False):
+    """The current environment with discovery kept on this machine; with ``large_messages``
+    also the Fast DDS profile for images (unless the caller's environment sets one)."""
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if large_messages and 'FASTRTPS_DEFAULT_PROFILES_FILE' not in env:
+        profile = large_message_profile()
+        if profile:
+            env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
+    env['PYTHONUNBUFFERED'] = '1'
+    env.update(extra or {})
+    return env
+
+
+class ProcessGroup:
+    """Processes started together and stopped together (SIGINT, then SIGTERM, then SIGKILL)."""
+
+    def __init__(self, log_dir, large_messages=False):
+        self.log_dir = log_dir
+        self.large_messages = large_messages
+        self.procs = {}
+
+    def start(self, name, argv, env=None):
+        """Start ``argv`` with stdout and stderr to ``log_dir/name.log``."""
+        log = open(os.path.join(self.log_dir, f'{name}.log'), 'w')
+        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, env=ros_env(env, self.large_messages),
+                                start_new_session=True)
+        proc.log = log
+        self.procs[name] = proc
+        return proc
+
+    def stop(self, name, timeout=10.0):
+        """Stop one process: SIGINT, then SIGTERM, then SIGKILL; return its exit code."""
+        proc = self.procs.pop(name)
+        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+            if proc.poll() is not None:
+                break
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                proc.wait(wait)
+            except subprocess.TimeoutExpired:
+                continue
+        proc.log.close()
+        return proc.returncode
+
+    def stop_all(self):
+        for name in list(self.procs)[::-1]:
+            self.stop(name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop_all()
+
+
+def wait_until(condition, timeout, what, poll=0.05):
+    """Poll ``condition()`` until true; raise TimeoutError naming ``what`` after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(poll)
+    raise TimeoutError(f'timed out after {timeout:.0f} s waiting for {what}')

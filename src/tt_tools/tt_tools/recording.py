@@ -1,0 +1,142 @@
+"""The demo recording: two synthetic cameras watching incoming balls, as a rosbag2 bag.
+
+Layout of a recording folder::
+
+    recording.json   what it was made from (balls, seed, plane, size) and each ball's truth
+    rig.yaml         the rig (cameras' poses, sources /cam0/image_raw, /cam1/image_raw)
+    cam0.yaml ...    camera_info YAML per camera
+    bag/             rosbag2 (MCAP): /camN/image_raw (sensor_msgs/Image, bgr8) and
+                     /camN/camera_info (sensor_msgs/CameraInfo) per frame, stamped with the
+                     middle of the exposure
+
+It is rendered with tt_perception's scene generator (``tt_perception.synth``) and written
+with the ``rosbags`` library, so it is a plain rosbag2 bag that a full ROS 2 install plays
+too. It is built on first use and cached: the folder is reused while ``recording.json``
+matches the request. Pure module (no rclpy).
+"""
+
+from dataclasses import dataclass
+import json
+import pathlib
+import shutil
+
+import numpy as np
+from tt_prediction.params import ModelParams
+
+from .scenario import Ball, demo_balls, fly
+
+FORMAT_VERSION = 1
+STAMP_BASE_S = 1_700_000_000
+"""Recording time zero as a ROS time (s): stamps are this plus the scene time."""
+
+
+@dataclass
+class Recording:
+    path: pathlib.Path
+    truths: list
+    params: ModelParams
+    image_topics: tuple
+
+
+def _camera_info(typestore, cam, header):
+    """sensor_msgs/CameraInfo of a tt_perception Camera (plumb-bob, no rectification)."""
+    CameraInfo = typestore.types['sensor_msgs/msg/CameraInfo']
+    RegionOfInterest = typestore.types['sensor_msgs/msg/RegionOfInterest']
+    K = np.asarray(cam.K, dtype=float)
+    return CameraInfo(header=header, height=cam.height, width=cam.width,
+                      distortion_model='plumb_bob', d=np.asarray(cam.dist, dtype=float),
+                      k=K.ravel(), r=np.eye(3).ravel(),
+                      p=np.hstack([K, np.zeros((3, 1))]).ravel(), binning_x=0, binning_y=0,
+                      roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0,
+                                           do_rectify=False))
+
+
+def write_bag(bag_dir, rig, frames):
+    """Write ``frames`` ((t, camera_index, frame) in time order, frame BGR uint8 or None for
+    a dropped frame) as Image + CameraInfo per camera into a new MCAP bag at ``bag_dir``.
+    Returns the number of images written."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    Image = typestore.types['sensor_msgs/msg/Image']
+    Header = typestore.types['std_msgs/msg/Header']
+    Time = typestore.types['builtin_interfaces/msg/Time']
+    count = 0
+    with Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = []
+        for cam in rig.cameras:
+            info_topic = cam.source.rsplit('/', 1)[0] + '/camera_info'
+            connections.append((
+                writer.add_connection(cam.source, Image.__msgtype__, typestore=typestore),
+                writer.add_connection(info_topic, 'sensor_msgs/msg/CameraInfo',
+                                      typestore=typestore)))
+        for t, k, frame in frames:
+            if frame is None:
+                continue
+            cam = rig.cameras[k]
+            stamp_ns = int(round((STAMP_BASE_S + t) * 1e9))
+            header = Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9),
+                            frame_id=cam.name)
+            image = Image(header=header, height=frame.shape[0], width=frame.shape[1],
+                          encoding='bgr8', is_bigendian=0, step=frame.shape[1] * 3,
+                          data=np.ascontiguousarray(frame).reshape(-1))
+            image_conn, info_conn = connections[k]
+            writer.write(image_conn, stamp_ns,
+                         typestore.serialize_cdr(image, Image.__msgtype__))
+            writer.write(info_conn, stamp_ns,
+                         typestore.serialize_cdr(_camera_info(typestore, cam, header),
+                                                 'sensor_msgs/msg/CameraInfo'))
+            count += 1
+    return count
+
+
+def _request(balls, hit_plane_x, seed):
+    return {'format': FORMAT_VERSION, 'balls': balls, 'hit_plane_x': hit_plane_x, 'seed': seed,
+            'width': 640, 'height': 480, 'fps': 150.0}
+
+
+def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
+    """The recording at ``path``, rendered and written first if absent or made differently.
+
+    Truth times are scene times: message stamps minus STAMP_BASE_S. Written to a temporary
+    folder and renamed: a half-written recording never stays.
+    """
+    from tt_perception.camera import load_rig
+
+    from tt_perception import synth
+
+    params = params or ModelParams()
+    path = pathlib.Path(path)
+    request = _request(balls, hit_plane_x, seed)
+    meta_file = path / 'recording.json'
+    if not (meta_file.exists() and json.loads(meta_file.read_text())['request'] == request):
+        tmp = path.with_name(path.name + '.partial')
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        truths = demo_balls(balls, hit_plane_x, seed=seed, params=params)
+        rig = load_rig(synth.make_rig(str(tmp), request['width'], request['height'],
+                                      request['fps']))
+        last = truths[-1]
+        frames, _ = synth.render_balls(
+            rig, [tr.ball.launch_state for tr in truths],
+            [tr.ball.launch_time for tr in truths],
+            duration=last.hit_time - last.ball.launch_time + 0.1, params=params, seed=seed)
+        print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
+              f'{path / "bag"} (once; cached)', flush=True)
+        images = write_bag(str(tmp / 'bag'), rig, frames)
+        truth = [{'launch_time': tr.ball.launch_time,
+                  'launch_state': tr.ball.launch_state.tolist(),
+                  'bounce_time': tr.bounce_time, 'bounce_point': tr.bounce_point.tolist(),
+                  'bounce_zone': tr.bounce_zone, 'hit_time': tr.hit_time,
+                  'hit_state': tr.hit_state.tolist()} for tr in truths]
+        meta = {'request': request, 'images': images, 'stamp_base_s': STAMP_BASE_S,
+                'truth': truth}
+        (tmp / 'recording.json').write_text(json.dumps(meta, indent=1))
+        shutil.rmtree(path, ignore_errors=True)
+        tmp.rename(path)
+    rig = load_rig(str(path / 'rig.yaml'))
+    meta = json.loads(meta_file.read_text())
+    truths = [fly(Ball(ball['launch_time'], np.array(ball['launch_state'])), params,
+                  hit_plane_x) for ball in meta['truth']]
+    return Recording(path, truths, params, tuple(cam.source for cam in rig.cameras))

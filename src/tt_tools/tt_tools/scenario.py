@@ -1,0 +1,108 @@
+"""Incoming balls for the demo recording and the end-to-end tests, with their true flight.
+
+Pure module (no rclpy). States are 9-vectors ``[p, v, w]`` in the ``table`` frame (m, m/s,
+rad/s, MODEL.md); times are seconds from the start of the recording.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from tt_prediction.integrate import rollout
+from tt_prediction.model import racket_rebound
+from tt_prediction.params import ModelParams
+
+from tt_prediction import table
+
+
+@dataclass
+class Ball:
+    """One incoming ball: launch time (s) and launch state ``[p, v, w]``."""
+
+    launch_time: float
+    launch_state: np.ndarray
+
+
+@dataclass
+class Truth:
+    """The true flight of a ball, as the model flies it, from launch to the hitting plane."""
+
+    ball: Ball
+    bounce_time: float
+    bounce_point: np.ndarray
+    bounce_zone: int
+    bounce_half: int
+    hit_time: float
+    hit_state: np.ndarray
+
+    def state_at(self, t, params):
+        """True state(s) at absolute time(s) ``t`` (NaN outside launch..hit), shape (k, 9)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        _, samples = rollout(self.ball.launch_state, params, t0=self.ball.launch_time,
+                             t_max=self.hit_time + 0.01,
+                             max_bounces=2, sample_times=t)
+        samples[(t < self.ball.launch_time) | (t > self.hit_time)] = np.nan
+        return samples
+
+
+def fly(ball, params, hit_plane_x):
+    """True flight of ``ball`` to the plane ``x = hit_plane_x``; None if it does not get there
+    after exactly one bounce on the robot's half."""
+    events, _ = rollout(ball.launch_state, params, t0=ball.launch_time,
+                        t_max=ball.launch_time + 3.0,
+                        plane_x=hit_plane_x, max_bounces=2)
+    bounces = [e for e in events if e.kind == 'bounce']
+    if events[-1].kind != 'plane' or len(bounces) != 1:
+        return None
+    zone, half = table.zone_of(bounces[0].state[0], bounces[0].state[1])
+    if half != -1:
+        return None
+    return Truth(ball, bounces[0].t, bounces[0].state[:3].copy(), zone, half,
+                 events[-1].t, events[-1].state.copy())
+
+
+def demo_balls(count, hit_plane_x=-1.5, seed=7, gap=0.4, min_hit_height=0.1, params=None):
+    """``count`` served balls, one after another with ``gap`` s between a hit and the next
+    launch, each flying over the net, bouncing once on the robot's half and reaching the plane
+    at least ``min_hit_height`` (m) above the table's surface.
+
+    Launches are from above the opponent's end line (x 1.5..1.7 m, z 0.25..0.40 m) at
+    4.5..6.5 m/s towards the robot, with topspin, backspin or sidespin up to 150 rad/s
+    (about 1400 rpm), drawn from a seeded generator so every run sees the same balls.
+    """
+    params = params or ModelParams()
+    rng = np.random.default_rng(seed)
+    truths, t = [], 0.1
+    for _ in range(100 * count):
+        if len(truths) == count:
+            break
+        p = [rng.uniform(1.5, 1.7), rng.uniform(-0.35, 0.35), rng.uniform(0.25, 0.40)]
+        speed = rng.uniform(4.5, 6.5)
+        target = [rng.uniform(-1.1, -0.3), rng.uniform(-0.5, 0.5)]
+        heading = np.array([target[0] - p[0], target[1] - p[1]])
+        heading /= np.linalg.norm(heading)
+        v = [speed * heading[0], speed * heading[1], rng.uniform(1.3, 2.4)]
+        kind = rng.integers(3)
+        spin_rate = rng.uniform(60.0, 150.0)
+        w = [[0.0, -spin_rate, 0.0], [0.0, spin_rate, 0.0], [0.0, 0.0, spin_rate]][kind]
+        truth = fly(Ball(t, np.array(p + v + w, dtype=float)), params, hit_plane_x)
+        if truth is None or truth.hit_state[2] < min_hit_height:
+            continue
+        truths.append(truth)
+        t = truth.hit_time + gap
+    if len(truths) < count:
+        raise RuntimeError(f'only {len(truths)} of {count} balls reach x = {hit_plane_x} m')
+    return truths
+
+
+def landing_after_stroke(hit_state, hit_time, racket_normal, racket_velocity, params):
+    """Where a ball hit with this racket really lands: first table contact (point, zone, half),
+    or (None, 0, 0) if it hits the net or misses the table. Eq. 7, then eq. 8 flight."""
+    v_out, w_out = racket_rebound(hit_state[3:6], hit_state[6:9], np.asarray(racket_normal),
+                                  np.asarray(racket_velocity), params)
+    state = np.concatenate([hit_state[:3], v_out, w_out])
+    events, _ = rollout(state, params, t0=hit_time, t_max=hit_time + 3.0, max_bounces=1)
+    contact = events[-1]
+    if contact.kind != 'bounce':
+        return None, 0, 0
+    zone, half = table.zone_of(contact.state[0], contact.state[1])
+    return contact.state[:3].copy(), zone, half
