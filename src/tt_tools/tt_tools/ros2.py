@@ -23,9 +23,9 @@ def real_ros2cli_main():
     return importlib.import_module('ros2cli.cli').main
 
 
-def build_parser():
-    from tt_tools import bag, topic
-
+def build_parser(only_run=False):
+    """The argument parser; ``only_run`` skips the verbs that import rclpy (``ros2 run`` starts
+    the executable without that second of imports)."""
     parser = argparse.ArgumentParser(
         prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, bag)")
     verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
@@ -37,6 +37,9 @@ def build_parser():
     p.add_argument('argv', nargs=argparse.REMAINDER,
                    help='arguments for the executable (including --ros-args ...)')
     p.set_defaults(func=_run)
+    if only_run:
+        return parser
+    from tt_tools import bag, topic
 
     p = verbs.add_parser('topic', help='inspect and publish topics')
     topic_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
@@ -66,25 +69,24 @@ def main(argv=None):
     Ctrl-C or SIGTERM before a verb has started (while importing) ends quietly with exit 0;
     once a verb runs, its node handles both signals itself (see ``rosutil.CliNode``).
     """
+    real = real_ros2cli_main()
+    if real is not None:
+        return real()
     signal.signal(signal.SIGTERM, _interrupt)
     try:
-        return _main(argv)
+        return _main(sys.argv[1:] if argv is None else argv)
     except KeyboardInterrupt:
         return 0
 
 
 def _main(argv):
-    real = real_ros2cli_main()
-    if real is not None:
-        return real()
-    from tt_tools.bag import BagError
+    from tt_tools.bagfile import BagError
     from tt_tools.run import RunError
-    from tt_tools.topic import TopicError
 
-    args = build_parser().parse_args(argv)
+    args = build_parser(only_run=argv[:1] == ['run']).parse_args(argv)
     try:
         return args.func(args)
-    except (RunError, TopicError, BagError, ValueError, OSError) as exc:
+    except (RunError, BagError, ValueError, OSError) as exc:  # bad input: one line
         print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
     except KeyError as exc:  # an unknown message field
         print(f'ros2 {args.verb}: {exc.args[0]}', file=sys.stderr)

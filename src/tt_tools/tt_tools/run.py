@@ -1,6 +1,7 @@
 """``ros2 run <package> <executable> [args...]``: find it through the ament index, exec it."""
 
 import os
+import shlex
 
 
 class RunError(Exception):
@@ -51,5 +52,5 @@ def main(args):
     path = find_executable(args.package, args.executable)
     argv = [path, *args.argv]
     if args.prefix:
-        argv = [*args.prefix.split(), *argv]
+        argv = [*shlex.split(args.prefix), *argv]
     os.execvp(argv[0], argv)

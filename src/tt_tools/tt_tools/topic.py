@@ -19,10 +19,6 @@ from tt_tools.rate import format_stats, rate_stats
 from tt_tools.rosutil import DURABILITY, RELIABILITY, CliNode, qos_matching, topic_type
 
 
-class TopicError(Exception):
-    """A bad topic request (one-line message)."""
-
-
 def _full_name(topic):
     return topic if topic.startswith('/') else '/' + topic
 
@@ -87,7 +83,7 @@ def topic_info(args):
         cli.spin_until(known, timeout=args.spin_time)
         type_str = topic_type(cli.node, topic)
         if type_str is None:
-            raise TopicError(f"Unknown topic '{topic}'")
+            raise ValueError(f"Unknown topic '{topic}'")
         pubs = cli.node.get_publishers_info_by_topic(topic)
         subs = [s for s in cli.node.get_subscriptions_info_by_topic(topic)
                 if s.node_name != cli.node.get_name()]
