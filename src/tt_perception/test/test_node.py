@@ -4,6 +4,10 @@ Launch-free, a fresh rclpy Context per test; the test spins the executor until e
 image has reached the node (no sleeps)."""
 
 import os
+import select
+import signal
+import subprocess
+import sys
 import time
 import uuid
 
@@ -170,3 +174,27 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
     assert node._lost == {1}
     send({0, 1})
     assert not node._lost
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
+    ns, topics, _ = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(uuid.uuid4().int % 100 + 1))
+    proc = subprocess.Popen([sys.executable, '-m', 'tt_perception.node', '--ros-args', '-p',
+                             f'rig_file:={rig_path}'], stderr=subprocess.PIPE, text=True,
+                            env=env)
+    try:
+        lines = []
+        end = time.monotonic() + 30.0
+        while not any('publishing' in line for line in lines) and time.monotonic() < end:
+            ready, _, _ = select.select([proc.stderr], [], [], 1.0)
+            if ready:
+                lines.append(proc.stderr.readline())
+        assert any('publishing' in line for line in lines), lines
+        proc.send_signal(sig)
+        assert proc.wait(timeout=15) == 0
+        assert 'Traceback' not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()

@@ -16,6 +16,7 @@ is reported (and a device reopened) while the node keeps running.
 import math
 import os
 import queue
+import signal
 import threading
 import time
 
@@ -290,8 +291,14 @@ class PerceptionNode(Node):
         return super().destroy_node()
 
 
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(args=None):
     rclpy.init(args=args)
+    # SIGTERM ends the node as Ctrl-C does: out of spin, node destroyed, context shut down.
+    signal.signal(signal.SIGTERM, _terminate)
     node = None
     try:
         node = PerceptionNode()
