@@ -316,22 +316,31 @@ def landing_kernel(s0, t0, P, out):
         out[_O_STOP_P + j] = ev_s[n - 1, j]
 
 
-def _batch_body(states, t0, valid, P, plane_x, bounced, outgoing, out):
-    no_t = np.empty(0)
-    no_s = np.empty((0, 9))
+@njit(cache=True, nogil=True)
+def _batch_row(states, t0, valid, P, plane_x, bounced, outgoing, out, i):
+    if not valid[i]:
+        out[i, _O_STATUS] = INVALID
+        out[i, _O_NET_Z] = math.nan
+    elif outgoing:
+        landing_kernel(states[i], t0[i], P, out[i])
+    else:
+        predict_kernel(states[i], t0[i], P, plane_x, bounced, np.empty(0), np.empty((0, 9)),
+                       out[i])
+
+
+# Two functions, not one compiled twice: numba's cache tells them apart by name only.
+@njit(cache=True, nogil=True)
+def _batch_serial(states, t0, valid, P, plane_x, bounced, outgoing, out):
+    for i in range(states.shape[0]):
+        _batch_row(states, t0, valid, P, plane_x, bounced, outgoing, out, i)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _batch_parallel(states, t0, valid, P, plane_x, bounced, outgoing, out):
     for i in prange(states.shape[0]):
-        if not valid[i]:
-            out[i, _O_STATUS] = INVALID
-            out[i, _O_NET_Z] = math.nan
-            continue
-        if outgoing:
-            landing_kernel(states[i], t0[i], P, out[i])
-        else:
-            predict_kernel(states[i], t0[i], P, plane_x, bounced, no_t, no_s, out[i])
+        _batch_row(states, t0, valid, P, plane_x, bounced, outgoing, out, i)
 
 
-_batch_serial = njit(cache=True, nogil=True)(_batch_body)
-_batch_parallel = njit(cache=True, nogil=True, parallel=True)(_batch_body)
 PARALLEL_MIN = 256
 """Batches at least this large run on all cores (prange); smaller ones on the caller's."""
 
