@@ -110,3 +110,42 @@ def test_pub_bad_values_fail_before_publishing(topic):
     assert rc == 1 and 'track_id' in err and err.strip().count('\n') == 0
     rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/NoSuch', '{}')
     assert rc == 1 and 'unknown message type' in err
+
+
+def test_run_prediction_node_and_echo_its_prediction(graph, procs, topic):
+    """Issue 2: `ros2 run tt_prediction prediction_node` starts, and `ros2 topic echo
+    /ball/prediction --once` prints a message when a BallState is published (topics remapped
+    so that parallel runs do not meet)."""
+    state_topic, prediction_topic = f'{topic}/state', f'{topic}/prediction'
+    node = procs('run', 'tt_prediction', 'prediction_node', '--ros-args',
+                 '-r', f'/ball/state:={state_topic}',
+                 '-r', f'/ball/prediction:={prediction_topic}')
+    echo = procs('topic', 'echo', prediction_topic, '--once')
+    pub = graph.node.create_publisher(BallState, state_topic, QoSProfile(depth=10))
+    # From the opponent's side towards the robot, no spin, no sideways speed.
+    values = {'header': {'frame_id': 'table'}, 'position': {'x': 1.4, 'y': 0.1, 'z': 0.3},
+              'velocity': {'x': -6.0, 'y': 0.0, 'z': 1.2}}
+
+    def printed():
+        if '---' in echo.stdout or echo.proc.poll() is not None or node.proc.poll() is not None:
+            return True
+        msg = dict_to_message(values, BallState)
+        msg.header.stamp = graph.node.get_clock().now().to_msg()
+        pub.publish(msg)
+        return False
+
+    graph.spin_until(printed, 90, 'the echoed prediction')
+    assert echo.wait() == 0, echo.stderr + node.stderr
+    prediction = yaml.safe_load(echo.stdout.split('---\n')[0])
+    assert prediction['header']['frame_id'] == 'table'
+    # Without drag the ball would reach z = r (0.02 m) after t = 0.391 s, at x = -0.94 m;
+    # drag only shortens that: the bounce is on the robot's half between there and the net,
+    # on the line y = 0.1 (no sideways force), and the ball goes on to the hitting plane.
+    assert prediction['status'] == 'ok'
+    assert prediction['bounce_valid'] and prediction['bounce_half'] == -1
+    assert -0.944 < prediction['bounce_point']['x'] < 0.0
+    assert prediction['bounce_point']['y'] == pytest.approx(0.1, abs=1e-6)
+    assert prediction['hit_valid']
+    assert prediction['hit_point']['x'] == pytest.approx(prediction['hit_plane_x'])
+    node.signal(signal.SIGINT)
+    assert node.wait() == 0 and 'Traceback' not in node.stderr
