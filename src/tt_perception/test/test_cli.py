@@ -89,8 +89,23 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
                         is_bigendian=0, step=frame.shape[1] * 3, data=frame.reshape(-1))
             writer.write(conns[k], ns, store.serialize_cdr(msg, 'sensor_msgs/msg/Image'))
     out = tmp_path / 'out'
-    assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag)]) == 0
-    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -t0)   # the bag's stamps
+    states = tmp_path / 'states'
+    assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag),
+                     '--out-bag', str(states)]) == 0
+    rows = read_track(out / 'track_001.csv')
+    assert_matches_truth(rows, truth, -t0)   # the bag's stamps
+    # The same states as BallState in the output bag, stamped with the images' stamps.
+    from rosbags.highlevel import AnyReader
+    from tt_tools.bagfile import TypeRegistry
+    registry = TypeRegistry()
+    registry.ensure('tt_msgs/msg/BallState')
+    with AnyReader([states], default_typestore=registry.store) as reader:
+        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+    assert len(msgs) == len(rows)
+    for msg, row in zip(msgs, rows, strict=True):
+        assert abs(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - row[0]) < 1e-6
+        assert np.allclose([msg.position.x, msg.spin.z], [row[1], row[9]], atol=1e-6)
+        assert msg.track_id == 1 and msg.covariance.shape == (81,)
 
 
 @pytest.mark.parametrize('args, code, expect', [

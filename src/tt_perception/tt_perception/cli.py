@@ -1,11 +1,13 @@
 """tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
 
     tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
+                [--out-bag BAG]
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
 image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id``; the spin
-columns are left empty: perception estimates spin, it does not measure it). Bad input: one line
+columns are left empty: perception estimates spin, it does not measure it); with
+``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. Bad input: one line
 on stderr, exit status 2 for the rig or calibration, 1 for the data; nothing is written then.
 
 Video files have no common clock: a camera (other than camera 0) whose ``time_offset`` the
@@ -164,6 +166,23 @@ def write_tracks(out, estimates, label):
     return names
 
 
+def write_bag(path, estimates, frame_id):
+    """Write the estimates as tt_msgs/BallState on /ball/state into a new MCAP bag."""
+    from rclpy.serialization import serialize_message
+    from tt_tools.bagfile import BagWriter
+
+    from .node import STATE_TOPIC, ball_state_message
+    writer = BagWriter(path)
+    try:
+        conn = writer.add_topic(STATE_TOPIC, 'tt_msgs/msg/BallState')
+        for t_ref, e in estimates:
+            msg = ball_state_message(e, t_ref, frame_id)
+            ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            writer.write(conn, ns, serialize_message(msg))
+    finally:
+        writer.close()
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(
         prog='tt-perceive',
@@ -175,7 +194,12 @@ def main(argv=None):
     parser.add_argument('--colour', default='any', choices=('white', 'orange', 'any'),
                         help='ball colour (default: any)')
     parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')
+    parser.add_argument('--out-bag', help='also write the states as BallState on /ball/state '
+                                          'into this new bag (MCAP)')
     args = parser.parse_args(argv)
+    if args.out_bag and os.path.exists(args.out_bag):
+        print(f'tt-perceive: output bag {args.out_bag} already exists', file=sys.stderr)
+        return 1
     try:
         rig = load_rig(args.rig)
         if len(rig.cameras) < 2:
@@ -204,6 +228,8 @@ def main(argv=None):
     for message in errors.values():
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
     names = write_tracks(args.out, estimates, 'tt-perceive')
+    if args.out_bag:
+        write_bag(args.out_bag, estimates, rig.frame_id)
     print(f'tt-perceive: {len(names)} track(s), {len(estimates)} states -> {args.out}')
     return 0
 

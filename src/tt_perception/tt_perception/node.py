@@ -79,6 +79,22 @@ PARAMETERS = {
 }
 
 
+def ball_state_message(est, t_ref, frame_id):
+    """tt_msgs/BallState of a :class:`tt_perception.pipeline.BallEstimate` whose time is
+    ``est.t`` s after the whole second ``t_ref`` (s)."""
+    msg = BallState()
+    ns = int(t_ref) * 1_000_000_000 + int(round(est.t * 1e9))
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    msg.header.frame_id = frame_id
+    s = est.state
+    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in s[:3])
+    msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(v) for v in s[3:6])
+    msg.spin.x, msg.spin.y, msg.spin.z = (float(v) for v in s[6:9])
+    msg.covariance = [float(v) for v in est.covariance.ravel()]
+    msg.track_id = int(est.track_id)
+    return msg
+
+
 class PerceptionNode(Node):
     """Cameras in, /ball/state out (see the module docstring)."""
 
@@ -253,21 +269,8 @@ class PerceptionNode(Node):
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:
-            self.publisher.publish(self._message(est))
+            self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
-
-    def _message(self, est):
-        msg = BallState()
-        ns = int(self._t_ref) * 1_000_000_000 + int(round(est.t * 1e9))
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
-        msg.header.frame_id = self.rig.frame_id
-        s = est.state
-        msg.position.x, msg.position.y, msg.position.z = (float(v) for v in s[:3])
-        msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(v) for v in s[3:6])
-        msg.spin.x, msg.spin.y, msg.spin.z = (float(v) for v in s[6:9])
-        msg.covariance = [float(v) for v in est.covariance.ravel()]
-        msg.track_id = int(est.track_id)
-        return msg
 
     def _watch_cameras(self):
         now = time.monotonic()
