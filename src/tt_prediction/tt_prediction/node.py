@@ -7,6 +7,7 @@ Invalid or stale states are dropped with a throttled warning (nothing is publish
 """
 
 
+import sys
 import threading
 
 from builtin_interfaces.msg import Time
@@ -23,7 +24,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tt_msgs.msg import BallPrediction, BallState
 
 from .params import load_model
-from .predict import DEFAULT_HIT_PLANE_X, check_state, predict
+from .predict import DEFAULT_HIT_PLANE_X, predict
 from .uncertainty import predict_uncertainty
 
 BOUNCE_MARGIN_S = 0.02
@@ -196,11 +197,6 @@ class PredictionNode(Node):
                 return
         p, v, w = msg.position, msg.velocity, msg.spin
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
-        reason = check_state(state, self.params.radius)
-        if reason:
-            self._drop(reason)
-            return
-        self.last_ns = stamp_ns
         track = self.tracks.get(msg.track_id)
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:
@@ -219,6 +215,7 @@ class PredictionNode(Node):
         if pred.status == 'invalid':
             self._drop(pred.reason)
             return
+        self.last_ns = stamp_ns
         if not bounced:
             track.bounce = None
             track.bounce_ns = None
@@ -334,6 +331,9 @@ class PredictionNode(Node):
 
 
 def main(args=None):
+    # The uncertainty worker holds the GIL for its numpy parts; a short switch interval
+    # (default 5 ms) lets a state's callback take it back within a fraction of a millisecond.
+    sys.setswitchinterval(2e-4)
     rclpy.init(args=args)
     executor = SingleThreadedExecutor()    # before the node: a signal may come at any time
     node = None

@@ -152,13 +152,14 @@ class Prediction:
 def check_state(state, radius=0.020):
     """Reason why ``state`` (9,) = [p, v, w] is not a ball to predict, or '' when it is one."""
     try:
-        x, y, z, vx, vy, vz, wx, wy, wz = (float(c) for c in state)
+        values = state.tolist() if isinstance(state, np.ndarray) else [float(c) for c in state]
+        x, y, z, vx, vy, vz, wx, wy, wz = values
     except (TypeError, ValueError):
         return f'state must be 9 numbers [p, v, w], got {state!r}'
-    for name, part in (('position', (x, y, z)), ('velocity', (vx, vy, vz)),
-                       ('spin', (wx, wy, wz))):
-        if not all(math.isfinite(c) for c in part):
-            return f'{name} is not finite: {list(part)}'
+    if not math.isfinite(math.fsum(abs(c) for c in values)):
+        for i, name in enumerate(('position', 'velocity', 'spin')):
+            if not all(math.isfinite(c) for c in values[3 * i:3 * i + 3]):
+                return f'{name} is not finite: {values[3 * i:3 * i + 3]}'
     over_table = abs(x) <= HALF_LENGTH and abs(y) <= HALF_WIDTH
     if over_table and z < radius - BELOW_TOLERANCE:
         return f'ball centre z = {z:.4f} m is below the table surface (contact at z = {radius})'
