@@ -286,3 +286,31 @@ def test_foreign_paths_are_one_line_errors(tmp_path):
             open_bag(str(path))
     rc, out, err = ros2('bag', 'info', str(random_file))
     assert rc == 1 and err.count('\n') == 1 and 'not a rosbag2 bag' in err
+
+
+def test_record_all_topics_picks_up_a_new_publisher(graph, procs, tmp_path, topic):
+    out = tmp_path / 'all'
+    rec = procs('bag', 'record', '-a', '-o', str(out))
+    graph.spin_until(lambda: graph.node_running(rec), 60, 'the recorder node')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))  # after it started
+    graph.spin_until(lambda: pub.get_subscription_count() >= 1, 60, 'the recorder to subscribe')
+    sent = [_state(i) for i in range(5)]
+    for msg in sent:
+        pub.publish(msg)
+    assert pub.wait_for_all_acked(Duration(seconds=10))
+    rec.signal(signal.SIGINT)
+    assert rec.wait() == 0, rec.stderr
+    got = [deserialize_message(raw, BallState) for _, raw in _bag_messages(out)[topic]]
+    assert got == sent
+
+
+def test_play_loop_repeats_until_interrupted(recorded, graph, procs):
+    out, topics, sent = recorded
+    got = []
+    graph.node.create_subscription(BallState, topics['state'], got.append, QoSProfile(depth=100))
+    play = procs('bag', 'play', str(out), '--topics', topics['state'], '--rate', '4', '--loop',
+                 '--wait-for-subscribers')
+    graph.spin_until(lambda: len(got) >= 2 * N_STATES + 1, 60, 'a third pass of the bag')
+    play.signal(signal.SIGINT)
+    assert play.wait() == 0 and 'Traceback' not in play.stderr
+    assert got[:2 * N_STATES] == sent['state'] * 2
