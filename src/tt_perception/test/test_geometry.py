@@ -158,3 +158,11 @@ def test_measured_spin_fills_in_the_unobservable_component():
     f.update_spin(w, np.eye(3) * 4.0)
     assert f.spin_variance_along_velocity() < 5.0 < prior
     assert np.allclose(f.x[6:], w, atol=0.5)
+
+
+def test_filter_with_a_ball_rolling_on_the_table_does_not_bounce_forever():
+    f = BallFilter()
+    f.start(0.0, [0.0, 0.0, 0.02], [2.0, 0.0, 0.0], np.eye(3) * 1e-6, np.eye(3) * 1e-4)
+    f.predict(0.1)
+    assert f.t == pytest.approx(0.1) and f.bounces == 0
+    assert f.x[2] == pytest.approx(0.02) and f.x[5] >= 0.0

@@ -144,8 +144,8 @@ class BallFilter:
         self.x = after
         cfg = self.config
         self.P = J @ self.P @ J.T
-        self.P[3:6, 3:6] += np.eye(3) * cfg.bounce_velocity_noise ** 2
-        self.P[6:, 6:] += np.eye(3) * cfg.bounce_spin_noise ** 2
+        self.P[3:6, 3:6] += _EYE3 * cfg.bounce_velocity_noise ** 2
+        self.P[6:, 6:] += _EYE3 * cfg.bounce_spin_noise ** 2
         self.bounces += 1
 
     def predict(self, t):
@@ -160,9 +160,13 @@ class BallFilter:
             if self.x[2] < r <= z0 and self.x[5] < 0.0 and on_table:
                 # Step to the contact (linear in z over the step), rebound, go on.
                 tau = h * (z0 - r) / max(z0 - self.x[2], 1e-12)
+                if tau <= 1e-9:
+                    # Already in contact (rolling on the surface): no impact, stay on it.
+                    self.x[2], self.x[5] = r, max(self.x[5], 0.0)
+                    self.t += h
+                    continue
                 self.x, self.P = x_save, P_save
-                if tau > 1e-9:
-                    self._propagate(tau)
+                self._propagate(tau)
                 self.x[2] = r
                 self._bounce()
                 self.t += tau
