@@ -155,7 +155,8 @@ def test_corrupt_frames_are_skipped_and_the_track_goes_on():
     rig = synth.demo_rig()
     state = synth.incoming_ball()
     frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.5)
-    corrupt = {0.1: np.zeros((10, 10, 3), np.uint8), 0.2: np.zeros((480, 640, 3), np.float32)}
+    corrupt = {0.1: np.zeros((10, 10, 3), np.uint8), 0.2: np.zeros((480, 640, 3), np.float32),
+               0.3: np.zeros((480, 640, 4), np.uint8)}
 
     def damaged():
         for t, k, frame in frames:
@@ -164,7 +165,7 @@ def test_corrupt_frames_are_skipped_and_the_track_goes_on():
 
     estimates, errors = run(rig, damaged())
     assert any('differs from the camera' in e for e in errors)
-    assert any('not an 8-bit image' in e for e in errors)
+    assert sum('not an 8-bit grey or BGR image' in e for e in errors) == 2
     assert {e.track_id for e in estimates} == {1}
     err = [np.linalg.norm(e.state[:3] - s[:3]) for e, s in matched(estimates, truth[0])]
     assert max(err) < 0.01

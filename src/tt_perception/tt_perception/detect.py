@@ -82,11 +82,6 @@ class BallDetector:
         self._bg8 = None
         self._count = 0
 
-    def reset(self):
-        """Forget the background (e.g. after the camera was reopened)."""
-        self.background = None
-        self._bg8 = None
-
     def detect(self, frame, roi_centre=None, update_background=True):
         """Ball candidates in ``frame`` (H x W x 3 BGR or H x W grey uint8).
 
@@ -96,9 +91,9 @@ class BallDetector:
         background's size raises ValueError.
         """
         cfg = self.config
-        if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.ndim not in (
-                2, 3) or frame.size == 0:
-            raise ValueError('frame is not an 8-bit image')
+        if (not isinstance(frame, np.ndarray) or frame.dtype != np.uint8 or frame.size == 0
+                or not (frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 3))):
+            raise ValueError('frame is not an 8-bit grey or BGR image')
         h, w = frame.shape[:2]
         if self.background is None:
             gray = _grey(frame)
