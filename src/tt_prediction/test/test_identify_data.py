@@ -36,7 +36,7 @@ def _folder(tmp_path, files):
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n'}, 'a.csv: 1 valid sample(s)'),
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,-0.1\n' for i in range(20)),
       'b.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,0.021\n' for i in range(20))},
-     '0 usable trajectory(ies) after cleaning (2 loaded)'),
+     '0 usable trajectory(ies) after cleaning (2 loaded; data/a.csv: '),
 ], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)

@@ -43,10 +43,12 @@ def cross_validate(tracks, globals_, states, folds, max_nfev=20, progress=None):
         g, st = fitting.fit_pooled([tracks[i] for i in train], globals_,
                                    [states[i] for i in train], max_nfev=max_nfev)
         fold_fits.append((g, dict(zip(train.tolist(), st, strict=True))))
-        P = g.packed()
-        for i in np.flatnonzero(folds == f):
-            _, rms = fitting.fit_state(tracks[i], P, x0=states[i], spin_scale=g.spin_scale,
-                                       max_nfev=30)
+        held = np.flatnonzero(folds == f)
+        _, held_states = fitting.fit_pooled([tracks[i] for i in held], g,
+                                            [states[i] for i in held], max_nfev=max_nfev,
+                                            fit_globals=False)
+        for i, x in zip(held, held_states, strict=True):
+            rms = fitting.fit_rms(tracks[i], x, g.packed(), g.spin_scale)
             m = int(tracks[i].mask.sum())
             sq += rms ** 2 * m
             n += m

@@ -15,7 +15,6 @@ import math
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 from ..integrate import DEFAULT_STEP, rollout_kernel
 from ..params import PACKED_FIELDS, ModelParams
@@ -163,6 +162,43 @@ def initial_guess(track, window=0.06):
     return np.concatenate([p0, v0] + ([] if track.spin is not None else [np.zeros(3)]))
 
 
+SPIN_STARTS = (0.0, 150.0, -150.0)
+"""Unmeasured spin: starting spins about the horizontal axis across the flight (rad/s; the
+sign tells top- from backspin), each track keeps its best fit (the fit has local minima)."""
+
+
+def fit_starts(tracks, globals_, max_nfev=40, current=None):
+    """Every track's initial state fitted alone with the globals fixed, from the quadratic
+    start of ``initial_guess`` and, for unmeasured spin, each of SPIN_STARTS; ``current``
+    (states) competes too. Returns the best state of each track."""
+    starts = [initial_guess(tr) for tr in tracks]
+    P, k = globals_.packed(), globals_.spin_scale
+
+    def costs(states):
+        return np.array([_robust_cost(track_residual(x, tr, P, k))
+                         for tr, x in zip(tracks, states, strict=True)])
+    best = None if current is None else [np.array(x, dtype=float) for x in current]
+    best_cost = None if current is None else costs(best)
+    for spin in SPIN_STARTS:
+        trial = []
+        for tr, x in zip(tracks, starts, strict=True):
+            x = x.copy()
+            if tr.spin is None:
+                axis = np.cross([0.0, 0.0, 1.0], x[3:6])
+                x[6:9] = spin * axis / max(np.linalg.norm(axis), 1e-9)
+            trial.append(x)
+        if best is not None and all(tr.spin is not None for tr in tracks):
+            break
+        _, trial = fit_pooled(tracks, globals_, trial, max_nfev=max_nfev, fit_globals=False)
+        cost = costs(trial)
+        if best is None:
+            best, best_cost = trial, cost
+            continue
+        for i in np.flatnonzero(cost < best_cost):
+            best[i], best_cost[i] = trial[i], cost[i]
+    return best
+
+
 def fit_state(track, P, x0=None, spin_scale=0.0, upto=None, prior=None, max_nfev=60):
     """Initial state of one track with the global parameters fixed; returns (x, rms_m)."""
     x0 = initial_guess(track) if x0 is None else x0
@@ -195,40 +231,154 @@ def gate(tracks, states, P):
     return dropped
 
 
-def fit_pooled(tracks, globals_, states, max_nfev=40):
-    """Stacked fit of the global parameters and every track's initial state.
+def _robust_cost(res):
+    """Soft-L1 cost of residuals (m): sum of 2 f^2 (sqrt(1 + (r/f)^2) - 1), f = NOISE_SCALE."""
+    return float(np.sum(2.0 * NOISE_SCALE ** 2 * (np.sqrt(1.0 + (res / NOISE_SCALE) ** 2) - 1)))
 
-    ``states``: starting unknowns per track. Returns ``(globals, states)``. The Jacobian is
-    sparse (a track's rows depend on its own state and the globals), which keeps the cost
-    of finite differences to about (9 + number of globals) evaluations of all tracks.
+
+def _difference(r1, r0, h):
+    """Forward difference (r1 - r0) / h, zero on rows where the model ball stopped in
+    either evaluation (a constant MISSING_RESIDUAL there, not a slope)."""
+    d = (r1 - r0) / h
+    d[(r0 == MISSING_RESIDUAL) | (r1 == MISSING_RESIDUAL)] = 0.0
+    return d
+
+
+def _blocks(tr, x, r, P, k, g_steps, hg):
+    """Normal-equation blocks of one track at its state x with residuals r (IRLS-weighted):
+    U = A'WA, W = A'WB, e = -A'Wr, V = B'WB, f = -B'Wr, with A = dr/dx, B = dr/dglobals
+    (forward differences; ``g_steps`` are (packed params, spin scale) with one global
+    stepped by ``hg``)."""
+    eps = np.sqrt(np.finfo(float).eps)
+    hx = eps * np.maximum(1.0, np.abs(x))
+    A = np.empty((len(r), len(x)))
+    for j in range(len(x)):
+        xp = x.copy()
+        xp[j] += hx[j]
+        A[:, j] = _difference(track_residual(xp, tr, P, k), r, hx[j])
+    B = np.empty((len(r), len(g_steps)))
+    for j, (Pj, kj) in enumerate(g_steps):
+        B[:, j] = _difference(track_residual(x, tr, Pj, kj), r, hg[j])
+    w = 1.0 / np.sqrt(1.0 + (r / NOISE_SCALE) ** 2)            # soft-L1 IRLS weights
+    Aw, Bw = A * w[:, None], B * w[:, None]
+    return Aw.T @ A, Aw.T @ B, -Aw.T @ r, Bw.T @ B, -Bw.T @ r
+
+
+def _damped(M, lam):
+    """M with its diagonal scaled by (1 + lam) (Marquardt), kept positive definite."""
+    return M + lam * np.diag(np.diag(M)) + 1e-12 * np.eye(len(M))
+
+
+def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=True):
+    """Stacked fit of the global parameters and every track's initial state (eq. 9).
+
+    ``states``: starting unknowns per track. Returns ``(globals, states)``.
+
+    Levenberg-Marquardt on the block-arrow structure of the problem (a track's residuals
+    depend on its own state and the globals only), as in bundle adjustment: each iteration
+    forms the small normal-equation blocks of every track from a forward-difference
+    Jacobian (about 9 + number of globals rollouts per track), eliminates the track states
+    (Schur complement: U_i^-1, 6x6 or 9x9) and solves exactly for the globals, then back-
+    substitutes the states. Each track has its own damping, raised when its cost rose. The
+    soft-L1 loss enters as reweighting of the rows (IRLS), the globals are kept inside
+    their bounds (GLOBAL_BOUNDS) by projection. Exact steps matter: a spin along the
+    velocity leaves almost no trace, which makes the blocks ill conditioned; an iterative
+    inner solver (trust region with LSMR) then needs hundreds of iterations per step and
+    stops short. ``max_nfev``: at most this many Jacobians; the fit stops earlier when an
+    accepted step lowers the cost by less than ``ftol`` (relative). ``fit_globals=False``
+    keeps the globals fixed: every track's state is then fitted alone, accepted track by
+    track, and a converged track is not evaluated again.
     """
-    n_g = len(globals_.names)
-    sizes = [tr.n_state for tr in tracks]
-    offsets = np.concatenate([[n_g], n_g + np.cumsum(sizes)])
-    rows = [int(tr.mask.sum()) * 3 + (3 if tr.spin is None else 0) for tr in tracks]
-    sparsity = lil_matrix((sum(rows), offsets[-1]), dtype=int)
-    r0 = 0
-    for i, n in enumerate(rows):
-        sparsity[r0:r0 + n, :n_g] = 1
-        sparsity[r0:r0 + n, offsets[i]:offsets[i + 1]] = 1
-        r0 += n
-
-    def residual(z):
-        g = globals_.with_values(z[:n_g])
-        P, k = g.packed(), g.spin_scale
-        return np.concatenate([track_residual(z[offsets[i]:offsets[i + 1]], tr, P, k)
-                               for i, tr in enumerate(tracks)])
-
     lo, hi = globals_.bounds()
-    z0 = np.concatenate([np.clip(globals_.values, lo, hi), *states])
-    n_free = offsets[-1] - n_g
-    sol = least_squares(residual, z0, jac_sparsity=sparsity, loss='soft_l1',
-                        f_scale=NOISE_SCALE, max_nfev=max_nfev, x_scale='jac',
-                        bounds=(np.concatenate([lo, np.full(n_free, -np.inf)]),
-                                np.concatenate([hi, np.full(n_free, np.inf)])))
-    z = sol.x
-    return (globals_.with_values(z[:n_g]),
-            [z[offsets[i]:offsets[i + 1]] for i in range(len(tracks))])
+    n_g = len(globals_.names) if fit_globals else 0        # number of free globals
+    eps = np.sqrt(np.finfo(float).eps)
+
+    def packs(values):
+        g = globals_.with_values(values)
+        return g.packed(), g.spin_scale
+
+    gv = np.asarray(globals_.values, dtype=float)
+    gv = np.clip(gv, lo, hi) if fit_globals else gv
+    P, k = packs(gv)
+    xs = [np.array(x, dtype=float) for x in states]
+    res = [track_residual(x, tr, P, k) for tr, x in zip(tracks, xs, strict=True)]
+    costs = np.array([_robust_cost(r) for r in res])
+    lam, lam_g = np.full(len(tracks), 1e-3), 1e-3
+    active = np.ones(len(tracks), dtype=bool)     # tracks still moving (fixed globals only)
+    for _ in range(max_nfev):
+        if not active.any():
+            break
+        hg = eps * np.maximum(1.0, np.abs(gv))
+        g_steps = []
+        for j in range(n_g):
+            v = gv.copy()
+            v[j] += hg[j]
+            g_steps.append(packs(v))
+        idx = np.flatnonzero(active)
+        blocks = {i: _blocks(tracks[i], xs[i], res[i], P, k, g_steps, hg) for i in idx}
+        V = sum(blocks[i][3] for i in idx) if n_g else np.zeros((0, 0))
+        f = sum(blocks[i][4] for i in idx) if n_g else np.zeros(0)
+        pending = idx
+        for _try in range(12):
+            # Eliminate the states: S dg = rhs, then dx_i = U_i^-1 (e_i - W_i dg).
+            S, rhs, Y = _damped(V, lam_g), f.copy(), {}
+            for i in pending:
+                U, Wi, e = blocks[i][:3]
+                Y[i] = np.linalg.solve(_damped(U, lam[i]), np.column_stack([Wi, e]))
+                S -= Wi.T @ Y[i][:, :n_g]
+                rhs -= Wi.T @ Y[i][:, n_g]
+            g_new = gv.copy()
+            if n_g:
+                g_new = np.clip(gv + np.linalg.solve(S, rhs), lo, hi)
+            dg = (g_new - gv)[:n_g]
+            P_new, k_new = packs(g_new)
+            trial = {}
+            for i in pending:
+                x = xs[i] + Y[i][:, n_g] - Y[i][:, :n_g] @ dg
+                r = track_residual(x, tracks[i], P_new, k_new)
+                trial[i] = (x, r, _robust_cost(r))
+            worse = np.array([trial[i][2] >= costs[i] for i in pending], dtype=bool)
+            lam[pending[worse]] *= 4.0
+            lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
+            if n_g:         # coupled: the step is taken by all tracks or none
+                new_total = sum(trial[i][2] for i in pending)
+                if new_total < costs[pending].sum():
+                    drop = (costs.sum() - new_total) / max(costs.sum(), 1e-300)
+                    gv, P, k, lam_g = g_new, P_new, k_new, max(lam_g / 3.0, 1e-9)
+                    for i in pending:
+                        xs[i], res[i], costs[i] = trial[i]
+                    break
+                lam_g *= 4.0
+                continue
+            for i in pending[~worse]:           # independent tracks: each on its own
+                old = costs[i]
+                xs[i], res[i], costs[i] = trial[i]
+                if old - costs[i] < ftol * old:
+                    active[i] = False
+            pending = pending[worse]
+            if not len(pending):
+                break
+        else:
+            if n_g:
+                break                       # no step lowers the cost: converged
+            active[pending] = False
+        if n_g and drop < ftol:
+            break
+    return globals_.with_values(gv), xs
+
+
+def fit_pooled_restarted(tracks, globals_, states, max_nfev=40):
+    """``fit_pooled``, then, where spin is not measured, every track's state restarted under
+    the fitted globals (``fit_starts``, the current state competing) and the pooled fit
+    again. A track's state fitted under other globals (a model without an effect) can sit in
+    another basin of the spin than the one the new globals make best: without the restart a
+    correct effect gains too little and a wrong one can gain by moving tracks between basins.
+    """
+    g, states = fit_pooled(tracks, globals_, states, max_nfev=max_nfev)
+    if all(tr.spin is not None for tr in tracks):
+        return g, states
+    states = fit_starts(tracks, g, max_nfev, current=states)
+    return fit_pooled(tracks, g, states, max_nfev=max_nfev)
 
 
 def fit_each(tracks, globals_, states, names):

@@ -69,11 +69,10 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
     has_spin = any(tr.spin is not None for tr in prepared)
     has_bounces = any(tr.n_bounces for tr in prepared)
     names = ['c_d'] + (['c_m'] if has_spin else []) + (['e_t', 'mu'] if has_bounces else [])
-    P0 = base.packed()
-    states = [fitting.fit_state(tr, P0)[0] for tr in prepared]
-    notes['samples_gated_by_fit'] = fitting.gate(prepared, states, P0)
-    g_base, states = fitting.fit_pooled(prepared, fitting.Globals(base, names), states,
-                                        max_nfev=max_nfev)
+    g_base = fitting.Globals(base, names)
+    states = fitting.fit_starts(prepared, g_base, max_nfev)
+    notes['samples_gated_by_fit'] = fitting.gate(prepared, states, base.packed())
+    g_base, states = fitting.fit_pooled_restarted(prepared, g_base, states, max_nfev)
     per_track = fitting.fit_each(prepared, g_base, states,
                                  ['c_d', 'c_m'] if has_spin else ['c_d'])
     paper = {'c_d': _mean_std(per_track[:, 0])}
@@ -100,8 +99,10 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     base = base or ModelParams()
     prepared, dropped, notes = prepare(tracks, base.radius)
     if len(prepared) < 2:
+        first = next(iter(dropped.items()), None)
+        why = f'; {first[0]}: {first[1]}' if first else ''
         raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
-                        f'({len(tracks)} loaded); identification needs at least 2')
+                        f'({len(tracks)} loaded{why}); identification needs at least 2')
     has_spin = any(tr.spin is not None for tr in prepared)
     has_bounces = any(tr.n_bounces for tr in prepared)
     folds = int(min(folds, len(prepared)))
@@ -185,7 +186,7 @@ def _refit(prepared, current, fold_of, max_nfev, tick):
     """The current model refitted on all tracks and cross-validated, no parameter added;
     in and out in the form (effect, held-out RMS, fold fits, globals, states)."""
     effect, _, _, g, states = current
-    g, states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
+    g, states = fitting.fit_pooled_restarted(prepared, g, states, 2 * max_nfev)
     rms, fits = evaluate.cross_validate(prepared, g, states, fold_of, max_nfev, tick)
     return effect, rms, fits, g, states
 
@@ -219,7 +220,7 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
     _, cur_rms, _, cur_globals, states = current
     g = fitting.Globals(cur_globals.params(), cur_globals.names + list(effect.params))
     g.values[:len(cur_globals.names)] = cur_globals.values
-    g, e_states = fitting.fit_pooled(prepared, g, states, max_nfev=2 * max_nfev)
+    g, e_states = fitting.fit_pooled_restarted(prepared, g, states, 2 * max_nfev)
     rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev, tick)
     gain = 1.0 - rms / cur_rms
     penalty = PENALTY_PER_PARAM * len(effect.params)
