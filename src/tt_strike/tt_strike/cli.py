@@ -1,0 +1,141 @@
+"""tt-strike: racket normal and velocity that return incoming balls to a target, JSON Lines.
+
+Input (stdin or --input FILE), one incoming ball per line, table frame, SI units:
+    {"t": 0.0, "p": [x, y, z], "v": [vx, vy, vz], "w": [wx, wy, wz],
+     "target_zone": 1..9 | "target_point": [x, y], "covariance": [81 numbers] (optional)}
+Each ball is first predicted to the hitting plane x = --hit-plane-x (one bounce on the
+robot's half), then the stroke is solved. Output (stdout), one line per input line:
+    {"status": "ok" | "infeasible" | "no_hit_point", "reason": ...,
+     "hit": {t, p, v, w} | null,
+     "racket": {normal, velocity, orientation_xyzw, position} | null,
+     "ball_out": {v, w} | null, "landing": {t, p, zone} | null,
+     "target": {zone, point}, "net_clearance", "margin", "residual", "in_zone_probability"}
+Every line is checked before anything is written: a bad line (not JSON, a missing or
+malformed field, NaN, a target zone outside 1..9, a target point off the opponent's half)
+stops the command with a one-line reason naming the line, exit status 2.
+"""
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+from tt_prediction.cli import InputError, parse_line
+from tt_prediction.params import load_model
+
+from .incoming import hit_point
+from .solver import StrikeSettings, resolve_target, solve
+
+
+def parse_strike_line(text, lineno, radius):
+    """(t, state9, zone or None, point or None, covariance or None) of one input line."""
+    t, state = parse_line(text, lineno, radius)
+    data = json.loads(text)
+    zone, point = data.get('target_zone'), data.get('target_point')
+    try:
+        resolve_target(zone, point)
+    except ValueError as exc:
+        raise InputError(f'line {lineno}: {exc}') from None
+    cov = data.get('covariance')
+    if cov is not None:
+        ok = (isinstance(cov, list) and len(cov) == 81
+              and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in cov))
+        if not ok or not all(math.isfinite(c) for c in cov):
+            raise InputError(f'line {lineno}: "covariance" must be 81 finite numbers (9x9)')
+        cov = np.array(cov, dtype=float).reshape(9, 9)
+    return t, np.array(state), zone, point, cov
+
+
+def _vec(a):
+    return [float(x) for x in a]
+
+
+def strike_to_dict(pred, sol):
+    """The output line of one ball: its prediction and (when there is a hit point) solution."""
+    out = {'status': 'no_hit_point', 'reason': pred.reason, 'hit': None, 'racket': None,
+           'ball_out': None, 'landing': None}
+    if pred.status != 'ok':
+        out['reason'] = f'{pred.status}: {pred.reason}'
+        return out
+    out['hit'] = pred.hit.to_dict()
+    out['status'], out['reason'] = sol.status, sol.reason
+    out['target'] = {'zone': sol.target_zone, 'point': _vec(sol.target_point)}
+    if sol.normal is None:
+        return out
+    out['racket'] = {'normal': _vec(sol.normal), 'velocity': _vec(sol.racket_velocity),
+                     'orientation_xyzw': _vec(sol.orientation_xyzw),
+                     'position': _vec(sol.racket_position)}
+    out['ball_out'] = {'v': _vec(sol.ball_out_v), 'w': _vec(sol.ball_out_w)}
+    if sol.landing is not None:
+        out['landing'] = {'t': pred.hit.t + sol.flight_time, 'p': _vec(sol.landing),
+                          'zone': sol.landing_zone}
+    for key in ('net_clearance', 'margin', 'residual', 'in_zone_probability'):
+        value = float(getattr(sol, key))
+        out[key] = value if math.isfinite(value) else None
+    return out
+
+
+def main(argv=None):
+    defaults = StrikeSettings()
+    parser = argparse.ArgumentParser(
+        prog='tt-strike', description=__doc__.splitlines()[0],
+        epilog="Input and output formats and the solver's choices: see docs/strike.md.")
+    parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
+    parser.add_argument('--model', metavar='FILE',
+                        help='model.yaml written by tt-identify (default: nominal model)')
+    parser.add_argument('--hit-plane-x', type=float, default=-1.5, metavar='X',
+                        help='hitting plane x, m (default: %(default)s)')
+    parser.add_argument('--net-clearance', type=float, default=defaults.net_clearance,
+                        metavar='M', help='gap between ball and net top at x = 0, m '
+                        '(the free direction; default: %(default)s)')
+    parser.add_argument('--max-racket-speed', type=float, default=defaults.max_racket_speed,
+                        metavar='V', help='racket speed limit, m/s (default: %(default)s)')
+    parser.add_argument('--aim-inside-zone', action='store_true',
+                        help='aim where the in-zone probability is highest (needs covariance)')
+    args = parser.parse_args(argv)
+    for name in ('hit_plane_x', 'net_clearance', 'max_racket_speed'):
+        value = getattr(args, name)
+        if not math.isfinite(value) or (name != 'hit_plane_x' and value <= 0.0):
+            print(f'tt-strike: --{name.replace("_", "-")} must be finite'
+                  f'{"" if name == "hit_plane_x" else " and positive"}', file=sys.stderr)
+            return 2
+    try:
+        params = load_model(args.model)
+    except ValueError as exc:
+        print(f'tt-strike: {exc}', file=sys.stderr)
+        return 2
+    try:
+        if args.input:
+            with open(args.input) as f:
+                lines = f.readlines()
+        else:
+            lines = sys.stdin.readlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        print(f'tt-strike: cannot read {args.input or "stdin"}: {exc}', file=sys.stderr)
+        return 2
+    try:
+        balls = [parse_strike_line(line, i, params.radius)
+                 for i, line in enumerate(lines, start=1) if line.strip()]
+    except InputError as exc:
+        print(f'tt-strike: {exc}', file=sys.stderr)
+        return 2
+    settings = StrikeSettings(net_clearance=args.net_clearance,
+                              max_racket_speed=args.max_racket_speed,
+                              aim_inside_zone=args.aim_inside_zone)
+    out = []
+    for t, state, zone, point, cov in balls:
+        pred = hit_point(state, params, t0=t, hit_plane_x=args.hit_plane_x)
+        sol = None
+        if pred.status == 'ok':
+            hit = np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w])
+            sol = solve(hit, params, target_zone=zone, target_point=point,
+                        settings=settings, covariance=cov)
+        out.append(json.dumps(strike_to_dict(pred, sol)))
+    if out:
+        sys.stdout.write('\n'.join(out) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

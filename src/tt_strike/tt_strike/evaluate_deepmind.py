@@ -1,0 +1,142 @@
+"""Strike solver over the DeepMind measured ball states, per target zone.
+
+    python -m tt_strike.evaluate_deepmind [--data DIR] [--json FILE] [--limit N]
+
+The 15,792 states of ``deepmind_states/states.csv`` (D'Ambrosio et al., ICRA 2025; CC BY 4.0,
+see that folder's README) are real ball states just after a hit, already rotated into the
+table frame. Those moving towards the robot (v_x < 0) are incoming balls as they are. Those
+moving away (v_x > 0, the hitter stood at the robot's end) are turned half a turn about the
+vertical axis through the table centre, (x, y, z) -> (-x, -y, z) for p, v and w alike, which
+the table's symmetry makes an equally real incoming ball. Each is predicted to the hitting
+plane (``tt_prediction.predict``, serves through their first bounce on the server's half);
+those without a hit point are skipped and counted by reason. Every remaining ball is then
+solved for each target zone 1..9 and the solution checked forward (racket_rebound +
+predict_landing). Prints a Markdown table; ``--json`` writes the numbers.
+"""
+
+import argparse
+import collections
+import csv
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+from tt_prediction.params import ModelParams, load_model
+
+from .incoming import hit_point
+from .solver import StrikeSettings, solve
+
+DEFAULT_DATA = pathlib.Path(__file__).resolve().parents[3] / '..' / 'shared' / 'data' / \
+    'deepmind_states'
+
+
+def load_states(path):
+    """States (n, 9) and serve flags (n,) from states.csv, turned to move towards the robot."""
+    states, serve = [], []
+    with open(path, newline='') as f:
+        for row in csv.DictReader(f):
+            states.append([float(row[k]) for k in
+                           ('x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz')])
+            serve.append(row['set'] == 'serve')
+    states = np.array(states)
+    away = states[:, 3] > 0.0
+    states[np.ix_(away, [0, 1, 3, 4, 6, 7])] *= -1.0      # half a turn about z
+    return states, np.array(serve), away
+
+
+def evaluate(states, serve, params, settings, hit_plane_x=-1.5):
+    """Per-zone counts: the table's rows and the skipped incoming balls by reason."""
+    skipped = collections.Counter()
+    hits = []
+    for s, is_serve in zip(states, serve, strict=True):
+        pred = hit_point(s, params, hit_plane_x=hit_plane_x, serve=bool(is_serve))
+        if pred.status != 'ok':
+            skipped[pred.status] += 1
+            continue
+        hits.append(np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w]))
+    rows = []
+    for zone in range(1, 10):
+        feasible = in_zone = 0
+        residuals, speeds, times = [], [], []
+        reasons = collections.Counter()
+        for h in hits:
+            t = time.perf_counter()
+            sol = solve(h, params, target_zone=zone, settings=settings)
+            times.append(time.perf_counter() - t)
+            if not sol.feasible:
+                reasons[sol.reason.split(' ')[0] + ' ' + sol.reason.split(' ')[1]
+                        if sol.reason.startswith(('racket', 'hit')) else sol.reason] += 1
+                continue
+            feasible += 1
+            in_zone += sol.landing_zone == zone
+            residuals.append(sol.residual)
+            speeds.append(float(np.linalg.norm(sol.racket_velocity)))
+        n = len(hits)
+        rows.append({
+            'zone': zone, 'balls': n, 'feasible': feasible,
+            'feasible_share': feasible / n if n else float('nan'),
+            'in_zone': in_zone, 'in_zone_share': in_zone / feasible if feasible else float('nan'),
+            'residual_median_mm': float(np.median(residuals) * 1e3) if residuals else None,
+            'residual_max_mm': float(np.max(residuals) * 1e3) if residuals else None,
+            'racket_speed_median': float(np.median(speeds)) if speeds else None,
+            'solve_median_ms': float(np.median(times) * 1e3),
+            'infeasible_reasons': dict(reasons.most_common()),
+        })
+    return rows, dict(skipped), len(hits)
+
+
+def markdown(rows):
+    lines = ['| zone | balls | feasible | feasible share | in zone (of feasible) | '
+             'residual median / max, mm | racket speed median, m/s |',
+             '|---|---|---|---|---|---|---|']
+    for r in rows:
+        res = ('-' if r['residual_max_mm'] is None else
+               f"{r['residual_median_mm']:.3f} / {r['residual_max_mm']:.3f}")
+        spd = '-' if r['racket_speed_median'] is None else f"{r['racket_speed_median']:.2f}"
+        lines.append(f"| {r['zone']} | {r['balls']} | {r['feasible']} | "
+                     f"{100 * r['feasible_share']:.2f} % | {100 * r['in_zone_share']:.2f} % | "
+                     f'{res} | {spd} |')
+    return '\n'.join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--data', default=str(DEFAULT_DATA), help='deepmind_states folder')
+    parser.add_argument('--model', default=None, help='model.yaml (default: nominal model)')
+    parser.add_argument('--hit-plane-x', type=float, default=-1.5)
+    parser.add_argument('--net-clearance', type=float, default=StrikeSettings.net_clearance)
+    parser.add_argument('--limit', type=int, default=0, help='use every k-th state only '
+                        'so that about this many remain (0: all)')
+    parser.add_argument('--json', default=None, help='write the numbers to this file')
+    args = parser.parse_args(argv)
+    path = pathlib.Path(args.data) / 'states.csv'
+    if not path.is_file():
+        print(f'tt_strike.evaluate_deepmind: no states.csv in {args.data}', file=sys.stderr)
+        return 2
+    params = load_model(args.model) if args.model else ModelParams()
+    states, serve, away = load_states(path)
+    if args.limit:
+        step = max(1, len(states) // args.limit)
+        states, serve, away = states[::step], serve[::step], away[::step]
+    settings = StrikeSettings(net_clearance=args.net_clearance)
+    start = time.perf_counter()
+    rows, skipped, n_hits = evaluate(states, serve, params, settings, args.hit_plane_x)
+    result = {'states': len(states), 'turned_half_a_turn': int(away.sum()),
+              'with_hit_point': n_hits, 'skipped': skipped, 'zones': rows,
+              'hit_plane_x': args.hit_plane_x, 'net_clearance': args.net_clearance,
+              'seconds': time.perf_counter() - start}
+    print(f'{len(states)} states ({int(away.sum())} turned half a turn), {n_hits} reach the '
+          f'hitting plane x = {args.hit_plane_x}; skipped: {skipped}')
+    print(markdown(rows))
+    for r in rows:
+        if r['infeasible_reasons']:
+            print(f"zone {r['zone']} infeasible: {r['infeasible_reasons']}")
+    if args.json:
+        pathlib.Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
