@@ -17,7 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
@@ -198,3 +198,37 @@ def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
+    ctx, executor, add = graph
+    _, _, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path / 'calib'))
+    frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
+                                       duration=0.4, lead_in=0.1)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth)
+    with open(video_rig) as f:                 # synchronised cameras: no offset to estimate
+        text = f.read().replace('source: cam1.avi', 'source: cam1.avi\n  time_offset: 0.0')
+    with open(video_rig, 'w') as f:
+        f.write(text)
+    n_frames = sum(1 for _ in synth.render_balls(load_rig(rig_path), [], [], duration=0.4,
+                                                 lead_in=0.1)[0])
+    got = []
+    peer = add(rclpy.create_node('listener', context=ctx))
+    # Best effort as the publisher, deep enough for the states of a batch of queued frames.
+    peer.create_subscription(BallState, state_topic, got.append,
+                             QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT))
+    node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
+                                                     f'/ball/state:={state_topic}'],
+                              parameter_overrides=[Parameter('rig_file', value=video_rig)]))
+    assert spin_until(executor, lambda: node.frames_received >= n_frames, timeout=20.0), (
+        node.frames_received, n_frames)
+    assert spin_until(executor, lambda: len(got) >= node.states_published > 20), (
+        len(got), node.states_published)
+    # Video time runs from camera 0's first frame (the scene's -0.1 s).
+    tr = truth[0]
+    for msg in got:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - 0.1
+        i = int(np.argmin(np.abs(tr['t'] - t)))
+        p = np.array([msg.position.x, msg.position.y, msg.position.z])
+        assert abs(tr['t'][i] - t) < 1e-5 and np.linalg.norm(p - tr['state'][i, :3]) < 0.005

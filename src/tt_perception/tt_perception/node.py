@@ -2,10 +2,11 @@
 
 ROS glue only (the math is in the pure modules). Each camera of the rig file comes from its
 ``source``: an image topic (sensor_msgs/Image on the source, CameraInfo on the sibling
-``camera_info`` topic, sensor-data QoS), a V4L2 device or a video file (read by a thread per
-camera). Every frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is
-published as tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives
-from (the image header stamp), 9x9 covariance row-major (position, velocity, spin).
+``camera_info`` topic, sensor-data QoS), a V4L2 device (a thread per device) or a video file
+(one thread reads the files together, paced at the rig's fps; times are video times). Every
+frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
+tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
+image header stamp), 9x9 covariance row-major (position, velocity, spin).
 
 Bad input never produces a state: a missing or invalid rig file is logged and the node stays
 idle; a CameraInfo that disagrees with the calibration disables that camera with an error; a
@@ -33,7 +34,7 @@ from .camera import CalibrationError, load_rig
 from .detect import DetectorConfig
 from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import image_to_bgr, open_source, source_kind
+from .sources import V4L2Source, image_to_bgr, open_source, source_kind
 
 STATE_TOPIC = '/ball/state'
 
@@ -101,7 +102,8 @@ class PerceptionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('perception_node', **kwargs)
         for name, (default, text, ranges) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=text)
+            # Read once at start (the rig and the pipeline are built from them): read-only.
+            descriptor = ParameterDescriptor(description=text, read_only=True)
             if ranges and isinstance(default, float):
                 descriptor.floating_point_range = ranges
             elif ranges:
@@ -157,23 +159,29 @@ class PerceptionNode(Node):
                                 max_reprojection=self._p('max_reprojection'))
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
-        base = os.path.dirname(rig.path)
+        files = []
         for k, cam in enumerate(rig.cameras):
             kind = source_kind(cam.source)
             if kind == 'topic':
                 self.create_subscription(Image, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),
                                          qos_profile_sensor_data)
-                info_topic = cam.source.rsplit('/', 1)[0] + '/camera_info'
+                info_topic = (cam.source.rsplit('/', 1)[0] + '/camera_info'
+                              if '/' in cam.source else 'camera_info')
                 self.create_subscription(CameraInfo, info_topic,
                                          lambda msg, k=k: self._on_info(k, msg),
                                          qos_profile_sensor_data)
+            elif kind == 'v4l2':
+                self._threads.append(threading.Thread(target=self._read_device, args=(k,),
+                                                      daemon=True))
             else:
-                thread = threading.Thread(target=self._read_device,
-                                          args=(k, cam.source, base, rig.fps), daemon=True)
-                self._threads.append(thread)
+                files.append(k)
             self._last_frame[k] = time.monotonic()
-        self.create_timer(0.002, self._drain)
+        if files:
+            self._threads.append(threading.Thread(target=self._read_files, args=(files,),
+                                                  daemon=True))
+        if self._threads:
+            self.create_timer(0.002, self._drain)     # frames of devices and files
         self.create_timer(0.25, self._watch_cameras)
         for thread in self._threads:
             thread.start()
@@ -208,40 +216,63 @@ class PerceptionNode(Node):
             frame = None
         self._process(k, stamp if stamp > 0 else time.time(), frame)
 
-    def _read_device(self, k, source, base, fps):
+    def _put(self, k, t, frame, wait=False):
+        """Queue a frame for processing; a live camera's frame is dropped when processing
+        falls behind, a file's (``wait``) waits for room."""
+        while not self._stop.is_set():
+            try:
+                self._queue.put((k, t, frame), timeout=0.1)
+                return
+            except queue.Full:
+                if not wait:
+                    self._warn_once(('queue', k), f'camera {self.rig.cameras[k].name}: '
+                                    'processing falls behind, frames dropped')
+                    return
+
+    def _read_device(self, k):
+        """One V4L2 camera: frames into the queue; reopened while it is away."""
         cam = self.rig.cameras[k]
         exposure = self._p('device_exposure')
-        options = {}
-        if source_kind(source) == 'v4l2':
-            options = {'width': self._p('device_width'), 'height': self._p('device_height'),
-                       'fourcc': self._p('device_fourcc'),
-                       'exposure': exposure if exposure >= 0 else None,
-                       'reopen_interval': self._p('reopen_interval')}
-        try:
-            src = open_source(source, base, fps, **options)
-        except OSError as exc:
-            self.get_logger().error(f'camera {cam.name}: {exc}')
-            return
+        src = V4L2Source(cam.source, width=self._p('device_width'),
+                         height=self._p('device_height'), fps=self.rig.fps,
+                         fourcc=self._p('device_fourcc'),
+                         exposure=exposure if exposure >= 0 else None,
+                         reopen_interval=self._p('reopen_interval'))
         status = ''
         while not self._stop.is_set():
-            t, frame = src.read()
+            t, frame = src.read()          # opens, and reopens a lost device, itself
             if src.status != status:
                 status = src.status
                 self.get_logger().warning(f'camera {cam.name}: {status}')
             if frame is None:
-                if source_kind(source) == 'file':
-                    self.get_logger().info(f'camera {cam.name}: end of {source}')
-                    break
                 self._stop.wait(0.01)
                 continue
-            try:
-                self._queue.put((k, t, frame), timeout=0.5)
-            except queue.Full:
-                self._warn_once(('queue', k), f'camera {cam.name}: processing falls behind, '
-                                'frames dropped')
-            if source_kind(source) == 'file':
-                self._stop.wait(1.0 / fps)
+            self._put(k, t, frame)
         src.close()
+
+    def _read_files(self, ks):
+        """The video-file cameras, frame by frame together, paced at the rig's fps."""
+        base = os.path.dirname(self.rig.path)
+        sources = {}
+        for k in ks:
+            try:
+                sources[k] = open_source(self.rig.cameras[k].source, base, self.rig.fps)
+            except OSError as exc:
+                self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')
+        start, n = time.monotonic(), 0
+        while sources and not self._stop.is_set():
+            for k in list(sources):
+                t, frame = sources[k].read()
+                if frame is None:
+                    self.get_logger().info(f'camera {self.rig.cameras[k].name}: end of '
+                                           f'{self.rig.cameras[k].source}')
+                    sources.pop(k).close()
+                    continue
+                self._put(k, t, frame, wait=True)
+            n += 1
+            self._stop.wait(max(0.0, start + n / self.rig.fps - time.monotonic()))
+        for src in sources.values():
+            src.close()
 
     def _drain(self):
         while True:
