@@ -206,18 +206,18 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                                   t_max=t0 + duration, stop_at_net=True, max_bounces=2,
                                   sample_times=times[keep])
         tracks.append((times[keep], samples))
-        in_frame = (frame_t >= t0)
-        idx = np.searchsorted(times[keep], frame_t[in_frame])
-        st = samples[idx]
+        cam0_t = frame_t + offsets[0]           # camera 0's exposure mid-times
+        cam0_t = cam0_t[cam0_t >= t0]
+        st = samples[np.searchsorted(times[keep], cam0_t)]
         ok = np.all(np.isfinite(st), axis=1) & (st[:, 2] > -0.5)
-        truth.append({'t': frame_t[in_frame][ok], 'state': st[ok], 'events': events})
+        truth.append({'t': cam0_t[ok], 'state': st[ok], 'events': events})
     backgrounds = [_background(cam, rng) for cam in cams]
     noise_bank = [[np.clip(bg + rng.normal(0, noise, bg.shape), 0, 255).astype(np.uint8)
                    for _ in range(6)] for bg in backgrounds]
     colour_bgr = BALL_COLOURS[colour] if isinstance(colour, str) else colour
     drop = drop or {}
 
-    def ball_positions(k, t):
+    def ball_positions(t):
         """Positions (n_sub, 3) of each ball in flight over the exposure around t."""
         out = []
         for times, samples in tracks:
@@ -251,7 +251,7 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                     cv2.circle(frame, tuple(np.round(c * 16).astype(int)), int(r * 16),
                                tuple(int(g * gain) for g in colour_bgr), -1, cv2.LINE_AA,
                                shift=4)
-            for p in ball_positions(k, t):
+            for p in ball_positions(t):
                 if not np.all(cam.in_front(p)):
                     continue
                 centres = cam.project(p)
