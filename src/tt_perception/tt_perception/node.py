@@ -122,6 +122,7 @@ class PerceptionNode(Node):
         self._threads = []
         self._last_frame = {}
         self._lost = set()
+        self._ended = set()           # cameras whose video file has ended
         self._disabled = set()
         self._warned = set()
         self._setup()
@@ -266,6 +267,7 @@ class PerceptionNode(Node):
                 if frame is None:
                     self.get_logger().info(f'camera {self.rig.cameras[k].name}: end of '
                                            f'{self.rig.cameras[k].source}')
+                    self._ended.add(k)
                     sources.pop(k).close()
                     continue
                 self._put(k, t, frame, wait=True)
@@ -306,8 +308,9 @@ class PerceptionNode(Node):
     def _watch_cameras(self):
         now = time.monotonic()
         timeout = self._p('camera_timeout')
-        for k, last in self._last_frame.items():
-            if now - last > timeout and k not in self._lost and self.frames_received:
+        for k, last in list(self._last_frame.items()):
+            if (now - last > timeout and k not in self._lost and k not in self._ended
+                    and self.frames_received):
                 self._lost.add(k)
                 cam = self.rig.cameras[k]
                 self.get_logger().warning(f'camera {cam.name}: no frame for {timeout:.2f} s '
