@@ -49,6 +49,9 @@ def run():
         'c_d_per_trajectory': paper['c_d'],
         'selected_effects_on_clean_data': result['selected_effects'],
         'selected_effects_with_planted_e_t_slope': with_effect['selected_effects'],
+        'recovered_e_t_speed_slope': with_effect['final']['params'].get('e_t_speed_slope'),
+        'heldout_fit_rms_mm_with_planted_effect': [with_effect['baseline']['heldout_fit_rms_mm'],
+                                                   with_effect['final']['heldout_fit_rms_mm']],
         'targets': {'identify_s': f'<= {TARGET_S}'},
         'passed': identify_s <= TARGET_S,
     }

@@ -171,31 +171,25 @@ def fit_starts(tracks, globals_, max_nfev=40, current=None):
     """Every track's initial state fitted alone with the globals fixed, from the quadratic
     start of ``initial_guess`` and, for unmeasured spin, each of SPIN_STARTS; ``current``
     (states) competes too. Returns the best state of each track."""
-    starts = [initial_guess(tr) for tr in tracks]
     P, k = globals_.packed(), globals_.spin_scale
 
-    def costs(states):
-        return np.array([_robust_cost(track_residual(x, tr, P, k))
-                         for tr, x in zip(tracks, states, strict=True)])
-    best = None if current is None else [np.array(x, dtype=float) for x in current]
-    best_cost = None if current is None else costs(best)
+    def cost(i, x):
+        return _robust_cost(track_residual(x, tracks[i], P, k))
+    best = [None] * len(tracks) if current is None else [np.array(x, float) for x in current]
+    best_cost = [np.inf if x is None else cost(i, x) for i, x in enumerate(best)]
     for spin in SPIN_STARTS:
-        trial = []
-        for tr, x in zip(tracks, starts, strict=True):
-            x = x.copy()
-            if tr.spin is None:
+        idx = [i for i, tr in enumerate(tracks) if tr.spin is None or spin == 0.0]
+        starts = [initial_guess(tracks[i]) for i in idx]
+        for i, x in zip(idx, starts, strict=True):
+            if tracks[i].spin is None:
                 axis = np.cross([0.0, 0.0, 1.0], x[3:6])
                 x[6:9] = spin * axis / max(np.linalg.norm(axis), 1e-9)
-            trial.append(x)
-        if best is not None and all(tr.spin is not None for tr in tracks):
-            break
-        _, trial = fit_pooled(tracks, globals_, trial, max_nfev=max_nfev, fit_globals=False)
-        cost = costs(trial)
-        if best is None:
-            best, best_cost = trial, cost
-            continue
-        for i in np.flatnonzero(cost < best_cost):
-            best[i], best_cost[i] = trial[i], cost[i]
+        _, fitted = fit_pooled([tracks[i] for i in idx], globals_, starts, max_nfev=max_nfev,
+                               fit_globals=False)
+        for i, x in zip(idx, fitted, strict=True):
+            c = cost(i, x)
+            if c < best_cost[i]:
+                best[i], best_cost[i] = x, c
     return best
 
 
