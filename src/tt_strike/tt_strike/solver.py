@@ -74,6 +74,8 @@ class StrikeSettings:
     aim_inside_zone: bool = False
     """Aim at the point of the target zone that maximises the in-zone probability (needs the
     incoming covariance) instead of its centre."""
+    probability_samples: int = 1024
+    """Size of the quasi-random ensemble for the in-zone probability (tt_strike.robust)."""
 
 
 @dataclasses.dataclass
@@ -443,17 +445,23 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
     _fill(sol, s_hit, out[4:7].copy(), out[7], params, settings)
     if covariance is None or sol.status != 'ok':
         return sol
+    zone_p = _scored_zone(sol)
+    sol.in_zone_probability = in_zone_probability(
+        s_hit, covariance, sol.normal, sol.racket_velocity, P, zone_p,
+        n=settings.probability_samples)
     if settings.aim_inside_zone:
         aim = aim_in_zone(s_hit, covariance, sol.normal, sol.racket_velocity, P, point,
-                          _scored_zone(sol))
+                          zone_p, n=settings.probability_samples)
         out2, its2, _ = _newton(s_hit, aim, z_net_goal, P, settings)
         if out2 is not None:
-            best = dataclasses.replace(sol, aim_point=aim, iterations=sol.iterations + its2)
-            _fill(best, s_hit, out2[4:7].copy(), out2[7], params, settings)
-            if best.status == 'ok':
-                sol = best
-    sol.in_zone_probability = in_zone_probability(
-        s_hit, covariance, sol.normal, sol.racket_velocity, P, _scored_zone(sol))
+            other = dataclasses.replace(sol, aim_point=aim, iterations=sol.iterations + its2)
+            _fill(other, s_hit, out2[4:7].copy(), out2[7], params, settings)
+            if other.status == 'ok':
+                other.in_zone_probability = in_zone_probability(
+                    s_hit, covariance, other.normal, other.racket_velocity, P, zone_p,
+                    n=settings.probability_samples)
+                if other.in_zone_probability > sol.in_zone_probability:   # else keep centre
+                    sol = other
     return sol
 
 

@@ -1,0 +1,294 @@
+"""strike_node: /ball/prediction (+ /strike/target) -> /strike/command, /tt/markers.
+
+The ROS glue around :mod:`tt_strike.solver`: parameters, QoS, message conversion. Every
+BallPrediction with a valid hit point gives one StrikeCommand stamped with the prediction's
+stamp: feasible, or ``feasible = false`` with the reason (so that a controller knows there is
+no stroke for this ball). Predictions without a hit point or with non-finite numbers are
+dropped with a throttled warning: nothing is published for them.
+"""
+
+import math
+
+from geometry_msgs.msg import Point
+import numpy as np
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_prediction.params import load_model
+from visualization_msgs.msg import Marker, MarkerArray
+
+from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
+
+from .robust import noise_covariance
+from .solver import StrikeSettings, resolve_target, solve
+
+
+def _set_vec(msg, v):
+    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
+
+
+def _point(p):
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]) if len(p) > 2 else 0.0)
+
+
+class StrikeNode(Node):
+    """Solves the racket stroke for every predicted hit point."""
+
+    def __init__(self, **kwargs):
+        super().__init__('strike_node', **kwargs)
+        d = StrikeSettings()
+
+        def rng(lo, hi):
+            return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+
+        def declare(name, value, description, lo=None, hi=None):
+            desc = ParameterDescriptor(description=description)
+            if lo is not None:
+                desc.floating_point_range = rng(lo, hi)
+            self.declare_parameter(name, value, desc)
+
+        self.declare_parameter('target_zone', 5, ParameterDescriptor(
+            description="target zone 1..9 on the opponent's half (MODEL.md); 0: target_point",
+            integer_range=[IntegerRange(from_value=0, to_value=9, step=1)]))
+        declare('target_point', [0.7, 0.0],
+                "target landing point [x, y] on the opponent's half, m (when target_zone is 0)")
+        declare('net_clearance', d.net_clearance, 'free direction: gap between the ball and '
+                'the net top where it crosses x = 0, m', 0.02, 1.0)
+        declare('max_racket_speed', d.max_racket_speed, 'racket speed limit at impact, m/s',
+                0.1, 30.0)
+        declare('reach_z_min', d.reach_z[0], 'lowest ball centre the racket reaches, m',
+                -0.76, 2.0)
+        declare('reach_z_max', d.reach_z[1], 'highest ball centre the racket reaches, m',
+                -0.76, 3.0)
+        declare('reach_y', d.reach_y, 'largest |y| of the hit point the racket reaches, m',
+                0.0, 3.0)
+        declare('max_normal_tilt_deg', d.max_normal_tilt_deg,
+                'largest angle between the racket normal and +x, deg', 0.0, 90.0)
+        declare('aim_inside_zone', d.aim_inside_zone, 'aim at the point of the zone with the '
+                'highest in-zone probability instead of its centre')
+        declare('in_zone_probability', True, 'compute the in-zone probability (19 flights)')
+        declare('velocity_sigma_fraction', 0.02, 'velocity std at the hit point per component, '
+                'as a fraction of the speed (BallPrediction carries only the position '
+                'covariance)', 0.0, 1.0)
+        declare('spin_sigma_fraction', 0.10, 'spin std at the hit point per component, as a '
+                'fraction of the spin magnitude', 0.0, 2.0)
+        self.declare_parameter('model_file', '', ParameterDescriptor(
+            description='model.yaml written by tt-identify; empty: the nominal model',
+            read_only=True))
+        declare('publish_markers', False, 'publish the racket and landing on /tt/markers')
+        self.add_on_set_parameters_callback(self._check_parameters)
+        try:
+            self.params = load_model(self.get_parameter('model_file').value)
+        except ValueError as exc:
+            raise SystemExit(f'strike_node: {exc}') from None
+        try:
+            self.target = self._target_from(self.get_parameter('target_zone').value,
+                                            self.get_parameter('target_point').value)
+        except ValueError as exc:
+            raise SystemExit(f'strike_node: {exc}') from None
+        # Compile (or load from numba's cache) the kernels now, not on the first ball.
+        warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
+        solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
+        self.n_received = self.n_commands = self.n_dropped = 0
+        reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
+        self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
+        self.sub = self.create_subscription(BallPrediction, '/ball/prediction',
+                                            self.on_prediction, reliable)
+        self.sub_target = self.create_subscription(StrikeTarget, '/strike/target',
+                                                   self.on_target, reliable)
+        self.get_logger().info(f'striking /ball/prediction -> /strike/command, target '
+                               f'{self._target_text()}')
+
+    # --- target -------------------------------------------------------------------------
+
+    @staticmethod
+    def _target_from(zone, point):
+        """(zone, point) from a zone (0: use point) and a point [x, y]; ValueError if bad."""
+        if zone:
+            return resolve_target(target_zone=int(zone))
+        return resolve_target(target_point=list(point))
+
+    def _target_text(self):
+        zone, point = self.target
+        return f'zone {zone}' if zone else f'point ({point[0]:.3f}, {point[1]:.3f}) m'
+
+    def _check_parameters(self, params):
+        values = {p.name: p.value for p in params}
+        if 'target_zone' in values or 'target_point' in values:
+            zone = values.get('target_zone', self.get_parameter('target_zone').value)
+            point = values.get('target_point', self.get_parameter('target_point').value)
+            try:
+                target = self._target_from(zone, point)
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+            self.target = target
+            self.get_logger().info(f'target {self._target_text()}')
+        lo = values.get('reach_z_min', None)
+        hi = values.get('reach_z_max', None)
+        if lo is not None or hi is not None:
+            lo = self.get_parameter('reach_z_min').value if lo is None else lo
+            hi = self.get_parameter('reach_z_max').value if hi is None else hi
+            if lo > hi:
+                return SetParametersResult(successful=False,
+                                           reason='reach_z_min must not exceed reach_z_max')
+        return SetParametersResult(successful=True)
+
+    def on_target(self, msg):
+        try:
+            self.target = self._target_from(msg.zone, [msg.point.x, msg.point.y])
+        except ValueError as exc:
+            self.get_logger().warning(f'/strike/target ignored: {exc}')
+            return
+        self.get_logger().info(f'target {self._target_text()} (from /strike/target)')
+
+    # --- predictions --------------------------------------------------------------------
+
+    def _settings(self):
+        g = self.get_parameter
+        return StrikeSettings(
+            net_clearance=g('net_clearance').value, max_racket_speed=g('max_racket_speed').value,
+            reach_z=(g('reach_z_min').value, g('reach_z_max').value), reach_y=g('reach_y').value,
+            max_normal_tilt_deg=g('max_normal_tilt_deg').value,
+            aim_inside_zone=g('aim_inside_zone').value)
+
+    def _drop(self, why):
+        self.n_dropped += 1
+        self.get_logger().warning(f'prediction dropped: {why}', throttle_duration_sec=1.0)
+
+    def _covariance(self, msg, state):
+        """9x9 covariance at the hit point: the prediction's position block, and velocity and
+        spin stds as fractions of their magnitudes (parameters)."""
+        cov = noise_covariance(state, 0.0, self.get_parameter('velocity_sigma_fraction').value,
+                               self.get_parameter('spin_sigma_fraction').value)
+        pos = np.array(msg.hit_covariance, dtype=float).reshape(3, 3)
+        if not np.all(np.isfinite(pos)):
+            return None
+        cov[:3, :3] = 0.5 * (pos + pos.T)
+        return cov
+
+    def on_prediction(self, msg):
+        self.n_received += 1
+        if not msg.hit_valid:
+            self._drop(f'no hit point (prediction status {msg.status!r})')
+            return
+        if msg.header.frame_id not in ('', 'table'):
+            self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
+            return
+        p, v, w = msg.hit_point, msg.hit_velocity, msg.hit_spin
+        state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
+        if not np.all(np.isfinite(state)):
+            self._drop('hit point, velocity or spin is not finite')
+            return
+        cov = None
+        if self.get_parameter('in_zone_probability').value:
+            cov = self._covariance(msg, state)
+        zone, point = self.target
+        sol = solve(state, self.params, target_zone=zone or None,
+                    target_point=None if zone else point, settings=self._settings(),
+                    covariance=cov)
+        out = self._command(msg, sol)
+        self.pub.publish(out)
+        self.n_commands += 1
+        if not sol.feasible:
+            self.get_logger().warning(f'no feasible stroke: {sol.reason}',
+                                      throttle_duration_sec=1.0)
+        if self.get_parameter('publish_markers').value and sol.normal is not None:
+            self.pub_markers.publish(self._markers(msg, sol))
+
+    def _command(self, msg, sol):
+        out = StrikeCommand()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = msg.header.frame_id or 'table'
+        out.track_id = msg.track_id
+        out.status = sol.status
+        out.feasible = sol.feasible
+        out.reason = sol.reason
+        out.hit_time = msg.hit_time
+        out.hit_point = msg.hit_point
+        out.target_zone = sol.target_zone
+        if sol.target_point is not None:
+            out.target_point = _point(sol.target_point)
+        if sol.normal is not None:
+            out.racket_position = _point(sol.racket_position)
+            q = sol.orientation_xyzw
+            out.racket_orientation.x, out.racket_orientation.y = float(q[0]), float(q[1])
+            out.racket_orientation.z, out.racket_orientation.w = float(q[2]), float(q[3])
+            _set_vec(out.racket_normal, sol.normal)
+            _set_vec(out.racket_velocity, sol.racket_velocity)
+            _set_vec(out.ball_out_velocity, sol.ball_out_v)
+            _set_vec(out.ball_out_spin, sol.ball_out_w)
+        if sol.landing is not None:
+            out.landing_point = _point(sol.landing)
+            out.landing_zone = sol.landing_zone
+        for key in ('net_clearance', 'margin', 'in_zone_probability'):
+            value = float(getattr(sol, key))
+            setattr(out, key, value if math.isfinite(value) else math.nan)
+        return out
+
+    def _markers(self, msg, sol):
+        frame = msg.header.frame_id or 'table'
+        markers = MarkerArray()
+
+        def marker(mid, kind, rgb, scale):
+            m = Marker()
+            m.header.stamp = msg.header.stamp
+            m.header.frame_id = frame
+            m.ns = 'strike'
+            m.id = mid
+            m.type = kind
+            m.action = Marker.ADD
+            m.pose.orientation.w = 1.0
+            m.scale.x, m.scale.y, m.scale.z = scale
+            m.color.r, m.color.g, m.color.b = rgb
+            m.color.a = 1.0 if sol.feasible else 0.4
+            m.lifetime.nanosec = 500_000_000
+            markers.markers.append(m)
+            return m
+
+        red = (0.8, 0.1, 0.1)
+        racket = marker(0, Marker.CYLINDER, red, (0.15, 0.15, 0.01))   # blade, z = normal
+        racket.pose.position = _point(sol.racket_position)
+        q = sol.orientation_xyzw
+        o = racket.pose.orientation
+        o.x, o.y, o.z, o.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+        arrow = marker(1, Marker.ARROW, red, (0.01, 0.02, 0.03))          # racket velocity
+        tip = sol.racket_position + 0.05 * sol.racket_velocity
+        arrow.points = [_point(sol.racket_position), _point(tip)]
+        if sol.landing is not None:
+            marker(2, Marker.CYLINDER, (0.1, 0.8, 0.1), (0.06, 0.06, 0.005)).pose.position = \
+                _point(sol.landing)
+        return markers
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    executor = SingleThreadedExecutor()    # before the node: a signal may come at any time
+    node = None
+    try:
+        node = StrikeNode()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # SIGINT or SIGTERM while starting (compiling the kernels) shuts the context down
+        # first; what fails after that is the shutdown, not an error.
+        if rclpy.ok():
+            raise
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
