@@ -1,0 +1,83 @@
+"""tt-strike: the JSON Lines contract of DESIGN.md, and bad input as one-line errors."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from tt_prediction.model import racket_rebound
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict_landing
+from tt_prediction.table import zone_centre
+from tt_strike.cli import main
+
+BALL = {'t': 0.5, 'p': [1.3, 0.1, 0.3], 'v': [-6.0, 0.0, 1.0], 'w': [0.0, 0.0, 0.0]}
+
+
+def run(lines, monkeypatch, capsys, args=()):
+    text = '\n'.join(line if isinstance(line, str) else json.dumps(line) for line in lines)
+    monkeypatch.setattr('sys.stdin', io.StringIO(text + '\n'))
+    code = main(list(args))
+    cap = capsys.readouterr()
+    return code, [json.loads(x) for x in cap.out.splitlines()], cap.err
+
+
+def test_zone_and_point_targets(monkeypatch, capsys):
+    code, out, err = run([dict(BALL, target_zone=7), dict(BALL, target_point=[0.5, -0.3])],
+                         monkeypatch, capsys)
+    assert code == 0 and err == '' and len(out) == 2
+    params = ModelParams()
+    for line, target in zip(out, (zone_centre(7, 1), np.array([0.5, -0.3])), strict=True):
+        assert line['status'] == 'ok' and line['reason'] == ''
+        assert line['hit']['p'][0] == pytest.approx(-1.5)
+        assert line['hit']['t'] > BALL['t']
+        racket = line['racket']
+        assert np.linalg.norm(racket['normal']) == pytest.approx(1.0)
+        assert np.linalg.norm(racket['orientation_xyzw']) == pytest.approx(1.0)
+        # the racket sends the hit ball where the line says, and that is the target
+        hit = line['hit']
+        v, w = racket_rebound(hit['v'], hit['w'], racket['normal'], racket['velocity'], params)
+        np.testing.assert_allclose(line['ball_out']['v'], v, atol=1e-9)
+        land = predict_landing(np.concatenate([hit['p'], v, w]), params)
+        assert land.status == 'ok'
+        np.testing.assert_allclose(line['landing']['p'], land.landing.p, atol=1e-6)
+        assert np.hypot(*(np.array(line['landing']['p'][:2]) - target)) < 5e-3
+    assert out[0]['landing']['zone'] == 7 and out[0]['target']['zone'] == 7
+    assert out[1]['target']['zone'] == 0
+
+
+def test_covariance_gives_a_probability(monkeypatch, capsys):
+    cov = np.diag([1e-6] * 3 + [0.01] * 3 + [1.0] * 3).ravel().tolist()
+    code, out, _ = run([dict(BALL, target_zone=5, covariance=cov)], monkeypatch, capsys)
+    assert code == 0 and 0.0 <= out[0]['in_zone_probability'] <= 1.0
+
+
+def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):
+    net = {'t': 0.0, 'p': [0.3, 0.0, 0.1], 'v': [-5.0, 0.0, 0.0], 'w': [0.0, 0.0, 0.0]}
+    code, out, err = run([dict(net, target_zone=5), dict(BALL, target_zone=9)], monkeypatch,
+                         capsys, ['--max-racket-speed', '0.2'])
+    assert code == 0 and err == ''
+    assert out[0]['status'] == 'no_hit_point' and out[0]['reason'].startswith('net')
+    assert out[0]['racket'] is None
+    assert out[1]['status'] == 'infeasible' and 'racket speed' in out[1]['reason']
+
+
+@pytest.mark.parametrize('line,what', [
+    (dict(BALL, target_zone=0), 'target_zone'),
+    (dict(BALL, target_zone=10), 'target_zone'),
+    (dict(BALL, target_point=[-0.5, 0.0]), 'target_point'),
+    (dict(BALL), 'no target'),
+    ('{"t": 0, "p": [NaN, 0, 0.3], "v": [-5, 0, 1], "w": [0, 0, 0], "target_zone": 3}', ''),
+    ('not json', 'JSON'),
+    (dict(BALL, target_zone=3, covariance=[1.0] * 80), 'covariance'),
+])
+def test_bad_input_is_a_one_line_error(line, what, monkeypatch, capsys):
+    code, out, err = run([dict(BALL, target_zone=1), line], monkeypatch, capsys)
+    assert code == 2 and out == []                 # nothing half-written
+    assert err.startswith('tt-strike: line 2:') and err.count('\n') == 1 and what in err
+
+
+def test_bad_option(monkeypatch, capsys):
+    code, out, err = run([dict(BALL, target_zone=1)], monkeypatch, capsys,
+                         ['--net-clearance', 'nan'])
+    assert code == 2 and out == [] and '--net-clearance' in err and err.count('\n') == 1
