@@ -8,7 +8,9 @@ channels close and bright; orange: red well above blue), and its width (twice th
 of the smaller eigenvalue of its second moments, the diameter of a disc whatever the motion
 blur along the path) is within range. The centre is the difference-weighted centroid, which for
 a motion-blurred disc is the centre at mid-exposure. When the caller knows where the ball
-should be (the tracker's prediction) only a region of interest around it is searched.
+should be (the tracker's prediction) only a region of interest around it is searched; a blob
+cut by the window's edge is not measured (a ball merging with a larger object there would
+give a biased centre).
 
 The background follows slow changes of lighting (exponential average, ``background_rate`` per
 update, one update every ``background_every`` frames) except under the blobs found, so a ball
@@ -56,6 +58,9 @@ class Detection:
     """Blob width across the motion blur (the ball's diameter), pixels."""
     strength: float
     """Mean grey-level difference against the background."""
+    hidden: float = 0.0
+    """Fraction of the blob's outline where the background is as bright as the ball (part
+    of the ball may be missing from the blob there)."""
 
 
 def colour_matches(bgr, colour):
@@ -121,21 +126,30 @@ class BallDetector:
             _, mask = cv2.threshold(diff, cfg.diff_threshold, 255, cv2.THRESH_BINARY)
             bx, by, bw, bh = cv2.boundingRect(mask)
             if bw > 0 and bh > 0:      # label only the part of the window that changed
+                # A blob cut by the window's edge (not the image's) is not measured whole.
+                cut = (x0 > 0 and bx == 0, y0 > 0 and by == 0,
+                       x1 < w and bx + bw == x1 - x0, y1 < h and by + bh == y1 - y0)
                 found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
-                                    mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by)
+                                    mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut)
         if update:
             self._update_background(gray, mask, x0, y0)
         return found
 
-    def _blobs(self, frame, diff, mask, x0, y0):
+    def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False)):
+        """Candidates among the blobs of ``mask`` (a crop at x0, y0 of the frame); ``cut``
+        says which crop edges (left, top, right, bottom) cut through the scene."""
         cfg = self.config
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        h, w = mask.shape
         out = []
         for i in range(1, n):
             area = stats[i, cv2.CC_STAT_AREA]
             if area < cfg.min_area or area > cfg.max_area:
                 continue
             bx, by, bw, bh = stats[i, :4]
+            if ((cut[0] and bx == 0) or (cut[1] and by == 0) or (cut[2] and bx + bw == w)
+                    or (cut[3] and by + bh == h)):
+                continue
             sub = (labels[by:by + bh, bx:bx + bw] == i).astype(np.uint8)
             weighted = cv2.moments(cv2.multiply(diff[by:by + bh, bx:bx + bw], sub))
             total = weighted['m00']
@@ -155,9 +169,29 @@ class BallDetector:
                 if not colour_matches(cv2.mean(patch, mask=sub)[:3], cfg.colour):
                     continue
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
-                                 float(total / area)))
+                                 float(total / area),
+                                 self._hidden(frame, sub, x0 + bx, y0 + by)))
         out.sort(key=lambda d: -d.strength * d.area)
         return out[:cfg.max_candidates]
+
+    def _hidden(self, frame, sub, x0, y0):
+        """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
+        the background looks like the ball, so the blob may have lost part of it."""
+        h, w = frame.shape[:2]
+        bh, bw = sub.shape
+        ax, ay = max(x0 - 2, 0), max(y0 - 2, 0)
+        bx, by = min(x0 + bw + 2, w), min(y0 + bh + 2, h)
+        grey = _grey(frame[ay:by, ax:bx])
+        inside = np.zeros(grey.shape, np.uint8)
+        inside[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
+        ring = cv2.dilate(inside, np.ones((3, 3), np.uint8)) - inside
+        n_ring = cv2.countNonZero(ring)
+        if n_ring == 0:
+            return 0.0
+        ball = cv2.mean(grey, mask=inside)[0]
+        alike = cv2.absdiff(grey, np.full_like(grey, int(round(ball)))) < \
+            self.config.diff_threshold
+        return float(np.count_nonzero(alike & (ring > 0)) / n_ring)
 
     def _update_background(self, gray, mask, x0, y0):
         """Exponential average of the frame into the background, except under blobs."""

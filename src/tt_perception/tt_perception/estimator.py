@@ -21,6 +21,7 @@ Mahalanobis distance exceeds ``gate`` is rejected (outlier gating).
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from tt_prediction.model import flight_derivative, table_rebound_inplace
@@ -46,7 +47,7 @@ class FilterConfig:
     """Squared Mahalanobis distance above which a measurement is an outlier (3 dof)."""
     robust: float = 9.0
     """Squared Mahalanobis distance above which a measurement's covariance is inflated."""
-    max_step: float = 1.0 / 300.0
+    max_step: float = 1.0 / 150.0
     """Longest integration step, s."""
 
 
@@ -91,7 +92,7 @@ class BallFilter:
         """Continuous-time Jacobian F (9, 9) of the flight derivative (eq. 8) at ``s``."""
         u = s[3:6] - self.wind
         w = s[6:9]
-        speed = max(np.linalg.norm(u), 1e-9)
+        speed = max(math.sqrt(u @ u), 1e-9)
         F = np.zeros((9, 9))
         F[0:3, 3:6] = _EYE3
         F[3:6, 3:6] = (-self.k_drag * (speed * _EYE3 + np.outer(u, u) / speed)

@@ -10,7 +10,8 @@
    synchronised, otherwise the detections of the frames just before and after, interpolated
    linearly in time along the ball's image track (never the nearest frame taken blindly);
 3. triangulation of every combination of candidates of >= 2 cameras, gated on the
-   reprojection error and on the blob width against the ball's diameter at that depth;
+   reprojection error and on the blob width against the ball's diameter at that depth (a
+   narrower blob, part of the ball lost against a same-coloured background, is down-weighted);
 4. a :class:`Tracker`: track start from two points at a plausible speed, EKF
    (:mod:`tt_perception.estimator`) with Mahalanobis gating, confirmation after
    ``confirm_updates`` updates, end after ``max_coast`` s without a measurement or when the
@@ -26,7 +27,7 @@ from tt_prediction.params import ModelParams
 
 from .detect import BallDetector, DetectorConfig
 from .estimator import BallFilter, FilterConfig
-from .triangulate import triangulate
+from .triangulate import refine, triangulate
 
 GRAVITY = np.array([0.0, 0.0, -9.8])
 
@@ -61,6 +62,12 @@ class TrackerConfig:
     """Largest reprojection error of a triangulated point, pixels."""
     width_ratio: tuple = (0.45, 1.9)
     """Accepted range of blob width over the ball's expected image diameter."""
+    narrow_weight: float = 30.0
+    """A blob narrower than the ball by a fraction f has its centre's sigma times
+    1 + narrow_weight f."""
+    hidden_weight: float = 20.0
+    """... and a blob whose outline is a fraction h ball-bright background, plus
+    hidden_weight h."""
 
 
 class Matcher:
@@ -77,7 +84,7 @@ class Matcher:
 
     def add(self, k, t, detections):
         """Add camera ``k``'s frame at ``t`` with its detections (list of arrays
-        [x_n, y_n, width]); returns the groups now complete: ``(t, [per-camera list])``."""
+        [x_n, y_n, width, hidden]); returns the groups now complete: ``(t, [per-camera list])``."""
         self.frames[k].append((t, detections))
         self.latest[k] = max(self.latest[k], t)
         if k == 0:
@@ -269,7 +276,7 @@ class Pipeline:
             return []
         uv = np.array([[d.u, d.v] for d in dets])
         xy = cam.normalise(uv)
-        return [np.array([x, y, d.width]) for (x, y), d in zip(xy, dets, strict=True)]
+        return [np.array([x, y, d.width, d.hidden]) for (x, y), d in zip(xy, dets, strict=True)]
 
     def _points(self, group):
         """Triangulated, gated candidate points (X, cov) of one time-matched group."""
@@ -286,14 +293,19 @@ class Pipeline:
             if result is None or len(result[3]) < len(used):
                 continue
             X, cov, _, _ = result
-            ok = True
-            for cam, o in zip(cams, obs, strict=True):
-                depth = (cam.R @ X + cam.t)[2]
-                expected = 2.0 * cam.focal * self.params.radius / depth
-                if not cfg.width_ratio[0] <= o[2] / expected <= cfg.width_ratio[1]:
-                    ok = False
-            if ok:
-                points.append((len(used), X, cov))
+            ratio = np.array([o[2] / (2.0 * cam.focal * self.params.radius
+                                      / (cam.R @ X + cam.t)[2])
+                              for cam, o in zip(cams, obs, strict=True)])
+            if np.any(ratio < cfg.width_ratio[0]) or np.any(ratio > cfg.width_ratio[1]):
+                continue
+            # A blob narrower than the ball, or bordered by background as bright as the ball,
+            # may have lost part of it (a white line behind a white ball): its centre may be
+            # biased, so it counts for less.
+            weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
+                    + cfg.hidden_weight * obs[:, 3])
+            if np.any(weak > 1.0):
+                X, cov, _ = refine(cams, obs[:, :2], X, cfg.pixel_sigma * weak)
+            points.append((len(used), X, cov))
         if not points:
             return []
         most = max(n for n, _, _ in points)

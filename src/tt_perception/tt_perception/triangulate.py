@@ -45,25 +45,31 @@ def _reprojection(R, t, f, normalised, X):
 
 
 def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
-    """Gauss-Newton on the pixel reprojection error from ``X``.
+    """Gauss-Newton on the pixel reprojection error from ``X``, each camera weighted by its
+    ``pixel_sigma`` (a number, or one per camera).
 
     Returns ``(X, covariance (3, 3) m^2, residuals (N,) pixels)``. The covariance is
-    sigma^2 (J^T J)^-1 with J the Jacobian of the pixel projections.
+    (J^T W J)^-1 with J the Jacobian of the pixel projections and W = diag(1 / sigma^2).
     """
     R, t, f = _stack(cameras)
+    n = len(cameras)
+    w = 1.0 / np.broadcast_to(np.asarray(pixel_sigma, dtype=float), (n,))
+    w = np.concatenate([w, w])[:, None]
     for _ in range(iterations):
         r, J = _reprojection(R, t, f, normalised, X)
-        X = X + np.linalg.solve(J.T @ J, J.T @ r)
+        Jw = J * w
+        X = X + np.linalg.solve(Jw.T @ Jw, Jw.T @ (r * w[:, 0]))
     r, J = _reprojection(R, t, f, normalised, X)
-    n = len(cameras)
+    Jw = J * w
     residual = np.hypot(r[:n], r[n:])
-    return X, pixel_sigma ** 2 * np.linalg.inv(J.T @ J), residual
+    return X, np.linalg.inv(Jw.T @ Jw), residual
 
 
 def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
     """Point, covariance and per-camera residual from N >= 2 views, or None when inconsistent.
 
-    ``cameras``: list of :class:`tt_perception.camera.Camera`; ``normalised`` (N, 2).
+    ``cameras``: list of :class:`tt_perception.camera.Camera`; ``normalised`` (N, 2);
+    ``pixel_sigma``: a number or one per camera, pixels.
     The camera with the largest reprojection error above ``max_reprojection`` (pixels) is
     dropped while at least two remain. Returns ``(X (3,), cov (3, 3), residual (N,), used)``
     with ``used`` the indices of the cameras kept, or None when no consistent pair exists or
@@ -71,6 +77,7 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
     """
     used = list(range(len(cameras)))
     normalised = np.asarray(normalised, dtype=float)
+    sigmas = np.broadcast_to(np.asarray(pixel_sigma, dtype=float), (len(cameras),))
     while len(used) >= 2:
         cams = [cameras[i] for i in used]
         X = dlt(cams, normalised[used])
@@ -78,7 +85,7 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
             return None
         if any((c.R @ X + c.t)[2] <= 0.05 for c in cams):
             return None
-        X, cov, residual = refine(cams, normalised[used], X, pixel_sigma)
+        X, cov, residual = refine(cams, normalised[used], X, sigmas[used])
         worst = int(np.argmax(residual))
         if residual[worst] <= max_reprojection:
             return X, cov, residual, used
