@@ -87,6 +87,29 @@ def test_spin_across_velocity_after_200_ms(white_scene):
         assert 0.8 <= ratio <= 1.2 and angle <= 20.0
 
 
+@pytest.mark.parametrize('spin', [
+    {'speed': 6.0, 'topspin_rps': -35.0, 'target': (-0.5, 0.2)},                    # backspin
+    {'speed': 9.0, 'sidespin_rps': 40.0, 'y0': -0.3, 'target': (-0.8, 0.3)},       # sidespin
+], ids=['backspin', 'sidespin'])
+def test_spin_across_velocity_for_other_spins(spin):
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(**spin)
+    frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.4, lead_in=0.1)
+    estimates, _ = run(rig, frames)
+    bounce = [ev.t for ev in truth[0]['events'] if ev.kind == 'bounce'][0]
+    judged = [(e, s) for e, s in matched(estimates, truth[0])
+              if estimates[0].t + 0.2 <= e.t < bounce]
+    assert judged
+    for e, s in judged:
+        u = s[3:6] / np.linalg.norm(s[3:6])
+        true_perp = s[6:] - (s[6:] @ u) * u
+        est_perp = e.state[6:] - (e.state[6:] @ u) * u
+        assert np.linalg.norm(true_perp) >= 30 * 2 * np.pi
+        assert abs(np.linalg.norm(est_perp) / np.linalg.norm(true_perp) - 1.0) <= 0.2
+        cos = est_perp @ true_perp / np.linalg.norm(est_perp) / np.linalg.norm(true_perp)
+        assert np.degrees(np.arccos(min(cos, 1.0))) <= 20.0
+
+
 def test_spin_along_velocity_unknown_until_the_bounce(white_scene):
     truth, estimates = white_scene
     bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
