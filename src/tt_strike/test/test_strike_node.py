@@ -1,0 +1,185 @@
+"""strike_node on a live graph: fresh Context per test, executors spun until a condition holds
+(no sleeps), topics remapped to names no other test on this machine uses."""
+
+import math
+import os
+import pathlib
+import time
+import uuid
+
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_prediction.model import racket_rebound
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict, predict_landing
+from tt_prediction.table import zone_centre
+from tt_strike.node import StrikeNode
+from visualization_msgs.msg import MarkerArray
+import yaml
+
+from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
+
+CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'strike.yaml'
+PARAMS = ModelParams()
+INCOMING = [1.3, 0.1, 0.3, -6.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Graph:
+    """A strike node and a test node in one fresh context and executor."""
+
+    def __init__(self, overrides=()):
+        self.prefix = f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        remap = ['--ros-args']
+        for topic in ('/ball/prediction', '/strike/target', '/strike/command', '/tt/markers'):
+            remap += ['-r', f'{topic}:={self.prefix}{topic}']
+        self.node = StrikeNode(context=self.context, cli_args=remap,
+                               parameter_overrides=list(overrides))
+        self.test = rclpy.create_node(f'test_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.commands, self.markers = [], []
+        self.test.create_subscription(StrikeCommand, f'{self.prefix}/strike/command',
+                                      self.commands.append, RELIABLE)
+        self.test.create_subscription(MarkerArray, f'{self.prefix}/tt/markers',
+                                      self.markers.append, RELIABLE)
+        self.pub = self.test.create_publisher(BallPrediction, f'{self.prefix}/ball/prediction',
+                                              RELIABLE)
+        self.pub_target = self.test.create_publisher(StrikeTarget,
+                                                     f'{self.prefix}/strike/target', RELIABLE)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.spin_until(lambda: self.pub.get_subscription_count() > 0
+                        and self.pub_target.get_subscription_count() > 0
+                        and self.test.count_publishers(f'{self.prefix}/strike/command') > 0,
+                        10.0, 'discovery')
+
+    def spin_until(self, condition, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.test.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def prediction_msg(track_id, state=INCOMING, hit_valid=True):
+    pred = predict(np.array(state), PARAMS)
+    assert pred.status == 'ok'
+    msg = BallPrediction()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 100, 5
+    msg.header.frame_id = 'table'
+    msg.track_id = track_id
+    msg.status = 'ok' if hit_valid else 'net'
+    msg.hit_valid = hit_valid
+    msg.hit_time.sec, msg.hit_time.nanosec = 100, 600_000_000
+    msg.hit_point.x, msg.hit_point.y, msg.hit_point.z = pred.hit.p.tolist()
+    msg.hit_velocity.x, msg.hit_velocity.y, msg.hit_velocity.z = pred.hit.v.tolist()
+    msg.hit_spin.x, msg.hit_spin.y, msg.hit_spin.z = pred.hit.w.tolist()
+    msg.hit_covariance = (np.eye(3) * 4e-6).ravel().tolist()
+    msg.hit_plane_x = -1.5
+    return msg
+
+
+def vec(v):
+    return np.array([v.x, v.y, v.z])
+
+
+def check_command(cmd, prediction, zone):
+    """The command's racket sends the predicted ball into zone (independent forward model)."""
+    assert cmd.status == 'ok' and cmd.feasible and cmd.reason == ''
+    assert cmd.header.stamp == prediction.header.stamp and cmd.track_id == prediction.track_id
+    assert cmd.hit_time == prediction.hit_time
+    hit = np.concatenate([vec(prediction.hit_point), vec(prediction.hit_velocity),
+                          vec(prediction.hit_spin)])
+    v, w = racket_rebound(hit[3:6], hit[6:9], vec(cmd.racket_normal), vec(cmd.racket_velocity),
+                          PARAMS)
+    np.testing.assert_allclose(vec(cmd.ball_out_velocity), v, atol=1e-9)
+    land = predict_landing(np.concatenate([hit[:3], v, w]), PARAMS)
+    assert land.status == 'ok' and land.landing.zone == zone
+    assert np.hypot(*(land.landing.p[:2] - zone_centre(zone, 1))) < 5e-3
+    assert cmd.landing_zone == zone and cmd.target_zone == zone
+    assert 0.0 < cmd.in_zone_probability <= 1.0
+    assert cmd.net_clearance > 0.0 and cmd.margin > 0.2
+    q = cmd.racket_orientation
+    assert math.isclose(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2, 1.0, abs_tol=1e-9)
+
+
+def test_prediction_gives_a_command_that_lands_in_the_zone():
+    g = Graph([Parameter('target_zone', value=3), Parameter('publish_markers', value=True)])
+    try:
+        msg = prediction_msg(7)
+        g.pub.publish(msg)
+        g.spin_until(lambda: g.commands and g.markers, 20.0, 'a command and markers')
+        check_command(g.commands[0], msg, 3)
+        assert {m.ns for m in g.markers[0].markers} == {'strike'}
+    finally:
+        g.close()
+
+
+def test_target_topic_and_parameter_change_the_zone():
+    g = Graph()
+    try:
+        target = StrikeTarget()
+        target.zone = 9
+        g.pub_target.publish(target)
+        g.spin_until(lambda: g.node.target[0] == 9, 10.0, 'the target from the topic')
+        bad = StrikeTarget()
+        bad.zone = 10                                    # ignored with a warning
+        g.pub_target.publish(bad)
+        msg = prediction_msg(1)
+        g.pub.publish(msg)                               # after bad: same reliable queue
+        g.spin_until(lambda: g.commands, 20.0, 'a command')
+        check_command(g.commands[0], msg, 9)
+        result = g.node.set_parameters_atomically([
+            Parameter('target_zone', value=0), Parameter('target_point', value=[-0.3, 0.0])])
+        assert not result.successful                     # point on the robot's half
+        assert g.node.target[0] == 9                     # unchanged
+        result = g.node.set_parameters_atomically([
+            Parameter('target_zone', value=0), Parameter('target_point', value=[0.9, -0.2])])
+        assert result.successful
+        g.pub.publish(prediction_msg(2))
+        g.spin_until(lambda: len(g.commands) == 2, 20.0, 'a second command')
+        cmd = g.commands[1]
+        assert cmd.target_zone == 0 and cmd.feasible
+        assert math.hypot(cmd.landing_point.x - 0.9, cmd.landing_point.y + 0.2) < 5e-3
+    finally:
+        g.close()
+
+
+def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
+    g = Graph([Parameter('max_racket_speed', value=0.2)])
+    try:
+        g.pub.publish(prediction_msg(1, hit_valid=False))
+        nan = prediction_msg(2)
+        nan.hit_velocity.x = math.nan
+        g.pub.publish(nan)
+        g.pub.publish(prediction_msg(3))
+        g.spin_until(lambda: g.commands, 20.0, 'a command')
+        g.spin_until(lambda: g.node.n_received == 3, 5.0, 'all three predictions')
+        assert [c.track_id for c in g.commands] == [3]   # the first two were dropped
+        assert g.node.n_dropped == 2
+        cmd = g.commands[0]
+        assert cmd.status == 'infeasible' and not cmd.feasible
+        assert cmd.reason.startswith('racket speed') and 'limit 0.2 m/s' in cmd.reason
+    finally:
+        g.close()
+
+
+def test_config_file_matches_the_declared_parameters():
+    config = yaml.safe_load(CONFIG.read_text())['strike_node']['ros__parameters']
+    g = Graph([Parameter(k, value=v) for k, v in config.items()])
+    try:
+        declared = set(g.node._parameters) - {'use_sim_time', 'start_type_description_service'}
+        assert set(config) == declared
+    finally:
+        g.close()
