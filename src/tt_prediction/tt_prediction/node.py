@@ -7,6 +7,7 @@ Invalid or stale states are dropped with a throttled warning (nothing is publish
 """
 
 
+import gc
 import sys
 import threading
 
@@ -339,6 +340,7 @@ def main(args=None):
     node = None
     try:
         node = PredictionNode()
+        gc.freeze()     # start-up objects out of the collector's way: shorter pauses
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
