@@ -16,7 +16,9 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
+from tt_prediction.integrate import rollout
 from tt_prediction.node import PredictionNode
+from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 import yaml
 
@@ -222,3 +224,25 @@ def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
             proc.wait()
     assert proc.returncode == 0, rest
     assert 'Traceback' not in rest
+
+
+def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):
+    t0 = graph.node.get_clock().now().nanoseconds
+    before = predict(GOOD)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=t0, track_id=3))
+    graph.spin_until(lambda: graph.predictions, 10.0, 'the first prediction')
+    # The same ball 60 ms after its bounce, as perception would report it.
+    t1 = before.bounce.t + 0.06
+    _, samples = rollout(GOOD, ModelParams(), sample_times=[t1])
+    graph.pub.publish(graph.state(samples[0], stamp_ns=t0 + round(t1 * 1e9), track_id=3))
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'the second prediction')
+    first, after = graph.predictions
+    assert after.status == 'ok'
+    assert after.bounce_valid and after.bounce_time == first.bounce_time
+    assert ns(after.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)     # 1 us
+    assert after.hit_point.y == pytest.approx(first.hit_point.y, abs=1e-6)
+    assert after.hit_point.z == pytest.approx(first.hit_point.z, abs=1e-6)
+    # Another track with the same state has not been seen bouncing: no bounce ahead of it.
+    graph.pub.publish(graph.state(samples[0], stamp_ns=t0 + round(t1 * 1e9), track_id=4))
+    graph.spin_until(lambda: len(graph.predictions) == 3, 10.0, 'the third prediction')
+    assert graph.predictions[2].status == 'no_bounce'
