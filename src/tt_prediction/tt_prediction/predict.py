@@ -351,6 +351,8 @@ PARALLEL_MIN = 256
 
 
 _PACKED_CACHE = [None, None, None]     # params object, its field values, packed array
+_NO_T = np.empty(0)                    # no sample times
+_NO_S = np.empty((0, 9))
 
 
 def _packed(params):
@@ -476,10 +478,6 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
         reached = np.isfinite(samples[:, 0])
         path = samples[reached, :3]
     return _to_prediction(out, hit_plane_x, path=path)
-
-
-_NO_T = np.empty(0)
-_NO_S = np.empty((0, 9))
 
 
 def predict_landing(state9, params=None, t0=0.0):
