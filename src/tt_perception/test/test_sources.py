@@ -8,7 +8,6 @@ from tt_perception.sources import (
     V4L2Source,
     VideoFileSource,
     image_to_bgr,
-    open_source,
     source_kind,
 )
 
@@ -40,7 +39,7 @@ def test_image_encodings_become_the_same_bgr():
 def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):
     for i in range(3):
         cv2.imwrite(str(tmp_path / f'{i:04d}.png'), np.full((6, 8, 3), 40 * i, np.uint8))
-    src = open_source(str(tmp_path), '', 100.0)
+    src = VideoFileSource(str(tmp_path), 100.0).open()
     got = [src.read() for _ in range(4)]
     assert [t for t, _ in got[:3]] == [0.0, 0.01, 0.02]
     assert [int(f[0, 0, 0]) for _, f in got[:3]] == [0, 40, 80]

@@ -26,43 +26,12 @@ import numpy as np
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
 from .pipeline import Pipeline
-from .sources import VideoFileSource, image_to_bgr, source_kind
+from .sources import file_frames, image_to_bgr
 from .sync import estimate_offset
 
 
 class InputError(Exception):
     """Video files or bag that cannot be read."""
-
-
-def file_frames(rig):
-    """(t, camera_index, frame) of the rig's video files, camera by camera at each frame index.
-
-    ``t`` is the frame index over the rig's fps, on the camera's own clock; the pipeline moves it
-    to camera 0's clock with the camera's ``time_offset``.
-    """
-    base = os.path.dirname(rig.path)
-    sources = []
-    for cam in rig.cameras:
-        if source_kind(cam.source) != 'file':
-            raise InputError(f'camera {cam.name}: source {cam.source!r} is not a video file '
-                             '(use --bag for image topics)')
-        path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
-        try:
-            sources.append(VideoFileSource(path, rig.fps).open())
-        except OSError as exc:
-            raise InputError(f'camera {cam.name}: {exc}') from None
-    try:
-        live = set(range(len(sources)))
-        while live:
-            for k in sorted(live):
-                t, frame = sources[k].read()
-                if frame is None:
-                    live.discard(k)
-                    continue
-                yield t, k, frame
-    finally:
-        for s in sources:
-            s.close()
 
 
 def bag_frames(rig, bag):
@@ -114,7 +83,7 @@ def estimate_offsets(rig, colour):
     missing = [k for k, cam in enumerate(rig.cameras) if k > 0 and cam.time_offset is None]
     if not missing:
         return []
-    found = detections_per_camera(rig, file_frames(rig), colour)
+    found = detections_per_camera(rig, file_frames(rig), colour)   # OSError: bad input
     notes = []
     for k in missing:
         cam = rig.cameras[k]
@@ -222,7 +191,7 @@ def main(argv=None):
                             detector_config=DetectorConfig(colour=args.colour))
         frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
         estimates, errors = run(rig, frames, pipeline)
-    except InputError as exc:
+    except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
     for message in errors.values():

@@ -15,7 +15,6 @@ is reported (and a device reopened) while the node keeps running.
 """
 
 import math
-import os
 import queue
 import signal
 import threading
@@ -34,7 +33,7 @@ from .camera import CalibrationError, load_rig
 from .detect import DetectorConfig
 from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import V4L2Source, image_to_bgr, open_source, source_kind
+from .sources import V4L2Source, file_frames, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 
@@ -122,7 +121,7 @@ class PerceptionNode(Node):
         self._threads = []
         self._last_frame = {}
         self._lost = set()
-        self._ended = set()           # cameras whose video file has ended
+        self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
         self._warned = set()
         self._setup()
@@ -253,28 +252,16 @@ class PerceptionNode(Node):
 
     def _read_files(self, ks):
         """The video-file cameras, frame by frame together, paced at the rig's fps."""
-        base = os.path.dirname(self.rig.path)
-        sources = {}
-        for k in ks:
-            try:
-                sources[k] = open_source(self.rig.cameras[k].source, base, self.rig.fps)
-            except OSError as exc:
-                self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')
-        start, n = time.monotonic(), 0
-        while sources and not self._stop.is_set():
-            for k in list(sources):
-                t, frame = sources[k].read()
-                if frame is None:
-                    self.get_logger().info(f'camera {self.rig.cameras[k].name}: end of '
-                                           f'{self.rig.cameras[k].source}')
-                    self._ended.add(k)
-                    sources.pop(k).close()
-                    continue
+        start = time.monotonic()
+        try:
+            for t, k, frame in file_frames(self.rig, ks):
+                if self._stop.wait(max(0.0, start + t - time.monotonic())):
+                    break
                 self._put(k, t, frame, wait=True)
-            n += 1
-            self._stop.wait(max(0.0, start + n / self.rig.fps - time.monotonic()))
-        for src in sources.values():
-            src.close()
+        except OSError as exc:
+            self.get_logger().error(str(exc))
+        self.get_logger().info('end of the video files')
+        self._ended.update(ks)
 
     def _drain(self):
         while True:

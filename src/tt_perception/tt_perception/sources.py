@@ -157,15 +157,33 @@ class V4L2Source(FrameSource):
             self.capture = None
 
 
-def open_source(source, base_dir, fps, **v4l2_options):
-    """The :class:`FrameSource` for a rig camera's ``source`` (file or V4L2), opened."""
-    kind = source_kind(source)
-    if kind == 'v4l2':
-        return V4L2Source(source, fps=fps, **v4l2_options).open()
-    if kind == 'file':
-        path = source if os.path.isabs(source) else os.path.join(base_dir, source)
-        return VideoFileSource(path, fps).open()
-    raise OSError(f'{source}: an image topic, not a device or file')
+def file_frames(rig, cameras=None):
+    """(t, camera_index, frame) of the rig's video files (``cameras``: indices, default all),
+    one frame of each camera in turn at each frame index, ``t`` = index / fps on each camera's
+    own clock. Raises OSError naming the camera when a source is not a file or cannot be read.
+    """
+    base = os.path.dirname(rig.path)
+    sources = {}
+    try:
+        for k in (range(len(rig.cameras)) if cameras is None else cameras):
+            cam = rig.cameras[k]
+            if source_kind(cam.source) != 'file':
+                raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file')
+            path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
+            try:
+                sources[k] = VideoFileSource(path, rig.fps).open()
+            except OSError as exc:
+                raise OSError(f'camera {cam.name}: {exc}') from None
+        while sources:
+            for k in sorted(sources):
+                t, frame = sources[k].read()
+                if frame is None:
+                    sources.pop(k).close()
+                    continue
+                yield t, k, frame
+    finally:
+        for src in sources.values():
+            src.close()
 
 
 def image_to_bgr(encoding, height, width, step, data):
