@@ -14,6 +14,7 @@ from tt_perception.sources import (
 
 @pytest.mark.parametrize('source, kind', [
     ('/dev/video0', 'v4l2'), ('2', 'v4l2'), ('cam0.avi', 'file'), ('cam0/%06d.png', 'file'),
+    ('cam0_frames/', 'file'),
     ('/cam0/image_raw', 'topic'), ('left/image_rect', 'topic')])
 def test_source_kind(source, kind):
     assert source_kind(source) == kind

@@ -5,8 +5,8 @@ A rig camera's ``source`` string is classified by :func:`source_kind`:
 
 - ``/dev/videoN`` or a bare integer: a V4L2 device, opened through OpenCV's ``cv2.CAP_V4L2``
   backend with pixel format (FOURCC, e.g. MJPG), resolution, frame rate and exposure set;
-- a path with a video or image extension, a printf pattern (``cam0/%06d.png``) or a directory
-  of images: a file source (relative paths are relative to the rig file);
+- a path with a video or image extension, a printf pattern (``cam0/%06d.png``) or a folder
+  of images (written with a final ``/``): a file source (relative to the rig file);
 - anything else starting with ``/`` or a letter (``/cam0/image_raw``): an image topic.
 
 :meth:`FrameSource.read` returns ``(t, frame)``: ``t`` the frame's time in s (V4L2: the
@@ -30,7 +30,8 @@ def source_kind(source):
     s = str(source).strip()
     if s.startswith('/dev/') or s.isdigit():
         return 'v4l2'
-    if '%' in s or os.path.splitext(s)[1].lower() in VIDEO_EXTENSIONS or os.path.isdir(s):
+    if ('%' in s or s.endswith('/') or os.path.splitext(s)[1].lower() in VIDEO_EXTENSIONS
+            or os.path.isdir(s)):
         return 'file'
     return 'topic'
 

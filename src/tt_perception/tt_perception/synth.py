@@ -23,7 +23,7 @@ from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
 from tt_prediction.table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
 
-from .camera import Camera, Rig, look_at, save_camera_info, save_rig
+from .camera import Camera, Rig, load_rig, look_at, save_camera_info, save_rig
 
 BALL_COLOURS = {'white': (235, 238, 240), 'orange': (20, 120, 250)}
 """Ball colour (BGR, full light) by name."""
@@ -269,7 +269,6 @@ def write_scene(directory, rig_path, frames, truth, fmt='avi'):
     (relative), and ``truth.csv`` (columns ``ball,t,x,y,z,vx,vy,vz,wx,wy,wz``) is written next
     to it. Returns the rig path.
     """
-    from .camera import load_rig
     rig = load_rig(rig_path)
     os.makedirs(directory, exist_ok=True)
     writers = {}
