@@ -23,7 +23,7 @@ def test_states_are_turned_towards_the_robot():
 
 def test_every_feasible_solution_lands_in_its_zone():
     states, serve, _ = load_states(DATA / 'states.csv')
-    rows, skipped, n_hits = evaluate(states, serve, ModelParams(), StrikeSettings())
+    rows, skipped, n_hits, _ = evaluate(states, serve, ModelParams(), StrikeSettings())
     assert n_hits + sum(skipped.values()) == len(states)
     assert n_hits >= 70
     for row in rows:

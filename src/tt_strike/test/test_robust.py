@@ -78,3 +78,15 @@ def test_bad_covariance_is_invalid():
     hit = _hit(CASES[0][0])
     sol = solve(hit, PARAMS, target_zone=5, covariance=np.full((9, 9), np.nan))
     assert sol.status == 'invalid' and 'covariance' in sol.reason
+
+
+def test_hit_point_below_the_table_top_behind_its_end():
+    # A ball taken low behind the end line (z < r): the ensemble must still see it land.
+    hit = np.array([-1.5, 0.05, 0.005, -3.0, 0.1, -1.2, 0.0, -60.0, 0.0])
+    cov = noise_covariance(hit, 0.002, 0.02, 0.10)
+    sol = solve(hit, PARAMS, target_zone=8, covariance=cov)
+    assert sol.status == 'ok', sol.reason
+    share, _ = monte_carlo_in_zone(hit, cov, sol.normal, sol.racket_velocity, PARAMS, 8, 1000,
+                                   np.random.default_rng(5))
+    assert share > 0.5
+    assert abs(sol.in_zone_probability - share) < 0.03

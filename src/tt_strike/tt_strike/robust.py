@@ -22,7 +22,14 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr, ndtri
 from scipy.stats import qmc
-from tt_prediction.integrate import EVENT_BOUNCE, EVENT_FLOOR, STOP_AT_NET, rollout_kernel
+from tt_prediction.integrate import (
+    EVENT_BOUNCE,
+    EVENT_FLOOR,
+    EVENT_PLANE,
+    STOP_AT_NET,
+    STOP_AT_PLANE,
+    rollout_kernel,
+)
 from tt_prediction.model import racket_rebound, racket_rebound_inplace
 from tt_prediction.params import I_GRAVITY, I_RADIUS
 from tt_prediction.predict import predict_landing
@@ -55,8 +62,14 @@ def landings(states, normal, racket_velocity, P, out):
     for k in range(states.shape[0]):
         s = states[k].copy()
         racket_rebound_inplace(s, P, normal, racket_velocity)
-        n = rollout_kernel(s, 0.0, P, 3.0, STEP, math.nan, STOP_AT_NET, 1, empty_t, samples,
-                           ev_kind, ev_t, ev_s)
+        # Two legs, to the net plane and on (a hit point below the table's height behind
+        # its end would otherwise never count as over the table).
+        n = rollout_kernel(s, 0.0, P, 3.0, STEP, 0.0, STOP_AT_PLANE | STOP_AT_NET, 1, empty_t,
+                           samples, ev_kind, ev_t, ev_s)
+        if n > 0 and ev_kind[n - 1] == EVENT_PLANE:
+            s[:] = ev_s[n - 1]
+            n = rollout_kernel(s, ev_t[n - 1], P, 3.0, STEP, math.nan, STOP_AT_NET, 1,
+                               empty_t, samples, ev_kind, ev_t, ev_s)
         out[k, 0] = math.nan
         out[k, 1] = math.nan
         if n == 0:
