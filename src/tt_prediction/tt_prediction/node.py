@@ -10,6 +10,7 @@ Invalid or stale states are dropped with a throttled warning (nothing is publish
 import gc
 import sys
 import threading
+import time
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PoseStamped
@@ -159,6 +160,7 @@ class PredictionNode(Node):
         self.last_ns = None
         self.last_path_ns = None
         self.n_received = 0
+        self.work_s = np.zeros(4096)      # the callback's time for the last states, s
         self.n_predicted = 0
         self.n_dropped = 0
 
@@ -183,7 +185,21 @@ class PredictionNode(Node):
                 or now_ns - last_ns >= 1e9 / rate_hz)
 
     def on_state(self, msg):
+        start = time.perf_counter()
+        self._on_state(msg)
+        self.work_s[self.n_received % len(self.work_s)] = time.perf_counter() - start
         self.n_received += 1
+
+    def work_summary(self):
+        """Median and p99 of the time the callback took for the last states, ms."""
+        times = self.work_s[:min(self.n_received, len(self.work_s))]
+        if not len(times):
+            return 'no state received'
+        return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
+                f'dropped; callback median {np.median(times) * 1e3:.3f} ms, p99 '
+                f'{np.percentile(times, 99) * 1e3:.3f} ms (last {len(times)})')
+
+    def _on_state(self, msg):
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if not self._due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
             return
@@ -353,6 +369,7 @@ def main(args=None):
     finally:
         executor.shutdown()
         if node is not None:
+            node.get_logger().info(node.work_summary())
             node.destroy_node()
         rclpy.try_shutdown()
 
