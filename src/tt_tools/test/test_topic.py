@@ -159,4 +159,4 @@ def test_run_prediction_node_and_echo_its_prediction(graph, procs, topic):
     assert prediction['hit_valid']
     assert prediction['hit_point']['x'] == pytest.approx(prediction['hit_plane_x'])
     node.signal(signal.SIGINT)
-    assert node.wait() == 0 and 'Traceback' not in node.stderr
+    assert node.wait(timeout=90) == 0 and 'Traceback' not in node.stderr

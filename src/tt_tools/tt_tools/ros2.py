@@ -73,10 +73,32 @@ def main(argv=None):
     if real is not None:
         return real()
     signal.signal(signal.SIGTERM, _interrupt)
+    if argv is None:
+        argv = sys.argv[1:]
+        if argv[:1] != ['run']:
+            _keep_stdout_for_output()
     try:
-        return _main(sys.argv[1:] if argv is None else argv)
+        return _main(argv)
     except KeyboardInterrupt:
         return 0
+    except BrokenPipeError:  # the reader of our output has gone (``| head``): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+def _keep_stdout_for_output():
+    """Give Python's stdout a file descriptor of its own and point fd 1 at stderr.
+
+    The DDS library logs to fd 1 (e.g. Fast DDS's shared-memory port errors); without this
+    its lines would land in the middle of ``echo``'s YAML or ``bag info``'s summary.
+    """
+    sys.stdout.flush()
+    try:
+        out = os.dup(1)
+        os.dup2(2, 1)
+    except OSError:
+        return
+    sys.stdout = os.fdopen(out, 'w', buffering=1, encoding=sys.stdout.encoding or 'utf-8')
 
 
 def _main(argv):
@@ -86,6 +108,8 @@ def _main(argv):
     args = build_parser(only_run=argv[:1] == ['run']).parse_args(argv)
     try:
         return args.func(args)
+    except BrokenPipeError:
+        raise
     except (RunError, BagError, ValueError, OSError) as exc:  # bad input: one line
         print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
     except KeyError as exc:  # an unknown message field
