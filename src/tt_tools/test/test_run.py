@@ -4,6 +4,7 @@ import os
 import pathlib
 import shutil
 import subprocess
+import sys
 
 from conftest import ROS2, ros2
 import pytest
@@ -77,3 +78,13 @@ def test_ros2_on_path_is_the_workspace_script():
         pytest.skip('env.sh not sourced: no ros2 on PATH')
     top = pathlib.Path(__file__).resolve().parents[3]
     assert pathlib.Path(found).resolve().is_relative_to(top / 'install' / 'tt_tools'), found
+
+
+def test_native_writes_to_fd_1_go_to_stderr_and_python_output_stays_on_stdout():
+    # What the DDS library prints (Fast DDS logs errors on fd 1) must not mix with echo's YAML.
+    code = ('import os, sys\nfrom tt_tools.ros2 import _keep_stdout_for_output\n'
+            '_keep_stdout_for_output()\nos.write(1, b"native log\\n")\nprint("a: 1")\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0
+    assert out.stdout == 'a: 1\n' and out.stderr == 'native log\n'
