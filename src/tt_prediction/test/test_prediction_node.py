@@ -166,7 +166,7 @@ def test_a_bad_covariance_still_gives_the_prediction(graph):
     t0 = graph.node.get_clock().now().nanoseconds
     publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000,
                                                cov=-np.eye(9)),
-                  lambda: graph.node.worker.n_failed >= 1 and len(graph.predictions) >= 2,
+                  lambda: graph.node.n_bad_covariance >= 1 and len(graph.predictions) >= 2,
                   'the covariance to be rejected')
     for out in graph.predictions:
         assert out.status == 'ok'

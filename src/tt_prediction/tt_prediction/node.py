@@ -60,21 +60,19 @@ class _Track:
         self.uncertainty_ns = None
 
 
-class _UncertaintyWorker:
-    """Propagates covariances in a thread of its own, so that a prediction never waits for
-    one (19 predictions, about 0.5 ms). Holds one request, the latest; the result goes to
-    the request's track and rides on that track's next predictions."""
+class _LatestWorker:
+    """Runs ``work(request)`` in a thread of its own for the latest request submitted, so
+    that the state callback never waits for work whose result can come later (the covariance
+    propagation, about 1 ms; the path message, a few ms to build and serialise). A request
+    submitted while the thread is busy replaces any that is still waiting."""
 
-    def __init__(self, params, on_error):
-        self.params = params
-        self.on_error = on_error
-        self.n_done = 0
-        self.n_failed = 0
+    def __init__(self, name, work):
+        self._work = work
         self._request = None
         self._stop = False
         self._lock = threading.Lock()
         self._wake = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='uncertainty', daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     def submit(self, request):
@@ -90,17 +88,8 @@ class _UncertaintyWorker:
                 self._wake.clear()
             if self._stop:
                 return
-            if request is None:
-                continue
-            track, state, cov, plane_x, bounced = request
-            try:
-                track.uncertainty = predict_uncertainty(state, cov, self.params, 0.0, plane_x,
-                                                        bounced=bounced)
-                self.n_done += 1
-            except ValueError as exc:
-                track.uncertainty = None
-                self.n_failed += 1
-                self.on_error(f'covariance ignored: {exc}')
+            if request is not None:
+                self._work(request)
 
     def stop(self):
         self._stop = True
@@ -136,8 +125,9 @@ class PredictionNode(Node):
             description='drop states whose stamp is older than this against the node clock '
                         '(set use_sim_time for bag replay), s; 0: never drop',
             floating_point_range=rng(0.0, 60.0)))
-        self.declare_parameter('path_rate_hz', 30.0, ParameterDescriptor(
-            description='rate of /ball/predicted_path (and markers), Hz; 0: every state',
+        self.declare_parameter('path_rate_hz', 10.0, ParameterDescriptor(
+            description='highest rate of /ball/predicted_path (and markers), Hz; 0: every '
+                        'state (built in a worker thread: a busy worker skips states)',
             floating_point_range=rng(0.0, 2000.0)))
         self.declare_parameter('path_step_s', 0.02, ParameterDescriptor(
             description='time between the poses of the predicted path, s',
@@ -154,8 +144,9 @@ class PredictionNode(Node):
         predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
         predict(warm, self.params, path_dt=0.02)
         self.packed = self.params.packed()
-        self.worker = _UncertaintyWorker(self.packed, lambda text: self.get_logger().warning(
-            text, throttle_duration_sec=1.0))
+        self.n_bad_covariance = 0
+        self.uncertainty_worker = _LatestWorker('uncertainty', self._propagate)
+        self.path_worker = _LatestWorker('path', self._publish_path)
         self.tracks = {}
         self.last_ns = None
         self.last_path_ns = None
@@ -245,7 +236,7 @@ class PredictionNode(Node):
         self.n_predicted += 1
         if want_path:
             self.last_path_ns = stamp_ns
-            self._publish_path(msg, stamp_ns, pred, step)
+            self.path_worker.submit((msg, stamp_ns, pred, step))
 
     def _prediction_msg(self, msg, stamp_ns, pred, track, plane_x):
         out = BallPrediction()
@@ -279,7 +270,8 @@ class PredictionNode(Node):
             if self._due(stamp_ns, track.uncertainty_ns,
                          self.get_parameter('uncertainty_rate_hz').value):
                 track.uncertainty_ns = stamp_ns
-                self.worker.submit((track, state, np.array(msg.covariance), plane_x, bounced))
+                self.uncertainty_worker.submit((track, state, np.array(msg.covariance), plane_x,
+                                                bounced))
         if unc is not None:
             out.zone_probabilities = unc.zone_probabilities.tolist()
             out.zone_probabilities_half = int(unc.zone_half)
@@ -294,7 +286,20 @@ class PredictionNode(Node):
             out.zone_probabilities = [1.0] + [0.0] * 9
             out.zone_probabilities_half = -1
 
-    def _publish_path(self, msg, stamp_ns, pred, step):
+    def _propagate(self, request):
+        """Uncertainty worker: the track's zone probabilities and hit covariance."""
+        track, state, cov, plane_x, bounced = request
+        try:
+            track.uncertainty = predict_uncertainty(state, cov, self.packed, 0.0, plane_x,
+                                                    bounced=bounced)
+        except ValueError as exc:
+            track.uncertainty = None
+            self.n_bad_covariance += 1
+            self.get_logger().warning(f'covariance ignored: {exc}', throttle_duration_sec=1.0)
+
+    def _publish_path(self, request):
+        """Path worker: /ball/predicted_path and the markers."""
+        msg, stamp_ns, pred, step = request
         frame = msg.header.frame_id or 'table'
         path = Path()
         path.header.stamp = msg.header.stamp
@@ -343,12 +348,13 @@ class PredictionNode(Node):
 
 
     def destroy_node(self):
-        self.worker.stop()
+        self.uncertainty_worker.stop()
+        self.path_worker.stop()
         return super().destroy_node()
 
 
 def main(args=None):
-    # The uncertainty worker holds the GIL for its numpy parts; a short switch interval
+    # The workers hold the GIL for their Python parts; a short switch interval
     # (default 5 ms) lets a state's callback take it back within a fraction of a millisecond.
     sys.setswitchinterval(2e-4)
     rclpy.init(args=args)
