@@ -6,7 +6,6 @@ BallPrediction stamped with the state's stamp; the path and markers follow at a 
 Invalid or stale states are dropped with a throttled warning (nothing is published for them).
 """
 
-
 import gc
 import sys
 import threading
@@ -214,10 +213,10 @@ class PredictionNode(Node):
         want_path = self._due(stamp_ns, self.last_path_ns,
                               self.get_parameter('path_rate_hz').value)
         step = self.get_parameter('path_step_s').value
-        # Times are relative to the stamp inside the integrator (float64 keeps sub-ns
-        # resolution there) and added to the integer stamp on output.
         bounced = (track.bounce_ns is not None
                    and stamp_ns > track.bounce_ns + BOUNCE_MARGIN_S * 1e9)
+        # Times relative to the stamp inside the integrator (float64 keeps sub-ns resolution
+        # there), added to the integer stamp in nanoseconds on output.
         pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced,
                        path_dt=step if want_path else None)
         if pred.status == 'invalid':
