@@ -24,7 +24,7 @@ import dataclasses
 
 import numpy as np
 
-from .params import ModelParams
+from .params import I_RADIUS, ModelParams
 from .predict import DEFAULT_HIT_PLANE_X, OK, predict_batch
 from .table import HALF_LENGTH, HALF_WIDTH, ZONE_LENGTH, ZONE_WIDTH
 
@@ -101,7 +101,7 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
     no hit). Raises ValueError for a bad covariance.
     """
     params = ModelParams() if params is None else params
-    radius = params.radius if isinstance(params, ModelParams) else float(params[1])
+    radius = params.radius if isinstance(params, ModelParams) else float(params[I_RADIUS])
     points, weights = sigma_points(state9, cov)
     over = (np.abs(points[:, 0]) <= HALF_LENGTH) & (np.abs(points[:, 1]) <= HALF_WIDTH)
     points[:, 2] = np.where(over, np.maximum(points[:, 2], radius), points[:, 2])
