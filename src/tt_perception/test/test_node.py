@@ -11,6 +11,7 @@ import sys
 import time
 import uuid
 
+from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 import pytest
 import rclpy
@@ -82,19 +83,40 @@ def test_images_in_ball_states_out(graph, tmp_path):
     frames, truth = synth.render_balls(rig, [state], [0.0], duration=0.45, lead_in=0.1)
     node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
                                                      f'/ball/state:={state_topic}'],
-                              parameter_overrides=[Parameter('rig_file', value=rig_path)]))
+                              parameter_overrides=[
+                                  Parameter('rig_file', value=rig_path),
+                                  Parameter('measured_spin_topic', value=f'{ns}/spin')]))
     peer = add(rclpy.create_node('image_player', context=ctx))
     pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
+    spin_pub = peer.create_publisher(Vector3Stamped, f'{ns}/spin', QoSProfile(depth=5))
     got = []
     peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
     assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
     sent = 0
+    tr = truth[0]
     for t, k, frame in frames:
         pubs[k].publish(image_msg(t, frame))
         sent += 1
         assert spin_until(executor, lambda n=sent: node.frames_received >= n), 'image lost'
+        if k == 1 and abs(t - 0.15) < 0.5 / rig.fps:   # a measured spin (a marked ball)
+            t_spin = t
+            spin = Vector3Stamped()
+            spin.header = image_msg(t, frame).header
+            w = tr['state'][int(np.argmin(np.abs(tr['t'] - t))), 6:]
+            spin.vector.x, spin.vector.y, spin.vector.z = (float(v) for v in w)
+            spin_pub.publish(spin)
+            assert spin_until(executor, lambda: node.spin_measurements_used == 1)
     assert spin_until(executor, lambda: len(got) >= node.states_published > 30)
-    tr = truth[0]
+    # After the measured spin (10 rad/s), the component along the velocity is known too (until
+    # the bounce adds the rebound's uncertainty).
+    bounce = [ev.t for ev in tr['events'] if ev.kind == 'bounce'][0]
+    for msg in got:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - T0
+        if t_spin + 1e-3 < t < bounce:
+            v = np.array([msg.velocity.x, msg.velocity.y, msg.velocity.z])
+            u = v / np.linalg.norm(v)
+            cov = np.array(msg.covariance).reshape(9, 9)[6:, 6:]
+            assert np.sqrt(u @ cov @ u) < 15.0
     for msg in got:
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - T0
         i = int(np.argmin(np.abs(tr['t'] - t)))

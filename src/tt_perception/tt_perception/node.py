@@ -20,9 +20,11 @@ import signal
 import threading
 import time
 
+from geometry_msgs.msg import Vector3Stamped
+import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
@@ -65,6 +67,11 @@ PARAMETERS = {
                     _floats(0.0, 100)),
     'spin_prior': (250.0, 'Prior standard deviation of each spin component, rad/s',
                    _floats(1, 5000)),
+    'measured_spin_topic': ('', 'geometry_msgs/Vector3Stamped topic of a measured spin (rad/s, '
+                            'table frame, e.g. from a marked ball) fused into the track; '
+                            'empty: none', None),
+    'measured_spin_sigma': (10.0, 'Standard deviation of each measured spin component, rad/s',
+                            _floats(0.01, 1000)),
     'confirm_updates': (3, 'Filter updates before a track is published', _ints(1, 100)),
     'max_coast': (0.06, 'Time without a measurement that ends a track, s', _floats(0.001, 5)),
     'camera_timeout': (1.0, 'Time without frames after which a camera is reported lost, s',
@@ -113,6 +120,7 @@ class PerceptionNode(Node):
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
         self.frames_received = 0
         self.states_published = 0
+        self.spin_measurements_used = 0
         self.pipeline = None
         self.rig = None
         self._t_ref = None
@@ -180,6 +188,10 @@ class PerceptionNode(Node):
         if files:
             self._threads.append(threading.Thread(target=self._read_files, args=(files,),
                                                   daemon=True))
+        spin_topic = self._p('measured_spin_topic')
+        if spin_topic:
+            self.create_subscription(Vector3Stamped, spin_topic, self._on_spin,
+                                     qos_profile_sensor_data)
         if self._threads:
             self.create_timer(0.002, self._drain)     # frames of devices and files
         self.create_timer(0.25, self._watch_cameras)
@@ -215,6 +227,19 @@ class PerceptionNode(Node):
             self._warn_once(('encoding', k), f'camera {self.rig.cameras[k].name}: {exc}')
             frame = None
         self._process(k, stamp if stamp > 0 else time.time(), frame)
+
+    def _on_spin(self, msg):
+        """A measured spin: fused into the running track (if its time is near it)."""
+        if self.pipeline is None or self._t_ref is None:
+            return
+        t = msg.header.stamp.sec - self._t_ref + 1e-9 * msg.header.stamp.nanosec
+        w = (msg.vector.x, msg.vector.y, msg.vector.z)
+        if not all(math.isfinite(v) for v in w):
+            self._warn_once('spin', f'measured spin {w} is not finite: ignored')
+            return
+        var = self._p('measured_spin_sigma') ** 2
+        if self.pipeline.tracker.measure_spin(t, np.array(w), np.eye(3) * var):
+            self.spin_measurements_used += 1
 
     def _put(self, k, t, frame, wait=False):
         """Queue a frame for processing; a live camera's frame is dropped when processing
@@ -324,12 +349,17 @@ def main(args=None):
     # SIGTERM ends the node as Ctrl-C does: out of spin, node destroyed, context shut down.
     signal.signal(signal.SIGTERM, _terminate)
     node = None
+    executor = None
     try:
+        executor = SingleThreadedExecutor()      # before the node says it is ready
         node = PerceptionNode()
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -197,11 +197,11 @@ class Tracker:
         return None
 
     def measure_spin(self, t, w, R):
-        """Fuse a measured spin (rad/s, covariance R) at ``t`` into the running track, if any.
-        Returns True when it was used."""
-        if self.filter is None or t < self.filter.t - self.config.max_coast:
+        """Fuse a measured spin (rad/s, covariance R) taken at ``t`` into the running track,
+        when the track's last update is within ``max_coast`` of it (the spin hardly changes
+        in that time). Returns True when it was used."""
+        if self.filter is None or abs(t - self.filter.t) > self.config.max_coast:
             return False
-        self.filter.predict(max(t, self.filter.t))
         self.filter.update_spin(w, R)
         return True
 
