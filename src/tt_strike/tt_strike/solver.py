@@ -198,9 +198,9 @@ SHOT_NO_LANDING = 4     # no table-height crossing within FLIGHT_T_MAX
 def _shoot(s_hit, v_out, P, out):
     """Fly the ball sent with v_out from the hit state s_hit (9,).
 
-    Writes into ``out`` (12,): landing x, y (centre crossing z = r on the table, or the floor
+    Writes into ``out`` (11,): landing x, y (centre crossing z = r on the table, or the floor
     crossing beyond it), net-plane height z at x = 0, flight time, normal (3), racket speed,
-    outgoing spin (3), 0. Returns a SHOT_* code.
+    outgoing spin (3). Returns a SHOT_* code.
     """
     normal = np.empty(3)
     speed = _racket_for_outgoing(s_hit[3:6], s_hit[6:9], v_out, P, normal)
@@ -284,7 +284,7 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
     if v is None:
         return None, 0, 'target is not beyond the net from the hit point'
     goal = np.array([aim[0], aim[1], z_net_goal])
-    out = np.zeros(12)
+    out = np.zeros(11)
     code = _shoot(s_hit, v, P, out)
     if code != SHOT_OK:
         # The drag-free guess may fall short of the net: start faster along the same line.
@@ -297,7 +297,7 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
             return None, 0, _SHOT_REASON[code]
     f = out[:3] - goal
     jac = np.empty((3, 3))
-    out_h = np.zeros(12)
+    out_h = np.zeros(11)
     for it in range(1, settings.max_iterations + 1):
         if np.max(np.abs(f)) < settings.tolerance:
             return out, it - 1, ''
@@ -407,11 +407,12 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
     """Racket normal and velocity that send the ball at ``hit_state`` to the target.
 
     hit_state: (9,) ball p (m), v (m/s), w (rad/s) at the hit point, table frame.
-    params: tt_prediction ModelParams. Target: ``target_zone`` 1..9 on
-    the opponent's half (its centre) or ``target_point`` (x, y) m. ``covariance``: optional
-    9x9 covariance of hit_state, for the in-zone probability (and ``aim_inside_zone``).
-    Returns a :class:`StrikeSolution`; the landing fields come from the forward check
-    (``racket_rebound`` + ``rollout`` with the net), ``residual`` its distance to the aim.
+    params: tt_prediction ModelParams. Target: ``target_zone`` 1..9 on the opponent's half
+    (its centre) or ``target_point`` (x, y) m. ``covariance``: optional 9x9 covariance of
+    hit_state, for the in-zone probability (and ``aim_inside_zone``). Returns a
+    :class:`StrikeSolution`; the landing fields come from the forward check
+    (``racket_rebound`` + ``predict_landing``, net included), ``residual`` its distance to
+    the aim point.
     """
     settings = settings or StrikeSettings()
     P = params.packed()
