@@ -180,8 +180,9 @@ def main(argv=None):
     try:
         from tt_prediction.params import load_model
         params = load_model(args.model)
-    except Exception as exc:      # the model loader's own one-line errors
-        print(f'tt-perceive: model {args.model}: {exc}', file=sys.stderr)
+    except Exception as exc:      # the model loader's own errors (file, YAML, values)
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f'tt-perceive: model {args.model}: {first}', file=sys.stderr)
         return 2
     try:
         if not args.bag:

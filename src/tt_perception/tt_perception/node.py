@@ -147,10 +147,16 @@ class PerceptionNode(Node):
             if len(rig.cameras) < 2:
                 raise CalibrationError(f'rig {rig_file}: needs two cameras or more, has '
                                        f'{len(rig.cameras)}')
+        except CalibrationError as exc:
+            self.get_logger().error(f'{exc}; no state will be published')
+            return
+        try:
             from tt_prediction.params import load_model
             params = load_model(self._p('model_file') or None)
-        except (CalibrationError, OSError, ValueError) as exc:
-            self.get_logger().error(f'{exc}; no state will be published')
+        except Exception as exc:       # the model loader's own errors (file, YAML, values)
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            self.get_logger().error(f'model_file {self._p("model_file")}: {first}; no state '
+                                    'will be published')
             return
         colour = self._p('ball_colour')
         if colour not in ('white', 'orange', 'any'):
