@@ -183,3 +183,20 @@ def test_config_file_matches_the_declared_parameters():
         assert set(config) == declared
     finally:
         g.close()
+
+
+def test_probability_is_reused_within_its_period():
+    # Same track and stamp: the second prediction's (much wider) covariance is not used at
+    # 10 Hz; at 0 Hz (every prediction) it is, and the wider spread lowers the probability.
+    for rate, same in ((10.0, True), (0.0, False)):
+        g = Graph([Parameter('probability_rate_hz', value=rate)])
+        try:
+            narrow, wide = prediction_msg(4), prediction_msg(4)
+            wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
+            g.pub.publish(narrow)
+            g.pub.publish(wide)
+            g.spin_until(lambda g=g: len(g.commands) == 2, 30.0, 'two commands')
+            p1, p2 = (c.in_zone_probability for c in g.commands)
+            assert (p1 == p2) == same and p2 <= p1
+        finally:
+            g.close()
