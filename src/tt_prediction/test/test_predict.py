@@ -151,3 +151,24 @@ def test_batch_matches_single_predictions_serial_and_parallel():
 def test_batch_rejects_a_bad_shape():
     with pytest.raises(ValueError, match=r'\(N, 9\)'):
         predict_batch(np.zeros((3, 6)))
+
+
+def test_batch_of_returned_balls_matches_predict_landing():
+    rng = np.random.default_rng(9)
+    n = 40
+    states = np.column_stack([
+        np.full(n, -1.4), rng.uniform(-0.3, 0.3, n), rng.uniform(0.15, 0.35, n),
+        rng.uniform(3.0, 9.0, n), rng.uniform(-1.0, 1.0, n), rng.uniform(0.0, 2.0, n),
+        rng.uniform(-200, 200, (n, 3))])
+    batch = predict_batch(states, NOMINAL, t0=1.0, outgoing=True)
+    seen = set()
+    for i in range(n):
+        single = predict_landing(states[i], NOMINAL, t0=1.0)
+        seen.add(single.status)
+        assert STATUSES[batch.status[i]] == single.status
+        if single.landing is not None:
+            np.testing.assert_array_equal(batch.bounce_p[i], single.landing.p)
+            assert batch.bounce_zone[i] == single.landing.zone
+        if math.isfinite(single.net_clearance):
+            assert batch.net_clearance[i] == single.net_clearance
+    assert 'ok' in seen and len(seen) >= 2
