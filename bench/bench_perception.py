@@ -4,8 +4,11 @@ on one core (so that two 300 fps cameras are kept up with).
 The scene is rendered first (two 640 x 480 cameras at 150 fps, one white ball served toward the
 robot with topspin, the distractor on); then every frame goes through
 :class:`tt_perception.pipeline.Pipeline` and the time of the two frames of each instant is
-summed. ``tracked_*`` are the pairs where the ball is tracked (a search window around the
-prediction in each camera), ``all_*`` every pair, including the full-frame searches before the
+summed. The target is held on the CPU time of this thread (``cpu_*``, ``time.thread_time``):
+the work one core does, whatever other jobs take of the machine meanwhile; the wall-clock
+times (``wall_*``) are reported too and include those jobs' time slices on a shared machine.
+``tracked_*`` are the pairs where the ball is tracked (a search window around the prediction
+in each camera); the others are every pair, including the full-frame searches before the
 ball appears and after it leaves. OpenCV and BLAS are held to one thread. ``accuracy``
 holds the errors of the same run against the scene's truth (no target here: the tests hold
 them to the issue's limits).
@@ -33,29 +36,31 @@ def run():
     for t, k, frame in frames[:120]:
         warm.process(t, k, frame)
     pipe = Pipeline(rig)
-    pairs, tracked, estimates = {}, {}, []
+    cpu, wall, tracked, estimates = {}, {}, {}, []
     with blas_threads(1):
         for t, k, frame in frames:
             active = pipe.tracker.active
-            start = time.perf_counter()
+            start_cpu, start_wall = time.thread_time(), time.perf_counter()
             estimates += pipe.process(t, k, frame)
-            elapsed = time.perf_counter() - start
             n = round(t * rig.fps)
-            pairs[n] = pairs.get(n, 0.0) + elapsed
+            cpu[n] = cpu.get(n, 0.0) + time.thread_time() - start_cpu
+            wall[n] = wall.get(n, 0.0) + time.perf_counter() - start_wall
             tracked[n] = tracked.get(n, True) and active
-    all_ms = np.array(list(pairs.values())) * 1e3
-    tracked_ms = np.array([pairs[n] for n in pairs if tracked[n]]) * 1e3
-    median = float(np.median(all_ms))
+    cpu_ms = np.array(list(cpu.values())) * 1e3
+    wall_ms = np.array(list(wall.values())) * 1e3
+    tracked_ms = np.array([cpu[n] for n in cpu if tracked[n]]) * 1e3
+    median = float(np.median(cpu_ms))
     return {
         'passed': bool(median <= TARGET_MS),
         'target_median_ms': TARGET_MS,
-        'frame_pairs': int(all_ms.size),
-        'all_median_ms': round(median, 3),
-        'all_mean_ms': round(float(all_ms.mean()), 3),
-        'all_p95_ms': round(float(np.percentile(all_ms, 95)), 3),
+        'frame_pairs': int(cpu_ms.size),
+        'cpu_median_ms': round(median, 3),
+        'cpu_mean_ms': round(float(cpu_ms.mean()), 3),
+        'cpu_p95_ms': round(float(np.percentile(cpu_ms, 95)), 3),
+        'tracked_cpu_median_ms': round(float(np.median(tracked_ms)), 3),
         'tracked_pairs': int(tracked_ms.size),
-        'tracked_median_ms': round(float(np.median(tracked_ms)), 3),
-        'tracked_p95_ms': round(float(np.percentile(tracked_ms, 95)), 3),
+        'wall_median_ms': round(float(np.median(wall_ms)), 3),
+        'wall_p95_ms': round(float(np.percentile(wall_ms, 95)), 3),
         'image_size': [rig.cameras[0].width, rig.cameras[0].height],
         'accuracy': accuracy(estimates, truth[0]),
     }
