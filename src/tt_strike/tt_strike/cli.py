@@ -53,10 +53,9 @@ def _vec(a):
 
 def strike_to_dict(pred, sol):
     """The output line of one ball: its prediction and (when there is a hit point) solution."""
-    out = {'status': 'no_hit_point', 'reason': pred.reason, 'hit': None, 'racket': None,
-           'ball_out': None, 'landing': None}
+    out = {'status': 'no_hit_point', 'reason': f'{pred.status}: {pred.reason}', 'hit': None,
+           'racket': None, 'ball_out': None, 'landing': None}
     if pred.status != 'ok':
-        out['reason'] = f'{pred.status}: {pred.reason}'
         return out
     out['hit'] = pred.hit.to_dict()
     out['status'], out['reason'] = sol.status, sol.reason

@@ -22,6 +22,7 @@ import collections
 import csv
 import json
 import pathlib
+import re
 import sys
 import time
 
@@ -70,8 +71,7 @@ def evaluate(states, serve, params, settings, hit_plane_x=-1.5):
             sol = solve(h, params, target_zone=zone, settings=settings)
             times.append(time.perf_counter() - t)
             if not sol.feasible:
-                reasons[sol.reason.split(' ')[0] + ' ' + sol.reason.split(' ')[1]
-                        if sol.reason.startswith(('racket', 'hit')) else sol.reason] += 1
+                reasons[re.sub(r'-?\d+(\.\d+)?', '#', sol.reason)] += 1   # numbers out
                 continue
             feasible += 1
             in_zone += sol.landing_zone == zone
