@@ -66,6 +66,13 @@ class Ros2Process:
             self.proc.wait()
 
 
+def error_lines(stderr):
+    """The lines of ``stderr`` written by tt, without the DDS library's own log lines (Fast DDS
+    logs e.g. ``[RTPS_TRANSPORT_SHM Error]`` when another process holds a shared-memory port)."""
+    return [line for line in stderr.splitlines()
+            if line.strip() and '\x1b[' not in line and 'RTPS_' not in line]
+
+
 def ros2(*args, timeout=60, env=None):
     """Run ``ros2 args`` to the end; (exit code, stdout, stderr)."""
     proc = Ros2Process(*args, env=env)

@@ -162,11 +162,11 @@ def topic_pub(args):
     wait_subs = args.wait_matching_subscriptions
     if wait_subs is None:
         wait_subs = 1 if times else 0
+    dict_to_message(values, cls, now=lambda: None)  # bad values fail before any DDS set-up
     with CliNode('pub') as cli:
         def build():
             return dict_to_message(values, cls, now=lambda: cli.node.get_clock().now().to_msg())
 
-        build()  # a bad value fails before anything is published
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=args.qos_depth,
                          reliability=RELIABILITY[args.qos_reliability],
                          durability=DURABILITY[args.qos_durability])
