@@ -205,3 +205,18 @@ def test_margin_is_the_distance_to_the_zone_edge():
     x0, x1, y0, y1 = zone_bounds(4, 1)
     # at the zone centre the nearest edge is half the zone's smaller side away
     assert sol.margin == pytest.approx(min(x1 - x0, y1 - y0) / 2, abs=5e-3)
+
+
+@pytest.mark.parametrize('hit', [
+    [-1.5, 0.2825, 0.6411, -2.1041, 0.6401, -0.2651, -34.9357, -120.575, -35.8475],
+    [-1.5, -0.3985, 0.5999, -2.0542, -0.6011, 0.7969, 32.7782, -112.8171, 7.3513],
+])
+def test_high_slow_ball_to_the_net_row(hit):
+    # Measured balls (DeepMind set) taken high and slow: the drag-free start lands right at
+    # the net line, where Newton used to stall.
+    hit = np.array(hit)
+    for zone in (1, 2, 3):
+        sol = solve(hit, PARAMS, target_zone=zone)
+        assert sol.status == 'ok', sol.reason
+        landing, clearance = fly(hit, sol.normal, sol.racket_velocity)
+        assert np.hypot(*(landing[:2] - zone_centre(zone, 1))) < 5e-3 and clearance > 0.0

@@ -285,16 +285,22 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
         return None, 0, 'target is not beyond the net from the hit point'
     goal = np.array([aim[0], aim[1], z_net_goal])
     out = np.zeros(11)
-    code = _shoot(s_hit, v, P, out)
-    if code != SHOT_OK:
-        # The drag-free guess may fall short of the net: start faster along the same line.
-        for scale in (1.2, 1.5, 2.0):
-            code = _shoot(s_hit, v * scale, P, out)
-            if code == SHOT_OK:
-                v = v * scale
-                break
-        else:
+    # The drag-free guess falls short under drag (and may land right at the net, where the
+    # residuals bend sharply): start from the first of a few faster shots along the same
+    # line that clears the net top, or else the first that lands at all.
+    start, code = None, SHOT_NO_LANDING
+    for scale in (1.0, 1.2, 1.5, 2.0):
+        code = _shoot(s_hit, v * scale, P, out)
+        if code == SHOT_OK and out[2] > NET_HEIGHT + r:
+            v = v * scale
+            break
+        if code == SHOT_OK and start is None:
+            start = scale
+    else:
+        if start is None:
             return None, 0, _SHOT_REASON[code]
+        v = v * start
+        _shoot(s_hit, v, P, out)
     f = out[:3] - goal
     jac = np.empty((3, 3))
     out_h = np.zeros(11)
