@@ -127,23 +127,19 @@ class StrikeNode(Node):
 
     def _check_parameters(self, params):
         values = {p.name: p.value for p in params}
+        lo = values.get('reach_z_min', self.get_parameter('reach_z_min').value)
+        hi = values.get('reach_z_max', self.get_parameter('reach_z_max').value)
+        if lo > hi:
+            return SetParametersResult(successful=False,
+                                       reason='reach_z_min must not exceed reach_z_max')
         if 'target_zone' in values or 'target_point' in values:
             zone = values.get('target_zone', self.get_parameter('target_zone').value)
             point = values.get('target_point', self.get_parameter('target_point').value)
             try:
-                target = self._target_from(zone, point)
+                self.target = self._target_from(zone, point)
             except ValueError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
-            self.target = target
             self.get_logger().info(f'target {self._target_text()}')
-        lo = values.get('reach_z_min', None)
-        hi = values.get('reach_z_max', None)
-        if lo is not None or hi is not None:
-            lo = self.get_parameter('reach_z_min').value if lo is None else lo
-            hi = self.get_parameter('reach_z_max').value if hi is None else hi
-            if lo > hi:
-                return SetParametersResult(successful=False,
-                                           reason='reach_z_min must not exceed reach_z_max')
         return SetParametersResult(successful=True)
 
     def on_target(self, msg):
