@@ -59,19 +59,20 @@ TOPICS = {'/ball/state': (BallState, state_record),
 class Collector:
     """Own context, node and executor; ``spin_once`` returns False so it chains in conditions."""
 
-    def __init__(self, image_topics=(), name='tt_collector'):
+    def __init__(self, image_topics=(), name='tt_collector', topics=tuple(TOPICS)):
         self.image_topics = tuple(image_topics)
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.records = {topic: [] for topic in TOPICS}
-        self.arrival = {topic: [] for topic in TOPICS}
+        self.records = {topic: [] for topic in topics}
+        self.arrival = {topic: [] for topic in topics}
         self.last_arrival = time.monotonic()
         # Best effort matches every publisher (reliable ones too); depth covers a burst.
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
-        for topic, (msg_type, convert) in TOPICS.items():
+        for topic in topics:
+            msg_type, convert = TOPICS[topic]
             self.node.create_subscription(msg_type, topic, self._callback(topic, convert), qos)
 
     def _callback(self, topic, convert):

@@ -28,9 +28,9 @@ def parse_args(argv):
     parser = argparse.ArgumentParser(prog='tt-demo', description=__doc__.splitlines()[0])
     parser.add_argument('--out', default='out/demo', help='output folder (default out/demo)')
     parser.add_argument('--balls', type=int, default=4, help='incoming balls (default 4)')
-    parser.add_argument('--rate', type=float, default=0.25,
-                        help='replay rate of the recording (default 0.25: two 150 fps '
-                             'cameras through Python nodes on a small machine)')
+    parser.add_argument('--rate', type=float, default=0.1,
+                        help='replay rate of the recording (default 0.1: two 150 fps '
+                             'cameras through Python nodes on a busy 2-core machine)')
     parser.add_argument('--target-zone', type=int, default=5,
                         help='zone 1..9 the strike aims at (default 5)')
     parser.add_argument('--hit-plane-x', type=float, default=-1.5,
