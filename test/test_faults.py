@@ -1,0 +1,93 @@
+"""Faults across processes: a node killed in the middle of a stream and started again, and the
+graph resumes (prediction_node and strike_node as `ros2 run` processes).
+
+The test node replays a stream of incoming-ball states on /ball/state (a ball in flight, as
+perception would publish it) and waits on conditions (messages arriving), never on sleeps.
+"""
+
+import os
+import uuid
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
+from tt_tools.procs import ProcessGroup, wait_until
+
+from tt_msgs.msg import BallState, StrikeCommand
+
+pytestmark = pytest.mark.graph
+
+
+class StateStream:
+    """Publishes BallStates of one flight (stamps from the node clock) and collects commands."""
+
+    def __init__(self, prefix):
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(f'faults_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.pub = self.node.create_publisher(BallState, f'{prefix}/ball/state',
+                                              qos_profile_sensor_data)
+        self.commands = []
+        self.node.create_subscription(StrikeCommand, f'{prefix}/strike/command',
+                                      self.commands.append, 100)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.state = np.array([1.2, 0.1, 0.35, -5.5, 0.2, 1.0, 0.0, 80.0, 0.0])
+        self.sent = 0
+
+    def publish_and_spin(self):
+        msg = BallState()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = 'table'
+        msg.track_id = self.sent // 50
+        s = self.state
+        msg.position.x, msg.position.y, msg.position.z = (float(v) for v in s[:3])
+        msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(v) for v in s[3:6])
+        msg.spin.x, msg.spin.y, msg.spin.z = (float(v) for v in s[6:9])
+        msg.covariance = list(np.diag([1e-6] * 3 + [1e-3] * 3 + [25.0] * 3).ravel())
+        self.pub.publish(msg)
+        self.sent += 1
+        self.executor.spin_once(timeout_sec=0.01)
+        return False
+
+    def close(self):
+        self.node.destroy_node()
+        self.executor.shutdown()
+        rclpy.try_shutdown(context=self.context)
+
+
+def test_prediction_node_killed_and_restarted_the_strikes_resume(tmp_path):
+    assert os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST'
+    prefix = f'/faults_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    remap = ['--ros-args', '-r', f'/ball/state:={prefix}/ball/state',
+             '-r', f'/ball/prediction:={prefix}/ball/prediction',
+             '-r', f'/strike/command:={prefix}/strike/command']
+    prediction = ['ros2', 'run', 'tt_prediction', 'prediction_node', *remap,
+                  '-p', 'stale_after_s:=0.0', '-p', 'uncertainty:=false']
+    stream = StateStream(prefix)
+    try:
+        with ProcessGroup(str(tmp_path)) as group:
+            group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', *remap])
+            first = group.start('prediction', prediction)
+            wait_until(lambda: stream.publish_and_spin() or len(stream.commands) >= 3, 120.0,
+                       'strike commands through a fresh prediction_node')
+            assert all(c.status for c in stream.commands)
+            first.kill()            # SIGKILL: no chance to clean up
+            first.wait(10.0)
+            group.procs.pop('prediction').log.close()
+            restart_ns = stream.node.get_clock().now().nanoseconds
+            group.start('prediction', prediction)
+
+            def fresh():
+                return sum(Time.from_msg(c.header.stamp).nanoseconds > restart_ns
+                           for c in stream.commands)
+            wait_until(lambda: stream.publish_and_spin() or fresh() >= 3, 120.0,
+                       'strike commands from states sent after prediction_node restarted')
+            assert group.procs['strike'].poll() is None, 'strike_node died with its input'
+            assert group.stop('prediction') in (0, -2, 130)
+            assert group.stop('strike') in (0, -2, 130)
+    finally:
+        stream.close()
