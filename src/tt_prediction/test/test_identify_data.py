@@ -193,7 +193,20 @@ def test_racket_contact_ends_the_track_and_rolling_is_cut():
 def test_interrupted_report_leaves_nothing_as_if_complete(tmp_path, monkeypatch):
     from tt_prediction.identify.pipeline import identify
     from tt_prediction.identify.synthetic import make_tracks
-    result = identify(make_tracks(4, ModelParams(), seed=5), folds=2)
+    rounds = []
+
+    def progress(total, label):
+        rounds.append([total, 0])
+
+        def tick():
+            rounds[-1][1] += 1
+        return tick
+    result = identify(make_tracks(4, ModelParams(), seed=5), folds=2, progress=progress)
+    # Each round's bar ends full: 2 folds x (reference + every effect tried in the round).
+    tried = [sum(1 for e in result['effects_tested'] if e.get('round') == r + 1)
+             for r in range(len(rounds))]
+    assert rounds and [t for t, _ in rounds] == [2 * (1 + n) for n in tried]
+    assert all(done == total for total, done in rounds)
 
     def broken(*_):
         raise RuntimeError('disk full')

@@ -15,14 +15,21 @@ from .report import write_outputs
 
 
 def _progress_factory(enabled):
+    """A progress bar per round of effect tests (on stderr), or None."""
     if not enabled:
         return None
+    bars = []
 
-    def make(total):
+    def make(total, label):
         from tqdm import tqdm
-        bar = tqdm(total=total, desc='tt-identify: cross-validation fits', unit='fit',
-                   file=sys.stderr)
+        if bars:
+            bars.pop().close()
+        bar = tqdm(total=total, desc=f'tt-identify: {label}, cross-validation fits',
+                   unit='fit', file=sys.stderr)
+        bars.append(bar)
         return lambda: bar.update(1)
+
+    make.close = lambda: bars and bars.pop().close()
     return make
 
 
@@ -41,11 +48,14 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.folds < 2:
         parser.error('--folds must be at least 2')
+    progress = _progress_factory(not args.no_progress)
     try:
         base = load_model(args.model)
         tracks = load(args.data, args.topic)
         result = identify(tracks, base, folds=args.folds, hit_plane_x=args.hit_plane_x,
-                          progress=_progress_factory(not args.no_progress))
+                          progress=progress)
+        if progress:
+            progress.close()
         write_outputs(result, args.out, args.data)
     except (DataError, ValueError) as exc:
         print(f'tt-identify: {exc}', file=sys.stderr)

@@ -47,8 +47,9 @@ def cross_validate(tracks, globals_, states, folds, max_nfev=20, progress=None):
         _, held_states = fitting.fit_pooled([tracks[i] for i in held], g,
                                             [states[i] for i in held], max_nfev=max_nfev,
                                             fit_globals=False)
+        P = g.packed()
         for i, x in zip(held, held_states, strict=True):
-            rms = fitting.fit_rms(tracks[i], x, g.packed(), g.spin_scale)
+            rms = fitting.fit_rms(tracks[i], x, P, g.spin_scale)
             m = int(tracks[i].mask.sum())
             sq += rms ** 2 * m
             n += m

@@ -89,8 +89,9 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
 
 
 def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nfev=20):
-    """Run the whole identification; ``progress(total)`` returns a callable ticked per fold
-    fit (a progress bar), or None. OpenBLAS runs on one thread meanwhile (see blas.py)."""
+    """Run the whole identification. ``progress(total, label)``, called at the start of each
+    round of effect tests, returns a callable ticked once per cross-validation fold fit of
+    the round (a progress bar), or None. OpenBLAS runs on one thread meanwhile (blas.py)."""
     with blas_threads(1):
         return _identify(tracks, base, folds, hit_plane_x, progress, max_nfev)
 
@@ -110,13 +111,13 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
     candidates = [(e, applicable(e, has_bounces, has_spin)) for e in LIBRARY]
-    n_test = sum(1 for _, reason in candidates if not reason)
-    tick = progress(folds * (2 + n_test + MAX_EFFECTS)) if progress else None
     tested = [{'name': e.name, 'mechanism': e.mechanism, 'tested': False, 'reason': reason,
                'params': {}, 'heldout_gain': 0.0} for e, reason in candidates if reason]
     current, best = [], (None, None, None, g_base, states)
     pool = [e for e, reason in candidates if not reason]
     for round_ in range(MAX_EFFECTS):
+        # The round's fold fits: the reference, then every effect of the pool.
+        tick = progress(folds * (1 + len(pool)), f'round {round_ + 1}') if progress else None
         # The reference gets the same fitting budget as each effect, so that a gain is the
         # effect's and not that of more iterations on the tracks' states.
         best = _refit(prepared, best, fold_of, max_nfev, tick)
