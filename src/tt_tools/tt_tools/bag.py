@@ -166,8 +166,8 @@ def add_arguments(bag_sub):
     p.add_argument('-o', '--output', help='bag directory (default rosbag2_<date>-<time>)')
     p.add_argument('-s', '--storage', choices=sorted(STORAGES), default='mcap',
                    help='storage format (default mcap)')
-    p.add_argument('--qos-depth', type=int, default=1000,
-                   help='subscription queue depth (default 1000)')
+    p.add_argument('--qos-depth', type=int, default=None,
+                   help='subscription history depth (default: keep all, nothing dropped)')
     p.set_defaults(func=bag_record)
 
     p = bag_sub.add_parser('play', help='replay a rosbag2 bag')

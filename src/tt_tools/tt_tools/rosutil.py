@@ -101,6 +101,8 @@ def qos_matching(publishers, reliability=None, durability=None, depth=10):
 
     Reliable only if all publishers offer reliable, transient-local only if all do (what
     ros2cli and rosbag2 choose); ``reliability`` / ``durability`` names override.
+    ``depth`` None: keep all (a slow reader then holds reliable publishers back rather than
+    losing their messages).
     """
     offered = [p.qos_profile for p in publishers]
     if reliability is None:
@@ -116,6 +118,8 @@ def qos_matching(publishers, reliability=None, durability=None, depth=10):
                else DurabilityPolicy.VOLATILE)
     else:
         dur = DURABILITY[durability]
+    if depth is None:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel, durability=dur)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
                       durability=dur)
 
