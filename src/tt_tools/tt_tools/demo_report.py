@@ -37,6 +37,7 @@ class BallResult:
     command: dict = None
     true_landing: np.ndarray = None
     true_landing_zone: int = 0
+    return_path: np.ndarray = None
 
 
 TIME_KEYS = ('t', 'hit_t', 'bounce_t')
@@ -85,9 +86,9 @@ def evaluate(truths, outputs, params):
         result.command = _latest(outputs['/strike/command'], t0, decision)
         cmd = result.command
         if cmd is not None and cmd['feasible']:
-            point, zone, half = landing_after_stroke(truth.hit_state, t_hit, cmd['normal'],
-                                                     cmd['racket_v'], params)
-            result.true_landing = point
+            point, zone, half, path = landing_after_stroke(
+                truth.hit_state, t_hit, cmd['normal'], cmd['racket_v'], params, path_points=60)
+            result.true_landing, result.return_path = point, path
             result.true_landing_zone = zone if half == 1 else 0
         results.append(result)
     return results
@@ -183,10 +184,13 @@ def plot(results, params, path):
             ax_top.plot(*cmd['landing_p'][:2], '*', color=c, ms=12)
             if r.true_landing is not None:
                 ax_top.plot(*r.true_landing[:2], '+', color=c, ms=12)
+            if r.return_path is not None and len(r.return_path):
+                ax_top.plot(r.return_path[:, 0], r.return_path[:, 1], '--', color=c, lw=1)
+                ax_side.plot(r.return_path[:, 0], r.return_path[:, 2], '--', color=c, lw=1)
     ax_top.set(xlabel='x (m)', ylabel='y (m)', aspect='equal',
-               title='top view: line truth, dots perceived, x predicted bounce, '
-                     'o predicted hit, arrow racket normal, * expected / + true landing')
-    ax_side.set(xlabel='x (m)', ylabel='z (m)', title='side view', ylim=(-0.05, 0.6))
+               title='top view: line truth, dots perceived, x predicted bounce, o predicted hit,\n'
+                     'arrow racket normal, dashed true return, * expected / + true landing')
+    ax_side.set(xlabel='x (m)', ylabel='z (m)', title='side view', ylim=(-0.05, 0.75))
     ax_top.legend(loc='upper right', fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -94,15 +94,24 @@ def demo_balls(count, hit_plane_x=-1.5, seed=7, gap=0.4, min_hit_height=0.1, par
     return truths
 
 
-def landing_after_stroke(hit_state, hit_time, racket_normal, racket_velocity, params):
-    """Where a ball hit with this racket really lands: first table contact (point, zone, half),
-    or (None, 0, 0) if it hits the net or misses the table. Eq. 7, then eq. 8 flight."""
+def landing_after_stroke(hit_state, hit_time, racket_normal, racket_velocity, params,
+                         path_points=0):
+    """Where a ball hit with this racket really lands: first table contact ``(point, zone,
+    half, path)``, with point None and zone, half 0 if it hits the net or misses the table.
+    Eq. 7, then eq. 8 flight; ``path`` holds ``path_points`` ball centres from the hit to the
+    stop (empty when 0)."""
     v_out, w_out = racket_rebound(hit_state[3:6], hit_state[6:9], np.asarray(racket_normal),
                                   np.asarray(racket_velocity), params)
     state = np.concatenate([hit_state[:3], v_out, w_out])
     events, _ = rollout(state, params, t0=hit_time, t_max=hit_time + 3.0, max_bounces=1)
     contact = events[-1]
+    path = np.empty((0, 3))
+    if path_points:
+        times = np.linspace(hit_time, contact.t, path_points)
+        _, samples = rollout(state, params, t0=hit_time, t_max=contact.t, max_bounces=1,
+                             sample_times=times)
+        path = samples[np.isfinite(samples[:, 0]), :3]
     if contact.kind != 'bounce':
-        return None, 0, 0
+        return None, 0, 0, path
     zone, half = table.zone_of(contact.state[0], contact.state[1])
-    return contact.state[:3].copy(), zone, half
+    return contact.state[:3].copy(), zone, half, path
