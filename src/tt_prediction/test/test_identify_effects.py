@@ -81,7 +81,7 @@ def test_clean_data_selects_nothing_through_the_command(tmp_path):
         assert (out / name).stat().st_size > 0
 
 
-@pytest.mark.slow   # ~20 s of CPU; the measured-spin cases above cover selection by default
+@pytest.mark.slow   # 14 s; the measured-spin cases above cover selection by default
 def test_planted_effect_is_found_with_unmeasured_spin():
     # The real sets' case: 9 unknowns per track, the spin estimated jointly. The fit must
     # reach the tracker noise (1.5 mm per axis) once the planted effect is in the model.
