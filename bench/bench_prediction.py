@@ -90,8 +90,9 @@ def cold_start():
     return times
 
 
-def node_latency():
-    """(p50, p99, received, sent, node's callback summary) of the latency in ms."""
+def node_latency(params=()):
+    """(p50, p99, received, sent, node's callback summary) of the latency in ms; params:
+    node parameters as 'name:=value'."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import qos_profile_sensor_data
@@ -105,7 +106,8 @@ def node_latency():
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     log = tempfile.TemporaryFile('w+')
     proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node', '--ros-args',
-                             *remap], env=env, stdout=log, stderr=subprocess.STDOUT)
+                             *remap, *(a for p in params for a in ('-p', p))], env=env,
+                            stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.context.Context()
     rclpy.init(context=context)
     node = rclpy.create_node(f'bench_{uuid.uuid4().hex[:6]}', context=context)
