@@ -213,12 +213,19 @@ class PredictionNode(Node):
         want_path = self._due(stamp_ns, self.last_path_ns,
                               self.get_parameter('path_rate_hz').value)
         step = self.get_parameter('path_step_s').value
-        bounced = (track.bounce_ns is not None
-                   and stamp_ns > track.bounce_ns + BOUNCE_MARGIN_S * 1e9)
+        margin_ns = BOUNCE_MARGIN_S * 1e9
+        near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
+        bounced = near and stamp_ns > track.bounce_ns + margin_ns
         # Times relative to the stamp inside the integrator (float64 keeps sub-ns resolution
         # there), added to the integer stamp in nanoseconds on output.
         pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced,
                        path_dt=step if want_path else None)
+        if near and not bounced and pred.status == 'no_bounce':
+            # Within the margin of the bounce the track expects, a state already rising from
+            # the table: it has bounced (the estimator's bounce is not exactly the model's).
+            bounced = True
+            pred = predict(state, self.packed, 0.0, plane_x, bounced=True,
+                           path_dt=step if want_path else None)
         if pred.status == 'invalid':
             self._drop(pred.reason)
             return
