@@ -1,12 +1,13 @@
 """Keep OpenBLAS to one thread while identifying.
 
-The stacked eq. 9 problem is solved by scipy's trust-region method with LSMR, which spends
-its time in norms and dot products of vectors of 10^4 to 10^5 residuals. OpenBLAS splits such
-a product over threads; on a machine whose cores are busy (2 cores shared by several jobs, as
-here) waking and joining the threads costs far more than the product: a 40-track baseline
-fit took 8.3 s with the default threads and 5.0 s with one. The thread count is a property of
-the loaded library, so it is set through its own C function, found among the libraries
-already mapped into the process (Linux), and restored on exit. Elsewhere this does nothing.
+Identification works on long vectors (10^4 to 10^5 residuals) and many small matrices.
+OpenBLAS splits a product over threads; on a machine whose cores are busy (2 cores shared by
+several jobs, as here) waking and joining the threads costs far more than the product: with
+the former solver (scipy's trust region with LSMR, all norms and dot products of residual
+vectors) a 40-track baseline fit took 8.3 s with the default threads and 5.0 s with one.
+The thread count is a property of the loaded library, so it is set through its own C
+function, found among the libraries already mapped into the process (Linux), and restored
+on exit. Elsewhere this does nothing.
 """
 
 import contextlib
