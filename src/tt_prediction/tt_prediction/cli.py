@@ -54,6 +54,24 @@ def parse_line(text, lineno, radius):
     return values[0], values[1:]
 
 
+def read_input(model_file, input_file, parse):
+    """The model (``model_file`` or the nominal one) and every non-blank input line parsed by
+    ``parse(line, lineno, radius)``, from ``input_file`` or stdin. Everything is read and
+    checked before any output, so a bad line leaves nothing half-written. Raises InputError
+    or ValueError with a one-line reason."""
+    params = load_model(model_file)
+    try:
+        if input_file:
+            with open(input_file) as f:
+                lines = f.readlines()
+        else:
+            lines = sys.stdin.readlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f'cannot read {input_file or "stdin"}: {exc}') from None
+    return params, [parse(line, i, params.radius)
+                    for i, line in enumerate(lines, start=1) if line.strip()]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
@@ -68,23 +86,8 @@ def main(argv=None):
         print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
         return 2
     try:
-        params = load_model(args.model)
-    except ValueError as exc:
-        print(f'tt-predict: {exc}', file=sys.stderr)
-        return 2
-    try:
-        if args.input:
-            with open(args.input) as f:
-                lines = f.readlines()
-        else:
-            lines = sys.stdin.readlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        print(f'tt-predict: cannot read {args.input or "stdin"}: {exc}', file=sys.stderr)
-        return 2
-    try:
-        states = [parse_line(line, i, params.radius)
-                  for i, line in enumerate(lines, start=1) if line.strip()]
-    except InputError as exc:
+        params, states = read_input(args.model, args.input, parse_line)
+    except ValueError as exc:                  # InputError is one
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     out = []

@@ -21,8 +21,7 @@ import math
 import sys
 
 import numpy as np
-from tt_prediction.cli import InputError, parse_line
-from tt_prediction.params import load_model
+from tt_prediction.cli import InputError, parse_line, read_input
 
 from .incoming import hit_point
 from .solver import StrikeSettings, resolve_target, solve
@@ -100,23 +99,8 @@ def main(argv=None):
                   f'{"" if name == "hit_plane_x" else " and positive"}', file=sys.stderr)
             return 2
     try:
-        params = load_model(args.model)
-    except ValueError as exc:
-        print(f'tt-strike: {exc}', file=sys.stderr)
-        return 2
-    try:
-        if args.input:
-            with open(args.input) as f:
-                lines = f.readlines()
-        else:
-            lines = sys.stdin.readlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        print(f'tt-strike: cannot read {args.input or "stdin"}: {exc}', file=sys.stderr)
-        return 2
-    try:
-        balls = [parse_strike_line(line, i, params.radius)
-                 for i, line in enumerate(lines, start=1) if line.strip()]
-    except InputError as exc:
+        params, balls = read_input(args.model, args.input, parse_strike_line)
+    except ValueError as exc:                  # InputError is one
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
     settings = StrikeSettings(net_clearance=args.net_clearance,
