@@ -87,7 +87,7 @@ def main(argv=None):
         return 2
     try:
         params, states = read_input(args.model, args.input, parse_line)
-    except ValueError as exc:                  # InputError is one
+    except ValueError as exc:                  # InputError is a ValueError
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     out = []

@@ -100,7 +100,7 @@ def main(argv=None):
             return 2
     try:
         params, balls = read_input(args.model, args.input, parse_strike_line)
-    except ValueError as exc:                  # InputError is one
+    except ValueError as exc:                  # InputError is a ValueError
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
     settings = StrikeSettings(net_clearance=args.net_clearance,
