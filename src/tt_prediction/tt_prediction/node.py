@@ -24,6 +24,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
 
+from .markers import add_marker
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
 from .uncertainty import predict_uncertainty
@@ -322,24 +323,10 @@ class PredictionNode(Node):
             self.pub_markers.publish(self._markers(msg, pred))
 
     def _markers(self, msg, pred):
-        frame = msg.header.frame_id or 'table'
         markers = MarkerArray()
 
         def marker(mid, kind, rgb, scale):
-            m = Marker()
-            m.header.stamp = msg.header.stamp
-            m.header.frame_id = frame
-            m.ns = 'ball_prediction'
-            m.id = mid
-            m.type = kind
-            m.action = Marker.ADD
-            m.pose.orientation.w = 1.0
-            m.scale.x = m.scale.y = m.scale.z = scale
-            m.color.r, m.color.g, m.color.b = rgb
-            m.color.a = 1.0
-            m.lifetime.nanosec = 500_000_000
-            markers.markers.append(m)
-            return m
+            return add_marker(markers, msg.header, 'ball_prediction', mid, kind, rgb, scale)
 
         ball = marker(0, Marker.SPHERE, (1.0, 0.55, 0.0), 2 * self.params.radius)
         ball.pose.position = msg.position

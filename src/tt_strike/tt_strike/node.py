@@ -21,6 +21,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_prediction.markers import add_marker
 from tt_prediction.params import load_model
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -248,24 +249,11 @@ class StrikeNode(Node):
         return out
 
     def _markers(self, msg, sol):
-        frame = msg.header.frame_id or 'table'
         markers = MarkerArray()
 
         def marker(mid, kind, rgb, scale):
-            m = Marker()
-            m.header.stamp = msg.header.stamp
-            m.header.frame_id = frame
-            m.ns = 'strike'
-            m.id = mid
-            m.type = kind
-            m.action = Marker.ADD
-            m.pose.orientation.w = 1.0
-            m.scale.x, m.scale.y, m.scale.z = scale
-            m.color.r, m.color.g, m.color.b = rgb
-            m.color.a = 1.0 if sol.feasible else 0.4
-            m.lifetime.nanosec = 500_000_000
-            markers.markers.append(m)
-            return m
+            return add_marker(markers, msg.header, 'strike', mid, kind, rgb, scale,
+                              alpha=1.0 if sol.feasible else 0.4)
 
         red = (0.8, 0.1, 0.1)
         racket = marker(0, Marker.CYLINDER, red, (0.15, 0.15, 0.01))   # blade, z = normal
