@@ -215,8 +215,10 @@ def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
                 lines.append(proc.stderr.readline())
         assert any('publishing' in line for line in lines), lines
         proc.send_signal(sig)
-        assert proc.wait(timeout=15) == 0
-        assert 'Traceback' not in proc.stderr.read()
+        code = proc.wait(timeout=15)
+        err = proc.stderr.read()
+        assert code == 0, err[-2000:]
+        assert 'Traceback' not in err
     finally:
         if proc.poll() is None:
             proc.kill()

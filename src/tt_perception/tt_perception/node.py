@@ -363,6 +363,11 @@ def main(args=None):
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A signal shuts the context down first (rclpy's handler); a callback that was
+        # running then fails on the dead context: that is the shutdown, not an error.
+        if rclpy.ok():
+            raise
     finally:
         if executor is not None:
             executor.shutdown()
