@@ -125,6 +125,11 @@ def node_latency(params=()):
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
     thread.start()
+    # The publishing loop and the receiving executor share this process's GIL: with Python's
+    # default 5 ms switch interval the receiver could wait for the publisher to let go, and
+    # the harness, not the node, would set the tail. The node sets the same interval.
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(2e-4)
     try:
         deadline = time.monotonic() + 120
         while pub.get_subscription_count() == 0 or node.count_publishers(
@@ -161,6 +166,7 @@ def node_latency(params=()):
         lat = np.array(latencies)
         result = [float(np.median(lat)), float(np.percentile(lat, 99)), len(lat), sent]
     finally:
+        sys.setswitchinterval(switch_interval)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
