@@ -40,14 +40,24 @@ if [ ! -x "$venv/bin/python" ]; then
   "$py" -m venv "$venv"
 fi
 stamp="$venv/.tt-requirements.sha256"
+UV_VERSION=0.13.9
 want=$(cat requirements.txt constraints.txt | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   say 'installing pinned requirements'
-  "$venv/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip
-  if ! "$venv/bin/python" -m pip install -q --disable-pip-version-check \
-      -r requirements.txt -c constraints.txt > "$venv/pip-install.log" 2>&1; then
+  pip=("$venv/bin/python" -m pip install -q --disable-pip-version-check)
+  "${pip[@]}" --upgrade pip > "$venv/pip-install.log" 2>&1 || true
+  # uv installs the ~200 pinned wheels in seconds where pip takes minutes (with the system's
+  # certificates, as pip); pip is the fallback wherever uv cannot (no wheel, no route).
+  installed=0
+  if "${pip[@]}" "uv==$UV_VERSION" >> "$venv/pip-install.log" 2>&1 \
+      && "$venv/bin/uv" pip install --quiet --system-certs --python "$venv/bin/python" \
+         -r requirements.txt -c constraints.txt >> "$venv/pip-install.log" 2>&1; then
+    installed=1
+  fi
+  if [ "$installed" = 0 ] && ! "${pip[@]}" -r requirements.txt -c constraints.txt \
+      >> "$venv/pip-install.log" 2>&1; then
     grep -v 'is neither a file nor a directory' "$venv/pip-install.log" >&2 || true
-    say "error: pip install failed (full log: $venv/pip-install.log)"; exit 1
+    say "error: installing the requirements failed (full log: $venv/pip-install.log)"; exit 1
   fi
   echo "$want" > "$stamp"
 fi
