@@ -69,6 +69,7 @@ class Collector:
         self.records = {topic: [] for topic in topics}
         self.arrival = {topic: [] for topic in topics}
         self.last_arrival = time.monotonic()
+        self._count = 0                  # messages taken, all topics
         # Best effort matches every publisher (reliable ones too); depth covers a burst.
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
         for topic in topics:
@@ -77,6 +78,7 @@ class Collector:
 
     def _callback(self, topic, convert):
         def callback(msg):
+            self._count += 1
             now = time.monotonic()
             self.records[topic].append(convert(msg))
             self.arrival[topic].append(time.time())
@@ -84,7 +86,13 @@ class Collector:
         return callback
 
     def spin_once(self, timeout=0.02):
+        """Take every message waiting (waiting up to ``timeout`` s for the first one), so a
+        caller polling a condition never falls behind the graph. Returns False."""
         self.executor.spin_once(timeout_sec=timeout)
+        taken = -1
+        while taken != self._count:
+            taken = self._count
+            self.executor.spin_once(timeout_sec=0.0)
         return False
 
     def graph_ready(self, image_topics):

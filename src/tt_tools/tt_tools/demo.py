@@ -28,8 +28,8 @@ def parse_args(argv):
     parser = argparse.ArgumentParser(prog='tt-demo', description=__doc__.splitlines()[0])
     parser.add_argument('--out', default='out/demo', help='output folder (default out/demo)')
     parser.add_argument('--balls', type=int, default=4, help='incoming balls (default 4)')
-    parser.add_argument('--rate', type=float, default=0.1,
-                        help='replay rate of the recording (default 0.1: two 150 fps '
+    parser.add_argument('--rate', type=float, default=0.15,
+                        help='replay rate of the recording (default 0.15: two 150 fps '
                              'cameras through Python nodes on a busy 2-core machine)')
     parser.add_argument('--target-zone', type=int, default=5,
                         help='zone 1..9 the strike aims at (default 5)')
@@ -41,6 +41,14 @@ def parse_args(argv):
     if args.balls < 1 or args.rate <= 0.0:
         parser.error('--balls must be >= 1 and --rate > 0')
     return args
+
+
+STARTED = time.monotonic()
+
+
+def say(text):
+    """A progress line with the time since the demo started."""
+    print(f'tt-demo [{time.monotonic() - STARTED:5.1f} s]: {text}', flush=True)
 
 
 def run_graph(recording, session, log_dir, args, collector):
@@ -59,7 +67,7 @@ def run_graph(recording, session, log_dir, args, collector):
         wait_until(lambda: collector.spin_once() or collector.graph_ready(image_topics), 90.0,
                    'the three nodes and the recorder to join the graph (see '
                    f'{log_dir}/*.log)')
-        print(f'tt-demo: nodes up; replaying {recording.name} at rate {args.rate}', flush=True)
+        say(f'nodes up; replaying {recording.name} at rate {args.rate}')
         player = group.start('play', ['ros2', 'bag', 'play', str(recording / 'bag'),
                                       '--rate', str(args.rate), '--wait-for-subscribers'])
         wait_until(lambda: collector.spin_once() or player.poll() is not None, 600.0,
@@ -67,9 +75,11 @@ def run_graph(recording, session, log_dir, args, collector):
         if player.returncode != 0:
             raise RuntimeError(f'ros2 bag play failed (exit {player.returncode}), see '
                                f'{log_dir}/play.log')
+        say('replay done')
         # The last frames are still in the pipeline: wait until the outputs go quiet.
         wait_until(lambda: collector.spin_once() or collector.quiet_for(2.0), 60.0,
                    'the graph to finish the last ball')
+        say('outputs quiet; stopping the recorder and the nodes')
         for name in ('record', 'strike', 'prediction', 'perception'):
             code = group.stop(name)
             if code not in (0, -2, 130):
@@ -87,7 +97,6 @@ def show_bag_info(session):
 
 def main(argv=None):
     args = parse_args(argv)
-    start = time.monotonic()
     os.environ.update(ros_env(large_messages=True))
     out = pathlib.Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -104,12 +113,13 @@ def main(argv=None):
         run_graph(rec.path, session, log_dir, args, collector)
         outputs = demo_report.shift_times(collector.outputs(), recording.STAMP_BASE_S)
     results = demo_report.evaluate(rec.truths, outputs, rec.params)
+    say('nodes stopped; the balls against the truth:')
     print(demo_report.format_table(results, args.target_zone))
     png = demo_report.plot(results, rec.params, out / 'demo.png')
-    print(f'tt-demo: wrote {png}')
-    print(f'tt-demo: session bag {session} (ros2 bag play {session}):')
+    say(f'wrote {png}')
+    say(f'session bag {session} (ros2 bag play {session}):')
     code = show_bag_info(session)
-    print(f'tt-demo: done in {time.monotonic() - start:.0f} s')
+    say('done')
     return 0 if code == 0 and demo_report.all_balls_seen(results) else 1
 
 
