@@ -40,6 +40,24 @@ def test_cmake_paths_point_at_this_interpreter_and_rewrite_is_idempotent(tmp_pat
     assert untouched.read_text() == 'set(X 1)\n'
 
 
+def test_another_venvs_paths_are_rewritten_without_touching_a_hard_linked_original(tmp_path):
+    # uv links the wheels' files from its cache: a path patched for one venv must not leak
+    # into the cache (and from there into the next venv).
+    other = ('INTERFACE_INCLUDE_DIRECTORIES "/tmp/old/.pyenv/include/python3.12;'
+             '/tmp/old/.venv/lib/python3.12/site-packages/numpy/_core/include"\n')
+    cached = tmp_path / 'cache.cmake'
+    cached.write_text(other)
+    target = tmp_path / 'venv' / 'share' / 'std_msgs' / 'cmake' / 'export.cmake'
+    target.parent.mkdir(parents=True)
+    os.link(cached, target)
+
+    _patch(tmp_path / 'venv')
+    text = target.read_text()
+    assert '/tmp/old' not in text
+    assert f'"{sysconfig.get_paths()["include"]};{numpy.get_include()}"' in text
+    assert cached.read_text() == other
+
+
 def test_installed_wheels_have_no_stale_include_paths():
     share = pathlib.Path(sys.prefix, 'share')
     stale = [p for p in share.rglob('*.cmake') if '/opt/python/' in p.read_text()]
