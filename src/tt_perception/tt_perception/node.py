@@ -16,18 +16,16 @@ is reported (and a device reopened) while the node keeps running.
 
 import math
 import queue
-import signal
 import threading
 import time
 
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.spin import spin_node
 
 from tt_msgs.msg import BallState
 
@@ -346,34 +344,8 @@ class PerceptionNode(Node):
         return super().destroy_node()
 
 
-def _terminate(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(args=None):
-    rclpy.init(args=args)
-    # SIGTERM ends the node as Ctrl-C does: out of spin, node destroyed, context shut down.
-    signal.signal(signal.SIGTERM, _terminate)
-    node = None
-    executor = None
-    try:
-        executor = SingleThreadedExecutor()      # before the node says it is ready
-        node = PerceptionNode()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # A signal shuts the context down first (rclpy's handler); a callback that was
-        # running then fails on the dead context: that is the shutdown, not an error.
-        if rclpy.ok():
-            raise
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(PerceptionNode, args)
 
 
 if __name__ == '__main__':

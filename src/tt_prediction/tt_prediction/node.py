@@ -16,8 +16,6 @@ from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
@@ -27,6 +25,7 @@ from tt_msgs.msg import BallPrediction, BallState
 from .markers import add_marker
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
+from .spin import spin_node
 from .uncertainty import predict_uncertainty
 
 BOUNCE_MARGIN_S = 0.02
@@ -346,31 +345,18 @@ class PredictionNode(Node):
         return super().destroy_node()
 
 
+def _started_node():
+    node = PredictionNode()
+    gc.freeze()     # start-up objects out of the collector's way: shorter pauses
+    return node
+
+
 def main(args=None):
     # The workers hold the GIL for their Python parts; a short switch interval
     # (default 5 ms) lets a state's callback take it back within a fraction of a millisecond.
     sys.setswitchinterval(2e-4)
-    rclpy.init(args=args)
-    executor = SingleThreadedExecutor()    # before the node: a signal may come at any time
-    node = None
-    try:
-        node = PredictionNode()
-        gc.freeze()     # start-up objects out of the collector's way: shorter pauses
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT or SIGTERM while starting (compiling the kernels) shuts the context down
-        # first; what fails after that is the shutdown, not an error.
-        if rclpy.ok():
-            raise
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.get_logger().info(node.work_summary())
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(_started_node, args,
+              on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 
 if __name__ == '__main__':

@@ -17,12 +17,11 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.markers import add_marker
 from tt_prediction.params import load_model
+from tt_prediction.spin import spin_node
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
@@ -271,25 +270,7 @@ class StrikeNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    executor = SingleThreadedExecutor()    # before the node: a signal may come at any time
-    node = None
-    try:
-        node = StrikeNode()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT or SIGTERM while starting (compiling the kernels) shuts the context down
-        # first; what fails after that is the shutdown, not an error.
-        if rclpy.ok():
-            raise
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(StrikeNode, args)
 
 
 if __name__ == '__main__':
