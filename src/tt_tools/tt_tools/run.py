@@ -24,27 +24,33 @@ def package_prefix(package, ament_prefix_path=None):
     return None
 
 
-def executables(package, ament_prefix_path=None):
-    """Sorted names of the executables installed in ``<prefix>/lib/<package>``."""
+def _is_executable(path):
+    return os.path.isfile(path) and os.access(path, os.X_OK)
+
+
+def _libdir(package, ament_prefix_path):
+    """``<prefix>/lib/<package>`` of an indexed package; RunError when the package is unknown."""
     prefix = package_prefix(package, ament_prefix_path)
     if prefix is None:
         raise RunError(f"Package '{package}' not found")
-    libdir = os.path.join(prefix, 'lib', package)
+    return os.path.join(prefix, 'lib', package)
+
+
+def executables(package, ament_prefix_path=None):
+    """Sorted names of the executables installed in ``<prefix>/lib/<package>``."""
+    libdir = _libdir(package, ament_prefix_path)
     if not os.path.isdir(libdir):
         return []
     return sorted(name for name in os.listdir(libdir)
-                  if os.path.isfile(os.path.join(libdir, name))
-                  and os.access(os.path.join(libdir, name), os.X_OK))
+                  if _is_executable(os.path.join(libdir, name)))
 
 
 def find_executable(package, executable, ament_prefix_path=None):
     """Absolute path of ``executable`` of ``package``; RunError with a one-line reason."""
-    prefix = package_prefix(package, ament_prefix_path)
-    if prefix is None:
-        raise RunError(f"Package '{package}' not found")
-    if executable not in executables(package, ament_prefix_path):
+    path = os.path.join(_libdir(package, ament_prefix_path), executable)
+    if os.path.basename(executable) != executable or not _is_executable(path):
         raise RunError(f"No executable '{executable}' found in package '{package}'")
-    return os.path.join(prefix, 'lib', package, executable)
+    return path
 
 
 def main(args):
