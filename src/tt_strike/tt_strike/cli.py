@@ -22,6 +22,7 @@ import sys
 
 import numpy as np
 from tt_prediction.cli import InputError, parse_line, read_input
+from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .incoming import hit_point
 from .solver import StrikeSettings, resolve_target, solve
@@ -82,7 +83,7 @@ def main(argv=None):
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
-    parser.add_argument('--hit-plane-x', type=float, default=-1.5, metavar='X',
+    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X, metavar='X',
                         help='hitting plane x, m (default: %(default)s)')
     parser.add_argument('--net-clearance', type=float, default=defaults.net_clearance,
                         metavar='M', help='gap between ball and net top at x = 0, m '

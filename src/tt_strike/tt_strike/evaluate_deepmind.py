@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 from tt_prediction.params import ModelParams, load_model
+from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .incoming import hit_point
 from .robust import monte_carlo_in_zone, noise_covariance
@@ -51,7 +52,7 @@ def load_states(path):
     return states, np.array(serve), away
 
 
-def evaluate(states, serve, params, settings, hit_plane_x=-1.5):
+def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
     """Per-zone counts: the table's rows and the skipped incoming balls by reason."""
     skipped = collections.Counter()
     hits = []
@@ -130,7 +131,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--data', default=str(DEFAULT_DATA), help='deepmind_states folder')
     parser.add_argument('--model', default=None, help='model.yaml (default: nominal model)')
-    parser.add_argument('--hit-plane-x', type=float, default=-1.5)
+    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X)
     parser.add_argument('--net-clearance', type=float, default=StrikeSettings.net_clearance)
     parser.add_argument('--limit', type=int, default=0, help='use every k-th state only '
                         'so that about this many remain (0: all)')

@@ -9,10 +9,10 @@ prediction restarts from just after it.
 import math
 
 from tt_prediction.integrate import rollout
-from tt_prediction.predict import predict
+from tt_prediction.predict import DEFAULT_HIT_PLANE_X, T_MAX, predict
 
 
-def hit_point(state, params, t0=0.0, hit_plane_x=-1.5, serve=False):
+def hit_point(state, params, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, serve=False):
     """Prediction of the ball at ``state`` (9,) at time ``t0`` (s) to the hitting plane.
 
     Returns the ``tt_prediction.predict.Prediction`` (status 'ok' with ``.hit``, else the
@@ -21,7 +21,7 @@ def hit_point(state, params, t0=0.0, hit_plane_x=-1.5, serve=False):
     """
     pred = predict(state, params, t0=t0, hit_plane_x=hit_plane_x)
     if serve and pred.status == 'wrong_half' and pred.bounce is not None:
-        events, _ = rollout(state, params, t0=t0, t_max=t0 + 3.0, stop_at_net=True,
+        events, _ = rollout(state, params, t0=t0, t_max=t0 + T_MAX, stop_at_net=True,
                             max_bounces=1)
         last = events[-1]
         if last.kind == 'bounce' and last.state[0] > 0.0 and math.isfinite(last.t):
