@@ -29,8 +29,6 @@ from .detect import BallDetector, DetectorConfig
 from .estimator import BallFilter, FilterConfig
 from .triangulate import refine, triangulate
 
-GRAVITY = np.array([0.0, 0.0, -9.8])
-
 
 @dataclasses.dataclass
 class BallEstimate:
@@ -147,6 +145,7 @@ class Tracker:
         self.filter_config = filter_config or FilterConfig()
         self.config = config or TrackerConfig()
         self.period = 1.0 / fps
+        self.gravity = np.array([0.0, 0.0, -self.params.gravity])
         self.filter = None
         self.track_id = 0
         self.updates = 0
@@ -163,7 +162,7 @@ class Tracker:
             return None
         dt = t - self.filter.t
         x = self.filter.x
-        return x[:3] + x[3:6] * dt + 0.5 * GRAVITY * dt * dt
+        return x[:3] + x[3:6] * dt + 0.5 * self.gravity * dt * dt
 
     def end(self):
         self.filter = None
@@ -211,7 +210,7 @@ class Tracker:
         self.seeds = [s for s in self.seeds if 0.0 < t - s[0] <= 2.5 * self.period]
         for (t1, X1, R1), (X2, R2) in itertools.product(self.seeds, points):
             dt = t - t1
-            v = (X2 - X1) / dt + 0.5 * GRAVITY * dt       # velocity at t (constant accel.)
+            v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
             if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
                 self.track_id += 1
                 self.filter = BallFilter(self.params, self.filter_config)
