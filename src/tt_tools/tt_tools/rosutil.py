@@ -88,6 +88,11 @@ class CliNode:
         self.close()
 
 
+def full_topic_name(topic):
+    """``topic`` with a leading '/' (names on the command line may be given without one)."""
+    return topic if topic.startswith('/') else '/' + topic
+
+
 def topic_type(node, topic):
     """The type string of ``topic`` in the graph ('pkg/msg/Type'), or None if not seen yet."""
     for name, types in node.get_topic_names_and_types():

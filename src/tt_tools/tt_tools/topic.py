@@ -16,11 +16,14 @@ from tt_tools.introspect import (
     parse_yaml_values,
 )
 from tt_tools.rate import format_stats, rate_stats
-from tt_tools.rosutil import DURABILITY, RELIABILITY, CliNode, qos_matching, topic_type
-
-
-def _full_name(topic):
-    return topic if topic.startswith('/') else '/' + topic
+from tt_tools.rosutil import (
+    DURABILITY,
+    RELIABILITY,
+    CliNode,
+    full_topic_name,
+    qos_matching,
+    topic_type,
+)
 
 
 def _write(text):
@@ -71,7 +74,7 @@ def node_list(args):
 
 
 def topic_info(args):
-    topic = _full_name(args.topic)
+    topic = full_topic_name(args.topic)
     with CliNode('topic_info') as cli:
         def known():
             # The type, and with -v the names of the endpoints' nodes, which come a bit later.
@@ -97,7 +100,7 @@ def topic_info(args):
 
 
 def topic_echo(args):
-    topic = _full_name(args.topic)
+    topic = full_topic_name(args.topic)
     if args.type:
         import_message_type(args.type)  # a bad type fails before any waiting
     with CliNode('echo') as cli:
@@ -126,7 +129,7 @@ def topic_echo(args):
 
 
 def topic_hz(args):
-    topic = _full_name(args.topic)
+    topic = full_topic_name(args.topic)
     with CliNode('hz') as cli:
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None:
@@ -155,7 +158,7 @@ def topic_hz(args):
 
 
 def topic_pub(args):
-    topic = _full_name(args.topic)
+    topic = full_topic_name(args.topic)
     cls = import_message_type(args.type)
     values = parse_yaml_values(args.values)
     times = 1 if args.once else args.times
