@@ -3,7 +3,8 @@
 Frames and units: ``table`` frame, p in m, v in m/s, w (spin) in rad/s, time in s.
 
 Prediction integrates the flight model (MODEL.md eq. 8, ``tt_prediction.model
-.flight_derivative``) by RK4 and propagates the covariance with the Jacobian of eq. 8,
+.flight_derivative``) with tt_prediction.integrate's RK4 step and propagates the covariance
+with the Jacobian of eq. 8,
 
     d(a)/dv = -k_D (|u| I + u u^T / |u|) + k_M [w]x,     d(a)/dw = -k_M [u]x,
 
@@ -24,7 +25,8 @@ import dataclasses
 import math
 
 import numpy as np
-from tt_prediction.model import flight_derivative, table_rebound_inplace
+from tt_prediction.integrate import _rk4 as rk4_step
+from tt_prediction.model import table_rebound_inplace
 from tt_prediction.params import ModelParams
 from tt_prediction.table import HALF_LENGTH, HALF_WIDTH
 
@@ -75,7 +77,7 @@ class BallFilter:
         self.P = np.eye(9)
         self.t = 0.0
         self.bounces = 0
-        self._k = [np.empty(9) for _ in range(4)]
+        self._work = [np.empty(9) for _ in range(5)]     # RK4 stages and sub-step state
         self._q_cache = {}
 
     def start(self, t, position, velocity, position_cov, velocity_cov):
@@ -100,15 +102,6 @@ class BallFilter:
         F[3:6, 6:9] = -self.k_lift * skew(u)
         return F
 
-    def _rk4(self, s, h):
-        k1, k2, k3, k4 = self._k
-        P = self.P_model
-        flight_derivative(s, P, k1)
-        flight_derivative(s + 0.5 * h * k1, P, k2)
-        flight_derivative(s + 0.5 * h * k2, P, k3)
-        flight_derivative(s + h * k3, P, k4)
-        return s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
     def _process_noise(self, h):
         """Q (9, 9) of white unmodelled acceleration and a spin random walk over ``h`` s."""
         Q = self._q_cache.get(h)
@@ -127,7 +120,9 @@ class BallFilter:
         """Advance state and covariance by ``h`` s of flight."""
         F = self._jacobian(self.x) * h
         Phi = _EYE9 + F + 0.5 * F @ F
-        self.x = self._rk4(self.x, h)
+        x = np.empty(9)
+        rk4_step(self.x, h, self.P_model, x, *self._work)    # eq. 8
+        self.x = x
         self.P = Phi @ self.P @ Phi.T + self._process_noise(h)
 
     def _bounce(self):
