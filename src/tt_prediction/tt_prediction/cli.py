@@ -26,14 +26,19 @@ class InputError(ValueError):
     """A bad input line; the message names it."""
 
 
-def parse_line(text, lineno, radius):
-    """(t, state9) of one JSON line; raises InputError naming the line."""
+def parse_object(text, lineno):
+    """The JSON object of one line (a dict); raises InputError naming the line."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f'line {lineno}: not valid JSON: {exc.msg}') from None
     if not isinstance(data, dict):
         raise InputError(f'line {lineno}: expected a JSON object with t, p, v, w')
+    return data
+
+
+def parse_state(data, lineno, radius):
+    """(t, state9) of one line's JSON object ``data``; raises InputError naming the line."""
     values = []
     for key, size in FIELDS:
         if key not in data:
@@ -52,6 +57,11 @@ def parse_line(text, lineno, radius):
     if reason:
         raise InputError(f'line {lineno}: {reason}')
     return values[0], values[1:]
+
+
+def parse_line(text, lineno, radius):
+    """(t, state9) of one JSON line; raises InputError naming the line."""
+    return parse_state(parse_object(text, lineno), lineno, radius)
 
 
 def read_input(model_file, input_file, parse):

@@ -21,7 +21,7 @@ import math
 import sys
 
 import numpy as np
-from tt_prediction.cli import InputError, parse_line, read_input
+from tt_prediction.cli import InputError, parse_object, parse_state, read_input
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .incoming import hit_point
@@ -30,8 +30,8 @@ from .solver import StrikeSettings, resolve_target, solve
 
 def parse_strike_line(text, lineno, radius):
     """(t, state9, zone or None, point or None, covariance or None) of one input line."""
-    t, state = parse_line(text, lineno, radius)
-    data = json.loads(text)
+    data = parse_object(text, lineno)
+    t, state = parse_state(data, lineno, radius)
     zone, point = data.get('target_zone'), data.get('target_point')
     try:
         resolve_target(zone, point)
