@@ -21,33 +21,10 @@ WARMUP_S = 10.0
 MAX_GROWTH_MB = 5.0
 
 
-def _rss_mb(pid):
-    """Resident memory of a process and its children started by ros2 run, MB."""
-    total = 0.0
-    for p in [pid] + _children(pid):
-        try:
-            with open(f'/proc/{p}/status') as f:
-                for line in f:
-                    if line.startswith('VmRSS:'):
-                        total += int(line.split()[1]) / 1024.0
-        except OSError:
-            pass
-    return total
-
-
-def _children(pid):
-    try:
-        with open(f'/proc/{pid}/task/{pid}/children') as f:
-            kids = [int(k) for k in f.read().split()]
-    except OSError:
-        return []
-    return kids + [g for k in kids for g in _children(k)]
-
-
 def run():
     from rclpy.qos import qos_profile_sensor_data
     from tt_tools.collector import Collector
-    from tt_tools.procs import ProcessGroup, wait_until
+    from tt_tools.procs import ProcessGroup, rss_mb, wait_until
 
     from tt_msgs.msg import BallState
 
@@ -96,7 +73,7 @@ def run():
             sent += 1
             if now >= next_sample:
                 for name, proc in procs.items():
-                    samples[name].append((now - start, _rss_mb(proc.pid)))
+                    samples[name].append((now - start, rss_mb(proc.pid)))
                 next_sample += 1.0
         counts_during = {t: len(r) for t, r in collector.outputs().items()}
         alive = {name: proc.poll() is None for name, proc in procs.items()}

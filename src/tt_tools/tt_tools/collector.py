@@ -95,11 +95,11 @@ class Collector:
             self.executor.spin_once(timeout_sec=0.0)
         return False
 
-    def graph_ready(self, image_topics):
+    def graph_ready(self):
         """True once perception listens to every camera topic, prediction and strike listen to
         their inputs, and the recorder listens to the outputs."""
         node = self.node
-        return (all(node.count_subscribers(t) >= 1 for t in image_topics)
+        return (all(node.count_subscribers(t) >= 1 for t in self.image_topics)
                 and node.count_subscribers('/ball/state') >= 3
                 and node.count_subscribers('/ball/prediction') >= 3
                 and node.count_subscribers('/strike/command') >= 2

@@ -63,8 +63,7 @@ def run_graph(recording, session, log_dir, args, collector):
         group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
                                '-p', f'target_zone:={args.target_zone}'])
         group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
-        image_topics = collector.image_topics
-        wait_until(lambda: collector.spin_once() or collector.graph_ready(image_topics), 90.0,
+        wait_until(lambda: collector.spin_once() or collector.graph_ready(), 90.0,
                    'the three nodes and the recorder to join the graph (see '
                    f'{log_dir}/*.log)')
         say(f'nodes up; replaying {recording.name} at rate {args.rate}')

@@ -83,6 +83,18 @@ class ProcessGroup:
         self.stop_all()
 
 
+def rss_mb(pid):
+    """Resident memory (VmRSS) of process ``pid``, MB; 0 when it is gone."""
+    try:
+        with open(f'/proc/{pid}/status') as f:
+            for line in f:
+                if line.startswith('VmRSS:'):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
 def wait_until(condition, timeout, what, poll=0.05):
     """Poll ``condition()`` until true; raise TimeoutError naming ``what`` after ``timeout``."""
     deadline = time.monotonic() + timeout

@@ -25,7 +25,7 @@ from tt_prediction.params import ModelParams
 
 from .scenario import Ball, demo_balls, fly
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 STAMP_BASE_S = 1_700_000_000
 """Recording time zero as a ROS time (s): stamps are this plus the scene time."""
 
@@ -55,22 +55,22 @@ def write_bag(bag_dir, rig, frames):
     """Write ``frames`` ((t, camera_index, frame) in time order, frame BGR uint8 or None for
     a dropped frame) as Image + CameraInfo per camera into a new MCAP bag at ``bag_dir``.
     Returns the number of images written."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
+
+    from .bagfile import BagWriter
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
     Image = typestore.types['sensor_msgs/msg/Image']
     Header = typestore.types['std_msgs/msg/Header']
     Time = typestore.types['builtin_interfaces/msg/Time']
     count = 0
-    with Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    writer = BagWriter(bag_dir, 'mcap')
+    try:
         connections = []
         for cam in rig.cameras:
             info_topic = cam.source.rsplit('/', 1)[0] + '/camera_info'
-            connections.append((
-                writer.add_connection(cam.source, Image.__msgtype__, typestore=typestore),
-                writer.add_connection(info_topic, 'sensor_msgs/msg/CameraInfo',
-                                      typestore=typestore)))
+            connections.append((writer.add_topic(cam.source, Image.__msgtype__),
+                                writer.add_topic(info_topic, 'sensor_msgs/msg/CameraInfo')))
         for t, k, frame in frames:
             if frame is None:
                 continue
@@ -88,6 +88,8 @@ def write_bag(bag_dir, rig, frames):
                          typestore.serialize_cdr(_camera_info(typestore, cam, header),
                                                  'sensor_msgs/msg/CameraInfo'))
             count += 1
+    finally:
+        writer.close()
     return count
 
 

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from tt_prediction.integrate import rollout
-from tt_prediction.model import racket_rebound
 from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+from tt_strike.solver import forward
 
 from tt_prediction import table
 
@@ -45,19 +46,14 @@ class Truth:
 
 
 def fly(ball, params, hit_plane_x):
-    """True flight of ``ball`` to the plane ``x = hit_plane_x``; None if it does not get there
-    after exactly one bounce on the robot's half."""
-    events, _ = rollout(ball.launch_state, params, t0=ball.launch_time,
-                        t_max=ball.launch_time + 3.0,
-                        plane_x=hit_plane_x, max_bounces=2)
-    bounces = [e for e in events if e.kind == 'bounce']
-    if events[-1].kind != 'plane' or len(bounces) != 1:
+    """True flight of ``ball`` to the plane ``x = hit_plane_x``; None unless the prediction
+    says ``ok`` (exactly one bounce, on the robot's half, then the plane)."""
+    pred = predict(ball.launch_state, params, t0=ball.launch_time, hit_plane_x=hit_plane_x)
+    if pred.status != 'ok':
         return None
-    zone, half = table.zone_of(bounces[0].state[0], bounces[0].state[1])
-    if half != -1:
-        return None
-    return Truth(ball, bounces[0].t, bounces[0].state[:3].copy(), zone, half,
-                 events[-1].t, events[-1].state.copy())
+    bounce, hit = pred.bounce, pred.hit
+    return Truth(ball, bounce.t, np.asarray(bounce.p, dtype=float), bounce.zone, bounce.half,
+                 hit.t, np.concatenate([hit.p, hit.v, hit.w]))
 
 
 def demo_balls(count, hit_plane_x=-1.5, seed=7, gap=0.4, min_hit_height=0.1, params=None):
@@ -96,22 +92,20 @@ def demo_balls(count, hit_plane_x=-1.5, seed=7, gap=0.4, min_hit_height=0.1, par
 
 def landing_after_stroke(hit_state, hit_time, racket_normal, racket_velocity, params,
                          path_points=0):
-    """Where a ball hit with this racket really lands: first table contact ``(point, zone,
-    half, path)``, with point None and zone, half 0 if it hits the net or misses the table.
-    Eq. 7, then eq. 8 flight; ``path`` holds ``path_points`` ball centres from the hit to the
-    stop (empty when 0)."""
-    v_out, w_out = racket_rebound(hit_state[3:6], hit_state[6:9], np.asarray(racket_normal),
-                                  np.asarray(racket_velocity), params)
-    state = np.concatenate([hit_state[:3], v_out, w_out])
-    events, _ = rollout(state, params, t0=hit_time, t_max=hit_time + 3.0, max_bounces=1)
-    contact = events[-1]
+    """Where a ball hit with this racket really lands (tt_strike's forward model: eq. 7, then
+    the flight with the net): ``(point, zone, half, path)``, point None and zone, half 0 if it
+    hits the net or misses the table; ``path`` holds ``path_points`` ball centres from the hit
+    to the landing (empty when 0 or when it does not land)."""
+    stroke = forward(hit_state, racket_normal, racket_velocity, params)
+    point = stroke['landing']
+    if point is None:
+        return None, 0, 0, np.empty((0, 3))
+    zone, half = table.zone_of(point[0], point[1])
     path = np.empty((0, 3))
     if path_points:
-        times = np.linspace(hit_time, contact.t, path_points)
-        _, samples = rollout(state, params, t0=hit_time, t_max=contact.t, max_bounces=1,
-                             sample_times=times)
+        state = np.concatenate([hit_state[:3], stroke['v_out'], stroke['w_out']])
+        t_land = hit_time + stroke['flight_time']
+        _, samples = rollout(state, params, t0=hit_time, t_max=t_land, max_bounces=1,
+                             sample_times=np.linspace(hit_time, t_land, path_points))
         path = samples[np.isfinite(samples[:, 0]), :3]
-    if contact.kind != 'bounce':
-        return None, 0, 0, path
-    zone, half = table.zone_of(contact.state[0], contact.state[1])
-    return contact.state[:3].copy(), zone, half, path
+    return point, zone, half, path
