@@ -78,6 +78,16 @@ def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     assert expect in str(err.value) and '\n' not in str(err.value)
 
 
+def test_rig_with_too_few_cameras_is_a_one_line_error(tmp_path):
+    path = tmp_path / 'rig.yaml'
+    synth.make_rig(str(tmp_path))
+    _edit(path, lambda d: d.update(cameras=d['cameras'][:1]))
+    assert len(load_rig(str(path)).cameras) == 1
+    with pytest.raises(CalibrationError) as err:
+        load_rig(str(path), min_cameras=2)
+    assert 'needs at least 2 cameras, has 1' in str(err.value) and '\n' not in str(err.value)
+
+
 def _edit(path, fn):
     data = yaml.safe_load(path.read_text())
     fn(data)

@@ -175,10 +175,11 @@ class Rig:
     path: str = ''
 
 
-def load_rig(path):
+def load_rig(path, min_cameras=1):
     """Read and validate a rig file (DESIGN.md) and its camera_info files -> :class:`Rig`.
 
-    Raises :class:`CalibrationError` with one line naming the file and the field at fault.
+    Raises :class:`CalibrationError` with one line naming the file and the field at fault,
+    or when the rig has fewer than ``min_cameras`` cameras.
     """
     data = _read_yaml(path, 'rig')
     base = os.path.dirname(os.path.abspath(path))
@@ -222,6 +223,9 @@ def load_rig(path):
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
                               R, t, source=source, time_offset=offset,
                               info_file=str(entry['camera_info'])))
+    if len(cameras) < min_cameras:
+        raise CalibrationError(f'rig {path}: needs at least {min_cameras} cameras, has '
+                               f'{len(cameras)}')
     names = [c.name for c in cameras]
     if len(set(names)) != len(names):
         raise CalibrationError(f'rig {path}: camera names are not unique: {names}')

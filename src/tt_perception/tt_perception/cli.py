@@ -170,10 +170,7 @@ def main(argv=None):
         print(f'tt-perceive: output bag {args.out_bag} already exists', file=sys.stderr)
         return 1
     try:
-        rig = load_rig(args.rig)
-        if len(rig.cameras) < 2:
-            raise CalibrationError(f'rig {args.rig}: needs at least two cameras, has '
-                                   f'{len(rig.cameras)}')
+        rig = load_rig(args.rig, min_cameras=2)
     except CalibrationError as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 2

@@ -141,10 +141,7 @@ class PerceptionNode(Node):
             self.get_logger().error('parameter rig_file is empty: no cameras, no state')
             return
         try:
-            rig = load_rig(rig_file)
-            if len(rig.cameras) < 2:
-                raise CalibrationError(f'rig {rig_file}: needs two cameras or more, has '
-                                       f'{len(rig.cameras)}')
+            rig = load_rig(rig_file, min_cameras=2)
         except CalibrationError as exc:
             self.get_logger().error(f'{exc}; no state will be published')
             return

@@ -125,8 +125,9 @@ class Matcher:
         for x in da:
             if not db:
                 break
-            j = int(np.argmin([np.hypot(*(y[:2] - x[:2])) for y in db]))
-            if np.hypot(*(db[j][:2] - x[:2])) < 0.1:       # normalised units (~6 degrees)
+            gaps = [np.hypot(*(y[:2] - x[:2])) for y in db]
+            j = int(np.argmin(gaps))
+            if gaps[j] < 0.1:       # normalised units (~6 degrees)
                 out.append(x + frac * (db[j] - x))
         return out
 
