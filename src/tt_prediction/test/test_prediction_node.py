@@ -20,6 +20,7 @@ from tt_prediction.integrate import rollout
 from tt_prediction.node import PredictionNode
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
+from tt_prediction.spin import EXECUTOR_ENV, make_executor
 import yaml
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -144,6 +145,29 @@ def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
     assert path.poses[-1].pose.position.x >= -1.5
 
 
+def test_a_prediction_carries_nothing_over_from_the_one_before(graph):
+    # A full prediction (bounce, hit, propagated uncertainty), then a ball of another track
+    # that flies wide of the table: no bounce, no hit, every area 0 (off the table).
+    t0 = graph.node.get_clock().now().nanoseconds
+    publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000, track_id=7),
+                  lambda: graph.predictions and any(graph.predictions[-1].hit_covariance),
+                  'a prediction with its uncertainty')
+    n = len(graph.predictions)
+    wide = [1.6, 1.5, 0.3, -6.0, 0.0, 1.5, 0.0, 0.0, 0.0]            # 0.74 m beside the table
+    assert predict(wide).bounce is None and predict(wide).hit is None
+    graph.pub.publish(graph.state(wide, track_id=8))
+    graph.spin_until(lambda: len(graph.predictions) > n, 10.0, 'the wide ball')
+    out = graph.predictions[-1]
+    assert out.track_id == 8 and out.status == predict(wide).status
+    assert not out.bounce_valid and not out.hit_valid
+    assert ns(out.bounce_time) == 0 and ns(out.hit_time) == 0
+    for v in (out.bounce_point, out.hit_point, out.hit_velocity, out.hit_spin):
+        assert (v.x, v.y, v.z) == (0.0, 0.0, 0.0)
+    assert out.bounce_zone == 0 and out.bounce_half == 0
+    assert list(out.zone_probabilities) == [1.0] + [0.0] * 9
+    assert not any(out.hit_covariance) and out.hit_time_std == 0.0
+
+
 def test_bad_and_stale_states_publish_nothing(graph):
     now = graph.node.get_clock().now().nanoseconds
     bad = [
@@ -204,9 +228,10 @@ def test_a_bad_model_file_stops_the_node_with_a_one_line_reason(tmp_path):
         Graph(overrides=[rclpy.parameter.Parameter('model_file', value=str(model))])
 
 
+@pytest.mark.parametrize('executor', ['events', 'single'])
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
-def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
-    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+def test_the_node_process_shuts_down_cleanly_on_a_signal(sig, executor):
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', EXECUTOR_ENV: executor}
     proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node'], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -224,6 +249,25 @@ def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
             proc.wait()
     assert proc.returncode == 0, rest
     assert 'Traceback' not in rest
+
+
+def test_the_executor_is_chosen_by_name_and_a_bad_name_is_one_line():
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=[])
+    try:
+        assert isinstance(make_executor('single', context), SingleThreadedExecutor)
+        events = make_executor('events', context)
+        assert type(events).__name__ in ('EventsExecutor', 'SingleThreadedExecutor')
+        with pytest.raises(ValueError, match="TT_EXECUTOR='multi' is not one of: events, "
+                                             'single'):
+            make_executor('multi', context)
+    finally:
+        rclpy.try_shutdown(context=context)
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', EXECUTOR_ENV: 'multi'}
+    out = subprocess.run([sys.executable, '-m', 'tt_prediction.node'], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0 and 'Traceback' not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].endswith('is not one of: events, single')
 
 
 def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):

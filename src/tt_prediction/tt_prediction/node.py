@@ -35,8 +35,15 @@ MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each)."""
 
 
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
 def _time(ns):
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def _set_time(msg, ns):
+    msg.sec, msg.nanosec = int(ns // 1_000_000_000), int(ns % 1_000_000_000)
 
 
 def _point(p):
@@ -143,6 +150,7 @@ class PredictionNode(Node):
         predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
         predict(warm, self.params, path_dt=0.02)
         self.packed = self.params.packed()
+        self.out = BallPrediction()
         self.n_bad_covariance = 0
         self.uncertainty_worker = _LatestWorker('uncertainty', self._propagate)
         self.path_worker = _LatestWorker('path', self._publish_path)
@@ -237,15 +245,22 @@ class PredictionNode(Node):
                 track.bounce = pred.bounce
                 track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
         out = self._prediction_msg(msg, stamp_ns, pred, track, plane_x)
-        self._add_uncertainty(out, msg, state, stamp_ns, track, plane_x, bounced)
+        request = self._add_uncertainty(out, msg, state, stamp_ns, track, plane_x, bounced)
         self.pub.publish(out)
         self.n_predicted += 1
+        if request is not None:         # after the publish: the prediction goes out first
+            self.uncertainty_worker.submit(request)
         if want_path:
             self.last_path_ns = stamp_ns
             self.path_worker.submit((msg, stamp_ns, pred, step))
 
     def _prediction_msg(self, msg, stamp_ns, pred, track, plane_x):
-        out = BallPrediction()
+        """Fill the node's one BallPrediction (every field, each time) and return it.
+
+        One message reused: rclpy serialises it in publish(), and building a new one (its
+        nested headers, times, points and arrays) costs more than the prediction itself.
+        """
+        out = self.out
         out.header.stamp = msg.header.stamp
         out.header.frame_id = msg.header.frame_id or 'table'
         out.track_id = msg.track_id
@@ -255,42 +270,51 @@ class PredictionNode(Node):
             bounce, bounce_ns = pred.bounce, stamp_ns + round(pred.bounce.t * 1e9)
         else:
             bounce, bounce_ns = track.bounce, track.bounce_ns     # the bounce already past
+        out.bounce_valid = bounce is not None
         if bounce is not None:
-            out.bounce_valid = True
-            out.bounce_time = _time(bounce_ns)
-            out.bounce_point = _point(bounce.p)
+            _set_time(out.bounce_time, bounce_ns)
+            _set_vec(out.bounce_point, bounce.p)
             out.bounce_zone = bounce.zone
             out.bounce_half = bounce.half
-        if pred.hit is not None:
-            out.hit_valid = True
-            out.hit_time = _time(stamp_ns + round(pred.hit.t * 1e9))
-            out.hit_point = _point(pred.hit.p)
-            _set_vec(out.hit_velocity, pred.hit.v)
-            _set_vec(out.hit_spin, pred.hit.w)
+        else:
+            _set_time(out.bounce_time, 0)
+            _set_vec(out.bounce_point, _ZERO3)
+            out.bounce_zone = 0
+            out.bounce_half = 0
+        hit = pred.hit
+        out.hit_valid = hit is not None
+        _set_time(out.hit_time, stamp_ns + round(hit.t * 1e9) if hit is not None else 0)
+        _set_vec(out.hit_point, hit.p if hit is not None else _ZERO3)
+        _set_vec(out.hit_velocity, hit.v if hit is not None else _ZERO3)
+        _set_vec(out.hit_spin, hit.w if hit is not None else _ZERO3)
         return out
 
     def _add_uncertainty(self, out, msg, state, stamp_ns, track, plane_x, bounced):
+        """Zone probabilities and hit covariance of ``out`` from the track's last propagation;
+        returns the request for a new propagation when one is due, else None."""
         unc = None
+        request = None
         if self.get_parameter('uncertainty').value:
             unc = track.uncertainty
             if self._due(stamp_ns, track.uncertainty_ns,
                          self.get_parameter('uncertainty_rate_hz').value):
                 track.uncertainty_ns = stamp_ns
-                self.uncertainty_worker.submit((track, state, np.array(msg.covariance), plane_x,
-                                                bounced))
+                request = (track, state, np.array(msg.covariance), plane_x, bounced)
+        out.hit_covariance[:] = 0.0
+        out.hit_time_std = 0.0
+        out.zone_probabilities[:] = 0.0
         if unc is not None:
-            out.zone_probabilities = unc.zone_probabilities.tolist()
+            out.zone_probabilities[:] = unc.zone_probabilities
             out.zone_probabilities_half = int(unc.zone_half)
-            out.hit_covariance = unc.hit_covariance.ravel().tolist()
+            out.hit_covariance[:] = unc.hit_covariance.ravel()
             out.hit_time_std = float(unc.hit_time_std)
         elif out.bounce_valid:
-            probs = [0.0] * 10
-            probs[out.bounce_zone] = 1.0
-            out.zone_probabilities = probs
+            out.zone_probabilities[out.bounce_zone] = 1.0
             out.zone_probabilities_half = out.bounce_half
         else:
-            out.zone_probabilities = [1.0] + [0.0] * 9
+            out.zone_probabilities[0] = 1.0
             out.zone_probabilities_half = -1
+        return request
 
     def _propagate(self, request):
         """Uncertainty worker: the track's zone probabilities and hit covariance."""
