@@ -168,6 +168,29 @@ def test_a_prediction_carries_nothing_over_from_the_one_before(graph):
     assert not any(out.hit_covariance) and out.hit_time_std == 0.0
 
 
+def test_each_path_has_the_poses_of_its_own_flight():
+    # A long flight, then a short one (the ball already near the plane), then the long one
+    # again: every path has the poses of its prediction, none left over from the one before.
+    g = Graph(overrides=[rclpy.parameter.Parameter('path_rate_hz', value=0.0)])
+    try:
+        near = [-1.0, 0.0, 0.3, -6.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        balls = [GOOD, near, GOOD]
+        t0 = g.node.get_clock().now().nanoseconds
+        for k, ball in enumerate(balls):
+            g.pub.publish(g.state(ball, stamp_ns=t0 + k * 1_000_000, track_id=k))
+            g.spin_until(lambda k=k: len(g.paths) > k, 10.0, f'path {k}')
+        for ball, path in zip(balls, g.paths, strict=True):
+            expected = predict(ball, path_dt=0.02).path
+            got = [(q.pose.position.x, q.pose.position.y, q.pose.position.z) for q in path.poses]
+            assert len(got) == len(expected)
+            np.testing.assert_allclose(got, expected, atol=1e-12)
+            stamps = [ns(q.header.stamp) - ns(path.header.stamp) for q in path.poses]
+            np.testing.assert_allclose(stamps, np.arange(len(got)) * 20_000_000, atol=1)
+        assert len(g.paths[1].poses) < len(g.paths[0].poses)
+    finally:
+        g.close()
+
+
 def test_bad_and_stale_states_publish_nothing(graph):
     now = graph.node.get_clock().now().nanoseconds
     bad = [
