@@ -16,9 +16,10 @@
 - ``node_latency_ms``: prediction_node in its own process on a core of its own (``taskset``),
   BallStates published at 500 Hz for 8 s from this process (pinned to the other core) and
   stamped with the time of publishing, latency = arrival of the BallPrediction - its stamp
-  (= the state's stamp); p50 and p99 (<= 2 ms). ``node_latency_unpinned_ms``: the same with
-  both processes left to the scheduler, reported, no target (docs/prediction.md: why the
-  robot gives the node a core).
+  (= the state's stamp); p50 and p99 (<= 2 ms). ``node_latency_floor_ms``: the same harness
+  and pinning against ``echo_node.py``, which answers without predicting: what the platform
+  costs in this run. ``node_latency_unpinned_ms``: prediction_node with both processes left
+  to the scheduler. The last two are reported, without a target (docs/prediction.md).
 Runs in about a minute. ``python bench/run_all.py --only prediction`` or this file directly.
 """
 
@@ -93,12 +94,16 @@ def cold_start():
     return times
 
 
-def node_latency(params=(), cpus=None):
+ECHO_NODE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'echo_node.py')
+
+
+def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
     """(p50, p99, received, sent, node's callback summary) of the latency in ms.
 
     ``params``: node parameters as 'name:=value'. ``cpus``: None, the scheduler places both
     processes; else (node core, harness core): the node runs under ``taskset -c`` on the
     first, this process's publishing and receiving threads are pinned to the second.
+    ``node``: the node's command after the interpreter (``(ECHO_NODE,)``: the floor).
     """
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
@@ -113,7 +118,7 @@ def node_latency(params=(), cpus=None):
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     taskset = [] if cpus is None else ['taskset', '-c', str(cpus[0])]
     log = tempfile.TemporaryFile('w+')
-    proc = subprocess.Popen([*taskset, sys.executable, '-m', 'tt_prediction.node',
+    proc = subprocess.Popen([*taskset, sys.executable, *node,
                              '--ros-args', *remap, *(a for p in params for a in ('-p', p))],
                             env=env, stdout=log, stderr=subprocess.STDOUT)
     affinity = os.sched_getaffinity(0)
@@ -236,6 +241,7 @@ def run():
     cold, warm = cold_start()
     cores = node_cores()
     p50, p99, received, sent, callback = node_latency(cpus=cores)
+    floor = node_latency(cpus=cores, node=(ECHO_NODE,))
     free = node_latency()
     result = {
         'single_us': {'median': round(float(np.median(single)), 1),
@@ -258,6 +264,8 @@ def run():
         'node_latency_ms': {'p50': round(p50, 3), 'p99': round(p99, 3), 'rate_hz': NODE_RATE_HZ,
                             'received': received, 'sent': sent, 'node_callback': callback,
                             'cores': {'node': cores[0], 'harness': cores[1]} if cores else None},
+        'node_latency_floor_ms': {'p50': round(floor[0], 3), 'p99': round(floor[1], 3),
+                                  'received': floor[2], 'sent': floor[3]},
         'node_latency_unpinned_ms': {'p50': round(free[0], 3), 'p99': round(free[1], 3),
                                      'received': free[2], 'sent': free[3],
                                      'node_callback': free[4]},
