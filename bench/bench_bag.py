@@ -22,7 +22,7 @@ from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
 from tt_tools.bagfile import BagWriter, open_bag
-from tt_tools.procs import ros_env
+from tt_tools.procs import ros_env, rss_mb
 
 from tt_msgs.msg import BallState
 
@@ -39,14 +39,6 @@ def _writer_rate(tmp, msgtype, data, n):
         writer.write(conn, 10**18 + i * 1000, data)
     writer.close()
     return n / (time.perf_counter() - start)
-
-
-def _rss_mb(pid):
-    with open(f'/proc/{pid}/status') as f:
-        for line in f:
-            if line.startswith('VmRSS:'):
-                return int(line.split()[1]) / 1024
-    return float('nan')
 
 
 def _flood(tmp):
@@ -80,8 +72,8 @@ def _flood(tmp):
         while time.monotonic() - start < FLOOD_S:
             executor.spin_once(timeout_sec=0.01)
             if 'early' not in rss and time.monotonic() - start > 1.0:
-                rss['early'] = _rss_mb(rec.pid)
-        rss['late'] = _rss_mb(rec.pid)
+                rss['early'] = rss_mb(rec.pid)
+        rss['late'] = rss_mb(rec.pid)
         pub.wait_for_all_acked(Duration(seconds=10))
         rec.send_signal(signal.SIGINT)
         rec.wait(60)
