@@ -4,7 +4,7 @@ place for every tt node (ROS glue).
 The executor is rclpy's C++ events executor (``rclpy.experimental.EventsExecutor``, in rclpy
 since Jazzy 7.1.4) where it exists: it takes a message from the middleware to its callback
 without rebuilding a Python wait set on every wake-up as ``SingleThreadedExecutor`` does,
-about 1 ms off the p99 of a state-to-prediction hop at 500 Hz on a 2-core machine
+0.5-1.2 ms off the p99 of a state-to-prediction hop at 500 Hz on a 2-core machine
 (docs/prediction.md). ``TT_EXECUTOR=single`` in the environment selects
 ``SingleThreadedExecutor``.
 """
