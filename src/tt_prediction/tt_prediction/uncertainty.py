@@ -24,7 +24,6 @@ import dataclasses
 
 import numpy as np
 
-from .params import I_RADIUS, ModelParams
 from .predict import DEFAULT_HIT_PLANE_X, OK, predict_batch
 from .table import HALF_LENGTH, HALF_WIDTH, ZONE_LENGTH, ZONE_WIDTH
 
@@ -100,11 +99,8 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
     the landing of a ball leaving the racket (zone probabilities on the opponent's half;
     no hit). Raises ValueError for a bad covariance.
     """
-    params = ModelParams() if params is None else params
-    radius = params.radius if isinstance(params, ModelParams) else float(params[I_RADIUS])
     points, weights = sigma_points(state9, cov)
-    over = (np.abs(points[:, 0]) <= HALF_LENGTH) & (np.abs(points[:, 1]) <= HALF_WIDTH)
-    points[:, 2] = np.where(over, np.maximum(points[:, 2], radius), points[:, 2])
+    # predict_batch lifts the points under the table's surface on to it.
     batch = predict_batch(points, params, t0, hit_plane_x, bounced=bounced, outgoing=outgoing,
                           parallel=False, validate=False)
     # Hit point.
