@@ -13,13 +13,12 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .predict import T_MAX, Contact, Hit, Prediction
+from .integrate import ROLL_SPEED
+from .predict import DEFAULT_HIT_PLANE_X, T_MAX, Contact, Hit, Prediction
 from .table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT, TABLE_HEIGHT, zone_of
 
 RTOL = 1e-9
 ATOL = 1e-12
-ROLL_SPEED = 0.05
-"""Normal speed after a bounce below which the ball rolls, m/s (as the integrator)."""
 
 
 def flight_rhs(params):
@@ -125,7 +124,7 @@ def reference_events(state9, params, t0=0.0, plane_x=math.nan, max_bounces=2):
         s = after
 
 
-def reference_predict(state9, params, t0=0.0, hit_plane_x=-1.5):
+def reference_predict(state9, params, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X):
     """:func:`tt_prediction.predict.predict` for a valid state, by the reference integrator.
 
     Classifies the events in plain Python: ok, net, no_bounce, miss, wrong_half,
