@@ -23,10 +23,9 @@ RATE = 0.25
 def run():
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rosbags.rosbag2 import Reader
-    from sensor_msgs.msg import CameraInfo, Image
     from tt_tools.collector import Collector, stamp_s
     from tt_tools.procs import ProcessGroup, ros_env, wait_until
-    from tt_tools.recording import STAMP_BASE_S, ensure_recording
+    from tt_tools.recording import STAMP_BASE_S, ensure_recording, replay_publishers
 
     from tt_msgs.msg import StrikeCommand
 
@@ -49,12 +48,7 @@ def run():
         group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
                                    '--ros-args', '-p', 'stale_after_s:=0.0'])
         group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node'])
-        pubs = {}
-        for topic in rec.image_topics:
-            base = topic.rsplit('/', 1)[0]
-            pubs[topic] = node.create_publisher(Image, topic, 10)
-            pubs[base + '/camera_info'] = node.create_publisher(CameraInfo,
-                                                                base + '/camera_info', 10)
+        pubs = replay_publishers(node, rec.image_topics)
         wait_until(lambda: collector.spin_once() or (
             all(p.get_subscription_count() > 0 for p in pubs.values())
             and node.count_publishers('/strike/command') > 0

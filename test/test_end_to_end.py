@@ -17,12 +17,11 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
-from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.node import PerceptionNode
 from tt_prediction.node import PredictionNode
 from tt_strike.node import StrikeNode
 from tt_tools.collector import TOPICS
-from tt_tools.recording import STAMP_BASE_S, ensure_recording
+from tt_tools.recording import STAMP_BASE_S, ensure_recording, info_topic, replay_publishers
 
 from tt_prediction import table
 from tt_tools import demo_report
@@ -55,10 +54,9 @@ def _replay(recording):
     for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers',
                   '/strike/command', '/strike/target'):
         remap += ['-r', f'{topic}:={prefix}{topic}']
-    for topic in recording.image_topics:
-        base = topic.rsplit('/', 1)[0]
-        remap += ['-r', f'{topic}:={prefix}{topic}',
-                  '-r', f'{base}/camera_info:={prefix}{base}/camera_info']
+    for image_topic in recording.image_topics:
+        for topic in (image_topic, info_topic(image_topic)):
+            remap += ['-r', f'{topic}:={prefix}{topic}']
     context = rclpy.context.Context()
     rclpy.init(context=context)
     executor = SingleThreadedExecutor(context=context)
@@ -82,12 +80,7 @@ def _replay(recording):
                 msg_type, prefix + topic,
                 lambda msg, records=outputs[topic], convert=convert: records.append(
                     convert(msg)), qos)
-        publishers = {}
-        for topic in recording.image_topics:
-            base = topic.rsplit('/', 1)[0]
-            publishers[topic] = feeder.create_publisher(Image, prefix + topic, 10)
-            publishers[base + '/camera_info'] = feeder.create_publisher(
-                CameraInfo, prefix + base + '/camera_info', 10)
+        publishers = replay_publishers(feeder, recording.image_topics, prefix)
         _spin_until(executor, lambda: all(p.get_subscription_count() > 0
                                           for p in publishers.values()), 10.0, 'discovery')
         with Reader(recording.path / 'bag') as reader:

@@ -38,6 +38,26 @@ class Recording:
     image_topics: tuple
 
 
+def info_topic(image_topic):
+    """The CameraInfo topic beside a camera's image topic (``/cam0/image_raw`` ->
+    ``/cam0/camera_info``), as perception_node subscribes it."""
+    return image_topic.rsplit('/', 1)[0] + '/camera_info'
+
+
+def replay_publishers(node, image_topics, prefix=''):
+    """Publishers on the rclpy ``node`` to replay a recording's bag: Image on each of
+    ``image_topics`` and CameraInfo beside it, named ``prefix`` + the bag's topic and keyed by
+    the bag's topic (they publish the bag's serialized messages as they are)."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    publishers = {}
+    for topic in image_topics:
+        publishers[topic] = node.create_publisher(Image, prefix + topic, 10)
+        info = info_topic(topic)
+        publishers[info] = node.create_publisher(CameraInfo, prefix + info, 10)
+    return publishers
+
+
 def _camera_info(typestore, cam, header):
     """sensor_msgs/CameraInfo of a tt_perception Camera (plumb-bob, no rectification)."""
     CameraInfo = typestore.types['sensor_msgs/msg/CameraInfo']
@@ -68,9 +88,9 @@ def write_bag(bag_dir, rig, frames):
     try:
         connections = []
         for cam in rig.cameras:
-            info_topic = cam.source.rsplit('/', 1)[0] + '/camera_info'
             connections.append((writer.add_topic(cam.source, Image.__msgtype__),
-                                writer.add_topic(info_topic, 'sensor_msgs/msg/CameraInfo')))
+                                writer.add_topic(info_topic(cam.source),
+                                                 'sensor_msgs/msg/CameraInfo')))
         for t, k, frame in frames:
             if frame is None:
                 continue
