@@ -99,7 +99,7 @@ def estimate_offsets(rig, colour):
     return notes
 
 
-def run(rig, frames, pipeline):
+def run(frames, pipeline):
     """All estimates of the pipeline over ``frames``, and the first error met per camera."""
     estimates, errors = [], {}
     t_ref = None
@@ -188,7 +188,7 @@ def main(argv=None):
         pipeline = Pipeline(rig, params=params,
                             detector_config=DetectorConfig(colour=args.colour))
         frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
-        estimates, errors = run(rig, frames, pipeline)
+        estimates, errors = run(frames, pipeline)
     except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
