@@ -116,32 +116,28 @@ def landing_ensemble(hit_state, covariance, normal, racket_velocity, params, n=E
     return out
 
 
-def _inside(points, zone):
+def in_zone_probability(points, zone):
+    """Share of the landing points (n, 2), m (:func:`landing_ensemble`; NaN a miss) inside
+    ``zone`` (1..9, opponent's half): the in-zone probability, 0..1."""
     x0, x1, y0, y1 = zone_bounds(zone, 1)
     x, y = points[:, 0], points[:, 1]
-    return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    return float(np.mean((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)))
 
 
-def in_zone_probability(hit_state, covariance, normal, racket_velocity, params, zone,
-                        n=ENSEMBLE_SIZE):
-    """Probability that the stroke lands in ``zone`` (1..9, opponent's half), 0..1."""
-    pts = landing_ensemble(hit_state, covariance, normal, racket_velocity, params, n)
-    return float(np.mean(_inside(pts, zone)))
-
-
-def aim_in_zone(hit_state, covariance, normal, racket_velocity, params, centre, zone,
-                n=ENSEMBLE_SIZE, inset=0.01, blur=0.01):
+def aim_in_zone(hit_state, normal, racket_velocity, params, points, centre, zone, inset=0.01,
+                blur=0.01):
     """Aim point (x, y) inside ``zone`` that maximises the in-zone probability, m.
 
-    The ensemble's landing offsets d_k = L(x_k) - L(x0) for the stroke aimed at ``centre``
-    are taken as the same for any aim across the zone (and net hits as misses); the aim
-    maximises the share of aim + d_k inside the cell, each point blurred by a Gaussian of
-    ``blur`` m so that the share is smooth (Nelder-Mead), kept ``inset`` m inside the zone.
+    ``points``: the ensemble's landings (n, 2), m (:func:`landing_ensemble`) of the stroke
+    (normal, racket_velocity) aimed at ``centre``. Their offsets d_k = L(x_k) - L(x0) from
+    the nominal landing are taken as the same for any aim across the zone (and net hits as
+    misses); the aim maximises the share of aim + d_k inside the cell, each point blurred by
+    a Gaussian of ``blur`` m so that the share is smooth (Nelder-Mead), kept ``inset`` m
+    inside the zone.
     """
-    pts = landing_ensemble(hit_state, covariance, normal, racket_velocity, params, n)
     nominal = landing_ensemble(hit_state, np.zeros((9, 9)), normal, racket_velocity, params,
                                1)[0]
-    d = pts - nominal
+    d = points - nominal
     n_all = d.shape[0]
     d = d[np.all(np.isfinite(d), axis=1)]           # net hits count as misses below
     x0, x1, y0, y1 = zone_bounds(zone, 1)

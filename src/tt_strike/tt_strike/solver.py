@@ -43,7 +43,7 @@ from tt_prediction.table import (
     zone_of,
 )
 
-from .robust import aim_in_zone, in_zone_probability
+from .robust import aim_in_zone, in_zone_probability, landing_ensemble
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -453,20 +453,19 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
     if covariance is None or sol.status != 'ok':
         return sol
     zone_p = _scored_zone(sol)
-    sol.in_zone_probability = in_zone_probability(
-        s_hit, covariance, sol.normal, sol.racket_velocity, P, zone_p,
-        n=settings.probability_samples)
+    points = landing_ensemble(s_hit, covariance, sol.normal, sol.racket_velocity, P,
+                              settings.probability_samples)
+    sol.in_zone_probability = in_zone_probability(points, zone_p)
     if settings.aim_inside_zone:
-        aim = aim_in_zone(s_hit, covariance, sol.normal, sol.racket_velocity, P, point,
-                          zone_p, n=settings.probability_samples)
+        aim = aim_in_zone(s_hit, sol.normal, sol.racket_velocity, P, points, point, zone_p)
         out2, its2, _ = _newton(s_hit, aim, z_net_goal, P, settings)
         if out2 is not None:
             other = dataclasses.replace(sol, aim_point=aim, iterations=sol.iterations + its2)
             _fill(other, s_hit, out2[4:7].copy(), out2[7], params, settings)
             if other.status == 'ok':
-                other.in_zone_probability = in_zone_probability(
-                    s_hit, covariance, other.normal, other.racket_velocity, P, zone_p,
-                    n=settings.probability_samples)
+                other.in_zone_probability = in_zone_probability(landing_ensemble(
+                    s_hit, covariance, other.normal, other.racket_velocity, P,
+                    settings.probability_samples), zone_p)
                 if other.in_zone_probability > sol.in_zone_probability:   # else keep centre
                     sol = other
     return sol
