@@ -199,7 +199,7 @@ def _record_contact(out, t, s):
     for i in range(3):
         out[_O_BOUNCE_P + i] = s[i]
     out[_O_BOUNCE_ZONE] = zone
-    out[_O_BOUNCE_HALF] = 1.0 if s[0] > 0.0 else -1.0
+    out[_O_BOUNCE_HALF] = half
 
 
 @njit(cache=True, nogil=True)
