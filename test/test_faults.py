@@ -77,7 +77,7 @@ def test_prediction_node_killed_and_restarted_the_strikes_resume(tmp_path):
             assert all(c.status for c in stream.commands)
             first.kill()            # SIGKILL: no chance to clean up
             first.wait(10.0)
-            group.procs.pop('prediction').log.close()
+            group.stop('prediction')  # already gone: closes its log and forgets it
             restart_ns = stream.node.get_clock().now().nanoseconds
             group.start('prediction', prediction)
 
