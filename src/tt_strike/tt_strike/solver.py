@@ -198,9 +198,9 @@ SHOT_NO_LANDING = 4     # no table-height crossing within FLIGHT_T_MAX
 def _shoot(s_hit, v_out, P, out):
     """Fly the ball sent with v_out from the hit state s_hit (9,).
 
-    Writes into ``out`` (11,): landing x, y (centre crossing z = r on the table, or the floor
-    crossing beyond it), net-plane height z at x = 0, flight time, normal (3), racket speed,
-    outgoing spin (3). Returns a SHOT_* code.
+    Writes into ``out`` (7,): landing x, y (centre crossing z = r on the table, or the floor
+    crossing beyond it) and net-plane height z at x = 0 (m, when SHOT_OK), normal (3), racket
+    speed (m/s). Returns a SHOT_* code.
     """
     normal = np.empty(3)
     speed = _racket_for_outgoing(s_hit[3:6], s_hit[6:9], v_out, P, normal)
@@ -212,9 +212,8 @@ def _shoot(s_hit, v_out, P, out):
     vn_rel = ((s_hit[3] - rv[0]) * normal[0] + (s_hit[4] - rv[1]) * normal[1]
               + (s_hit[5] - rv[2]) * normal[2])
     for i in range(3):
-        out[4 + i] = normal[i]
-        out[8 + i] = s[6 + i]
-    out[7] = speed
+        out[3 + i] = normal[i]
+    out[6] = speed
     if vn_rel >= 0.0:
         return SHOT_BEHIND
     ev_kind = np.zeros(4, dtype=np.int64)
@@ -229,9 +228,6 @@ def _shoot(s_hit, v_out, P, out):
                        samples, ev_kind, ev_t, ev_s)
     last = ev_kind[n - 1]
     if last == EVENT_BOUNCE or last == EVENT_FLOOR:
-        out[0] = ev_s[n - 1, 0]
-        out[1] = ev_s[n - 1, 1]
-        out[3] = ev_t[n - 1]
         return SHOT_NO_NET
     if last != EVENT_PLANE:
         return SHOT_NO_LANDING
@@ -244,7 +240,6 @@ def _shoot(s_hit, v_out, P, out):
     if last == EVENT_BOUNCE or last == EVENT_FLOOR:
         out[0] = ev_s[n - 1, 0]
         out[1] = ev_s[n - 1, 1]
-        out[3] = ev_t[n - 1]
         return SHOT_OK
     return SHOT_NO_LANDING
 
@@ -284,7 +279,7 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
     if v is None:
         return None, 0, 'target is not beyond the net from the hit point'
     goal = np.array([aim[0], aim[1], z_net_goal])
-    out = np.zeros(11)
+    out = np.zeros(7)
     # The drag-free guess falls short under drag (and may land right at the net, where the
     # residuals bend sharply): start from the first of a few faster shots along the same
     # line that clears the net top, or else the first that lands at all.
@@ -303,7 +298,7 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
         _shoot(s_hit, v, P, out)
     f = out[:3] - goal
     jac = np.empty((3, 3))
-    out_h = np.zeros(11)
+    out_h = np.zeros(7)
     for it in range(1, settings.max_iterations + 1):
         if np.max(np.abs(f)) < settings.tolerance:
             return out, it - 1, ''
@@ -449,7 +444,7 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
     if out is None:
         sol.reason = f'cannot reach the target: {reason}'
         return sol
-    _fill(sol, s_hit, out[4:7].copy(), out[7], params, settings)
+    _fill(sol, s_hit, out[3:6].copy(), out[6], params, settings)
     if covariance is None or sol.status != 'ok':
         return sol
     zone_p = _scored_zone(sol)
@@ -461,7 +456,7 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
         out2, its2, _ = _newton(s_hit, aim, z_net_goal, P, settings)
         if out2 is not None:
             other = dataclasses.replace(sol, aim_point=aim, iterations=sol.iterations + its2)
-            _fill(other, s_hit, out2[4:7].copy(), out2[7], params, settings)
+            _fill(other, s_hit, out2[3:6].copy(), out2[6], params, settings)
             if other.status == 'ok':
                 other.in_zone_probability = in_zone_probability(landing_ensemble(
                     s_hit, covariance, other.normal, other.racket_velocity, P,
