@@ -14,9 +14,10 @@ import numpy as np
 from .triangulate import relative_pose
 
 
-def epipolar_cost(cam0, camk, t0, x0, tk, xk, offset, max_gap):
+def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
     """Median epipolar distance of camera-0 detections (t0 (n,), x0 (n, 2) normalised) to
-    camera k's (tk, xk) interpolated at t0 + offset; ``inf`` when fewer than 8 pairs exist."""
+    camera k's (tk, xk) interpolated at t0 + offset, under the essential matrix ``E`` (3, 3)
+    of the two poses; ``inf`` when fewer than 8 pairs exist."""
     q = t0 + offset
     j = np.searchsorted(tk, q)
     ok = (j > 0) & (j < len(tk))
@@ -27,8 +28,6 @@ def epipolar_cost(cam0, camk, t0, x0, tk, xk, offset, max_gap):
     j = j[ok]
     frac = ((q[ok] - tk[j - 1]) / (tk[j] - tk[j - 1]))[:, None]
     xi = xk[j - 1] + frac * (xk[j] - xk[j - 1])
-    R, t = relative_pose(cam0, camk)
-    E = np.cross(np.eye(3), t) @ R          # [t]x R: x_k^T E x_0 = 0
     a = np.column_stack([x0[ok], np.ones(ok.sum())])
     b = np.column_stack([xi, np.ones(ok.sum())])
     line = a @ E.T                          # epipolar lines in camera k
@@ -47,9 +46,11 @@ def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=1.0):
     tk, xk = np.asarray(tk, float)[order], np.asarray(xk, float)[order]
     period = 1.0 / fps
     gap = 2.5 * period
+    R, t = relative_pose(cam0, camk)
+    E = np.cross(np.eye(3), t) @ R          # [t]x R: x_k^T E x_0 = 0, the same for every d
 
     def cost(d):
-        return epipolar_cost(cam0, camk, t0, x0, tk, xk, d, gap)
+        return epipolar_cost(E, t0, x0, tk, xk, d, gap)
 
     grid = np.arange(-max_offset, max_offset + 1e-12, 0.5 * period)
     costs = np.array([cost(d) for d in grid])
