@@ -27,7 +27,7 @@ import sys
 import time
 
 import numpy as np
-from tt_prediction.params import ModelParams, load_model
+from tt_prediction.params import load_model
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .incoming import hit_point
@@ -143,7 +143,7 @@ def main(argv=None):
     if not path.is_file():
         print(f'tt_strike.evaluate_deepmind: no states.csv in {args.data}', file=sys.stderr)
         return 2
-    params = load_model(args.model) if args.model else ModelParams()
+    params = load_model(args.model)
     states, serve, away = load_states(path)
     if args.limit:
         step = max(1, len(states) // args.limit)
