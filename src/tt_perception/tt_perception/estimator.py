@@ -188,23 +188,23 @@ class BallFilter:
             # of the same colour) counts with a proportionally inflated covariance.
             R = R * (d2 / self.config.robust)
             S = self.P[:3, :3] + R
-        K = np.linalg.solve(S, self.P[:3, :]).T        # P H^T S^-1, H = [I 0 0]
-        self.x = self.x + K @ y
-        IKH = np.eye(9)
-        IKH[:, :3] -= K
-        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T     # Joseph form
+        self._fuse(slice(0, 3), y, S, R)
         return True
 
     def update_spin(self, w, R):
         """Fuse a measured spin ``w`` (3,), rad/s, covariance ``R`` (3, 3) (e.g. from a marked
         ball); it fills in the component along the velocity that flight cannot observe."""
         y = np.asarray(w, dtype=float) - self.x[6:]
-        S = self.P[6:, 6:] + R
-        K = np.linalg.solve(S, self.P[6:, :]).T        # H = [0 0 I]
+        self._fuse(slice(6, 9), y, self.P[6:, 6:] + R, R)
+
+    def _fuse(self, part, y, S, R):
+        """Kalman update of a direct measurement of the state's ``part`` (H selects it):
+        innovation ``y`` (3,), its covariance ``S`` and the measurement's ``R`` (3, 3)."""
+        K = np.linalg.solve(S, self.P[part, :]).T      # P H^T S^-1
         self.x = self.x + K @ y
         IKH = np.eye(9)
-        IKH[:, 6:] -= K
-        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+        IKH[:, part] -= K
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T     # Joseph form
 
     def spin_variance_along_velocity(self):
         """Variance (rad/s)^2 of the spin component along the current velocity."""
