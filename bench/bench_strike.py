@@ -18,8 +18,7 @@ import time
 
 import numpy as np
 from tt_prediction.params import ModelParams
-from tt_strike.evaluate_deepmind import load_states
-from tt_strike.incoming import hit_point
+from tt_strike.evaluate_deepmind import hit_states, load_states
 from tt_strike.robust import noise_covariance
 from tt_strike.solver import solve
 
@@ -31,11 +30,7 @@ TARGET_P99_MS = 10.0
 def run():
     params = ModelParams()
     states, serve, _ = load_states(DATA)
-    hits = []
-    for s, is_serve in zip(states, serve, strict=True):
-        pred = hit_point(s, params, serve=bool(is_serve))
-        if pred.status == 'ok':
-            hits.append(np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w]))
+    hits, _ = hit_states(states, serve, params)
     solve(hits[0], params, target_zone=5, covariance=noise_covariance(hits[0]))   # compile
     times, cpu, feasible, residual = [], [], 0, []
     for h in hits:

@@ -52,8 +52,9 @@ def load_states(path):
     return states, np.array(serve), away
 
 
-def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
-    """Per-zone counts: the table's rows and the skipped incoming balls by reason."""
+def hit_states(states, serve, params, hit_plane_x=DEFAULT_HIT_PLANE_X):
+    """The incoming balls at the hitting plane x = hit_plane_x (m): their hit states (9,)
+    (p, v, w) and a Counter of the others by prediction status."""
     skipped = collections.Counter()
     hits = []
     for s, is_serve in zip(states, serve, strict=True):
@@ -62,6 +63,12 @@ def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
             skipped[pred.status] += 1
             continue
         hits.append(np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w]))
+    return hits, skipped
+
+
+def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
+    """Per-zone counts: the table's rows and the skipped incoming balls by reason."""
+    hits, skipped = hit_states(states, serve, params, hit_plane_x)
     rows = []
     for zone in range(1, 10):
         feasible = in_zone = 0
