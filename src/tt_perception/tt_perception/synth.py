@@ -27,8 +27,6 @@ from .camera import Camera, Rig, load_rig, look_at, save_camera_info, save_rig
 
 BALL_COLOURS = {'white': (235, 238, 240), 'orange': (20, 120, 250)}
 """Ball colour (BGR, full light) by name."""
-BALL_RADIUS = 0.020
-"""Ball radius, m (40 mm ball)."""
 
 # Two poses of the demo rig: behind and above the robot's end, and to the side of its half.
 _POSES = (
@@ -256,7 +254,7 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                     continue
                 centres = cam.project(p)
                 depth = cam.to_camera(p[n_sub // 2:n_sub // 2 + 1])[0, 2]
-                _draw_ball(frame, centres, cam.focal * BALL_RADIUS / depth, colour_bgr, gain)
+                _draw_ball(frame, centres, cam.focal * params.radius / depth, colour_bgr, gain)
             yield t, k, frame
 
     return frames(), truth
