@@ -43,7 +43,7 @@ from tt_prediction.table import (
     zone_of,
 )
 
-from .robust import aim_in_zone, in_zone_probability, landing_ensemble
+from .robust import ENSEMBLE_SIZE, aim_in_zone, in_zone_probability, landing_ensemble
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -74,7 +74,7 @@ class StrikeSettings:
     aim_inside_zone: bool = False
     """Aim at the point of the target zone that maximises the in-zone probability (needs the
     incoming covariance) instead of its centre."""
-    probability_samples: int = 1024
+    probability_samples: int = ENSEMBLE_SIZE
     """Size of the quasi-random ensemble for the in-zone probability (tt_strike.robust)."""
 
 
