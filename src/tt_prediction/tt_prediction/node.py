@@ -366,7 +366,6 @@ class PredictionNode(Node):
             marker(3, Marker.SPHERE, (0.0, 1.0, 0.3), 0.05).pose.position = _point(pred.hit.p)
         return markers
 
-
     def destroy_node(self):
         self.uncertainty_worker.stop()
         self.path_worker.stop()
