@@ -22,6 +22,7 @@ import pathlib
 import sys
 
 import numpy as np
+from tt_prediction.params import load_model
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
@@ -175,7 +176,6 @@ def main(argv=None):
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 2
     try:
-        from tt_prediction.params import load_model
         params = load_model(args.model)
     except Exception as exc:      # the model loader's own errors (file, YAML, values)
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

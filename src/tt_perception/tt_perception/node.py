@@ -25,6 +25,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.params import load_model
 from tt_prediction.spin import spin_node
 
 from tt_msgs.msg import BallState
@@ -146,7 +147,6 @@ class PerceptionNode(Node):
             self.get_logger().error(f'{exc}; no state will be published')
             return
         try:
-            from tt_prediction.params import load_model
             params = load_model(self._p('model_file') or None)
         except Exception as exc:       # the model loader's own errors (file, YAML, values)
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
