@@ -101,6 +101,18 @@ def topic_type(node, topic):
     return None
 
 
+def _compatible_policies(offered, empty_reliable):
+    """(reliability, durability) compatible with every offered ``(reliability, durability)``
+    pair of rmw enum values: reliable only if all offer reliable, transient-local only if all
+    do (what ros2cli and rosbag2 choose); reliable as ``empty_reliable`` when none is offered.
+    """
+    reliable = (all(r == ReliabilityPolicy.RELIABLE for r, _ in offered) if offered
+                else empty_reliable)
+    transient = bool(offered) and all(d == DurabilityPolicy.TRANSIENT_LOCAL for _, d in offered)
+    return (ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+            DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
+
+
 def qos_matching(publishers, reliability=None, durability=None, depth=10):
     """A subscription QoS that matches every publisher in ``publishers`` (endpoint infos).
 
@@ -109,19 +121,12 @@ def qos_matching(publishers, reliability=None, durability=None, depth=10):
     ``depth`` None: keep all (a slow reader then holds reliable publishers back rather than
     losing their messages).
     """
-    offered = [p.qos_profile for p in publishers]
-    if reliability is None:
-        rel = (ReliabilityPolicy.RELIABLE
-               if offered and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-               else ReliabilityPolicy.BEST_EFFORT)
-    else:
+    rel, dur = _compatible_policies(
+        [(p.qos_profile.reliability, p.qos_profile.durability) for p in publishers],
+        empty_reliable=False)
+    if reliability is not None:
         rel = RELIABILITY[reliability]
-    if durability is None:
-        dur = (DurabilityPolicy.TRANSIENT_LOCAL
-               if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                                  for q in offered)
-               else DurabilityPolicy.VOLATILE)
-    else:
+    if durability is not None:
         dur = DURABILITY[durability]
     if depth is None:
         return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel, durability=dur)
@@ -156,12 +161,9 @@ def qos_from_bag(profiles, depth=100):
     transient-local only if every one did; reliable when the bag has no profiles); deadline,
     lifespan and liveliness are left at the defaults.
     """
-    rel_ok = not profiles or all(q.reliability == QosReliability.RELIABLE for q in profiles)
-    dur_ok = bool(profiles) and all(
-        q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles)
+    rel, dur = _compatible_policies(
+        [(q.reliability.value, q.durability.value) for q in profiles], empty_reliable=True)
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
-        reliability=ReliabilityPolicy.RELIABLE if rel_ok else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if dur_ok else DurabilityPolicy.VOLATILE,
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel, durability=dur,
         liveliness=LivelinessPolicy.AUTOMATIC, lifespan=Duration(),
     )
