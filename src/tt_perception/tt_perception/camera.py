@@ -55,8 +55,6 @@ class Camera:
         self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
         self.t = np.asarray(self.t, dtype=float).ravel()
         self._rvec = cv2.Rodrigues(self.R)[0]
-        self.P = self.K @ np.hstack([self.R, self.t[:, None]])
-        """3x4 projection matrix of the undistorted image."""
         self.centre = -self.R.T @ self.t
         """Optical centre in the table frame, m."""
 
