@@ -18,10 +18,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
 from tt_perception.node import PerceptionNode
+from tt_perception.sources import camera_info_topic
 from tt_prediction.node import PredictionNode
 from tt_strike.node import StrikeNode
 from tt_tools.collector import TOPICS
-from tt_tools.recording import STAMP_BASE_S, ensure_recording, info_topic, replay_publishers
+from tt_tools.recording import STAMP_BASE_S, ensure_recording, replay_publishers
 
 from tt_prediction import table
 from tt_tools import demo_report
@@ -55,7 +56,7 @@ def _replay(recording):
                   '/strike/command', '/strike/target'):
         remap += ['-r', f'{topic}:={prefix}{topic}']
     for image_topic in recording.image_topics:
-        for topic in (image_topic, info_topic(image_topic)):
+        for topic in (image_topic, camera_info_topic(image_topic)):
             remap += ['-r', f'{topic}:={prefix}{topic}']
     context = rclpy.context.Context()
     rclpy.init(context=context)

@@ -34,7 +34,7 @@ from .camera import CalibrationError, load_rig
 from .detect import DetectorConfig
 from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import V4L2Source, file_frames, image_to_bgr, source_kind
+from .sources import V4L2Source, camera_info_topic, file_frames, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 
@@ -175,9 +175,7 @@ class PerceptionNode(Node):
                 self.create_subscription(Image, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),
                                          qos_profile_sensor_data)
-                info_topic = (cam.source.rsplit('/', 1)[0] + '/camera_info'
-                              if '/' in cam.source else 'camera_info')
-                self.create_subscription(CameraInfo, info_topic,
+                self.create_subscription(CameraInfo, camera_info_topic(cam.source),
                                          lambda msg, k=k: self._on_info(k, msg),
                                          qos_profile_sensor_data)
             elif kind == 'v4l2':

@@ -36,6 +36,13 @@ def source_kind(source):
     return 'topic'
 
 
+def camera_info_topic(image_topic):
+    """The CameraInfo topic beside a camera's image topic, where perception_node subscribes
+    it (``/cam0/image_raw`` -> ``/cam0/camera_info``; ``image_raw`` -> ``camera_info``)."""
+    return (image_topic.rsplit('/', 1)[0] + '/camera_info' if '/' in image_topic
+            else 'camera_info')
+
+
 class FrameSource:
     """Common interface: ``open()``, ``read() -> (t, frame or None)``, ``close()``."""
 

@@ -38,22 +38,17 @@ class Recording:
     image_topics: tuple
 
 
-def info_topic(image_topic):
-    """The CameraInfo topic beside a camera's image topic (``/cam0/image_raw`` ->
-    ``/cam0/camera_info``), as perception_node subscribes it."""
-    return image_topic.rsplit('/', 1)[0] + '/camera_info'
-
-
 def replay_publishers(node, image_topics, prefix=''):
     """Publishers on the rclpy ``node`` to replay a recording's bag: Image on each of
     ``image_topics`` and CameraInfo beside it, named ``prefix`` + the bag's topic and keyed by
     the bag's topic (they publish the bag's serialized messages as they are)."""
     from sensor_msgs.msg import CameraInfo, Image
+    from tt_perception.sources import camera_info_topic
 
     publishers = {}
     for topic in image_topics:
         publishers[topic] = node.create_publisher(Image, prefix + topic, 10)
-        info = info_topic(topic)
+        info = camera_info_topic(topic)
         publishers[info] = node.create_publisher(CameraInfo, prefix + info, 10)
     return publishers
 
@@ -76,6 +71,7 @@ def write_bag(bag_dir, rig, frames):
     a dropped frame) as Image + CameraInfo per camera into a new MCAP bag at ``bag_dir``.
     Returns the number of images written."""
     from rosbags.typesys import Stores, get_typestore
+    from tt_perception.sources import camera_info_topic
 
     from .bagfile import BagWriter
 
@@ -89,7 +85,7 @@ def write_bag(bag_dir, rig, frames):
         connections = []
         for cam in rig.cameras:
             connections.append((writer.add_topic(cam.source, Image.__msgtype__),
-                                writer.add_topic(info_topic(cam.source),
+                                writer.add_topic(camera_info_topic(cam.source),
                                                  'sensor_msgs/msg/CameraInfo')))
         for t, k, frame in frames:
             if frame is None:
