@@ -25,6 +25,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.nodeutil import set_xyz
 from tt_prediction.params import load_model
 from tt_prediction.spin import spin_node
 
@@ -93,9 +94,9 @@ def ball_state_message(est, t_ref, frame_id):
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
     msg.header.frame_id = frame_id
     s = est.state
-    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in s[:3])
-    msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(v) for v in s[3:6])
-    msg.spin.x, msg.spin.y, msg.spin.z = (float(v) for v in s[6:9])
+    set_xyz(msg.position, s[:3])
+    set_xyz(msg.velocity, s[3:6])
+    set_xyz(msg.spin, s[6:9])
     msg.covariance = [float(v) for v in est.covariance.ravel()]
     msg.track_id = int(est.track_id)
     return msg

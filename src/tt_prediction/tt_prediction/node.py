@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from geometry_msgs.msg import Point, PoseStamped
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
@@ -22,6 +22,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tt_msgs.msg import BallPrediction, BallState
 
 from .markers import add_marker
+from .nodeutil import due, point_msg, set_xyz
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
 from .spin import spin_node
@@ -39,14 +40,6 @@ _ZERO3 = (0.0, 0.0, 0.0)
 
 def _set_time(msg, ns):
     msg.sec, msg.nanosec = int(ns // 1_000_000_000), int(ns % 1_000_000_000)
-
-
-def _point(p):
-    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
-
-
-def _set_vec(msg, v):
-    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
 
 
 class _Track:
@@ -173,11 +166,6 @@ class PredictionNode(Node):
         self.n_dropped += 1
         self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
 
-    @staticmethod
-    def _due(now_ns, last_ns, rate_hz):
-        return (rate_hz <= 0.0 or last_ns is None or now_ns < last_ns
-                or now_ns - last_ns >= 1e9 / rate_hz)
-
     def on_state(self, msg):
         start = time.perf_counter()
         self._on_state(msg)
@@ -195,7 +183,7 @@ class PredictionNode(Node):
 
     def _on_state(self, msg):
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if not self._due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
+        if not due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
             return
         if msg.header.frame_id not in ('', 'table'):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
@@ -214,8 +202,8 @@ class PredictionNode(Node):
                 self.tracks.pop(next(iter(self.tracks)))
             track = self.tracks[msg.track_id] = _Track()
         plane_x = self.get_parameter('hit_plane_x').value
-        want_path = self._due(stamp_ns, self.last_path_ns,
-                              self.get_parameter('path_rate_hz').value)
+        want_path = due(stamp_ns, self.last_path_ns,
+                        self.get_parameter('path_rate_hz').value)
         step = self.get_parameter('path_step_s').value
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
@@ -269,20 +257,20 @@ class PredictionNode(Node):
         out.bounce_valid = bounce is not None
         if bounce is not None:
             _set_time(out.bounce_time, bounce_ns)
-            _set_vec(out.bounce_point, bounce.p)
+            set_xyz(out.bounce_point, bounce.p)
             out.bounce_zone = bounce.zone
             out.bounce_half = bounce.half
         else:
             _set_time(out.bounce_time, 0)
-            _set_vec(out.bounce_point, _ZERO3)
+            set_xyz(out.bounce_point, _ZERO3)
             out.bounce_zone = 0
             out.bounce_half = 0
         hit = pred.hit
         out.hit_valid = hit is not None
         _set_time(out.hit_time, stamp_ns + round(hit.t * 1e9) if hit is not None else 0)
-        _set_vec(out.hit_point, hit.p if hit is not None else _ZERO3)
-        _set_vec(out.hit_velocity, hit.v if hit is not None else _ZERO3)
-        _set_vec(out.hit_spin, hit.w if hit is not None else _ZERO3)
+        set_xyz(out.hit_point, hit.p if hit is not None else _ZERO3)
+        set_xyz(out.hit_velocity, hit.v if hit is not None else _ZERO3)
+        set_xyz(out.hit_spin, hit.w if hit is not None else _ZERO3)
         return out
 
     def _add_uncertainty(self, out, msg, state, stamp_ns, track, plane_x, bounced):
@@ -292,8 +280,8 @@ class PredictionNode(Node):
         request = None
         if self.get_parameter('uncertainty').value:
             unc = track.uncertainty
-            if self._due(stamp_ns, track.uncertainty_ns,
-                         self.get_parameter('uncertainty_rate_hz').value):
+            if due(stamp_ns, track.uncertainty_ns,
+                   self.get_parameter('uncertainty_rate_hz').value):
                 track.uncertainty_ns = stamp_ns
                 request = (track, state, np.array(msg.covariance), plane_x, bounced)
         out.hit_covariance[:] = 0.0
@@ -358,12 +346,12 @@ class PredictionNode(Node):
         ball = marker(0, Marker.SPHERE, (1.0, 0.55, 0.0), 2 * self.params.radius)
         ball.pose.position = msg.position
         line = marker(1, Marker.LINE_STRIP, (0.2, 0.6, 1.0), 0.005)
-        line.points = [_point(p) for p in pred.path]
+        line.points = [point_msg(p) for p in pred.path]
         if pred.bounce is not None:
-            marker(2, Marker.CYLINDER, (1.0, 1.0, 0.0), 0.06).pose.position = _point(
+            marker(2, Marker.CYLINDER, (1.0, 1.0, 0.0), 0.06).pose.position = point_msg(
                 pred.bounce.p)
         if pred.hit is not None:
-            marker(3, Marker.SPHERE, (0.0, 1.0, 0.3), 0.05).pose.position = _point(pred.hit.p)
+            marker(3, Marker.SPHERE, (0.0, 1.0, 0.3), 0.05).pose.position = point_msg(pred.hit.p)
         return markers
 
     def destroy_node(self):

@@ -9,7 +9,6 @@ dropped with a throttled warning: nothing is published for them.
 
 import math
 
-from geometry_msgs.msg import Point
 import numpy as np
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -20,6 +19,7 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.markers import add_marker
+from tt_prediction.nodeutil import due, point_msg, set_xyz
 from tt_prediction.params import load_model
 from tt_prediction.spin import spin_node
 from visualization_msgs.msg import Marker, MarkerArray
@@ -28,14 +28,6 @@ from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 
 from .robust import noise_covariance
 from .solver import StrikeSettings, resolve_target, solve
-
-
-def _set_vec(msg, v):
-    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
-
-
-def _point(p):
-    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]) if len(p) > 2 else 0.0)
 
 
 class StrikeNode(Node):
@@ -178,8 +170,7 @@ class StrikeNode(Node):
     def _probability_due(self, key, stamp_ns):
         rate = self.get_parameter('probability_rate_hz').value
         last = self.last_probability
-        return (rate <= 0.0 or last is None or last[0] != key or stamp_ns < last[1]
-                or stamp_ns - last[1] >= 1e9 / rate)
+        return last is None or last[0] != key or due(stamp_ns, last[1], rate)
 
     def on_prediction(self, msg):
         self.n_received += 1
@@ -229,18 +220,18 @@ class StrikeNode(Node):
         out.hit_point = msg.hit_point
         out.target_zone = sol.target_zone
         if sol.target_point is not None:
-            out.target_point = _point(sol.target_point)
+            out.target_point = point_msg(sol.target_point)
         if sol.normal is not None:
-            out.racket_position = _point(sol.racket_position)
+            out.racket_position = point_msg(sol.racket_position)
             q = sol.orientation_xyzw
             out.racket_orientation.x, out.racket_orientation.y = float(q[0]), float(q[1])
             out.racket_orientation.z, out.racket_orientation.w = float(q[2]), float(q[3])
-            _set_vec(out.racket_normal, sol.normal)
-            _set_vec(out.racket_velocity, sol.racket_velocity)
-            _set_vec(out.ball_out_velocity, sol.ball_out_v)
-            _set_vec(out.ball_out_spin, sol.ball_out_w)
+            set_xyz(out.racket_normal, sol.normal)
+            set_xyz(out.racket_velocity, sol.racket_velocity)
+            set_xyz(out.ball_out_velocity, sol.ball_out_v)
+            set_xyz(out.ball_out_spin, sol.ball_out_w)
         if sol.landing is not None:
-            out.landing_point = _point(sol.landing)
+            out.landing_point = point_msg(sol.landing)
             out.landing_zone = sol.landing_zone
         for key in ('net_clearance', 'margin', 'in_zone_probability'):
             value = float(getattr(sol, key))
@@ -256,16 +247,16 @@ class StrikeNode(Node):
 
         red = (0.8, 0.1, 0.1)
         racket = marker(0, Marker.CYLINDER, red, (0.15, 0.15, 0.01))   # blade, z = normal
-        racket.pose.position = _point(sol.racket_position)
+        racket.pose.position = point_msg(sol.racket_position)
         q = sol.orientation_xyzw
         o = racket.pose.orientation
         o.x, o.y, o.z, o.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
         arrow = marker(1, Marker.ARROW, red, (0.01, 0.02, 0.03))          # racket velocity
         tip = sol.racket_position + 0.05 * sol.racket_velocity
-        arrow.points = [_point(sol.racket_position), _point(tip)]
+        arrow.points = [point_msg(sol.racket_position), point_msg(tip)]
         if sol.landing is not None:
             marker(2, Marker.CYLINDER, (0.1, 0.8, 0.1), (0.06, 0.06, 0.005)).pose.position = \
-                _point(sol.landing)
+                point_msg(sol.landing)
         return markers
 
 
