@@ -99,6 +99,11 @@ class Hit:
     v: np.ndarray
     w: np.ndarray
 
+    @property
+    def state(self):
+        """(9,) state (p, v, w) of the ball at the crossing, as a solver takes it."""
+        return np.concatenate([self.p, self.v, self.w])
+
     def to_dict(self):
         return {'t': self.t, 'p': self.p.tolist(), 'v': self.v.tolist(), 'w': self.w.tolist()}
 

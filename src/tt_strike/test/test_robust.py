@@ -20,7 +20,7 @@ N_MC = 3000          # binomial standard error <= 0.91 percentage points
 def _hit(state):
     pred = hit_point(np.array(state), PARAMS)
     assert pred.status == 'ok', pred.reason
-    return np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w])
+    return pred.hit.state
 
 
 # Spinning balls, so that 10 % spin noise moves the landing by centimetres.

@@ -39,7 +39,7 @@ def hit_states():
     for s in INCOMING:
         pred = hit_point(np.array(s), PARAMS)
         assert pred.status == 'ok', (s, pred.reason)
-        states.append(np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w]))
+        states.append(pred.hit.state)
     return states
 
 

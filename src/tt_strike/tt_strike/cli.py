@@ -112,7 +112,7 @@ def main(argv=None):
         pred = hit_point(state, params, t0=t, hit_plane_x=args.hit_plane_x)
         sol = None
         if pred.status == 'ok':
-            hit = np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w])
+            hit = pred.hit.state
             sol = solve(hit, params, target_zone=zone, target_point=point,
                         settings=settings, covariance=cov)
         out.append(json.dumps(strike_to_dict(pred, sol)))

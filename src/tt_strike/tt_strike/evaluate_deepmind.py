@@ -62,7 +62,7 @@ def hit_states(states, serve, params, hit_plane_x=DEFAULT_HIT_PLANE_X):
         if pred.status != 'ok':
             skipped[pred.status] += 1
             continue
-        hits.append(np.concatenate([pred.hit.p, pred.hit.v, pred.hit.w]))
+        hits.append(pred.hit.state)
     return hits, skipped
 
 

@@ -53,7 +53,7 @@ def fly(ball, params, hit_plane_x):
         return None
     bounce, hit = pred.bounce, pred.hit
     return Truth(ball, bounce.t, np.asarray(bounce.p, dtype=float), bounce.zone, bounce.half,
-                 hit.t, np.concatenate([hit.p, hit.v, hit.w]))
+                 hit.t, hit.state)
 
 
 def demo_balls(count, hit_plane_x=-1.5, seed=7, gap=0.4, min_hit_height=0.1, params=None):
