@@ -114,8 +114,10 @@ def bag_play(args):
             if args.wait_for_subscribers and not cli.spin_until(
                     lambda: all(p.get_subscription_count() > 0 for p in pubs.values())):
                 return 0
-            if args.delay > 0 and not cli.spin_until(timeout=args.delay) and cli.stopped:
-                return 0
+            if args.delay > 0:
+                cli.spin_until(timeout=args.delay)          # the delay, or a signal
+                if cli.stopped:
+                    return 0
             first = reader.start_time + int(args.start_offset * 1e9)
             # Bag time now = first + (monotonic time since t0) * rate.
             state = {'t0': time.monotonic()}
