@@ -32,9 +32,9 @@ def make_executor(kind=None, context=None):
     if kind == 'events':
         try:
             from rclpy.experimental import EventsExecutor
+            return EventsExecutor(context=context)
         except ImportError:
-            return SingleThreadedExecutor(context=context)
-        return EventsExecutor(context=context)
+            pass
     return SingleThreadedExecutor(context=context)
 
 
