@@ -16,10 +16,12 @@
 - ``node_latency_ms``: prediction_node in its own process on a core of its own (``taskset``),
   BallStates published at 500 Hz for 8 s from this process (pinned to the other core) and
   stamped with the time of publishing, latency = arrival of the BallPrediction - its stamp
-  (= the state's stamp); p50 and p99 (<= 2 ms). ``node_latency_floor_ms``: the same harness
-  and pinning against ``echo_node.py``, which answers without predicting: what the platform
-  costs in this run. ``node_latency_unpinned_ms``: prediction_node with both processes left
-  to the scheduler. The last two are reported, without a target (docs/prediction.md).
+  (= the state's stamp); p50 and p99 (<= 2 ms). The node and the harness run on rclpy's
+  events executor (``TT_EXECUTOR=events``, not the nodes' default). ``node_latency_floor_ms``:
+  the same harness and pinning against ``echo_node.py``, which answers without predicting:
+  what the platform costs in this run. ``node_latency_unpinned_ms``: prediction_node with
+  both processes left to the scheduler. The last two are reported, without a target
+  (docs/prediction.md).
 Runs in about a minute. ``python bench/run_all.py --only prediction`` or this file directly.
 """
 
@@ -42,6 +44,8 @@ N_REFERENCE = 40
 N_BATCH = 10_000
 NODE_RATE_HZ = 500.0
 NODE_SECONDS = 8.0
+EXECUTOR = 'events'
+"""The nodes' executor in the latency runs (TT_EXECUTOR; docs/prediction.md)."""
 STATE_COV = np.diag([1e-6] * 3 + [1e-2] * 3 + [100.0] * 3)
 """Covariance of the benchmark's states: 1 mm, 0.1 m/s, 10 rad/s."""
 TARGETS = {'single_median_us': 50.0, 'single_p99_us': 200.0, 'speedup': 30.0,
@@ -109,7 +113,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
     """
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
-    from tt_prediction.spin import make_executor
+    from tt_prediction.spin import EXECUTOR_ENV, make_executor
 
     from tt_msgs.msg import BallPrediction, BallState
 
@@ -117,7 +121,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
     remap = []
     for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
         remap += ['-r', f'{topic}:={prefix}{topic}']
-    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', EXECUTOR_ENV: EXECUTOR}
     taskset = [] if cpus is None else ['taskset', '-c', str(cpus[0])]
     log = tempfile.TemporaryFile('w+')
     proc = subprocess.Popen([*taskset, sys.executable, *node,
@@ -140,7 +144,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
     node.create_subscription(BallPrediction, f'{prefix}/ball/prediction', on_prediction, 50)
     pub = node.create_publisher(BallState, f'{prefix}/ball/state', qos_profile_sensor_data)
     # The receiving side as lean as the node's: the same executor (docs/prediction.md).
-    executor = make_executor(context=context)
+    executor = make_executor(EXECUTOR, context=context)
     executor.add_node(node)
 
     def receive():
@@ -262,6 +266,7 @@ def run():
         'uncertainty_ms': round(unc_ms, 2),
         'cold_start_s': {'empty_numba_cache': round(cold, 2), 'warm_cache': round(warm, 2)},
         'node_latency_ms': {'p50': round(p50, 3), 'p99': round(p99, 3), 'rate_hz': NODE_RATE_HZ,
+                            'executor': EXECUTOR,
                             'received': received, 'sent': sent, 'node_callback': callback,
                             'cores': {'node': cores[0], 'harness': cores[1]} if cores else None},
         'node_latency_floor_ms': {'p50': round(floor[0], 3), 'p99': round(floor[1], 3),

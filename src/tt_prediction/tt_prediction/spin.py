@@ -1,12 +1,13 @@
 """Running a node as its own process (`ros2 run`): start-up, spin and a clean shutdown, in one
 place for every tt node (ROS glue).
 
-The executor is rclpy's C++ events executor (``rclpy.experimental.EventsExecutor``, in rclpy
-since Jazzy 7.1.4) where it exists: it takes a message from the middleware to its callback
-without rebuilding a Python wait set on every wake-up as ``SingleThreadedExecutor`` does,
-0.5-1.2 ms off the p99 of a state-to-prediction hop at 500 Hz on a 2-core machine
-(docs/prediction.md). ``TT_EXECUTOR=single`` in the environment selects
-``SingleThreadedExecutor``.
+The executor is rclpy's ``SingleThreadedExecutor``. ``TT_EXECUTOR=events`` in the environment
+selects rclpy's C++ events executor (``rclpy.experimental.EventsExecutor``, rclpy >= 7.1.4):
+it takes a message from the middleware to its callback without rebuilding a Python wait set
+on every wake-up, 0.5-1.2 ms off the p99 of a state-to-prediction hop at 500 Hz on a 2-core
+machine, but in rclpy 7.1.6 it aborts the process at shutdown about one time in ten
+("Destroying callback manager with callbacks remaining"), so it is not the default
+(docs/prediction.md).
 """
 
 import os
@@ -21,12 +22,12 @@ SPIN_TIMEOUT_S = 0.5
 
 
 def make_executor(kind=None, context=None):
-    """The executor ``kind`` ('events' or 'single'; None: $TT_EXECUTOR, else 'events').
+    """The executor ``kind`` ('events' or 'single'; None: $TT_EXECUTOR, else 'single').
 
     'events' falls back to 'single' with an rclpy older than the events executor. Raises
     ValueError for another name.
     """
-    kind = kind or os.environ.get(EXECUTOR_ENV) or 'events'
+    kind = kind or os.environ.get(EXECUTOR_ENV) or 'single'
     if kind not in EXECUTORS:
         raise ValueError(f'{EXECUTOR_ENV}={kind!r} is not one of: {", ".join(EXECUTORS)}')
     if kind == 'events':
