@@ -57,10 +57,13 @@ def spin_node(make_node, args=None, on_exit=None):
     try:
         node = make_node()
         executor.add_node(node)
-        # spin_once in a loop, not spin(): the events executor's spin() of rclpy 7.1.6 runs
-        # no callback and ignores the shutdown (one core busy); spin_once does both.
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        if isinstance(executor, SingleThreadedExecutor):
+            executor.spin()
+        else:
+            # spin_once in a loop, not spin(): the events executor's spin() of rclpy 7.1.6
+            # runs no callback and ignores the shutdown (one core busy); spin_once does both.
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
