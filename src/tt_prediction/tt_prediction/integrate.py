@@ -45,8 +45,28 @@ _NJIT = {'cache': True, 'nogil': True}
 
 
 @njit(**_NJIT)
-def _rk4(s, h, P, out, k1, k2, k3, k4, tmp):
-    """One classic RK4 step of size h from s into out."""
+def rk4_step(s, h, P, out, k1, k2, k3, k4, tmp):
+    """One classic RK4 step of the flight ODE (eq. 8) of size ``h`` from ``s`` into ``out``.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame, at the start of the step.
+    h : float
+        Step length, s.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9,)
+        Receives the state after ``h`` s of free flight (may not alias ``s``).
+    k1, k2, k3, k4, tmp : ndarray (9,)
+        Scratch arrays (the RK4 stages), overwritten.
+
+    Returns
+    -------
+    None
+        The result is written into ``out``; no table contact is handled (see
+        :func:`rollout_kernel` for the events).
+    """
     flight_derivative(s, P, k1)
     for i in range(9):
         tmp[i] = s[i] + 0.5 * h * k1[i]
@@ -61,6 +81,9 @@ def _rk4(s, h, P, out, k1, k2, k3, k4, tmp):
         out[i] = s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
+_rk4 = rk4_step     # old private name, kept only until tt_perception imports the public one
+
+
 @njit(**_NJIT)
 def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     """Step length tau in (0, h] at which s[axis] (position) crosses level, state into out.
@@ -71,7 +94,7 @@ def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     lo, hi = 0.0, h
     tau = h * g0 / (g0 - g1)
     for _ in range(40):
-        _rk4(s, tau, P, out, k1, k2, k3, k4, tmp)
+        rk4_step(s, tau, P, out, k1, k2, k3, k4, tmp)
         g = out[axis] - level
         if abs(g) < 1e-12:
             break
@@ -85,7 +108,7 @@ def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
             nxt = 0.5 * (lo + hi)
         if abs(nxt - tau) < 1e-13:
             tau = nxt
-            _rk4(s, tau, P, out, k1, k2, k3, k4, tmp)
+            rk4_step(s, tau, P, out, k1, k2, k3, k4, tmp)
             break
         tau = nxt
     return tau
@@ -141,7 +164,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
                 ev_s[n_ev, :] = s
                 n_ev += 1
             return n_ev
-        _rk4(s, h, P, s1, k1, k2, k3, k4, tmp)
+        rk4_step(s, h, P, s1, k1, k2, k3, k4, tmp)
         # Earliest event inside this step.
         best_tau = h + 1.0
         kind = 0
@@ -165,7 +188,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
         if stop_mask & STOP_AT_NET:
             if (s[0] > 0.0) != (s1[0] > 0.0):
                 tau = _locate(s, h, s[0], s1[0], 0, 0.0, P, tmp, k1, k2, k3, k4, se)
-                _rk4(s, tau, P, tmp, k1, k2, k3, k4, se)
+                rk4_step(s, tau, P, tmp, k1, k2, k3, k4, se)
                 if (tau < best_tau and abs(tmp[1]) <= NET_HALF_WIDTH
                         and tmp[2] < NET_HEIGHT + r and tmp[2] > -r):
                     best_tau, kind = tau, EVENT_NET
@@ -181,7 +204,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
             t += h
             continue
         # An event at t + best_tau: the state there, recorded before any rebound.
-        _rk4(s, best_tau, P, se, k1, k2, k3, k4, tmp)
+        rk4_step(s, best_tau, P, se, k1, k2, k3, k4, tmp)
         t += best_tau
         for i in range(9):
             s[i] = se[i]

@@ -78,6 +78,97 @@ def flight_derivative(s, P, out):
 
 
 @njit(**_NJIT)
+def flight_jacobian(s, P, out):
+    """Jacobian of the free-flight derivative (eq. 8 with its effects) at ``s``, into ``out``.
+
+    With u = v - wind, S = |u|, K_D = rho A / (2 m), K_M = 4/3 pi rho r^3 / m and the
+    coefficients C_D(S, |w|), C_M(S, |w|) of :func:`flight_derivative`:
+
+        a = g - K_D C_D S u + K_M C_M (w x u)
+        da/dv = -K_D (C_D (S I + u u^T / S) + S u dC_D/du^T) + K_M (C_M [w]x + (w x u) dC_M/du^T)
+        da/dw = -K_D S u dC_D/dw^T + K_M (-C_M [u]x + (w x u) dC_M/dw^T)
+        dp'/dv = I,   dw'/dw = -spin_decay I.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9, 9)
+        Receives d(ds/dt)/ds, rows and columns in the order of ``s``; each entry in the unit
+        of its row's derivative over its column's state (e.g. 1/s for dv'/dv, m/(s rad) for
+        dv'/dw).
+
+    Returns
+    -------
+    ndarray (9, 9)
+        ``out``. At S = 0 the drag terms are taken as 0 (the derivative's kink).
+    """
+    m = P[I_MASS]
+    r = P[I_RADIUS]
+    rho = P[I_RHO]
+    ux = s[3] - P[I_WIND_X]
+    uy = s[4] - P[I_WIND_Y]
+    uz = s[5] - P[I_WIND_Z]
+    wx, wy, wz = s[6], s[7], s[8]
+    u = np.array([ux, uy, uz])
+    w = np.array([wx, wy, wz])
+    speed = math.sqrt(ux * ux + uy * uy + uz * uz)
+    spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
+    c_m = P[I_CM]
+    dcd_du = np.zeros(3)
+    dcd_dw = np.zeros(3)
+    dcm_du = np.zeros(3)
+    dcm_dw = np.zeros(3)
+    if speed > 0.0:
+        dcd_du += P[I_CD_SLOPE] * u / speed
+    if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
+        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
+        c_m += P[I_CM_SLOPE] * ratio
+        c_d += P[I_CD_SPIN_SLOPE] * ratio
+        dratio_du = -r * spin / speed ** 3 * u
+        dratio_dw = r / (speed * spin) * w if spin > 0.0 else np.zeros(3)
+        dcd_du += P[I_CD_SPIN_SLOPE] * dratio_du
+        dcd_dw += P[I_CD_SPIN_SLOPE] * dratio_dw
+        dcm_du += P[I_CM_SLOPE] * dratio_du
+        dcm_dw += P[I_CM_SLOPE] * dratio_dw
+    k_d = 0.5 * rho * P[I_AREA] / m                       # eq. 8, drag term / (m C_D |u|)
+    k_m = 4.0 / 3.0 * math.pi * rho * r * r * r / m       # eq. 8, Magnus term / (m C_M)
+    wxu = np.array([wy * uz - wz * uy, wz * ux - wx * uz, wx * uy - wy * ux])
+    for i in range(9):
+        for j in range(9):
+            out[i, j] = 0.0
+    for i in range(3):
+        out[i, 3 + i] = 1.0
+        out[6 + i, 6 + i] = -P[I_SPIN_DECAY]
+    for i in range(3):
+        for j in range(3):
+            dv = -k_d * speed * u[i] * dcd_du[j] + k_m * wxu[i] * dcm_du[j]
+            if speed > 0.0:
+                dv -= k_d * c_d * u[i] * u[j] / speed
+            if i == j:
+                dv -= k_d * c_d * speed
+            out[3 + i, 3 + j] = dv
+            out[3 + i, 6 + j] = -k_d * speed * u[i] * dcd_dw[j] + k_m * wxu[i] * dcm_dw[j]
+    # Magnus: d(w x u)/dv = [w]x, d(w x u)/dw = -[u]x
+    out[3, 4] += -k_m * c_m * wz
+    out[3, 5] += k_m * c_m * wy
+    out[4, 3] += k_m * c_m * wz
+    out[4, 5] += -k_m * c_m * wx
+    out[5, 3] += -k_m * c_m * wy
+    out[5, 4] += k_m * c_m * wx
+    out[3, 7] += k_m * c_m * uz
+    out[3, 8] += -k_m * c_m * uy
+    out[4, 6] += -k_m * c_m * uz
+    out[4, 8] += k_m * c_m * ux
+    out[5, 6] += k_m * c_m * uy
+    out[5, 7] += -k_m * c_m * ux
+    return out
+
+
+@njit(**_NJIT)
 def table_rebound_inplace(s, P):
     """Apply the table rebound (eqs. 1-6, MODEL.md) to the velocity and spin of ``s``.
 
