@@ -22,10 +22,13 @@ from .params import (
     I_ER,
     I_ET,
     I_ET_SLOPE,
+    I_ET_SPIN_SLOPE,
+    I_ET_TANGENTIAL,
     I_GRAVITY,
     I_KP,
     I_MASS,
     I_MU,
+    I_MU_SLIP_SLOPE,
     I_MU_SLOPE,
     I_RADIUS,
     I_RHO,
@@ -35,6 +38,7 @@ from .params import (
     I_WIND_Z,
     IMPACT_SPEED_REF,
     LIFT_SPIN_RATIO_REF,
+    SLIP_SPEED_REF,
 )
 
 _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
@@ -172,26 +176,43 @@ def flight_jacobian(s, P, out):
 def table_rebound_inplace(s, P):
     """Apply the table rebound (eqs. 1-6, MODEL.md) to the velocity and spin of ``s``.
 
-    The contact point is (0, 0, -r) from the centre. Sliding when nu_s = 1 - 5/2 s > 0 with
-    alpha = s = mu (1 + e_t) |v_z| / |v_T|, rolling (alpha = 2/5) otherwise.
-    Impact-speed-dependent restitution and spin-dependent friction enter through e_t and mu.
+    The contact point is (0, 0, -r) from the centre. Sliding while the slip ratio
+    s = mu (1 + e_t) |v_z| / |v_T| stays below the grip ratio 2/5 (1 + e_x), with alpha = s;
+    gripping otherwise, alpha = 2/5 (1 + e_x), which leaves the contact velocity at
+    v_T' = (1 - 5 alpha / 2) v_T = -e_x v_T. The paper has e_x = 0 (``e_t_tangential``, the
+    ball's tangential compliance): nu_s = 1 - 5/2 s > 0 is sliding, rolling (v_T' = 0)
+    otherwise. The effects enter through e_t (impact speed, spin), mu (spin, slip speed)
+    and e_x.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)] at contact (v_z < 0); v and w are overwritten with
+        the values just after the bounce, p is left as it is.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+
+    Returns
+    -------
+    None
     """
     r = P[I_RADIUS]
     vx, vy, vz = s[3], s[4], s[5]
     wx, wy, wz = s[6], s[7], s[8]
-    e_t = P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
-    e_t = min(max(e_t, 0.0), 1.0)
-    mu = P[I_MU]
-    if P[I_MU_SLOPE] != 0.0:
-        mu += P[I_MU_SLOPE] * math.sqrt(wx * wx + wy * wy + wz * wz)
-    mu = max(mu, 0.0)
+    spin = math.sqrt(wx * wx + wy * wy + wz * wz)
     vtx = vx - r * wy                                   # tangential contact velocity
     vty = vy + r * wx
     vt = math.sqrt(vtx * vtx + vty * vty)
-    alpha = 0.4                                         # rolling
+    e_t = (P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
+           + P[I_ET_SPIN_SLOPE] * r * spin)
+    e_t = min(max(e_t, 0.0), 1.0)
+    mu = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
+    mu = max(mu, 0.0)
+    grip = 0.4 * (1.0 + P[I_ET_TANGENTIAL])             # 2/5 (1 + e_x); 2/5 in the paper
+    alpha = grip                                        # gripping (rolling for e_x = 0)
     if vt > 1e-12:
         slip = mu * (1.0 + e_t) * abs(vz) / vt
-        if 1.0 - 2.5 * slip > 0.0:                      # nu_s > 0: sliding (fixed 5/2)
+        if slip < grip:                                 # nu_s > 0: sliding (fixed 5/2)
             alpha = slip
     s[3] = (1.0 - alpha) * vx + alpha * r * wy          # eq. 1-6, A_v (fixed row 2)
     s[4] = (1.0 - alpha) * vy - alpha * r * wx

@@ -8,7 +8,7 @@ Writes DIR/report.json, DIR/report.md, plots and DIR/model.yaml (the model for
 import argparse
 import sys
 
-from ..params import load_model
+from ..ball import load_model
 from .data import DataError, load
 from .pipeline import identify
 from .report import write_outputs

@@ -13,8 +13,7 @@ Two held-out measures, both with the global parameters fitted on the other folds
 
 import numpy as np
 
-from ..integrate import rollout
-from ..table import zone_of
+from ..ball import rollout, zone_of
 from . import fitting
 
 PREDICT_WINDOW = 0.1

@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from ..params import ModelParams
+from ..ball import ModelParams
 from . import diagnose, evaluate, fitting
 from .blas import blas_threads
 from .data import DataError

@@ -9,7 +9,7 @@ mid-air. The generator knows nothing of identification.
 
 import numpy as np
 
-from ..integrate import rollout
+from ..ball import rollout
 from .data import Track
 
 
