@@ -12,10 +12,53 @@ Adding an effect: docs/DEVELOPING.md, "Adding a model effect".
 """
 
 import dataclasses
+import hashlib
 import math
+import os
+import shutil
 
+import numba
 import numpy as np
 import yaml
+
+KERNEL_SOURCES = ('params.py', 'model.py', 'integrate.py', 'table.py', 'predict.py')
+"""The files of the ball model's compiled kernels, whose content keys the kernel cache."""
+
+
+def _use_versioned_kernel_cache():
+    """Key numba's on-disk cache by the content of the ball model's sources.
+
+    numba's ``cache=True`` checks the time stamp of the file of the cached function only: a
+    kernel of integrate.py (or of tt_strike) that inlines model.py's equations would keep the
+    old physics after an edit of model.py or of the packed layout. The cache therefore lives
+    in ``__pycache__/numba-<hash of KERNEL_SOURCES>`` (older ones are removed), unless
+    NUMBA_CACHE_DIR is set or that directory cannot be written (numba's default then).
+    """
+    if numba.config.CACHE_DIR:
+        return
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha1()
+    for name in KERNEL_SOURCES:
+        try:
+            with open(os.path.join(here, name), 'rb') as f:
+                digest.update(f.read())
+        except OSError:
+            continue
+    root = os.path.join(here, '__pycache__')
+    path = os.path.join(root, 'numba-' + digest.hexdigest()[:12])
+    try:
+        os.makedirs(path, exist_ok=True)
+        if not os.access(path, os.W_OK):
+            return
+    except OSError:
+        return
+    for old in os.listdir(root):
+        if old.startswith('numba-') and os.path.join(root, old) != path:
+            shutil.rmtree(os.path.join(root, old), ignore_errors=True)
+    numba.config.CACHE_DIR = path
+
+
+_use_versioned_kernel_cache()
 
 # Reference points of the effects (fixed, so that the base coefficients keep their meaning).
 DRAG_SPEED_REF = 6.0

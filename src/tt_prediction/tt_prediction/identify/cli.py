@@ -67,6 +67,8 @@ def main(argv=None):
     except KeyboardInterrupt:
         print('tt-identify: interrupted, nothing written', file=sys.stderr)
         return 130
+    if result.get('selection_note'):
+        print(f"tt-identify: {result['selection_note']}", file=sys.stderr)
     print(f'tt-identify: wrote {args.out} (selected effects: '
           f"{', '.join(result['selected_effects']) or 'none'})", file=sys.stderr)
     return 0

@@ -49,12 +49,33 @@ NOT_IDENTIFIABLE = {
 }
 
 
-def applicable(effect, has_bounces, has_spin):
-    """Why an effect cannot be tested on this data, or '' when it can."""
+MIN_TRACKS = 8
+"""Fewest usable tracks on which an effect is selected: held-out gains over fewer tracks (a
+few folds of one or two tracks each) are not evidence of a mechanism."""
+MIN_BOUNCES = 8
+"""Fewest located table bounces on which a table effect is tested."""
+MIN_SPIN_TRACKS = 8
+"""Fewest tracks with measured spin on which a spin-measurement effect is tested."""
+
+
+def too_small(n_tracks):
+    """Why the data is too small to select any effect, or '' when it is not."""
+    if n_tracks < MIN_TRACKS:
+        return (f'data too small to select an effect: {n_tracks} usable tracks, at least '
+                f'{MIN_TRACKS} are needed; nothing selected')
+    return ''
+
+
+def applicable(effect, n_bounces, n_spin):
+    """Why an effect cannot be tested on this data, or '' when it can. ``n_bounces``: table
+    bounces located in the data; ``n_spin``: tracks with measured (not estimated) spin."""
     if effect.name in NOT_IDENTIFIABLE:
         return NOT_IDENTIFIABLE[effect.name]
-    if effect.needs == 'bounces' and not has_bounces:
-        return 'no table bounce in the data'
-    if effect.needs == 'spin' and not has_spin:
-        return 'no measured spin in the data (index.csv)'
+    if effect.needs == 'bounces' and n_bounces < MIN_BOUNCES:
+        return (f'{n_bounces} table bounces in the data, at least {MIN_BOUNCES} needed'
+                if n_bounces else 'no table bounce in the data')
+    if effect.needs == 'spin' and n_spin < MIN_SPIN_TRACKS:
+        return (f'measured spin on {n_spin} tracks, at least {MIN_SPIN_TRACKS} needed'
+                if n_spin else 'no measured spin in the data (index.csv; estimated spin '
+                               'does not count)')
     return ''

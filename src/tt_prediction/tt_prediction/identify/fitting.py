@@ -202,13 +202,13 @@ def fit_rms(track, x, P, spin_scale=0.0):
     return float(np.sqrt(np.mean(res ** 2)))
 
 
-def gate(tracks, states, P):
+def gate(tracks, states, P, spin_scale=0.0):
     """Gate isolated spikes: samples more than GATE from the fitted model track and more
     than GATE / 2 farther than both neighbours. A contiguous misfit is the model's residual,
     not an outlier, and stays. Returns the number gated."""
     dropped = 0
     for tr, x in zip(tracks, states, strict=True):
-        pred = simulate(full_state(tr, x), P, tr.t, tr.n_bounces + 1)[:, :3]
+        pred = simulate(full_state(tr, x, spin_scale), P, tr.t, tr.n_bounces + 1)[:, :3]
         dist = np.linalg.norm(pred - tr.p, axis=1)
         dist[~np.isfinite(dist)] = 0.0
         nb = np.maximum(np.r_[dist[1:], 0.0], np.r_[0.0, dist[:-1]])
