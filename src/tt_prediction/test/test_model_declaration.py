@@ -144,3 +144,37 @@ def test_friction_depends_on_slip_speed():
     assert w1[1] == pytest.approx((1 - 1.5 * alpha) * w[1] + 1.5 * alpha / 0.020 * v[0],
                                   rel=1e-12)
     assert math.isclose(mu, 0.25 + 0.02 * (vt - 4.0))
+
+
+def test_the_predictor_runs_the_effects_that_model_yaml_selects(tmp_path):
+    # What tt-identify writes is what prediction_node and tt-predict load (load_model) and
+    # run. Without air (c_d = c_m = 0) the flight is a parabola, so the bounce and the hit
+    # follow by hand from eqs. 1-6 with the gripping alpha = 2/5 (1 + e_x).
+    from tt_prediction.predict import predict
+    e_x = 0.5
+    path = tmp_path / 'model.yaml'
+    selected = NOMINAL.replace(e_t_tangential=e_x, mu_slip_slope=0.01)
+    selected.save(path, meta={'selected_effects': ['table_compliance']})
+    assert ball.load_model(str(path)) == selected
+    assert ball.load_model(str(path)).active_effects() == ['e_t_tangential', 'mu_slip_slope']
+    # No air is implausible in a file (c_d below 0.1), so the parabola uses the structure.
+    params = NOMINAL.replace(c_d=0.0, c_m=0.0, e_t_tangential=e_x)
+    p0, v0, w = np.array([1.2, 0.1, 0.35]), np.array([-5.0, 0.4, 0.8]), np.array([0, -200, 0])
+    g, r = 9.8, 0.020
+    t_b = (v0[2] + math.sqrt(v0[2] ** 2 + 2.0 * g * (p0[2] - r))) / g
+    v_in = np.array([v0[0], v0[1], v0[2] - g * t_b])
+    slip = 0.25 * 1.93 * abs(v_in[2]) / np.linalg.norm(_contact_velocity(v_in, w))
+    alpha = 0.4 * (1.0 + e_x)
+    assert slip > alpha                                   # the ball grips
+    v1 = np.array([(1 - alpha) * v_in[0] + alpha * r * w[1],
+                   (1 - alpha) * v_in[1] - alpha * r * w[0], -0.93 * v_in[2]])
+    bounce = p0 + v0 * t_b + [0.0, 0.0, -0.5 * g * t_b ** 2]
+    t_h = (-1.5 - bounce[0]) / v1[0]
+    pred = predict(np.r_[p0, v0, w], params)
+    assert pred.status == 'ok'
+    np.testing.assert_allclose(pred.bounce.p[:2], bounce[:2], atol=1e-8)
+    np.testing.assert_allclose(pred.hit.p, [-1.5, bounce[1] + v1[1] * t_h,
+                                            r + v1[2] * t_h - 0.5 * g * t_h ** 2], atol=1e-8)
+    # The paper's model (e_x = 0) puts the hit elsewhere: the effect is not ignored.
+    plain = predict(np.r_[p0, v0, w], NOMINAL.replace(c_d=0.0, c_m=0.0))
+    assert abs(plain.hit.t - pred.hit.t) > 0.005        # v_x after: -4.6 against -4.4 m/s
