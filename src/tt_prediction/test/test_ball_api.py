@@ -2,6 +2,7 @@
 definition of a derivative, the RK4 step against the closed-form parabola, the export list."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -77,3 +78,21 @@ def test_the_public_interface_exports_only_public_existing_names():
         assert hasattr(ball, name), name
     for name in ('flight_jacobian', 'rk4_step', 'landing_kernel', 'ModelParams', 'zone_of'):
         assert name in ball.__all__
+
+
+def test_the_interface_is_documented_with_numpydoc_sections():
+    # Functions: Parameters and Returns; classes: Attributes (the ball-model modules; the
+    # landing kernel is predict.py's and documented there).
+    own = {'tt_prediction.params', 'tt_prediction.model', 'tt_prediction.integrate',
+           'tt_prediction.table'}
+    for name in ball.__all__:
+        obj = getattr(ball, name)
+        func = getattr(obj, 'py_func', obj)
+        if not callable(obj) or getattr(func, '__module__', '') not in own:
+            continue
+        doc = obj.__doc__ or ''
+        sections = set(re.findall(r'\n\s*(\w+)\n\s*-{3,}\n', doc))
+        if isinstance(obj, type):
+            assert 'Attributes' in sections, name
+        else:
+            assert {'Parameters', 'Returns'} <= sections, name

@@ -46,11 +46,24 @@ _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
 
 @njit(**_NJIT)
 def flight_derivative(s, P, out):
-    """Time derivative of the state in free flight, written into ``out`` (9,).
+    """Time derivative of the state in free flight (eq. 8 with its effects), into ``out``.
 
     Eq. 8: m a = m g - 1/2 C_D rho A |u| u + 4/3 C_M pi rho r^3 (w x u), with u = v - wind
-    the air-relative velocity (u = v in the paper's still air), and dw/dt = -spin_decay w
-    (0 in the paper: constant spin).
+    the air-relative velocity (u = v in the paper's still air), C_D and C_M with their
+    speed and spin-ratio effects, and dw/dt = -spin_decay w (0 in the paper: constant spin).
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9,)
+        Receives ds/dt = [v (m/s), a (m/s^2), dw/dt (rad/s^2)].
+
+    Returns
+    -------
+    None
     """
     m = P[I_MASS]
     r = P[I_RADIUS]
@@ -226,13 +239,27 @@ def table_rebound_inplace(s, P):
 def racket_rebound_inplace(s, P, normal, racket_velocity):
     """Apply the racket rubber rebound (eq. 7, MODEL.md) to the velocity and spin of ``s``.
 
-    ``normal``: unit face normal (world), pointing to the side the ball leaves from;
-    ``racket_velocity``: the racket's linear velocity at impact (world), m/s.
     In the racket frame (z = normal) with v the ball velocity relative to the racket,
-    K_v = k_p / m, K_w = k_p / I:
+    K_v = k_p / m, K_w = k_p / I (k_p in kg, so both are dimensionless, K_w in 1/m^2):
         v_t' = (1 - K_v) v_t + K_v r (w x n),   v_n' = -e_r v_n,
         w_t' = (1 - K_w r^2) w_t + K_w r (n x v),   w_n' = w_n,
     the frame-free form of eq. 7 (its rows for x and y are the components of these).
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame, at the hit; v and w are overwritten
+        with the values just after it.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    normal : ndarray (3,)
+        Unit face normal, table frame, pointing to the side the ball leaves from.
+    racket_velocity : ndarray (3,)
+        The racket's linear velocity at impact, table frame, m/s.
+
+    Returns
+    -------
+    None
     """
     m = P[I_MASS]
     r = P[I_RADIUS]
@@ -261,7 +288,22 @@ def racket_rebound_inplace(s, P, normal, racket_velocity):
 
 
 def table_rebound(velocity, spin, params):
-    """Velocity and spin just after a table bounce (eqs. 1-6); arrays (3,) in and out."""
+    """Velocity and spin just after a table bounce (eqs. 1-6 with the model's effects).
+
+    Parameters
+    ----------
+    velocity : array_like (3,)
+        Ball velocity at contact, table frame, m/s (v_z < 0).
+    spin : array_like (3,)
+        Ball spin at contact, rad/s.
+    params : ModelParams
+        The model.
+
+    Returns
+    -------
+    velocity, spin : ndarray (3,)
+        Just after the bounce, m/s and rad/s.
+    """
     s = np.zeros(9)
     s[3:6], s[6:9] = velocity, spin
     table_rebound_inplace(s, params.packed())
@@ -269,7 +311,24 @@ def table_rebound(velocity, spin, params):
 
 
 def racket_rebound(velocity, spin, normal, racket_velocity, params):
-    """Ball velocity and spin just after the racket hit (eq. 7), world frame; arrays (3,)."""
+    """Ball velocity and spin just after the racket hit (eq. 7), table frame.
+
+    Parameters
+    ----------
+    velocity, spin : array_like (3,)
+        Ball velocity (m/s) and spin (rad/s) at the hit.
+    normal : array_like (3,)
+        Racket face normal (normalised here), pointing to the side the ball leaves from.
+    racket_velocity : array_like (3,)
+        The racket's linear velocity, m/s.
+    params : ModelParams
+        The model (e_r, k_p).
+
+    Returns
+    -------
+    velocity, spin : ndarray (3,)
+        Just after the hit, m/s and rad/s.
+    """
     normal = np.asarray(normal, dtype=float)
     normal = normal / np.linalg.norm(normal)
     s = np.zeros(9)
@@ -280,7 +339,20 @@ def racket_rebound(velocity, spin, normal, racket_velocity, params):
 
 
 def flight_acceleration(position, velocity, spin, params):
-    """Ball acceleration in free flight (eq. 8), m/s^2; arrays (3,) in and out."""
+    """Ball acceleration in free flight (eq. 8 with the model's effects).
+
+    Parameters
+    ----------
+    position, velocity, spin : array_like (3,)
+        Table frame: m, m/s, rad/s.
+    params : ModelParams
+        The model.
+
+    Returns
+    -------
+    ndarray (3,)
+        Acceleration, m/s^2 (gravity included).
+    """
     s = np.concatenate([position, velocity, spin]).astype(float)
     out = np.empty(9)
     flight_derivative(s, params.packed(), out)

@@ -297,8 +297,9 @@ def _declared(cls):
 
 @_declared
 class ModelParams:
-    """Parameters of the ball model (SI units; spin in rad/s), one field per :data:`FIELDS`
-    entry; the effect coefficients are 0 (off) by default."""
+    """The ball model's parameters (SI units; spin in rad/s), one field per :data:`FIELDS`
+    entry; the effect coefficients are 0 (off) by default (the Attributes below are
+    generated from the declaration)."""
 
     def __post_init__(self):
         self.wind = tuple(float(w) for w in self.wind)
@@ -435,5 +436,21 @@ class ModelParams:
 
 
 def load_model(path=None):
-    """The model of ``path`` (a model.yaml), or the nominal model when ``path`` is empty."""
+    """The model of a model.yaml, or the nominal model.
+
+    Parameters
+    ----------
+    path : str or None
+        model.yaml to read; empty or None for the nominal (paper's) model.
+
+    Returns
+    -------
+    ModelParams
+
+    Raises
+    ------
+    ValueError
+        One line naming the file and what is wrong (unreadable, bad YAML, unknown key,
+        non-number, value outside its declared plausible range).
+    """
     return ModelParams.load(path) if path else ModelParams()
