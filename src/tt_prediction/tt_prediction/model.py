@@ -45,6 +45,31 @@ _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
 
 
 @njit(**_NJIT)
+def _aero(s, P):
+    """The air terms of eq. 8 at state ``s``: air-relative velocity u = v - wind (m/s), its
+    magnitude, C_D and C_M with their effects, K_D = rho A / (2 m) (1/m) and
+    K_M = 4/3 pi rho r^3 / m (m): the drag acceleration is -K_D C_D |u| u, the Magnus one
+    K_M C_M (w x u)."""
+    m = P[I_MASS]
+    r = P[I_RADIUS]
+    rho = P[I_RHO]
+    ux = s[3] - P[I_WIND_X]
+    uy = s[4] - P[I_WIND_Y]
+    uz = s[5] - P[I_WIND_Z]
+    speed = math.sqrt(ux * ux + uy * uy + uz * uz)
+    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
+    c_m = P[I_CM]
+    if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
+        spin = math.sqrt(s[6] * s[6] + s[7] * s[7] + s[8] * s[8])
+        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
+        c_m += P[I_CM_SLOPE] * ratio
+        c_d += P[I_CD_SPIN_SLOPE] * ratio
+    k_d = 0.5 * rho * P[I_AREA] / m
+    k_m = 4.0 / 3.0 * math.pi * rho * r * r * r / m
+    return ux, uy, uz, speed, c_d, c_m, k_d, k_m
+
+
+@njit(**_NJIT)
 def flight_derivative(s, P, out):
     """Time derivative of the state in free flight (eq. 8 with its effects), into ``out``.
 
@@ -65,23 +90,10 @@ def flight_derivative(s, P, out):
     -------
     None
     """
-    m = P[I_MASS]
-    r = P[I_RADIUS]
-    rho = P[I_RHO]
-    ux = s[3] - P[I_WIND_X]
-    uy = s[4] - P[I_WIND_Y]
-    uz = s[5] - P[I_WIND_Z]
+    ux, uy, uz, speed, c_d, c_m, k_d, k_m = _aero(s, P)
     wx, wy, wz = s[6], s[7], s[8]
-    speed = math.sqrt(ux * ux + uy * uy + uz * uz)
-    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
-    c_m = P[I_CM]
-    if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
-        spin = math.sqrt(wx * wx + wy * wy + wz * wz)
-        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
-        c_m += P[I_CM_SLOPE] * ratio
-        c_d += P[I_CD_SPIN_SLOPE] * ratio
-    drag = 0.5 * c_d * rho * P[I_AREA] * speed / m           # eq. 8, drag term / m
-    lift = 4.0 / 3.0 * c_m * math.pi * rho * r * r * r / m   # eq. 8, Magnus term / m
+    drag = k_d * c_d * speed                            # eq. 8, drag term / (m |u|)
+    lift = k_m * c_m                                    # eq. 8, Magnus term / m
     out[0] = s[3]
     out[1] = s[4]
     out[2] = s[5]
@@ -122,37 +134,25 @@ def flight_jacobian(s, P, out):
     ndarray (9, 9)
         ``out``. At S = 0 the drag terms are taken as 0 (the derivative's kink).
     """
-    m = P[I_MASS]
+    ux, uy, uz, speed, c_d, c_m, k_d, k_m = _aero(s, P)
     r = P[I_RADIUS]
-    rho = P[I_RHO]
-    ux = s[3] - P[I_WIND_X]
-    uy = s[4] - P[I_WIND_Y]
-    uz = s[5] - P[I_WIND_Z]
     wx, wy, wz = s[6], s[7], s[8]
     u = np.array([ux, uy, uz])
     w = np.array([wx, wy, wz])
-    speed = math.sqrt(ux * ux + uy * uy + uz * uz)
     spin = math.sqrt(wx * wx + wy * wy + wz * wz)
-    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
-    c_m = P[I_CM]
-    dcd_du = np.zeros(3)
+    dcd_du = np.zeros(3)                                # gradients of C_D, C_M (effects)
     dcd_dw = np.zeros(3)
     dcm_du = np.zeros(3)
     dcm_dw = np.zeros(3)
     if speed > 0.0:
         dcd_du += P[I_CD_SLOPE] * u / speed
     if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
-        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
-        c_m += P[I_CM_SLOPE] * ratio
-        c_d += P[I_CD_SPIN_SLOPE] * ratio
         dratio_du = -r * spin / speed ** 3 * u
         dratio_dw = r / (speed * spin) * w if spin > 0.0 else np.zeros(3)
         dcd_du += P[I_CD_SPIN_SLOPE] * dratio_du
         dcd_dw += P[I_CD_SPIN_SLOPE] * dratio_dw
         dcm_du += P[I_CM_SLOPE] * dratio_du
         dcm_dw += P[I_CM_SLOPE] * dratio_dw
-    k_d = 0.5 * rho * P[I_AREA] / m                       # eq. 8, drag term / (m C_D |u|)
-    k_m = 4.0 / 3.0 * math.pi * rho * r * r * r / m       # eq. 8, Magnus term / (m C_M)
     wxu = np.array([wy * uz - wz * uy, wz * ux - wx * uz, wx * uy - wy * ux])
     for i in range(9):
         for j in range(9):

@@ -16,11 +16,14 @@ import hashlib
 import math
 import os
 import shutil
+import time
 
 import numba
 import numpy as np
 import yaml
 
+STALE_CACHE_AGE = 86400.0
+"""A kernel cache of other sources untouched for this long is removed, s."""
 KERNEL_SOURCES = ('params.py', 'model.py', 'integrate.py', 'table.py', 'predict.py')
 """The files of the ball model's compiled kernels, whose content keys the kernel cache."""
 
@@ -31,7 +34,8 @@ def _use_versioned_kernel_cache():
     numba's ``cache=True`` checks the time stamp of the file of the cached function only: a
     kernel of integrate.py (or of tt_strike) that inlines model.py's equations would keep the
     old physics after an edit of model.py or of the packed layout. The cache therefore lives
-    in ``__pycache__/numba-<hash of KERNEL_SOURCES>`` (older ones are removed), unless
+    in ``__pycache__/numba-<hash of KERNEL_SOURCES>`` (others untouched for a day are
+    removed: a process still running on older sources keeps its cache), unless
     NUMBA_CACHE_DIR is set or that directory cannot be written (numba's default then).
     """
     if numba.config.CACHE_DIR:
@@ -52,9 +56,14 @@ def _use_versioned_kernel_cache():
             return
     except OSError:
         return
-    for old in os.listdir(root):
-        if old.startswith('numba-') and os.path.join(root, old) != path:
-            shutil.rmtree(os.path.join(root, old), ignore_errors=True)
+    for old in os.listdir(root):       # stale caches of older sources, not in use any more
+        old = os.path.join(root, old)
+        try:
+            stale = time.time() - os.path.getmtime(old) > STALE_CACHE_AGE
+        except OSError:
+            continue
+        if os.path.basename(old).startswith('numba-') and old != path and stale:
+            shutil.rmtree(old, ignore_errors=True)
     numba.config.CACHE_DIR = path
 
 
