@@ -240,7 +240,7 @@ def racket_rebound_inplace(s, P, normal, racket_velocity):
     """Apply the racket rubber rebound (eq. 7, MODEL.md) to the velocity and spin of ``s``.
 
     In the racket frame (z = normal) with v the ball velocity relative to the racket,
-    K_v = k_p / m, K_w = k_p / I (k_p in kg, so both are dimensionless, K_w in 1/m^2):
+    K_v = k_p / m (dimensionless) and K_w = k_p / I (1/m^2), k_p in kg:
         v_t' = (1 - K_v) v_t + K_v r (w x n),   v_n' = -e_r v_n,
         w_t' = (1 - K_w r^2) w_t + K_w r (n x v),   w_n' = w_n,
     the frame-free form of eq. 7 (its rows for x and y are the components of these).
