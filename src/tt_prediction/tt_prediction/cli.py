@@ -94,7 +94,7 @@ def predictions(states, params, hit_plane_x):
         return [predict(state, params, t0=t, hit_plane_x=hit_plane_x) for t, state in states]
     times = np.array([t for t, _ in states])
     return predict_many(np.array([state for _, state in states]), params, t0=times,
-                        hit_plane_x=hit_plane_x)
+                        hit_plane_x=hit_plane_x, checked=True)     # parse_state checked them
 
 
 def main(argv=None):

@@ -550,14 +550,17 @@ def _batch_rows(states, P, t0, hit_plane_x, bounced, outgoing, parallel, validat
     return out
 
 
-def predict_many(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, parallel=None):
+def predict_many(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, parallel=None,
+                 checked=False):
     """:func:`predict` for N incoming balls through the batch kernel: a list of N Predictions,
     each the same, to the last bit, as ``predict(states[i], params, t0[i], hit_plane_x)``
     (same compiled kernel, same inputs), at the batch's cost (tt-predict on many lines).
 
     ``states`` (N, 9) [p, v, w] in the table frame (m, m/s, rad/s); ``t0`` a scalar or (N,)
     absolute times (s); ``hit_plane_x`` (m). A row that is not a ball to predict gets status
-    'invalid' with :func:`check_state`'s reason.
+    'invalid' with :func:`check_state`'s reason. ``checked``: the caller has already found
+    every row valid with :func:`check_state` (tt-predict does, line by line), so it is not
+    checked again.
     """
     P = _packed(params)
     states = np.asarray(states, dtype=np.float64)
@@ -567,7 +570,7 @@ def predict_many(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, p
                 for _ in range(len(states))]
     # check_state row by row, as predict does (the vectorised mask may differ in the last bit
     # at a limit such as MAX_SPEED).
-    reasons = [check_state(s, P[I_RADIUS]) for s in states]
+    reasons = [''] * len(states) if checked else [check_state(s, P[I_RADIUS]) for s in states]
     valid = np.array([not r for r in reasons], dtype=bool)
     rows = _batch_rows(states, P, t0, hit_plane_x, False, False, parallel, valid)
     return [_to_prediction(row, hit_plane_x) if ok
