@@ -38,8 +38,8 @@ import math
 from numba import njit
 import numpy as np
 
-from .integrate import _rk4    # TODO(ball): tt_prediction.ball.rk4_step once it lands
-from .model import table_rebound_inplace
+from .integrate import _rk4  # TODO(ball): tt_prediction.ball.rk4_step once it lands
+from .model import flight_derivative, table_rebound_inplace
 from .params import (
     DRAG_SPEED_REF,
     I_AREA,
@@ -327,7 +327,17 @@ def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
             xc[2] = contact_z
             J = np.empty((9, 9))
             rebound_jacobian(xc, P, J)
+            f_in = np.empty(9)
+            flight_derivative(xc, P, f_in)
             table_rebound_inplace(xc, P)       # eqs. 1-6
+            f_out = np.empty(9)
+            flight_derivative(xc, P, f_out)
+            # Saltation: a state error also moves the contact time, dt_c/ds = -e_z / v_z,
+            # so S = J + (f_out - J f_in) (dt_c/ds)^T maps the covariance through the bounce.
+            jump = f_out - J @ f_in
+            vz = min(f_in[2], -1e-3)
+            for i in range(9):
+                J[i, 2] -= jump[i] / vz
             Cc = J @ Cc @ J.T
             for i in range(3):
                 Cc[3 + i, 3 + i] += cfg[2]

@@ -85,7 +85,7 @@ def read_input(model_file, input_file, parse):
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if any(a == '--tracks' or a.startswith('--tracks=') for a in argv):
-        from .tracks_cli import main as tracks_main      # replay of measured tracks
+        from .tracks_cli import main as tracks_main  # replay of measured tracks
         return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
