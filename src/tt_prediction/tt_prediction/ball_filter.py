@@ -80,7 +80,14 @@ class FilterConfig:
     spin_noise: float = 2.0
     """Random walk of the spin, rad/s / sqrt(s)."""
     spin_prior: float = 250.0
-    """Prior standard deviation of each spin component, rad/s (unknown spin)."""
+    """Prior standard deviation of the spin about the horizontal axis across the velocity
+    (top/back spin), rad/s; of every component unless the two below are set."""
+    spin_prior_side: float = None
+    """Prior standard deviation of the side spin (about the axis across the velocity in
+    the vertical plane), rad/s; None: ``spin_prior``."""
+    spin_prior_along: float = None
+    """Prior standard deviation of the spin along the velocity (gyro spin, which flight
+    cannot observe), rad/s; None: ``spin_prior``."""
     bounce_velocity_noise: float = 0.15
     """Standard deviation added to each velocity component at a bounce, m/s."""
     bounce_spin_noise: float = 25.0
@@ -99,6 +106,9 @@ class FilterConfig:
     """TrackFilter restarts from the data after this many rejected samples in a row."""
     max_gap: float = 0.2
     """TrackFilter restarts after a gap without accepted samples longer than this, s."""
+    bounce_transform: str = 'linear'
+    """How the covariance goes through a bounce: 'linear' (the Jacobian of eqs. 1-6 with the
+    saltation term) or 'unscented' (sigma points through eqs. 1-6)."""
     rebounce_range: float = 0.015
     """Contact heights tried around z = r when a sample near a bounce fails the gate, +-m."""
 
@@ -294,11 +304,71 @@ def _propagate(x, C, h, P, q_acc, q_spin):
 
 
 @njit(**_NJIT)
+def _rebound_linear(xc, Cc, P):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` and its covariance by the Jacobian and
+    the saltation term: a state error also moves the contact time, dt_c/ds = -e_z / v_z, so
+    S = J + (f_out - J f_in) (dt_c/ds)^T maps the covariance through the bounce."""
+    J = np.empty((9, 9))
+    rebound_jacobian(xc, P, J)
+    f_in = np.empty(9)
+    flight_derivative(xc, P, f_in)
+    x = xc.copy()
+    table_rebound_inplace(x, P)       # eqs. 1-6
+    f_out = np.empty(9)
+    flight_derivative(x, P, f_out)
+    jump = f_out - J @ f_in
+    vz = min(f_in[2], -1e-3)
+    for i in range(9):
+        J[i, 2] -= jump[i] / vz
+    return x, J @ Cc @ J.T
+
+
+@njit(**_NJIT)
+def _rebound_unscented(xc, Cc, P, contact_z):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` and covariance ``Cc`` by the unscented
+    transform: the rebound is far from linear in the spin the flight could not observe (the
+    slip ratio alpha of eqs. 1-6 depends on |v_T| = |v - r w x n|, and sliding turns into
+    rolling at alpha = 2/5), so 2n sigma points at +-sqrt(n) standard deviations go through
+    it. Each point meets the table at its own time, t_c + d with d = (z - z_c) / -v_z: it is
+    moved to its contact along its flight derivative, rebounded, and moved back by d along
+    its new derivative, so the spread of contact times (the saltation term) is in the
+    result too. Returns the mean and covariance at the mean's contact time."""
+    n = 9
+    Cs = 0.5 * (Cc + Cc.T)
+    for i in range(n):
+        Cs[i, i] += 1e-12
+    L = np.linalg.cholesky(Cs) * math.sqrt(n)
+    Y = np.empty((2 * n, n))
+    f = np.empty(9)
+    for k in range(2 * n):
+        X = xc + (L[:, k % n] if k < n else -L[:, k % n])
+        vz = min(X[5], -0.05)
+        d = (X[2] - contact_z) / -vz
+        flight_derivative(X, P, f)
+        X = X + f * d
+        X[5] = vz
+        X[2] = contact_z
+        table_rebound_inplace(X, P)
+        flight_derivative(X, P, f)
+        Y[k] = X - f * d
+    mean = np.zeros(n)
+    for k in range(2 * n):
+        mean += Y[k]
+    mean /= 2 * n
+    cov = np.zeros((n, n))
+    for k in range(2 * n):
+        dy = Y[k] - mean
+        cov += np.outer(dy, dy)
+    cov /= 2 * n
+    return mean, cov
+
+
+@njit(**_NJIT)
 def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
     """Advance (x, C) from t to t_end, bouncing on the table at centre height ``contact_z``.
 
     cfg = (accel_noise^2, spin_noise^2, bounce_velocity_noise^2, bounce_spin_noise^2,
-    max_step). ``bounce`` (4,) receives the last contact (t, x, y) and its count is returned
+    max_step, 1 for the unscented rebound else 0). ``bounce`` (4,) receives the last contact (t, x, y) and its count is returned
     with the new state: (x, C, n_bounces).
     """
     r = P[I_RADIUS]
@@ -325,20 +395,10 @@ def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
                 tau = min(max(tau + step, 1e-9), h)
             xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1])
             xc[2] = contact_z
-            J = np.empty((9, 9))
-            rebound_jacobian(xc, P, J)
-            f_in = np.empty(9)
-            flight_derivative(xc, P, f_in)
-            table_rebound_inplace(xc, P)       # eqs. 1-6
-            f_out = np.empty(9)
-            flight_derivative(xc, P, f_out)
-            # Saltation: a state error also moves the contact time, dt_c/ds = -e_z / v_z,
-            # so S = J + (f_out - J f_in) (dt_c/ds)^T maps the covariance through the bounce.
-            jump = f_out - J @ f_in
-            vz = min(f_in[2], -1e-3)
-            for i in range(9):
-                J[i, 2] -= jump[i] / vz
-            Cc = J @ Cc @ J.T
+            if cfg[5] > 0.0:
+                xc, Cc = _rebound_unscented(xc, Cc, P, contact_z)
+            else:
+                xc, Cc = _rebound_linear(xc, Cc, P)
             for i in range(3):
                 Cc[3 + i, 3 + i] += cfg[2]
                 Cc[6 + i, 6 + i] += cfg[3]
@@ -395,7 +455,7 @@ class BallFilter:
         c = self.config
         self._cfg = np.array([c.accel_noise ** 2, c.spin_noise ** 2,
                               c.bounce_velocity_noise ** 2, c.bounce_spin_noise ** 2,
-                              c.max_step])
+                              c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0])
         self.x = np.zeros(9)
         self.P = np.eye(9)
         self.t = 0.0
@@ -414,11 +474,30 @@ class BallFilter:
         self.P = np.zeros((9, 9))
         self.P[:3, :3] = position_cov
         self.P[3:6, 3:6] = velocity_cov
-        self.P[6:, 6:] = (np.eye(3) * self.config.spin_prior ** 2 if spin_cov is None
-                          else spin_cov)
+        self.P[6:, 6:] = self.spin_prior_cov(velocity) if spin_cov is None else spin_cov
         self.bounces = 0
         self.last_bounce = None
         self._prev = None
+
+    def spin_prior_cov(self, velocity):
+        """Prior covariance (3, 3) of the spin, (rad/s)^2, for a ball moving with
+        ``velocity``: ``spin_prior`` about the horizontal axis across it (top/back spin),
+        ``spin_prior_side`` about the third axis and ``spin_prior_along`` along it."""
+        c = self.config
+        top = c.spin_prior
+        side = top if c.spin_prior_side is None else c.spin_prior_side
+        along = top if c.spin_prior_along is None else c.spin_prior_along
+        if side == top == along:
+            return np.eye(3) * top ** 2
+        v = np.asarray(velocity, dtype=float)
+        e1 = v / max(np.linalg.norm(v), 1e-9)
+        e2 = np.cross([0.0, 0.0, 1.0], e1)
+        if np.linalg.norm(e2) < 1e-6:
+            e2 = np.array([0.0, 1.0, 0.0])
+        e2 /= np.linalg.norm(e2)
+        e3 = np.cross(e1, e2)
+        return (along ** 2 * np.outer(e1, e1) + top ** 2 * np.outer(e2, e2)
+                + side ** 2 * np.outer(e3, e3))
 
     def predict(self, t, contact_z=None):
         """Advance to time ``t`` (s), bouncing on the table (eqs. 1-6) when the ball does;
@@ -539,12 +618,13 @@ class TrackFilter:
         vcov = np.eye(3) * (2.0 * cfg.position_noise ** 2 / dt ** 2
                             + cfg.start_velocity_noise ** 2)
         spin = spin_cov = None
+        f = BallFilter(self.params, cfg)
+        f_prior = f.spin_prior_cov
         if self.filter is not None:
             # Keep what is known of the spin (it changes little), with the prior's variance
             # added back for what a racket hit or a bounce might have done to it.
             spin = self.filter.x[6:].copy()
-            spin_cov = self.filter.P[6:, 6:] + np.eye(3) * cfg.spin_prior ** 2
-        f = BallFilter(self.params, cfg)
+            spin_cov = self.filter.P[6:, 6:] + f_prior(v)
         f.start(t, p, v, self._R, vcov, spin, spin_cov)
         if self.filter is not None and not self.robot_bounced:
             # Restarted from a kink near the table on the robot's half: a bounce the model

@@ -78,8 +78,13 @@ def load_filter_config(path, tracks):
         noise = estimate_position_noise(
             (t[np.isfinite(p).all(axis=1)], p[np.isfinite(p).all(axis=1)])
             for _, t, p, _ in tracks)
+    def typed(name, value):
+        default = getattr(FilterConfig, name)
+        return (str(value) if isinstance(default, str) else
+                int(value) if isinstance(default, int) else float(value))
+
     try:
-        config = FilterConfig(**{k: type(getattr(FilterConfig, k))(v) for k, v in data.items()},
+        config = FilterConfig(**{k: typed(k, v) for k, v in data.items()},
                               position_noise=float(noise))
     except (TypeError, ValueError) as exc:
         raise DataError(f'{path}: {exc}') from None
