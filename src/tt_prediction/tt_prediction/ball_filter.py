@@ -368,8 +368,8 @@ def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
     """Advance (x, C) from t to t_end, bouncing on the table at centre height ``contact_z``.
 
     cfg = (accel_noise^2, spin_noise^2, bounce_velocity_noise^2, bounce_spin_noise^2,
-    max_step, 1 for the unscented rebound else 0). ``bounce`` (4,) receives the last contact (t, x, y) and its count is returned
-    with the new state: (x, C, n_bounces).
+    max_step, 1 for the unscented rebound else 0). ``bounce`` (4,) receives the last contact
+    (t, x, y, contact_z); returns the new state and the number of contacts: (x, C, n).
     """
     r = P[I_RADIUS]
     n_bounce = 0
