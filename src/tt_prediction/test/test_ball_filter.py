@@ -8,6 +8,7 @@ from tt_prediction.ball_filter import (
     BallFilter,
     FilterConfig,
     TrackFilter,
+    estimate_measurement_noise,
     estimate_position_noise,
     flight_jacobian,
     rebound_jacobian,
@@ -208,6 +209,23 @@ def test_position_noise_estimate_recovers_the_noise():
     tracks = [_measured(INCOMING, times, 1.5e-3, rng)[1] for _ in range(10)]
     est = estimate_position_noise((times, p) for p in tracks)
     assert est == pytest.approx(1.5e-3, rel=0.15)
+
+
+def test_measurement_noise_estimate_separates_stamp_jitter():
+    """Positions sampled at jittered times but stamped at the nominal ones: the error along
+    the velocity is v dt, across it only the position noise."""
+    rng = np.random.default_rng(6)
+    nominal = np.arange(0.0, 0.3, 1.0 / 180.0)
+    tracks = []
+    for _ in range(20):
+        true_t = nominal + 0.002 + rng.normal(0.0, 4e-4, len(nominal))
+        _, s = rollout(INCOMING, ModelParams(), sample_times=np.sort(true_t),
+                       stop_at_plane=False, stop_at_net=False, max_bounces=2, t_max=0.31)
+        tracks.append((nominal, s[:, :3] + rng.normal(0.0, 6e-4, (len(nominal), 3))))
+    assert all(np.isfinite(p).all() for _, p in tracks)
+    sigma_p, sigma_t = estimate_measurement_noise(tracks)
+    assert sigma_p == pytest.approx(6e-4, rel=0.15)
+    assert sigma_t == pytest.approx(4e-4, rel=0.2)
 
 
 def test_filter_state_predicts_the_hit_the_model_predicts():

@@ -66,7 +66,7 @@ from .params import (
 from .table import HALF_LENGTH, HALF_WIDTH
 
 __all__ = ['BallFilter', 'FilterConfig', 'TrackFilter', 'flight_jacobian', 'rebound_jacobian',
-           'skew', 'estimate_position_noise']
+           'skew', 'estimate_position_noise', 'estimate_measurement_noise']
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -100,6 +100,10 @@ class FilterConfig:
     """Longest integration step, s."""
     position_noise: float = 1.5e-3
     """Standard deviation of a measured position per axis (TrackFilter, replay), m."""
+    stamp_noise: float = 0.0
+    """Standard deviation of a sample's time stamp against its exposure (TrackFilter), s: a
+    stamp off by dt puts the ball off by v dt along its velocity, so the measurement
+    covariance is position_noise^2 I + stamp_noise^2 v v^T."""
     start_velocity_noise: float = 0.3
     """Velocity standard deviation per axis added to the two-sample start (drag, jitter), m/s."""
     max_rejects: int = 3
@@ -657,7 +661,11 @@ class TrackFilter:
             self.filter = f = None           # too long without data: start afresh
         if f is not None:
             self._predict(t)
-            if f.update(p, self._R, rebounce=True):
+            R = self._R
+            if cfg.stamp_noise > 0.0:
+                v = f.x[3:6]
+                R = R + cfg.stamp_noise ** 2 * np.outer(v, v)
+            if f.update(p, R, rebounce=True):
                 self.updates += 1
                 self.rejects = 0
                 self.last_accept = t
@@ -690,15 +698,49 @@ class TrackFilter:
             self._seen_bounce = f.last_bounce
 
 
-def estimate_position_noise(tracks, window=7):
-    """Measurement noise per axis (m) of measured tracks, from local fits.
+def estimate_measurement_noise(tracks, window=7):
+    """Position and stamp noise of measured tracks, from local fits: (m, s).
 
     Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis
-    (flight over ~40 ms is a parabola to far below 0.1 mm); the residual variance, corrected
-    by window / (window - 3) for the fitted parameters, is the noise variance. Windows that
-    hold a bounce or a spike (the larger residuals) are excluded by using the median of the
-    per-window variances, scaled to the mean of a chi-square with window - 3 dof.
-    ``tracks``: iterable of (t (n,), p (n, 3)). Returns the standard deviation, m.
+    (flight over ~40 ms is a parabola to far below 0.1 mm). Its residuals across the fitted
+    velocity give the position noise; along it they hold the stamp jitter too, var_along =
+    sigma_p^2 + sigma_t^2 |v|^2. Medians over windows (scaled to the mean of their chi-square
+    distributions) keep bounces and spikes out. ``tracks``: iterable of (t (n,), p (n, 3)).
+    Returns ``(position_noise, stamp_noise)``.
+    """
+    across, along, speed2 = [], [], []
+    for t, p in tracks:
+        for a in range(0, len(t) - window + 1, window):
+            tt = t[a:a + window] - t[a + window // 2]
+            A = np.stack([np.ones(window), tt, tt * tt], axis=1)
+            coef, *_ = np.linalg.lstsq(A, p[a:a + window], rcond=None)
+            res = p[a:a + window] - A @ coef
+            v = coef[1]
+            sp = float(np.linalg.norm(v))
+            if sp < 0.5:
+                continue
+            ra = res @ (v / sp)
+            across.append((float(np.sum(res * res)) - float(ra @ ra)) / (2 * (window - 3)))
+            along.append(float(ra @ ra) / (window - 3))
+            speed2.append(sp * sp)
+    if not across:
+        return math.nan, math.nan
+
+    def median_ratio(dof):          # median of chi2(dof) / dof (Wilson-Hilferty)
+        return (1.0 - 2.0 / (9.0 * dof)) ** 3
+
+    var_p = float(np.median(across)) / median_ratio(2 * (window - 3))
+    extra = (np.array(along) / median_ratio(window - 3) - var_p) / np.array(speed2)
+    return math.sqrt(var_p), math.sqrt(max(float(np.median(extra)), 0.0))
+
+
+def estimate_position_noise(tracks, window=7):
+    """Isotropic measurement noise per axis (m) of measured tracks, from local fits.
+
+    Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis;
+    the residual variance, corrected for the fitted parameters, is the noise variance; the
+    median over windows (scaled to the mean of a chi-square with its dof) keeps windows with a
+    bounce or a spike out. ``tracks``: iterable of (t (n,), p (n, 3)). Returns m.
     """
     variances = []
     for t, p in tracks:
@@ -712,6 +754,5 @@ def estimate_position_noise(tracks, window=7):
     if not variances:
         return math.nan
     dof = 3 * (window - 3)
-    # median of chi2(dof)/dof is about (1 - 2/(9 dof))^3
     med_ratio = (1.0 - 2.0 / (9.0 * dof)) ** 3
     return math.sqrt(float(np.median(variances)) / med_ratio)

@@ -77,7 +77,7 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
         if not math.isfinite(ti):
             continue
         status = tf.add(ti, p[i])
-        if not tf.running or tf.updates < 2:
+        if not tf.running:
             continue
         f = tf.filter
         if not spin_used and status == tf.STARTED:
@@ -294,5 +294,24 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     }
     if textbook:
         summary['textbook_hit_error'] = errors['textbook']
+    summary['rows_without_hit'] = rows_without_hit(replays)
     return replays, summary
+
+
+def rows_without_hit(replays, history=MIN_HISTORY):
+    """Rows without a predicted hit among those from ``history`` s after a track's first
+    sample up to its measured crossing: ``{'rows': n checked, 'missing': k, 'tracks': [...]}``
+    (the stricter form of "no missing prediction once a track has 50 ms of samples")."""
+    checked, missing, names = 0, 0, []
+    for rp in replays:
+        if rp.crossing is None:
+            continue
+        t = rp.rows[:, 0]
+        sel = np.isfinite(t) & (t >= rp.first_t + history) & (t < rp.crossing[0])
+        bad = sel & ~np.isfinite(rp.rows[:, 14])
+        checked += int(sel.sum())
+        missing += int(bad.sum())
+        if bad.any():
+            names.append(rp.name)
+    return {'rows': checked, 'missing': missing, 'tracks': names[:20]}
 

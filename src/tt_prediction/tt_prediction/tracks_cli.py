@@ -22,7 +22,7 @@ import tempfile
 import numpy as np
 import yaml
 
-from .ball_filter import FilterConfig, estimate_position_noise
+from .ball_filter import FilterConfig, estimate_measurement_noise
 from .identify.data import DataError, _read_index, read_track_csv
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X
@@ -57,7 +57,8 @@ def read_tracks(folder):
 
 def load_filter_config(path, tracks):
     """FilterConfig from a YAML mapping of its fields (``path``), or the defaults; a
-    ``position_noise`` of ``auto`` (the default without a file) is estimated from the data."""
+    ``position_noise`` or ``stamp_noise`` of ``auto`` (the default) is estimated from the data
+    (:func:`tt_prediction.ball_filter.estimate_measurement_noise`)."""
     data = {}
     if path:
         try:
@@ -74,10 +75,13 @@ def load_filter_config(path, tracks):
     if unknown:
         raise DataError(f'{path}: unknown filter setting(s) {", ".join(unknown)}')
     noise = data.pop('position_noise', 'auto')
-    if noise == 'auto':
-        noise = estimate_position_noise(
-            (t[np.isfinite(p).all(axis=1)], p[np.isfinite(p).all(axis=1)])
-            for _, t, p, _ in tracks)
+    stamp = data.pop('stamp_noise', 'auto')
+    if 'auto' in (noise, stamp):
+        clean = [(t[ok], p[ok]) for _, t, p, _ in tracks
+                 for ok in [np.isfinite(t) & np.isfinite(p).all(axis=1)]]
+        est_noise, est_stamp = estimate_measurement_noise(clean)
+        noise = est_noise if noise == 'auto' else noise
+        stamp = est_stamp if stamp == 'auto' else stamp
     def typed(name, value):
         default = getattr(FilterConfig, name)
         return (str(value) if isinstance(default, str) else
@@ -85,7 +89,7 @@ def load_filter_config(path, tracks):
 
     try:
         config = FilterConfig(**{k: typed(k, v) for k, v in data.items()},
-                              position_noise=float(noise))
+                              position_noise=float(noise), stamp_noise=float(stamp))
     except (TypeError, ValueError) as exc:
         raise DataError(f'{path}: {exc}') from None
     return config
