@@ -190,6 +190,15 @@ class CliNode:
         self.close()
 
 
+def add_spin_time_argument(parser):
+    """``--spin-time S`` of the verbs that look at the graph."""
+    parser.add_argument(
+        '--spin-time', type=float, default=None,
+        help='seconds to wait for discovery (default: until discovery has settled: the graph '
+             f'unchanged for {SETTLE_QUIET_S:g} s, at least {SETTLE_MIN_S:g} s, at most '
+             f'{SETTLE_MAX_S:g} s)')
+
+
 def full_topic_name(topic):
     """``topic`` with a leading '/' (names on the command line may be given without one)."""
     return topic if topic.startswith('/') else '/' + topic

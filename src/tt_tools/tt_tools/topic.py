@@ -4,6 +4,10 @@ import collections
 import difflib
 import time
 
+from rclpy.action import (
+    get_action_client_names_and_types_by_node,
+    get_action_server_names_and_types_by_node,
+)
 from rclpy.duration import Duration
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
@@ -21,6 +25,7 @@ from tt_tools.rosutil import (
     DURABILITY,
     RELIABILITY,
     CliNode,
+    add_spin_time_argument,
     full_topic_name,
     qos_matching,
     topic_type,
@@ -97,6 +102,57 @@ def topic_info(args):
         lines.append(('\n' if args.verbose else '') + f'{label} count: {len(infos)}')
         if args.verbose:
             lines.extend('\n' + str(info) for info in infos)
+    write('\n'.join(lines) + '\n')
+    return 0
+
+
+def topic_type_verb(args):
+    topic = full_topic_name(args.topic)
+    with CliNode('topic_type') as cli:
+        def types():
+            return dict(cli.node.get_topic_names_and_types()).get(topic)
+
+        cli.settle(args.spin_time, done=types)
+        found = types()
+    if not found:
+        raise ValueError(f"Unknown topic '{topic}'")
+    write(''.join(t + '\n' for t in found))
+    return 0
+
+
+def split_node_name(full_name):
+    """``'/ns/node'`` -> ``('node', '/ns')``; ``'node'`` or ``'/node'`` -> ``('node', '/')``."""
+    full_name = full_name if full_name.startswith('/') else '/' + full_name
+    ns, _, name = full_name.rpartition('/')
+    return name, ns or '/'
+
+
+def _hidden(name):
+    return any(part.startswith('_') for part in name.split('/'))
+
+
+def node_info(args):
+    name, ns = split_node_name(args.node_name)
+    full = f'{ns.rstrip("/")}/{name}'
+    with CliNode('node_info') as cli:
+        cli.settle(args.spin_time)
+        if (name, ns) not in cli.node.get_node_names_and_namespaces():
+            raise ValueError(f"Unable to find node '{full}'")
+        graph = cli.node
+        sections = [
+            ('Subscribers', graph.get_subscriber_names_and_types_by_node(name, ns)),
+            ('Publishers', graph.get_publisher_names_and_types_by_node(name, ns)),
+            ('Service Servers', graph.get_service_names_and_types_by_node(name, ns)),
+            ('Service Clients', graph.get_client_names_and_types_by_node(name, ns)),
+            ('Action Servers', get_action_server_names_and_types_by_node(graph, name, ns)),
+            ('Action Clients', get_action_client_names_and_types_by_node(graph, name, ns)),
+        ]
+    lines = [full]
+    for title, names_and_types in sections:
+        lines.append(f'  {title}:')
+        shown = [f'    {n}: {", ".join(t)}' for n, t in sorted(names_and_types)
+                 if args.include_hidden or not _hidden(n)]
+        lines.extend(shown or [''])
     write('\n'.join(lines) + '\n')
     return 0
 
@@ -235,21 +291,21 @@ def add_arguments(topic_sub, node_sub):
                        if durability_default is None else 'QoS durability')
         p.add_argument('--qos-depth', type=int, default=10, help='QoS history depth')
 
-    def spin_arg(p):
-        p.add_argument('--spin-time', type=float, default=None,
-                       help='seconds to wait for discovery (default: until the graph has '
-                            'stopped changing for 1 s, at least 1 s, at most 15 s)')
-
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=topic_list)
 
     p = topic_sub.add_parser('info', help='type and endpoints of a topic')
     p.add_argument('topic')
     p.add_argument('-v', '--verbose', action='store_true', help='print every endpoint and QoS')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=topic_info)
+
+    p = topic_sub.add_parser('type', help='print the type of a topic')
+    p.add_argument('topic')
+    add_spin_time_argument(p)
+    p.set_defaults(func=topic_type_verb)
 
     p = topic_sub.add_parser('echo', help='print the messages of a topic as YAML')
     p.add_argument('topic')
@@ -292,5 +348,12 @@ def add_arguments(topic_sub, node_sub):
 
     p = node_sub.add_parser('list', help='list the nodes in the graph')
     p.add_argument('-a', '--all', action='store_true', help='also hidden nodes')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=node_list)
+
+    p = node_sub.add_parser('info', help='subscribers, publishers, services and actions of a node')
+    p.add_argument('node_name', help="full node name, e.g. '/prediction_node'")
+    p.add_argument('--include-hidden', action='store_true',
+                   help='also hidden topics, services and actions')
+    add_spin_time_argument(p)
+    p.set_defaults(func=node_info)
