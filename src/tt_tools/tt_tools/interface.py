@@ -57,8 +57,9 @@ def _parse_line(pkg, name, line):
 def show_lines(type_str, comments=True, nested_comments=False, depth=0,
                ament_prefix_path=None):
     """The lines ``ros2 interface show`` prints for ``type_str``."""
-    pkg, _, name = type_str.split('/')
-    with open(interface_path(type_str, ament_prefix_path), encoding='utf-8') as f:
+    path = interface_path(type_str, ament_prefix_path)
+    pkg, _, name = type_str.strip().split('/')
+    with open(path, encoding='utf-8') as f:
         raw = f.read().splitlines()
     lines = []
     for line in raw:
