@@ -45,6 +45,9 @@ class DetectorConfig:
     """Half size of the search window around a predicted position, pixels."""
     max_candidates: int = 4
     """Most blobs returned per frame (the largest differences first)."""
+    silhouette_threshold: float = 14.0
+    """Smallest colour change (largest over B, G, R against the colour background) of a pixel
+    of the ball's silhouette, grey levels: low enough to keep its shaded underside."""
 
 
 @dataclasses.dataclass
@@ -85,6 +88,7 @@ class BallDetector:
         self.config = config or DetectorConfig()
         self.background = None
         self._bg8 = None
+        self._bg_colour = None
         self._count = 0
 
     def detect(self, frame, roi_centre=None, update_background=True):
@@ -104,6 +108,8 @@ class BallDetector:
             gray = _grey(frame)
             self.background = gray.astype(np.float32)
             self._bg8 = gray.copy()
+            if frame.ndim == 3:
+                self._bg_colour = frame.astype(np.float32)
             return []
         if (h, w) != self.background.shape:
             raise ValueError(f"frame size {w}x{h} differs from the camera's "
@@ -132,7 +138,7 @@ class BallDetector:
                 found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
                                     mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut)
         if update:
-            self._update_background(gray, mask, x0, y0)
+            self._update_background(gray, mask, x0, y0, frame)
         return found
 
     def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False)):
@@ -168,11 +174,49 @@ class BallDetector:
                 patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
                 if not colour_matches(cv2.mean(patch, mask=sub)[:3], cfg.colour):
                     continue
+            if self._bg_colour is not None and frame.ndim == 3:
+                cu, cv = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
+                cu, cv = cu - x0, cv - y0
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
                                  float(total / area),
                                  self._hidden(frame, sub, x0 + bx, y0 + by)))
         out.sort(key=lambda d: -d.strength * d.area)
         return out[:cfg.max_candidates]
+
+    def _silhouette_centre(self, frame, sub, x0, y0):
+        """Centre (u, v), pixels, of the silhouette of the ball whose bright blob is ``sub`` at
+        (x0, y0): every pixel near it whose colour differs from the colour background by more
+        than ``silhouette_threshold`` in some channel and is not a shadow (darker in all three
+        channels), connected to the blob. The silhouette's centroid does not lean toward the lit
+        side as a difference-weighted centroid does."""
+        h, w = frame.shape[:2]
+        bh, bw = sub.shape
+        m = max(bw, bh) + 2           # the unlit part may reach a diameter beyond the lit one
+        ax, ay = max(x0 - m, 0), max(y0 - m, 0)
+        bx, by = min(x0 + bw + m, w), min(y0 + bh + m, h)
+        img = frame[ay:by, ax:bx].astype(np.float32)
+        bg = self._bg_colour[ay:by, ax:bx]
+        change = img - bg
+        strong = np.max(np.abs(change), axis=2) > self.config.silhouette_threshold
+        shadow = np.all(change < 0.0, axis=2)
+        sil = (strong & ~shadow).astype(np.uint8)
+        seed = np.zeros_like(sil)
+        seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
+        sil |= seed
+        n, labels = cv2.connectedComponents(sil, connectivity=8)
+        keep = np.unique(labels[(seed > 0) & (labels > 0)])
+        region = np.isin(labels, keep)
+        # Coverage: full inside the silhouette, the shaded side included; on its outline
+        # (anti-aliased, blurred) the change over half the blob's median change.
+        size = np.max(np.abs(change), axis=2)
+        full = 0.5 * float(np.median(size[seed > 0]))
+        region = region.astype(np.uint8)
+        interior = cv2.erode(region, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        cover = np.where(interior > 0, 1.0,
+                         np.where(region > 0, np.clip(size / max(full, 1e-6), 0.0, 1.0), 0.0))
+        ys, xs = np.mgrid[0:cover.shape[0], 0:cover.shape[1]]
+        total = cover.sum()
+        return ax + float((xs * cover).sum() / total), ay + float((ys * cover).sum() / total)
 
     def _hidden(self, frame, sub, x0, y0):
         """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
@@ -193,7 +237,7 @@ class BallDetector:
             self.config.diff_threshold
         return float(np.count_nonzero(alike & (ring > 0)) / n_ring)
 
-    def _update_background(self, gray, mask, x0, y0):
+    def _update_background(self, gray, mask, x0, y0, frame=None):
         """Exponential average of the frame into the background, except under blobs."""
         keep = None
         if mask is not None and mask.any():
@@ -201,4 +245,7 @@ class BallDetector:
             h, w = mask.shape
             keep[y0:y0 + h, x0:x0 + w] = cv2.dilate(mask, np.ones((5, 5), np.uint8)) ^ 255
         cv2.accumulateWeighted(gray, self.background, self.config.background_rate, mask=keep)
+        if self._bg_colour is not None and frame.ndim == 3:
+            cv2.accumulateWeighted(frame, self._bg_colour, self.config.background_rate,
+                                   mask=keep)
         self._bg8 = cv2.convertScaleAbs(self.background)
