@@ -66,15 +66,44 @@ class Detection:
     of the ball may be missing from the blob there)."""
 
 
-def colour_matches(bgr, colour):
+def colour_matches(bgr, colour, change=None):
     """True when the mean colour ``bgr`` (3,) is that of a ``colour`` ball ('white', 'orange',
-    'any')."""
+    'any'). ``change`` (3,), the colour minus the background's there, when known: an orange
+    ball small enough for JPEG's halved chroma resolution to mix the background into it is
+    still recognised by the red it adds over the blue."""
     b, g, r = (float(c) for c in bgr)
     if colour == 'white':
         return min(b, g, r) > 0.72 * max(b, g, r) and max(b, g, r) > 90.0
     if colour == 'orange':
-        return r > 90.0 and r > 1.6 * b + 20.0 and r > g
+        if r > 90.0 and r > 1.6 * b + 20.0 and r > g:
+            return True
+        if change is None:
+            return False
+        db, dg, dr = (float(c) for c in change)
+        return dr > 30.0 and dr > 1.6 * max(db, 0.0) + 10.0 and dr > dg
     return True
+
+
+def _width_from_moments(cxx, cyy, cxy):
+    """Width across the motion blur (the ball's diameter), pixels, from the central second
+    moments of a blob's pixels (each pixel adds 1/12 of its own): a disc of radius r has
+    variance r^2 / 4 along any axis, and blur only lengthens the other axis."""
+    small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
+    return 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)
+
+
+def _width(cover, dx, dy):
+    """:func:`_width_from_moments` of a coverage image ``cover`` with offsets dx, dy from its
+    centroid."""
+    total = cover.sum()
+    return _width_from_moments((cover * dx * dx).sum() / total, (cover * dy * dy).sum() / total,
+                               (cover * dx * dy).sum() / total)
+
+
+def _shadow(image, background):
+    """Pixels of ``image`` (BGR) darker than the colour ``background`` in all three channels:
+    a shadow dims the light without changing its colour, a ball changes the colour."""
+    return np.all(image.astype(np.float32) < background, axis=2)
 
 
 def _grey(image):
@@ -163,19 +192,26 @@ class BallDetector:
                 continue
             cu = bx + weighted['m10'] / total       # difference-weighted centroid
             cv = by + weighted['m01'] / total
-            # Width across the motion from the blob's second moments (pixel mask, 1/12 per px).
             shape = cv2.moments(sub, binaryImage=True)
-            cxx, cyy, cxy = (shape['mu20'] / area, shape['mu02'] / area, shape['mu11'] / area)
-            small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
-            width = 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)   # disc: var = r^2 / 4
+            width = _width_from_moments(shape['mu20'] / area, shape['mu02'] / area,
+                                        shape['mu11'] / area)
             if width > cfg.max_width:
                 continue
             if cfg.colour != 'any' and frame.ndim == 3:
+                # The colour of the lit half of the blob: the shaded half and the outline
+                # take the background's colour (JPEG's halved chroma resolution spreads it).
                 patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
-                if not colour_matches(cv2.mean(patch, mask=sub)[:3], cfg.colour):
+                grey = _grey(patch)
+                lit = ((sub > 0) & (grey >= np.median(grey[sub > 0]))).astype(np.uint8)
+                colour = cv2.mean(patch, mask=lit)[:3]
+                change = None
+                if self._bg_colour is not None:
+                    bg = self._bg_colour[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
+                    change = np.asarray(colour) - cv2.mean(bg, mask=lit)[:3]
+                if not colour_matches(colour, cfg.colour, change):
                     continue
             if self._bg_colour is not None and frame.ndim == 3:
-                cu, cv = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
+                cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
                 cu, cv = cu - x0, cv - y0
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
                                  float(total / area),
@@ -184,11 +220,11 @@ class BallDetector:
         return out[:cfg.max_candidates]
 
     def _silhouette_centre(self, frame, sub, x0, y0):
-        """Centre (u, v), pixels, of the silhouette of the ball whose bright blob is ``sub`` at
-        (x0, y0): every pixel near it whose colour differs from the colour background by more
-        than ``silhouette_threshold`` in some channel and is not a shadow (darker in all three
-        channels), connected to the blob. The silhouette's centroid does not lean toward the lit
-        side as a difference-weighted centroid does."""
+        """Centre (u, v) and width, pixels, of the silhouette of the ball whose bright blob is
+        ``sub`` at (x0, y0): every pixel near it whose colour differs from the colour
+        background by more than ``silhouette_threshold`` in some channel and is not a shadow
+        (darker in all three channels), connected to the blob. The silhouette's centroid does
+        not lean toward the lit side as a difference-weighted centroid does."""
         h, w = frame.shape[:2]
         bh, bw = sub.shape
         m = max(bw, bh) + 2           # the unlit part may reach a diameter beyond the lit one
@@ -198,8 +234,7 @@ class BallDetector:
         bg = self._bg_colour[ay:by, ax:bx]
         change = img - bg
         strong = np.max(np.abs(change), axis=2) > self.config.silhouette_threshold
-        shadow = np.all(change < 0.0, axis=2)
-        sil = (strong & ~shadow).astype(np.uint8)
+        sil = (strong & ~_shadow(img, bg)).astype(np.uint8)
         seed = np.zeros_like(sil)
         seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
         sil |= seed
@@ -216,7 +251,8 @@ class BallDetector:
                          np.where(region > 0, np.clip(size / max(full, 1e-6), 0.0, 1.0), 0.0))
         ys, xs = np.mgrid[0:cover.shape[0], 0:cover.shape[1]]
         total = cover.sum()
-        return ax + float((xs * cover).sum() / total), ay + float((ys * cover).sum() / total)
+        cu, cv = float((xs * cover).sum() / total), float((ys * cover).sum() / total)
+        return ax + cu, ay + cv, _width(cover, xs - cu, ys - cv)
 
     def _hidden(self, frame, sub, x0, y0):
         """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
