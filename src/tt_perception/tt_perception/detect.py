@@ -242,13 +242,19 @@ class BallDetector:
         keep = np.unique(labels[(seed > 0) & (labels > 0)])
         region = np.isin(labels, keep)
         # Coverage: full inside the silhouette, the shaded side included; on its outline
-        # (anti-aliased, blurred) the change over half the blob's median change.
+        # (anti-aliased, blurred) the pixel's change over that of the ball's pixels next to it
+        # (a mixed pixel changes in proportion to the part the ball covers, lit or shaded).
         size = np.max(np.abs(change), axis=2)
-        full = 0.5 * float(np.median(size[seed > 0]))
         region = region.astype(np.uint8)
         interior = cv2.erode(region, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        inner = interior.astype(np.float32)
+        near_sum = cv2.boxFilter(size * inner, -1, (5, 5), normalize=False)
+        near_n = cv2.boxFilter(inner, -1, (5, 5), normalize=False)
+        fallback = float(np.median(size[seed > 0]))
+        local = np.where(near_n > 0, near_sum / np.maximum(near_n, 1e-6), fallback)
         cover = np.where(interior > 0, 1.0,
-                         np.where(region > 0, np.clip(size / max(full, 1e-6), 0.0, 1.0), 0.0))
+                         np.where(region > 0, np.clip(size / np.maximum(local, 1e-6), 0.0, 1.0),
+                                  0.0))
         ys, xs = np.mgrid[0:cover.shape[0], 0:cover.shape[1]]
         total = cover.sum()
         cu, cv = float((xs * cover).sum() / total), float((ys * cover).sum() / total)
