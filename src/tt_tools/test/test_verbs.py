@@ -67,8 +67,8 @@ def param_node(graph):
 
 def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
     n = param_node
-    (get, get_hidden, desc, dump, lst, lst_types, get_nope, get_no_node, set_count, set_neg,
-     set_ro, set_range, set_int) = run_all(
+    (get, get_hidden, desc, dump, lst, lst_types, lst_all, get_nope, get_no_node, set_count,
+     set_neg, set_ro, set_range, set_int) = run_all(
         graph,
         ('param', 'get', n, 'gain'),
         ('param', 'get', n, 'flags', '--hide-type'),
@@ -76,6 +76,7 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
         ('param', 'dump', n),
         ('param', 'list', n),
         ('param', 'list', n, '--param-type', '--param-prefixes', 'limits'),
+        ('param', 'list'),
         ('param', 'get', n, 'nope'),
         ('param', 'get', n + '_absent', 'gain'),
         ('param', 'set', n, 'count', '7'),
@@ -103,6 +104,11 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
             'use_sim_time'} <= set(names) and names == sorted(names)
     assert lst_types[1].splitlines() == ['  limits.high (type: double)',
                                          '  limits.low (type: double)']
+    # Without a node: every node's names under '/node:'.
+    assert lst_all[0] == 0, lst_all[2]
+    every = lst_all[1].splitlines()
+    assert every[every.index(f'{n}:') + 1:every.index(f'{n}:') + 4] == [
+        '  count', '  flags', '  gain']
     assert get_nope[0] == 1 and error_lines(get_nope[2]) == [
         f"ros2 param: node '{n}' has no parameter 'nope'"]
     assert get_no_node[0] == 1 and error_lines(get_no_node[2]) == [
