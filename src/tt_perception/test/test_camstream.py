@@ -89,17 +89,52 @@ def test_a_late_reader_loses_the_overwritten_frames(video):
 
 
 def test_full_queue_drops_the_oldest_and_counts_it():
-    drops = DropCounter(2)
+    drops = DropCounter(1)
     q = FrameQueue(3, drops)
     for n in range(5):
         q.put(Frame(0, n, n / FPS))
     q.put(Frame(0, -1, float('nan'), kind=END))       # never dropped, drops nothing
-    assert drops.snapshot() == ([2, 0], 2)
+    assert drops.snapshot() == ([2], 2)
     got = [q.get(timeout=0) for _ in range(4)]
     assert [(f.index, f.kind) for f in got] == [(2, 'frame'), (3, 'frame'), (4, 'frame'),
                                                 (-1, END)]
     assert q.get(timeout=0) is None
     assert q.high_water == 4
+
+
+def test_frames_come_out_in_time_order_across_cameras():
+    # Camera 0's thread ran ahead of camera 1's; camera 1 is half a frame out of step
+    # (offset 5 ms: its frame n is at n / fps + 5 ms on its clock, n / fps on camera 0's).
+    drops = DropCounter(2)
+    q = FrameQueue(8, drops, offsets=[0.0, 0.005])
+    for n in range(3):
+        q.put(Frame(0, n, n / FPS + 0.002))
+    assert q.get(timeout=0) is None           # camera 1 may still send an earlier frame
+    for n in range(3):
+        q.put(Frame(1, n, n / FPS + 0.005))
+    order = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    # On camera 0's clock: camera 1's frames at 0, 10, 20 ms, camera 0's at 2, 12, 22 ms; the
+    # last of camera 0 waits for camera 1's next frame.
+    assert order == [(1, 0), (0, 0), (1, 1), (0, 1), (1, 2)]
+    q.put(Frame(1, -1, float('nan'), kind=END))
+    assert [(f.camera, f.kind) for f in iter(lambda: q.get(timeout=0), None)] == [
+        (1, END), (0, 'frame')]               # camera 1 ended: nothing to wait for
+
+
+def test_a_stalled_camera_is_waited_for_at_most_max_lag():
+    drops = DropCounter(2)
+    q = FrameQueue(8, drops, max_lag=2.5 / FPS)
+    q.put(Frame(1, 0, 0.0))
+    q.put(Frame(0, 0, 0.0))
+    got = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    assert got == [(0, 0)]                    # camera 1's frame 0 waits for camera 0's next
+    for n in range(1, 6):                     # camera 1 sends nothing more
+        q.put(Frame(0, n, n / FPS))
+        got += [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    # Camera 0's frame n is handed out without camera 1 once the newest frame is more than
+    # 2.5 periods later, i.e. when frame n + 3 is queued.
+    assert got == [(0, 0), (1, 0), (0, 1), (0, 2)]
+    assert drops.snapshot() == ([0, 0], 0)
 
 
 def test_a_pair_counts_once_whichever_cameras_lost_it():
@@ -133,3 +168,19 @@ def test_reader_thread_queues_every_frame_or_counts_it(video, queue_size, expect
     assert [f.index for f in frames] == kept
     assert [index_of(f.image) for f in frames] == kept
     assert np.allclose([f.t for f in frames], np.array(kept) / FPS)
+
+
+def test_unpaced_lossless_reading_keeps_every_frame(video):
+    # video_rate 0 (offline): the reader waits for room in a small queue instead of dropping.
+    drops = DropCounter(1)
+    stop = threading.Event()
+    q = FrameQueue(2, drops, lossless=True, stop=stop)
+    src = PacedVideoSource(video, FPS, clock=SimClock(), stop=stop, start=0.0, rate=0.0).open()
+    reader = CameraReader(0, src, q, drops, stamp=lambda n: n / FPS)
+    reader.start()
+    got = []
+    while (item := q.get(timeout=30)) is not None and item.kind != END:
+        got.append(index_of(item.image))
+        assert len(q) <= 2
+    reader.join(timeout=30)
+    assert got == list(range(N_FRAMES)) and drops.snapshot() == ([0], 0)

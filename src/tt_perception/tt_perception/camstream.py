@@ -103,40 +103,82 @@ class DropCounter:
 
 
 class FrameQueue:
-    """Bounded FIFO of :class:`Frame` from the camera threads to the processing thread.
+    """Bounded queues of :class:`Frame`, one per camera, from the camera threads to the
+    processing thread, which takes the frames in time order across the cameras.
 
-    ``put`` never blocks a camera: when the queue is full its oldest frame is dropped and
-    counted in ``drops``. An END item is never dropped and takes no frame's place."""
+    ``put`` never blocks a camera: when its queue holds ``maxsize`` frames the oldest is
+    dropped and counted in ``drops``. With ``lossless`` (video files read as fast as they are
+    processed) ``put`` waits for room instead, until ``stop`` is set. An END item (after a
+    camera's last frame) is never dropped and takes no frame's place.
 
-    def __init__(self, maxsize, drops):
+    ``get`` returns the earliest frame (time ``t`` minus the camera's ``offsets`` entry) once
+    every camera that has not ended has a frame queued, so that none can come earlier; a
+    camera that lags (its newest frame ``max_lag`` s behind the newest of all, e.g. a device
+    that stopped) is not waited for. ``max_lag`` None: always wait (lossless files).
+    ``cameras``: the indices that put frames here (default all).
+    """
+
+    def __init__(self, maxsize, drops, lossless=False, stop=None, offsets=None, max_lag=None,
+                 cameras=None):
         self.maxsize = int(maxsize)
         self.drops = drops
-        self._items = collections.deque()
+        self.lossless = lossless
+        self.stop = stop or threading.Event()
+        n = len(drops.frames)
+        self.offsets = list(offsets) if offsets is not None else [0.0] * n
+        self.max_lag = max_lag
+        self._items = [collections.deque() for _ in range(n)]
+        self._ended = set(range(n)) - set(range(n) if cameras is None else cameras)
+        self._newest = -np.inf
         self._cond = threading.Condition()
         self.high_water = 0
 
     def put(self, frame):
+        k = frame.camera
         with self._cond:
-            while frame.kind != END and len(self._items) >= self.maxsize:
-                old = next((f for f in self._items if f.kind != END), None)
-                if old is None:
-                    break
-                self._items.remove(old)
-                self.drops.drop(old.camera, old.index)
-            self._items.append(frame)
-            self.high_water = max(self.high_water, len(self._items))
-            self._cond.notify()
+            items = self._items[k]
+            if frame.kind != END:
+                while self.lossless and len(items) >= self.maxsize and not self.stop.is_set():
+                    self._cond.wait(0.1)
+                while len(items) >= self.maxsize and items[0].kind != END:
+                    old = items.popleft()
+                    self.drops.drop(old.camera, old.index)
+                self._newest = max(self._newest, frame.t - self.offsets[k])
+            items.append(frame)
+            self.high_water = max(self.high_water, len(items))
+            self._cond.notify_all()
+
+    def _pick(self):
+        """The camera whose head item is to be handed out now, or None."""
+        heads = []
+        for k, items in enumerate(self._items):
+            if items:
+                if items[0].kind == END:
+                    return k
+                heads.append((items[0].t - self.offsets[k], k))
+        if not heads:
+            return None
+        t, k = min(heads)
+        waiting = any(not items and j not in self._ended for j, items in enumerate(self._items))
+        if waiting and (self.max_lag is None or self._newest - t <= self.max_lag):
+            return None
+        return k
 
     def get(self, timeout=None):
-        """The oldest frame, or None after ``timeout`` s without one."""
+        """The next frame in time order (or an END item), or None after ``timeout`` s."""
         with self._cond:
-            if not self._items and not self._cond.wait_for(lambda: self._items, timeout):
+            if self._pick() is None and not self._cond.wait_for(
+                    lambda: self._pick() is not None, timeout):
                 return None
-            return self._items.popleft()
+            item = self._items[self._pick()].popleft()
+            if item.kind == END:
+                self._ended.add(item.camera)
+            self._cond.notify_all()          # a lossless reader waiting for room
+            return item
 
     def __len__(self):
         with self._cond:
-            return len(self._items)
+            return sum(len(items) for items in self._items)
 
 
 class PacedVideoSource:
@@ -146,12 +188,14 @@ class PacedVideoSource:
     ``clock``), skips the frames a camera with ``buffers`` buffers would have overwritten
     meanwhile (counted in ``dropped``), and returns the frame's index, or None at the end
     of the file or when ``stop`` is set. ``retrieve()`` decodes that frame (BGR uint8).
-    ``start`` is set by the first ``grab`` unless given.
+    ``start`` is set by the first ``grab`` unless given. ``rate``: playback speed (1: real
+    time, as a camera; 0: no pacing and no loss, each frame as soon as it is asked for).
     """
 
-    def __init__(self, path, fps, clock=None, buffers=2, stop=None, start=None):
+    def __init__(self, path, fps, clock=None, buffers=2, stop=None, start=None, rate=1.0):
         self.path = path
         self.fps = float(fps)
+        self.rate = float(rate)
         self.clock = clock or MonotonicClock()
         self.buffers = max(1, int(buffers))
         self.stop = stop or threading.Event()
@@ -174,8 +218,8 @@ class PacedVideoSource:
         return self
 
     def due(self, index):
-        """Clock time (s) at which frame ``index`` is exposed."""
-        return self.start + index / self.fps
+        """Clock time (s) at which frame ``index`` is exposed (paced playback)."""
+        return self.start + index / (self.fps * self.rate)
 
     def grab(self):
         """Index of the next frame, once it is due; None at the end or when stopped."""
@@ -183,10 +227,15 @@ class PacedVideoSource:
         if self.start is None:
             self.start = self.clock.now()
         nxt = self.index + 1
+        if self.rate <= 0.0:
+            if self.stop.is_set() or not cap.grab():
+                return None
+            self.index = nxt
+            return nxt
         if self.clock.wait_until(self.due(nxt), self.stop):
             return None
         # Frames due before the newest `buffers` ones were overwritten in the driver's ring.
-        newest = int(np.floor((self.clock.now() - self.start) * self.fps + 1e-9))
+        newest = int(np.floor((self.clock.now() - self.start) * self.fps * self.rate + 1e-9))
         while nxt < newest - self.buffers + 1:
             if not cap.grab():
                 return None

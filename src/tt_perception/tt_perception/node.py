@@ -103,8 +103,11 @@ PARAMETERS = {
     'video_clock': ('video', "Stamps of video-file frames: 'video' (s from the first frame) or "
                     "'wall' (the wall-clock time the paced frame is exposed, as a live "
                     "camera's)", None),
-    'frame_queue': (16, 'Frames queued from the cameras to processing; beyond, the oldest is '
+    'frame_queue': (8, 'Frames queued per camera for processing; beyond, the oldest is '
                     'dropped (counted)', _ints(2, 1000)),
+    'video_rate': (1.0, 'Playback speed of video files: 1 = real time, as cameras (frames lost '
+                   'when processing falls behind, counted); 0 = each frame once the one before '
+                   'is taken, none lost (offline, tests)', _floats(0.0, 100.0)),
     'wait_for_subscribers': (0, 'Video files start once /ball/state has this many '
                              'subscriptions', _ints(0, 100)),
 }
@@ -218,7 +221,11 @@ class PerceptionNode(Node):
                 files.append(k)
             self._last_frame[k] = self._now_s()
         self.drops = DropCounter(len(rig.cameras))
-        self.frames_queue = FrameQueue(self._p('frame_queue'), self.drops)
+        lossless = self._p('video_rate') == 0.0 and not devices
+        self.frames_queue = FrameQueue(
+            self._p('frame_queue'), self.drops, lossless=lossless, stop=self._stop,
+            offsets=[c.time_offset or 0.0 for c in rig.cameras],
+            max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files)
         self._wall_stamps = self._p('video_clock') == 'wall'
         if self._p('video_clock') not in ('video', 'wall'):
             self.get_logger().warning(f"video_clock {self._p('video_clock')!r} unknown: video")
@@ -316,7 +323,7 @@ class PerceptionNode(Node):
             path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
             try:
                 source = PacedVideoSource(path, fps, buffers=CAMERA_BUFFERS, stop=self._stop,
-                                          start=start).open()
+                                          start=start, rate=self._p('video_rate')).open()
             except OSError as exc:
                 self.get_logger().error(f'camera {cam.name}: {exc}')
                 continue
@@ -352,8 +359,10 @@ class PerceptionNode(Node):
                 continue
             # Exposure times on the wall clock: live stamps are; video times start at the
             # files' start.
-            base = 0.0 if self._wall_stamps or frame.camera not in self._files else \
-                self._video_start
+            if frame.camera not in self._files or self._wall_stamps:
+                base = 0.0
+            else:
+                base = self._video_start if self._p('video_rate') == 1.0 else None
             self._process(frame.camera, frame.t, frame.image, base)
 
     def _publish_diagnostics(self):
