@@ -106,16 +106,19 @@ def test_frames_come_out_in_time_order_across_cameras():
     # Camera 0's thread ran ahead of camera 1's; camera 1 is half a frame out of step
     # (offset 5 ms: its frame n is at n / fps + 5 ms on its clock, n / fps on camera 0's).
     drops = DropCounter(2)
-    q = FrameQueue(8, drops, offsets=[0.0, 0.005])
+    q = FrameQueue(8, drops, offsets=[0.0, 0.005], min_gap=0.5 / FPS)
     for n in range(3):
         q.put(Frame(0, n, n / FPS + 0.002))
     assert q.get(timeout=0) is None           # camera 1 may still send an earlier frame
     for n in range(3):
         q.put(Frame(1, n, n / FPS + 0.005))
     order = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
-    # On camera 0's clock: camera 1's frames at 0, 10, 20 ms, camera 0's at 2, 12, 22 ms; the
-    # last of camera 0 waits for camera 1's next frame.
-    assert order == [(1, 0), (0, 0), (1, 1), (0, 1), (1, 2)]
+    # On camera 0's clock: camera 1's frames at 0, 10, 20 ms, camera 0's at 2, 12, 22 ms.
+    # Camera 1's next frame cannot come before 25 ms (half a period after its last), so
+    # camera 0's last goes at once.
+    assert order == [(1, 0), (0, 0), (1, 1), (0, 1), (1, 2), (0, 2)]
+    q.put(Frame(0, 3, 0.032))                 # camera 1 may still send one at 25..32 ms
+    assert q.get(timeout=0) is None
     q.put(Frame(1, -1, float('nan'), kind=END))
     assert [(f.camera, f.kind) for f in iter(lambda: q.get(timeout=0), None)] == [
         (1, END), (0, 'frame')]               # camera 1 ended: nothing to wait for
@@ -123,11 +126,11 @@ def test_frames_come_out_in_time_order_across_cameras():
 
 def test_a_stalled_camera_is_waited_for_at_most_max_lag():
     drops = DropCounter(2)
-    q = FrameQueue(8, drops, max_lag=2.5 / FPS)
+    q = FrameQueue(8, drops, max_lag=2.5 / FPS, min_gap=0.5 / FPS)
     q.put(Frame(1, 0, 0.0))
     q.put(Frame(0, 0, 0.0))
     got = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
-    assert got == [(0, 0)]                    # camera 1's frame 0 waits for camera 0's next
+    assert got == [(0, 0), (1, 0)]
     for n in range(1, 6):                     # camera 1 sends nothing more
         q.put(Frame(0, n, n / FPS))
         got += [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]

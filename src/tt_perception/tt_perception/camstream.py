@@ -112,14 +112,16 @@ class FrameQueue:
     camera's last frame) is never dropped and takes no frame's place.
 
     ``get`` returns the earliest frame (time ``t`` minus the camera's ``offsets`` entry) once
-    every camera that has not ended has a frame queued, so that none can come earlier; a
-    camera that lags (its newest frame ``max_lag`` s behind the newest of all, e.g. a device
-    that stopped) is not waited for. ``max_lag`` None: always wait (lossless files).
+    no other camera can still send an earlier one: each camera that has not ended has a frame
+    queued, or its next frame cannot be earlier (frames come at least ``min_gap`` s apart,
+    half a frame period for cameras at the same rate, so a pair's second frame goes on at
+    once); a camera that lags (its newest frame ``max_lag`` s behind the newest of all, e.g.
+    a device that stopped) is not waited for. ``max_lag`` None: always wait (lossless files).
     ``cameras``: the indices that put frames here (default all).
     """
 
     def __init__(self, maxsize, drops, lossless=False, stop=None, offsets=None, max_lag=None,
-                 cameras=None):
+                 cameras=None, min_gap=0.0):
         self.maxsize = int(maxsize)
         self.drops = drops
         self.lossless = lossless
@@ -130,6 +132,8 @@ class FrameQueue:
         self._items = [collections.deque() for _ in range(n)]
         self._ended = set(range(n)) - set(range(n) if cameras is None else cameras)
         self._newest = -np.inf
+        self._last = [-np.inf] * n            # newest frame time put per camera
+        self.min_gap = float(min_gap)
         self._cond = threading.Condition()
         self.high_water = 0
 
@@ -144,6 +148,7 @@ class FrameQueue:
                     old = items.popleft()
                     self.drops.drop(old.camera, old.index)
                 self._newest = max(self._newest, frame.t - self.offsets[k])
+                self._last[k] = frame.t - self.offsets[k]
             items.append(frame)
             self.high_water = max(self.high_water, len(items))
             self._cond.notify_all()
@@ -159,7 +164,9 @@ class FrameQueue:
         if not heads:
             return None
         t, k = min(heads)
-        waiting = any(not items and j not in self._ended for j, items in enumerate(self._items))
+        waiting = any(not items and j not in self._ended
+                      and self._last[j] + self.min_gap <= t
+                      for j, items in enumerate(self._items))
         if waiting and (self.max_lag is None or self._newest - t <= self.max_lag):
             return None
         return k
@@ -395,7 +402,7 @@ class CameraReader(threading.Thread):
 class LatencyWindow:
     """The last ``size`` latencies (s), thread-safe; percentiles in ms."""
 
-    def __init__(self, size=2000):
+    def __init__(self, size=20000):
         self._values = collections.deque(maxlen=size)
         self._lock = threading.Lock()
         self.count = 0

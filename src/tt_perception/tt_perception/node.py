@@ -225,7 +225,8 @@ class PerceptionNode(Node):
         self.frames_queue = FrameQueue(
             self._p('frame_queue'), self.drops, lossless=lossless, stop=self._stop,
             offsets=[c.time_offset or 0.0 for c in rig.cameras],
-            max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files)
+            max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files,
+            min_gap=0.5 / rig.fps)
         self._wall_stamps = self._p('video_clock') == 'wall'
         if self._p('video_clock') not in ('video', 'wall'):
             self.get_logger().warning(f"video_clock {self._p('video_clock')!r} unknown: video")
@@ -377,6 +378,7 @@ class PerceptionNode(Node):
                   'queue_high_water': self.frames_queue.high_water,
                   'latency_p50_ms': f'{p50:.3f}', 'latency_p99_ms': f'{p99:.3f}',
                   'latency_count': self.latency.count,
+                  'cameras_ended': len(self._ended),
                   'video_start_wall_s': ('' if self._video_start is None
                                          else f'{self._video_start:.6f}')}
         for reader in self._readers:
