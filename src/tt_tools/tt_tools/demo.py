@@ -88,7 +88,9 @@ def run_graph_video(rec, session, log_dir, args, collector):
         group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
         node = collector.node
         wait_until(lambda: collector.spin_once() or (
-            node.count_subscribers('/ball/state') >= 3        # prediction, record, collector
+            # prediction and this collector; the recorder subscribes /ball/state once it sees
+            # perception's publisher: perception waits for all three (wait_for_subscribers).
+            node.count_subscribers('/ball/state') >= 2
             and node.count_subscribers('/ball/prediction') >= 3
             and node.count_subscribers('/strike/command') >= 2
             and node.count_publishers('/strike/command') >= 1), 90.0,
