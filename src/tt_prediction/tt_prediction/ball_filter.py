@@ -606,6 +606,7 @@ class TrackFilter:
         self.robot_bounced = False
         self.robot_bounce = None
         self._last = None          # the latest valid sample (t, p)
+        self._before = None        # the one before it
         self._seen_bounce = None
         self._g = np.array([0.0, 0.0, -self.params.gravity])
         self._R = np.eye(3) * self.config.position_noise ** 2
@@ -673,12 +674,24 @@ class TrackFilter:
                 self._note_bounce()
             else:
                 self.rejects += 1
-        if ((f is None or self.rejects >= cfg.max_rejects) and self._last is not None
-                and t - self._last[0] <= cfg.max_gap):
+        if ((f is None or self.rejects >= cfg.max_rejects) and self._consistent(t, p)):
             self._start(t, p)
             status = self.STARTED
-        self._last = (t, p)
+        self._before, self._last = self._last, (t, p)
         return status
+
+    def _consistent(self, t, p):
+        """True when the last two samples and (t, p) lie on one flight within ``max_gap``:
+        the third within 15 mm of the second's ballistic extrapolation (a start from a spike
+        would follow a wrong velocity)."""
+        if self._last is None or self._before is None:
+            return False
+        (t0, p0), (t1, p1) = self._before, self._last
+        if t - t0 > self.config.max_gap or not (t0 < t1 < t):
+            return False
+        v = (p1 - p0) / (t1 - t0) + 0.5 * self._g * (t1 - t0)
+        dt = t - t1
+        return bool(np.linalg.norm(p1 + v * dt + 0.5 * self._g * dt * dt - p) < 0.015)
 
     def _predict(self, t):
         self.filter.predict(t)
