@@ -580,7 +580,7 @@ class TrackFilter:
         if not math.isfinite(t) or (f is not None and t <= f.t) or (
                 self._last is not None and t <= self._last[0]):
             return self.SKIPPED
-        if not np.all(np.isfinite(p)):
+        if not math.isfinite(p[0] + p[1] + p[2]):
             if f is not None:
                 self._predict(t)
             return self.COASTED
@@ -591,8 +591,8 @@ class TrackFilter:
             self._predict(t)
             R = self._R
             if cfg.stamp_noise > 0.0:
-                v = f.x[3:6]
-                R = R + cfg.stamp_noise ** 2 * np.outer(v, v)
+                v = f.x[3:6, None] * cfg.stamp_noise
+                R = R + v @ v.T
             if f.update(p, R, rebounce=True):
                 self.updates += 1
                 self.rejects = 0
