@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
+from tt_prediction.reference import reference_predict
 
 from tt_prediction import cli
 
@@ -101,3 +102,57 @@ def test_console_script_reads_stdin_and_exits_non_zero_on_bad_input():
     bad = subprocess.run(cmd, input='nonsense\n', capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stdout == ''
     assert bad.stderr.strip() == 'tt-predict: line 1: not valid JSON: Expecting value'
+
+
+def varied_lines(n, seed=5):
+    """n JSON lines of incoming balls that end in several statuses (ok, net, miss, no_bounce,
+    double_bounce...), at different times t."""
+    rng = np.random.default_rng(seed)
+    p = np.column_stack([rng.uniform(0.3, 1.8, n), rng.uniform(-0.9, 0.9, n),
+                         rng.uniform(0.05, 0.6, n)])
+    v = np.column_stack([rng.uniform(-12.0, -2.0, n), rng.uniform(-2.0, 2.0, n),
+                         rng.uniform(-3.0, 3.0, n)])
+    w = rng.uniform(-400.0, 400.0, (n, 3))
+    t = rng.uniform(0.0, 100.0, n)
+    return [json.dumps({'t': float(t[i]), 'p': p[i].tolist(), 'v': v[i].tolist(),
+                        'w': w[i].tolist()}) for i in range(n)]
+
+
+def test_many_lines_take_the_batch_kernel_and_print_what_line_by_line_prints(
+        capsys, tmp_path, monkeypatch):
+    lines = varied_lines(4 * cli.BATCH_MIN)
+    singles = []
+    for line in lines:                          # one line per run: the scalar path
+        rc, out, err = run_main(capsys, line + '\n', tmp_path=tmp_path)
+        assert rc == 0 and err == ''
+        singles.append(out)
+    statuses = {json.loads(out)['status'] for out in singles}
+    assert {'ok', 'net', 'miss'} <= statuses     # the file exercises several outcomes
+
+    def scalar(*args, **kwargs):
+        raise AssertionError('a many-line input went through the scalar path')
+
+    monkeypatch.setattr(cli, 'predict', scalar)
+    rc, out, err = run_main(capsys, '\n'.join(lines) + '\n', tmp_path=tmp_path)
+    assert rc == 0 and err == ''
+    assert out == ''.join(singles)               # byte for byte, reasons included
+
+
+def test_batch_output_agrees_with_the_scipy_reference(capsys, tmp_path):
+    lines = varied_lines(cli.BATCH_MIN, seed=8)
+    rc, out, _ = run_main(capsys, '\n'.join(lines) + '\n', tmp_path=tmp_path)
+    assert rc == 0
+    n_hits = 0
+    for line, row in zip(lines, map(json.loads, out.splitlines()), strict=True):
+        data = json.loads(line)
+        ref = reference_predict([*data['p'], *data['v'], *data['w']], ModelParams(),
+                                t0=data['t'])
+        assert row['status'] == ref.status, line
+        if ref.hit is not None:
+            n_hits += 1
+            # DESIGN.md: the hit point within 0.1 mm of the reference (DOP853, rtol 1e-9).
+            assert np.abs(np.array(row['hit']['p']) - ref.hit.p).max() < 1e-4
+            assert row['hit']['t'] == pytest.approx(ref.hit.t, abs=1e-6)
+        if ref.bounce is not None:
+            assert np.abs(np.array(row['bounce']['p']) - ref.bounce.p).max() < 1e-4
+    assert n_hits >= 2
