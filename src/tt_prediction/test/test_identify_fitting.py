@@ -13,7 +13,7 @@ from tt_prediction.identify.synthetic import launch_states, make_tracks
 from tt_prediction.params import ModelParams
 
 TRUE = ModelParams(c_d=0.45, e_t=0.88)
-CLEAN = {'noise': 0.0, 'dropout': 0.0, 'outliers': 0}
+CLEAN = {'noise': 0.0, 'dropout': 0.0, 'outliers': 0, 'jitter': 0.0}
 
 
 def _spin_across(v, w):

@@ -39,17 +39,30 @@ def test_one_output_line_per_input_line(capsys, tmp_path):
 
 
 def test_hit_plane_and_model_options(capsys, tmp_path):
+    # The file's model is the one run: a lower table restitution (e_t 0.80 against 0.93)
+    # gives the prediction of that model, and a lower hit than the nominal model's.
     model = tmp_path / 'model.yaml'
-    ModelParams(c_d=0.0, c_m=0.0).save(model)
+    ModelParams(e_t=0.8).save(model)
     rc, out, _ = run_main(capsys, json.dumps(GOOD), '--hit-plane-x', '-1.4', '--model',
                           str(model), tmp_path=tmp_path)
     assert rc == 0
     row = json.loads(out)
     assert row['hit']['p'][0] == -1.4
-    # Without air the bounce is that of the parabola (no drag: x moves at constant speed).
-    g, r = 9.8, 0.02
-    t_b = (1.5 + np.sqrt(1.5 ** 2 + 2 * g * (0.3 - r))) / g
-    assert row['bounce']['p'][0] == pytest.approx(1.6 - 6.0 * t_b, abs=1e-8)
+    state = np.r_[GOOD['p'], GOOD['v'], GOOD['w']]
+    expected = predict(state, ModelParams.load(model), t0=2.0, hit_plane_x=-1.4)
+    nominal = predict(state, ModelParams(), t0=2.0, hit_plane_x=-1.4)
+    np.testing.assert_allclose(row['hit']['p'], expected.hit.p, atol=1e-9)
+    assert row['hit']['p'][2] < nominal.hit.p[2] - 0.01
+
+
+def test_implausible_model_file_is_refused_naming_file_and_field(capsys, tmp_path):
+    # No air (c_d = 0) is outside C_D's plausible range 0.1..2 (issue 17): exit 2, one line.
+    model = tmp_path / 'model.yaml'
+    ModelParams(c_d=0.0, c_m=0.0).save(model)
+    rc, out, err = run_main(capsys, json.dumps(GOOD), '--model', str(model),
+                            tmp_path=tmp_path)
+    assert rc == 2 and out == ''
+    assert err.count('\n') == 1 and str(model) in err and 'c_d = 0 ' in err
 
 
 @pytest.mark.parametrize('line, words', [

@@ -98,6 +98,10 @@ def predictions(states, params, hit_plane_x):
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a == '--tracks' or a.startswith('--tracks=') for a in argv):
+        from .tracks_cli import main as tracks_main  # replay of measured tracks
+        return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Input and output formats: see docs/prediction.md.')
