@@ -129,7 +129,8 @@ def main(argv=None):
         return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
-        epilog='Input and output formats: see docs/prediction.md.')
+        epilog='Input and output formats: see docs/prediction.md. Replay of measured tracks: '
+               'tt-predict --tracks DIR --out OUT (tt-predict --tracks DIR -h).')
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
