@@ -27,7 +27,9 @@ def test_every_feasible_solution_lands_in_its_zone():
     assert n_hits + sum(skipped.values()) == len(states)
     assert n_hits >= 70
     for row in rows:
-        assert row['feasible_share'] >= 0.95, row
+        # Some of these balls are struck below the table's surface at x = -1.5, and the
+        # table as a body turns a return through its end face into a miss: 0.95 before.
+        assert row['feasible_share'] >= 0.90, row
         assert row['in_zone_share'] == 1.0, row
         assert row['residual_max_mm'] < 5.0, row
 

@@ -23,17 +23,18 @@ import math
 
 from numba import njit
 import numpy as np
-from tt_prediction.integrate import (
-    DEFAULT_STEP,
-    EVENT_BOUNCE,
-    EVENT_FLOOR,
-    EVENT_PLANE,
-    STOP_AT_PLANE,
-    rollout_kernel,
-)
 from tt_prediction.model import racket_rebound, racket_rebound_inplace
 from tt_prediction.params import I_ER, I_GRAVITY, I_KP, I_MASS, I_RADIUS
-from tt_prediction.predict import predict_landing
+from tt_prediction.predict import (
+    CONTACT_OFF,
+    CONTACT_TOP,
+    FL_NET_T,
+    FL_NET_Z,
+    FL_S,
+    FLIGHT_N,
+    landing_flight,
+    predict_landing,
+)
 from tt_prediction.table import (
     HALF_LENGTH,
     HALF_WIDTH,
@@ -198,9 +199,9 @@ SHOT_NO_LANDING = 4     # no table-height crossing within FLIGHT_T_MAX
 def _shoot(s_hit, v_out, P, out):
     """Fly the ball sent with v_out from the hit state s_hit (9,).
 
-    Writes into ``out`` (7,): landing x, y (centre crossing z = r on the table, or the floor
-    crossing beyond it) and net-plane height z at x = 0 (m, when SHOT_OK), normal (3), racket
-    speed (m/s). Returns a SHOT_* code.
+    Writes into ``out`` (7,): landing x, y (where the centre first comes down through z = r,
+    on the table or beside it) and the centre's height z where it crosses x = 0 (m, when
+    SHOT_OK), normal (3), racket speed (m/s). Returns a SHOT_* code.
     """
     normal = np.empty(3)
     speed = _racket_for_outgoing(s_hit[3:6], s_hit[6:9], v_out, P, normal)
@@ -216,32 +217,18 @@ def _shoot(s_hit, v_out, P, out):
     out[6] = speed
     if vn_rel >= 0.0:
         return SHOT_BEHIND
-    ev_kind = np.zeros(4, dtype=np.int64)
-    ev_t = np.zeros(4)
-    ev_s = np.zeros((4, 9))
-    empty_t = np.empty(0)
-    samples = np.empty((0, 9))
-    # Two legs: to the net plane x = 0 (stop there), then on to the first contact. (The
-    # integrator's plane event is not used without stopping: restarted exactly on the plane,
-    # it would find the same crossing again.)
-    n = rollout_kernel(s, 0.0, P, FLIGHT_T_MAX, DEFAULT_STEP, 0.0, STOP_AT_PLANE, 1, empty_t,
-                       samples, ev_kind, ev_t, ev_s)
-    last = ev_kind[n - 1]
-    if last == EVENT_BOUNCE or last == EVENT_FLOOR:
-        return SHOT_NO_NET
-    if last != EVENT_PLANE:
+    # The plane model (body False): the landing varies smoothly with v_out, also through the
+    # net and past the table's edges, as Newton needs; the forward check has the body.
+    res = np.empty(FLIGHT_N)
+    kind = landing_flight(s, 0.0, P, False, res)
+    if kind != CONTACT_TOP and kind != CONTACT_OFF:
         return SHOT_NO_LANDING
-    out[2] = ev_s[n - 1, 2]
-    t_net = ev_t[n - 1]
-    s[:] = ev_s[n - 1]
-    n = rollout_kernel(s, t_net, P, FLIGHT_T_MAX, DEFAULT_STEP, math.nan, 0, 1, empty_t,
-                       samples, ev_kind, ev_t, ev_s)
-    last = ev_kind[n - 1]
-    if last == EVENT_BOUNCE or last == EVENT_FLOOR:
-        out[0] = ev_s[n - 1, 0]
-        out[1] = ev_s[n - 1, 1]
-        return SHOT_OK
-    return SHOT_NO_LANDING
+    if math.isnan(res[FL_NET_T]):
+        return SHOT_NO_NET
+    out[0] = res[FL_S]
+    out[1] = res[FL_S + 1]
+    out[2] = res[FL_NET_Z]
+    return SHOT_OK
 
 
 # --- Newton on v_out ----------------------------------------------------------------------
