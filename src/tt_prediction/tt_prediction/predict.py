@@ -57,7 +57,8 @@ BELOW_TOLERANCE = 2e-3
 touching it (measurement noise); further down it is inside or under the table, m."""
 
 # Layout of the compiled kernels' output row.
-_N_OUT = 26
+_N_OUT = 27
+_O_N_PATH = 26      # rows of the post-bounce path written (predict_kernel's samples)
 (_O_STATUS, _O_BOUNCE_OK, _O_BOUNCE_T, _O_BOUNCE_P, _O_BOUNCE_ZONE, _O_BOUNCE_HALF,
  _O_HIT_OK, _O_HIT_T, _O_HIT_P, _O_HIT_V, _O_HIT_W, _O_STOP_KIND, _O_STOP_T, _O_STOP_P,
  _O_NET_OK, _O_NET_Z) = (0, 1, 2, 3, 6, 7, 8, 9, 10, 13, 16, 19, 20, 21, 24, 25)
@@ -110,7 +111,9 @@ class Prediction:
     ball the bounce itself; for a ball leaving the racket its landing) or None;
     ``net_clearance`` the height of the ball's bottom above the net's top where it crosses
     x = 0 (m, NaN when it does not cross; :func:`predict_landing` only); ``path`` (k, 3)
-    ball centres at the requested sample times until the flight stops, or None.
+    ball centres at the requested sample times until the flight stops, or None;
+    ``hit_path`` (k, 10) rows [t, p, v, w] after the bounce on the robot's half (predict with
+    hit_path only).
     """
 
     status: str
@@ -119,6 +122,7 @@ class Prediction:
     landing: Contact = None
     net_clearance: float = math.nan
     path: np.ndarray = None
+    hit_path: np.ndarray = None
     explanation: str = dataclasses.field(default='', repr=False)
     _why: tuple = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -436,13 +440,15 @@ def _stop(out, status, kind, t, s):
 
 
 @njit(cache=True, nogil=True)
-def predict_kernel(s0, t0, P, plane_x, bounced, out):
+def predict_kernel(s0, t0, P, plane_x, bounced, samples, out):
     """Predict one incoming ball into ``out`` (_N_OUT,); see the module docstring.
 
     s0 (9,) state at absolute time t0 (s); P packed parameters; plane_x hitting plane (m);
     bounced: the ball has already bounced once on the robot's half (so the plane crossing
     without a further bounce is a hit). Flight legs of :func:`flight_kernel` with the table
-    as a body, the rebound of eqs. 1-6 at each top contact.
+    as a body, the rebound of eqs. 1-6 at each top contact. samples (k, 10) receives the
+    path [t, state] of the leg after the bounce on the robot's half every STEP (the hit
+    candidates), out[_O_N_PATH] its rows.
     """
     for i in range(_N_OUT):
         out[i] = 0.0
@@ -455,7 +461,11 @@ def predict_kernel(s0, t0, P, plane_x, bounced, out):
     robot_bounces = 1 if bounced else 0
     contacts = 0
     while True:
-        kind = flight_kernel(s, t, P, t_end, plane_x, True, no_samples, res)
+        after = robot_bounces == 1
+        kind = flight_kernel(s, t, P, t_end, plane_x, True, samples if after else no_samples,
+                             res)
+        if after:
+            out[_O_N_PATH] = res[FL_SAMPLES]
         t = res[FL_T]
         for i in range(9):
             s[i] = res[FL_S + i]
@@ -543,7 +553,7 @@ def _batch_row(states, t0, valid, P, plane_x, bounced, outgoing, out, i):
     elif outgoing:
         landing_kernel(states[i], t0[i], P, out[i])
     else:
-        predict_kernel(states[i], t0[i], P, plane_x, bounced, out[i])
+        predict_kernel(states[i], t0[i], P, plane_x, bounced, np.empty((0, 10)), out[i])
 
 
 # Two functions, not one compiled twice: numba's cache tells them apart by name only.
@@ -570,7 +580,7 @@ PARALLEL_MIN = 256
 _PACKED_CACHE = [None, None, None]     # params object, its field values, packed array
 
 
-def _packed(params):
+def packed_params(params):
     """Packed array of ``params`` (ModelParams, packed array or None = nominal), cached for
     the last ModelParams object as long as its field values do not change."""
     if isinstance(params, np.ndarray):
@@ -668,7 +678,7 @@ def _to_prediction(row, plane_x, outgoing=False, path=None):
 
 
 def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounced=False,
-            path_dt=None):
+            path_dt=None, hit_path=False):
     """Predict the flight of an incoming ball from ``state9`` = [p, v, w] at time ``t0``.
 
     ``state9`` in the table frame (m, m/s, rad/s), ``t0`` absolute time (s, all output times
@@ -676,10 +686,12 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
     ``hit_plane_x`` the hitting plane (m, robot's side). ``bounced``: the ball has already
     bounced on the robot's half (tracking after the bounce), so crossing the plane without
     another bounce is a hit. ``path_dt`` (s): also return ``path``, the ball centres every
-    ``path_dt`` from t0 until the flight stops (rebounds included).
+    ``path_dt`` from t0 until the flight stops (rebounds included). ``hit_path``: also return
+    ``hit_path``, (k, 10) rows [t, p, v, w] every STEP along the flight after the bounce on
+    the robot's half up to its stop (the candidate hit points; empty without that bounce).
     Never raises for bad states: returns status 'invalid' with the reason.
     """
-    P = _packed(params)
+    P = packed_params(params)
     reason = check_state(state9, P[I_RADIUS])
     if reason:
         return Prediction(status='invalid', explanation=reason)
@@ -688,7 +700,8 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
                           explanation=f'hit_plane_x is not finite: {hit_plane_x}')
     s0 = _lifted(state9, P[I_RADIUS])
     out = np.empty(_N_OUT)
-    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), out)
+    samples = np.empty((int(T_MAX / STEP) + 2 if hit_path else 0, 10))
+    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), samples, out)
     path = None
     if path_dt:
         # The path from the integrator's rollout (rebounds included), up to the stop.
@@ -697,7 +710,10 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
         _, samples = rollout(s0, P, t0=float(t0), t_max=float(t0) + T_MAX, stop_at_plane=False,
                              stop_at_net=False, max_bounces=3, sample_times=sample_t, dt=STEP)
         path = samples[np.isfinite(samples[:, 0]), :3]
-    return _to_prediction(out, hit_plane_x, path=path)
+    pred = _to_prediction(out, hit_plane_x, path=path)
+    if hit_path:
+        pred.hit_path = samples[:int(out[_O_N_PATH])].copy()
+    return pred
 
 
 def predict_landing(state9, params=None, t0=0.0):
@@ -708,7 +724,7 @@ def predict_landing(state9, params=None, t0=0.0):
     misses the table, invalid for bad input. ``net_clearance`` is the height of the ball's
     bottom above the net's top where it crosses x = 0 (m).
     """
-    P = _packed(params)
+    P = packed_params(params)
     reason = check_state(state9, P[I_RADIUS])
     if reason:
         return Prediction(status='invalid', explanation=reason)
@@ -751,7 +767,7 @@ def predict_batch(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
     (for callers that build the states themselves, e.g. sigma points). ``parallel``: None =
     on all cores from PARALLEL_MIN states on. Returns a :class:`BatchPrediction`.
     """
-    P = _packed(params)
+    P = packed_params(params)
     states = np.ascontiguousarray(states, dtype=np.float64)
     if states.ndim != 2 or states.shape[1] != 9:
         raise ValueError(f'states must be an (N, 9) array, got shape {states.shape}')
