@@ -7,7 +7,8 @@ on past the back of the workspace; its path after the bounce, every 10 ms
 one ball radius of the workspace (the racket centre is one radius behind the ball) and that
 come at least ``min_time_before_hit`` after ``now``. Up to MAX_CANDIDATES of them, evenly
 spread, are solved (:func:`tt_strike.solver.solve`, each Newton warm-started from the
-previous candidate's outgoing velocity); a solution counts only when the racket centre is
+previous candidate's outgoing velocity; a stroke into the table's edge is retried with a
+higher arc, EDGE_RETRY_CLEARANCE); a solution counts only when the racket centre is
 inside the workspace and the racket speed within its limit. The candidate with the best
 in-zone probability wins: linearised (:func:`tt_strike.robust.linear_in_zone_probability`,
 about 10 flights) under the given incoming covariance, or under the default noise (2 mm,
@@ -32,6 +33,8 @@ from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
 
 MAX_CANDIDATES = 6
 """Most hit points solved per ball."""
+EDGE_RETRY_CLEARANCE = (0.2, 0.4)
+"""Net clearances added, m, to retry a stroke whose ball meets the table's edge."""
 
 
 @dataclasses.dataclass
@@ -112,6 +115,14 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
         s_hit = row[1:10]
         sol = solve(s_hit, params, target_zone=target_zone, target_point=target_point,
                     settings=settings, guess=guess)
+        for extra in EDGE_RETRY_CLEARANCE:
+            if sol.feasible or 'table_edge' not in sol.reason:
+                break
+            # Into the table's end face or edge (a ball struck below the surface): a higher
+            # arc over the net rises more steeply and may clear the edge.
+            higher = dataclasses.replace(settings, net_clearance=settings.net_clearance + extra)
+            sol = solve(s_hit, params, target_zone=target_zone, target_point=target_point,
+                        settings=higher)
         if not sol.feasible:
             first_reason = first_reason or sol.reason
             continue
