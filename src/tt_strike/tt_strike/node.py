@@ -3,15 +3,15 @@
 The ROS glue around :mod:`tt_strike.hitpoint` and :mod:`tt_strike.solver`: parameters, QoS,
 message conversion. From the prediction's hit point (after the bounce) the ball is flown on
 through the robot's reach (``workspace_file``) and the hit point is chosen along that path
-(``use_hit_plane``: the prediction's hit point itself, the old behaviour). Every
-BallPrediction with a valid hit point gives one StrikeCommand stamped with the prediction's
-stamp, carrying the chosen hit time and point and the racket centre: feasible, or
-``feasible = false`` with the status (infeasible, unreachable) and reason (so that a
-controller knows there is no stroke for this ball). A strike whose hit time is past or
-closer than ``min_time_before_hit`` by the node's clock is not sent: it is counted
-(``n_too_late``) and logged. Predictions without a hit point or with non-finite numbers are
-dropped with a throttled warning: nothing is published for them. A bad workspace file stops
-the node at start with a one-line reason.
+(``use_hit_plane``: the prediction's hit point itself, the old behaviour). Every BallPrediction
+with a valid hit point gives one StrikeCommand stamped with the prediction's stamp, carrying
+the chosen hit time and point and the racket centre: feasible, or ``feasible = false`` with the
+status (infeasible, unreachable) and reason (so that a controller knows there is no stroke for
+this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
+node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
+no such check, for replays). Predictions without a hit point or with non-finite numbers are
+dropped with a throttled warning: nothing is published for them. A bad workspace file stops the
+node at start with a one-line reason.
 """
 
 import dataclasses
@@ -95,6 +95,10 @@ class StrikeNode(Node):
             'time before the hit); empty: the template config/workspace.yaml', read_only=True))
         declare('use_hit_plane', False, "old behaviour: strike at the prediction's hit point "
                 '(its hitting plane) instead of choosing along the path inside the workspace')
+        declare('check_hit_time', True, 'do not send strikes whose hit time is past or closer '
+                "than the workspace's min_time_before_hit by the node's clock (false: for "
+                'replays whose stamps are not on the node clock, e.g. a bag played without '
+                '--clock)')
         self.add_on_set_parameters_callback(self._check_parameters)
         try:
             self.params = load_model(self.get_parameter('model_file').value)
@@ -213,6 +217,8 @@ class StrikeNode(Node):
             cov = self._covariance(msg, state)
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         now = self.get_clock().now().nanoseconds * 1e-9
+        if not self.get_parameter('check_hit_time').value:
+            now = -math.inf
         ws = self.workspace
         if settings.max_racket_speed < ws.max_racket_speed:
             ws = dataclasses.replace(ws, max_racket_speed=settings.max_racket_speed)
