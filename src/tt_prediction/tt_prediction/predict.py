@@ -254,6 +254,22 @@ def _hermite(s, s1, h, u, i):
 
 
 @njit(cache=True, nogil=True)
+def _crossing(s, s1, h, axis, level, down, P, work):
+    """Time in (0, h] at which position coordinate ``axis`` crosses ``level`` in the step from
+    s to s1 (only downwards if ``down``), the state there in work[1]; inf when it does not."""
+    g0 = s[axis] - level
+    g1 = s1[axis] - level
+    if down:
+        crosses = g0 >= 0.0 and g1 < 0.0
+    else:
+        crosses = (g0 > 0.0) != (g1 > 0.0) or (g1 == 0.0 and g0 != 0.0)
+    if not crosses:
+        return math.inf
+    return _locate(s, h, g0, g1, axis, level, P, work[1], work[3], work[4], work[5], work[6],
+                   work[2])
+
+
+@njit(cache=True, nogil=True)
 def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
     """Fly a ball from (t0, s0) to its first contact; the one flight leg of tt (compiled).
 
@@ -277,13 +293,9 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
     r = P[I_RADIUS]
     dt = STEP
     s = s0.copy()
-    s1 = np.empty(9)
-    se = np.empty(9)
-    k1 = np.empty(9)
-    k2 = np.empty(9)
-    k3 = np.empty(9)
-    k4 = np.empty(9)
-    tmp = np.empty(9)
+    work = np.empty((7, 9))       # one allocation: step end, event state, RK4 stages
+    s1, se, tmp = work[0], work[1], work[2]
+    k1, k2, k3, k4 = work[3], work[4], work[5], work[6]
     for i in range(FLIGHT_N):
         res[i] = math.nan
     res[FL_SAMPLES] = 0.0
@@ -308,7 +320,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
             tau = 0.0
             break
         _rk4(s, h, P, s1, k1, k2, k3, k4, tmp)
-        best = h + 1.0
+        best = math.inf
         if body:
             lo_z = min(s[2], s1[2]) - 0.01
             near = (lo_z < NET_HEIGHT + r
@@ -342,37 +354,31 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                         kind = km if gm <= 0.0 else kg
                         break
                     u_prev = u
-            g0, g1 = s[2] - floor_z, s1[2] - floor_z
-            if g0 >= 0.0 and g1 < 0.0:
-                tf = _locate(s, h, g0, g1, 2, floor_z, P, se, k1, k2, k3, k4, tmp)
-                if tf < best:
-                    best, kind = tf, CONTACT_FLOOR
+            tf = _crossing(s, s1, h, 2, floor_z, True, P, work)
+            if tf < best:
+                best, kind = tf, CONTACT_FLOOR
         else:
-            g0, g1 = s[2] - r, s1[2] - r
-            if g0 >= 0.0 and g1 < 0.0:
-                best = _locate(s, h, g0, g1, 2, r, P, se, k1, k2, k3, k4, tmp)
+            best = _crossing(s, s1, h, 2, r, True, P, work)
+            if best <= h:
                 on = abs(se[0]) <= HALF_LENGTH and abs(se[1]) <= HALF_WIDTH
                 kind = CONTACT_TOP if on else CONTACT_OFF
             else:
-                g0, g1 = s[2] - floor_z, s1[2] - floor_z
-                if g0 >= 0.0 and g1 < 0.0:
-                    best = _locate(s, h, g0, g1, 2, floor_z, P, se, k1, k2, k3, k4, tmp)
+                best = _crossing(s, s1, h, 2, floor_z, True, P, work)
+                if best <= h:
                     kind = CONTACT_FLOOR
         if has_plane:
-            g0, g1 = s[0] - plane_x, s1[0] - plane_x
-            if (g0 > 0.0) != (g1 > 0.0) or (g1 == 0.0 and g0 != 0.0):
-                tp = _locate(s, h, g0, g1, 0, plane_x, P, se, k1, k2, k3, k4, tmp)
-                if tp < best:
-                    best, kind = tp, CONTACT_PLANE
-        if math.isnan(res[FL_NET_T]) and (s[0] > 0.0) != (s1[0] > 0.0):
-            tn = _locate(s, h, s[0], s1[0], 0, 0.0, P, se, k1, k2, k3, k4, tmp)
-            if tn <= best:
+            tp = _crossing(s, s1, h, 0, plane_x, False, P, work)
+            if tp < best:
+                best, kind = tp, CONTACT_PLANE
+        if math.isnan(res[FL_NET_T]):
+            tn = _crossing(s, s1, h, 0, 0.0, False, P, work)
+            if tn <= h and tn <= best:
                 res[FL_NET_T] = t + tn
                 res[FL_NET_Y] = se[1]
                 res[FL_NET_Z] = se[2]
-        if math.isnan(res[FL_CROSS_T]) and s[2] >= r and s1[2] < r:
-            tc = _locate(s, h, s[2] - r, s1[2] - r, 2, r, P, se, k1, k2, k3, k4, tmp)
-            if tc <= best:
+        if math.isnan(res[FL_CROSS_T]):
+            tc = _crossing(s, s1, h, 2, r, True, P, work)
+            if tc <= h and tc <= best:
                 res[FL_CROSS_T] = t + tc
                 res[FL_CROSS_X] = se[0]
                 res[FL_CROSS_Y] = se[1]
