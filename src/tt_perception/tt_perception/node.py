@@ -184,7 +184,7 @@ class PerceptionNode(Node):
                                                       daemon=True))
             else:
                 files.append(k)
-            self._last_frame[k] = time.monotonic()
+            self._last_frame[k] = self._now_s()
         if files:
             self._threads.append(threading.Thread(target=self._read_files, args=(files,),
                                                   daemon=True))
@@ -302,7 +302,7 @@ class PerceptionNode(Node):
         if self.pipeline is None:
             return
         self.frames_received += 1
-        self._last_frame[k] = time.monotonic()
+        self._last_frame[k] = self._now_s()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
@@ -317,8 +317,13 @@ class PerceptionNode(Node):
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
 
+    def _now_s(self):
+        """The node clock's time, s: the camera watchdog's time (simulated time under
+        use_sim_time, as its timer's)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _watch_cameras(self):
-        now = time.monotonic()
+        now = self._now_s()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             if (now - last > timeout and k not in self._lost and k not in self._ended
