@@ -34,7 +34,7 @@ import sys
 import time
 
 import numpy as np
-from tt_prediction.params import load_model
+from tt_prediction.ball import load_model
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .hitpoint import choose

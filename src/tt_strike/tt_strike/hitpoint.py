@@ -24,8 +24,8 @@ import dataclasses
 import math
 
 import numpy as np
+from tt_prediction.ball import zone_of
 from tt_prediction.predict import Hit, predict
-from tt_prediction.table import zone_of
 
 from .incoming import hit_point
 from .robust import linear_in_zone_probability, noise_covariance

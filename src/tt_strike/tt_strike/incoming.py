@@ -8,7 +8,7 @@ prediction restarts from just after it.
 
 import math
 
-from tt_prediction.integrate import rollout
+from tt_prediction.ball import rollout
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X, T_MAX, predict
 
 

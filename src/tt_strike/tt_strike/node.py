@@ -26,9 +26,9 @@ from rcl_interfaces.msg import (
 )
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_prediction.ball import load_model
 from tt_prediction.markers import add_marker
 from tt_prediction.nodeutil import due, point_msg, set_xyz
-from tt_prediction.params import load_model
 from tt_prediction.predict import Hit
 from tt_prediction.spin import spin_node
 from visualization_msgs.msg import Marker, MarkerArray

@@ -22,8 +22,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr, ndtri
 from scipy.stats import qmc
-from tt_prediction.model import racket_rebound, racket_rebound_inplace
-from tt_prediction.predict import (
+from tt_prediction.ball import (
     CONTACT_EDGE,
     CONTACT_FLOOR,
     CONTACT_OFF,
@@ -34,9 +33,11 @@ from tt_prediction.predict import (
     FLIGHT_N,
     landing_flight,
     packed_params,
-    predict_landing,
+    racket_rebound,
+    racket_rebound_inplace,
+    zone_bounds,
 )
-from tt_prediction.table import zone_bounds
+from tt_prediction.predict import predict_landing
 
 _NJIT = {'cache': True, 'nogil': True}
 ENSEMBLE_SIZE = 1024

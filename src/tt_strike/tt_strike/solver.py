@@ -23,27 +23,30 @@ import math
 
 from numba import njit
 import numpy as np
-from tt_prediction.model import racket_rebound, racket_rebound_inplace
-from tt_prediction.params import I_ER, I_GRAVITY, I_KP, I_MASS, I_RADIUS
-from tt_prediction.predict import (
+from tt_prediction.ball import (
     CONTACT_OFF,
     CONTACT_TOP,
     FL_NET_T,
     FL_NET_Z,
     FL_S,
     FLIGHT_N,
-    landing_flight,
-    packed_params,
-    predict_landing,
-)
-from tt_prediction.table import (
     HALF_LENGTH,
     HALF_WIDTH,
+    I_ER,
+    I_GRAVITY,
+    I_KP,
+    I_MASS,
+    I_RADIUS,
     NET_HEIGHT,
+    landing_flight,
+    packed_params,
+    racket_rebound,
+    racket_rebound_inplace,
     zone_centre,
     zone_margin,
     zone_of,
 )
+from tt_prediction.predict import predict_landing
 
 from .robust import ENSEMBLE_SIZE, aim_in_zone, in_zone_probability, landing_ensemble
 
