@@ -329,7 +329,19 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                     and min(s[1], s1[1]) < NET_HALF_WIDTH + r + 0.01
                     and max(s[1], s1[1]) > -NET_HALF_WIDTH - r - 0.01
                     and max(s[2], s1[2]) > -TOP_THICKNESS - r - 0.01)
-            if near:
+            # Above the surface well inside the outline and away from the net, the only solid
+            # within reach is the top from above: its contact is the centre coming down
+            # through z = r.
+            margin = r + 0.005
+            inner = (max(abs(s[0]), abs(s1[0])) <= HALF_LENGTH - margin
+                     and max(abs(s[1]), abs(s1[1])) <= HALF_WIDTH - margin
+                     and min(abs(s[0]), abs(s1[0])) > margin and (s[0] > 0.0) == (s1[0] > 0.0)
+                     and min(s[2], s1[2]) > 0.0)
+            if near and inner:
+                best = _crossing(s, s1, h, 2, r, True, P, work)
+                if best <= h:
+                    kind = CONTACT_TOP
+            elif near:
                 u_prev = 0.0
                 for j in range(1, _SUBSTEPS + 1):
                     u = j / _SUBSTEPS
@@ -354,29 +366,30 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                         kind = km if gm <= 0.0 else kg
                         break
                     u_prev = u
-            tf = _crossing(s, s1, h, 2, floor_z, True, P, work)
-            if tf < best:
-                best, kind = tf, CONTACT_FLOOR
-        else:
+            if s1[2] < floor_z:
+                tf = _crossing(s, s1, h, 2, floor_z, True, P, work)
+                if tf < best:
+                    best, kind = tf, CONTACT_FLOOR
+        elif s1[2] < r:           # (the cheap tests first: most steps cross nothing)
             best = _crossing(s, s1, h, 2, r, True, P, work)
             if best <= h:
                 on = abs(se[0]) <= HALF_LENGTH and abs(se[1]) <= HALF_WIDTH
                 kind = CONTACT_TOP if on else CONTACT_OFF
-            else:
+            elif s1[2] < floor_z:
                 best = _crossing(s, s1, h, 2, floor_z, True, P, work)
                 if best <= h:
                     kind = CONTACT_FLOOR
-        if has_plane:
+        if has_plane and ((s[0] > plane_x) != (s1[0] > plane_x) or s1[0] == plane_x):
             tp = _crossing(s, s1, h, 0, plane_x, False, P, work)
             if tp < best:
                 best, kind = tp, CONTACT_PLANE
-        if math.isnan(res[FL_NET_T]):
+        if (s[0] > 0.0) != (s1[0] > 0.0) and math.isnan(res[FL_NET_T]):
             tn = _crossing(s, s1, h, 0, 0.0, False, P, work)
             if tn <= h and tn <= best:
                 res[FL_NET_T] = t + tn
                 res[FL_NET_Y] = se[1]
                 res[FL_NET_Z] = se[2]
-        if math.isnan(res[FL_CROSS_T]):
+        if s1[2] < r <= s[2] and math.isnan(res[FL_CROSS_T]):
             tc = _crossing(s, s1, h, 2, r, True, P, work)
             if tc <= h and tc <= best:
                 res[FL_CROSS_T] = t + tc
