@@ -11,7 +11,7 @@ previous candidate's outgoing velocity; a stroke into the table's edge is retrie
 higher arc, EDGE_RETRY_CLEARANCE); a solution counts only when the racket centre is
 inside the workspace and the racket speed within its limit. The candidate with the best
 in-zone probability wins: linearised (:func:`tt_strike.robust.linear_in_zone_probability`,
-about 10 flights) under the given incoming covariance, or under the default noise (2 mm,
+7 flights) under the given incoming covariance, or under the default noise (2 mm,
 2 % of the speed, 10 % of the spin) without one; ties go to the slower racket.
 
 Statuses: ok; no_hit_point (no bounce on the robot's half: the prediction's status and
@@ -31,7 +31,7 @@ from .incoming import hit_point
 from .robust import linear_in_zone_probability, noise_covariance
 from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
 
-MAX_CANDIDATES = 6
+MAX_CANDIDATES = 4
 """Most hit points solved per ball."""
 EDGE_RETRY_CLEARANCE = (0.2, 0.4)
 """Net clearances added, m, to retry a stroke whose ball meets the table's edge."""
