@@ -42,6 +42,7 @@ from .camstream import (
     DropCounter,
     FrameQueue,
     LatencyWindow,
+    MonotonicClock,
     PacedVideoSource,
     open_v4l2,
     warm_up,
@@ -219,7 +220,7 @@ class PerceptionNode(Node):
                 devices.append(k)
             else:
                 files.append(k)
-            self._last_frame[k] = self._now_s()
+            self._last_frame[k] = time.monotonic()
         self.drops = DropCounter(len(rig.cameras))
         lossless = self._p('video_rate') == 0.0 and not devices
         self.frames_queue = FrameQueue(
@@ -315,8 +316,9 @@ class PerceptionNode(Node):
             return
         self._file_timer.cancel()
         base = os.path.dirname(self.rig.path)
-        start = time.monotonic() + 0.02
-        self._video_start = time.time() + (start - time.monotonic())
+        # Frame 0 of every file 20 ms from now, on the camera threads' clock.
+        start = MonotonicClock.now() + 0.02
+        self._video_start = time.time() + (start - MonotonicClock.now())
         fps = self.rig.fps
         readers = []
         for k in self._files:
@@ -403,7 +405,7 @@ class PerceptionNode(Node):
 
     def _process_locked(self, k, stamp, frame, wall_base):
         self.frames_received += 1
-        self._last_frame[k] = self._now_s()
+        self._last_frame[k] = time.monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
@@ -420,13 +422,8 @@ class PerceptionNode(Node):
             if wall_base is not None:
                 self.latency.add(time.time() - (wall_base + self._t_ref + est.t))
 
-    def _now_s(self):
-        """The node clock's time, s: the camera watchdog's time (simulated time under
-        use_sim_time, as its timer's)."""
-        return self.get_clock().now().nanoseconds * 1e-9
-
     def _watch_cameras(self):
-        now = self._now_s()
+        now = time.monotonic()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             if (now - last > timeout and k not in self._lost and k not in self._ended
