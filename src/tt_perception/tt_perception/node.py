@@ -16,11 +16,13 @@ frame of the wrong size or encoding is dropped with a warning; a camera that sto
 is reported (and a device reopened) while the node keeps running.
 """
 
+import gc
 import math
 import os
 import threading
 import time
 
+import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
@@ -29,6 +31,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.identify.blas import blas_threads
 from tt_prediction.nodeutil import set_xyz
 from tt_prediction.params import load_model
 from tt_prediction.spin import spin_node
@@ -247,6 +250,18 @@ class PerceptionNode(Node):
             reader.start()
         if files:
             self._file_timer = self.create_timer(0.01, self._start_files, clock=self.steady)
+        if devices or files:
+            # The objects made so far (ROS, numba, the rig) live as long as the node: out of
+            # the garbage collector's full passes, which would otherwise stall the camera
+            # path for tens of ms now and then.
+            gc.collect()
+            gc.freeze()
+            # One thread per OpenCV call and per BLAS product: the camera threads already use
+            # the other core, and a call split over two threads waits for the slower one,
+            # which on a busy machine may not be running at all.
+            cv2.setNumThreads(1)
+            self._blas = blas_threads(1)
+            self._blas.__enter__()
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
         self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
