@@ -165,6 +165,7 @@ class PerceptionNode(Node):
         self.frames_queue = None
         self.drops = None
         self.latency = LatencyWindow()
+        self._snapshot = None               # the track, for the camera threads' detection
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
         self._lost = set()
@@ -234,6 +235,8 @@ class PerceptionNode(Node):
         self._wall_stamps = self._p('video_clock') == 'wall'
         if self._p('video_clock') not in ('video', 'wall'):
             self.get_logger().warning(f"video_clock {self._p('video_clock')!r} unknown: video")
+        if devices:
+            self._t_ref = math.floor(time.time())     # V4L2 stamps are wall-clock times
         for k in devices:
             self._readers.append(self._device_reader(k))
         self._files = files
@@ -322,7 +325,7 @@ class PerceptionNode(Node):
         return CameraReader(k, source, self.frames_queue, self.drops,
                             on_status=lambda k, text: self.get_logger().warning(
                                 f'camera {self.rig.cameras[k].name}: {text}'),
-                            on_error=self._reader_error)
+                            on_error=self._reader_error, detect=self._detect)
 
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
@@ -346,15 +349,24 @@ class PerceptionNode(Node):
                 self.get_logger().error(f'camera {cam.name}: {exc}')
                 continue
             t0 = self._video_start if self._wall_stamps else 0.0
+            if self._t_ref is None:
+                self._t_ref = math.floor(t0)
             readers.append(CameraReader(k, source, self.frames_queue, self.drops,
                                         stamp=lambda n, t0=t0: t0 + n / fps,
-                                        on_error=self._reader_error))
+                                        on_error=self._reader_error, detect=self._detect))
         self._files = [r.camera for r in readers]
         self._readers += readers
         for reader in readers:
             reader.start()
         self.get_logger().info(f'video files started: video time 0 at wall time '
                                f'{self._video_start:.6f} s')
+
+    def _detect(self, k, stamp, image):
+        """Camera ``k``'s ball detection, in its own thread (the search window from the
+        track as the processing thread last left it)."""
+        if image is None:
+            return ValueError('no frame')
+        return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot)
 
     def _reader_error(self, k, exc):
         self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')
@@ -381,7 +393,12 @@ class PerceptionNode(Node):
                 base = 0.0
             else:
                 base = self._video_start if self._p('video_rate') == 1.0 else None
-            self._process(frame.camera, frame.t, frame.image, base)
+            try:
+                self._process(frame.camera, frame.t, frame.image, base, frame.detections)
+            except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the cameras
+                self._warn_once(('worker', type(exc).__name__),
+                                f'camera {self.rig.cameras[frame.camera].name}: frame not '
+                                f'processed: {type(exc).__name__}: {exc}')
 
     def _publish_diagnostics(self):
         """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
@@ -409,26 +426,27 @@ class PerceptionNode(Node):
 
     # --- processing and output ---------------------------------------------------------
 
-    def _process(self, k, stamp, frame, wall_base=None):
+    def _process(self, k, stamp, frame, wall_base=None, detections=None):
         """Camera ``k``'s frame stamped ``stamp`` (s) through the pipeline; its states are
         published. ``wall_base`` (s): the stamp plus it is the wall-clock exposure time, for
         the exposure -> publication latency (frames of the camera threads)."""
         if self.pipeline is None:
             return
         with self._lock:
-            self._process_locked(k, stamp, frame, wall_base)
+            self._process_locked(k, stamp, frame, wall_base, detections)
+            self._snapshot = self.pipeline.tracker.snapshot()
 
-    def _process_locked(self, k, stamp, frame, wall_base):
+    def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
         self._last_frame[k] = time.monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
         if k in self._disabled:
-            frame = None
+            frame, detections = None, None
         if self._t_ref is None:
             self._t_ref = math.floor(stamp)   # keeps sub-microsecond resolution in float64
-        estimates = self.pipeline.process(stamp - self._t_ref, k, frame)
+        estimates = self.pipeline.process(stamp - self._t_ref, k, frame, detections)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:
