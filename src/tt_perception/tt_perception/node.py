@@ -57,8 +57,9 @@ from .sources import camera_info_topic, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 DIAGNOSTICS_TOPIC = '/diagnostics'
-CAMERA_BUFFERS = 4
-"""Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE; a paced video file emulates them)."""
+CAMERA_BUFFERS = 8
+"""Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
+emulates them): how long a camera thread may stall before frames are lost."""
 
 
 def _floats(lo, hi):
@@ -320,7 +321,7 @@ class PerceptionNode(Node):
                            height=self._p('device_height'), fps=self.rig.fps,
                            fourcc=self._p('device_fourcc'),
                            exposure=exposure if exposure >= 0 else None,
-                           reopen_interval=self._p('reopen_interval'))
+                           reopen_interval=self._p('reopen_interval'), buffers=CAMERA_BUFFERS)
         source.stop = self._stop
         return CameraReader(k, source, self.frames_queue, self.drops,
                             on_status=lambda k, text: self.get_logger().warning(
