@@ -209,7 +209,8 @@ def bounce_spin_observation(rp, params, config):
     the model's contact (eq. 8) and through the rebound's linear map S (eqs. 1-6, Jacobian
     and saltation, :func:`tt_prediction.ball_filter.rebound_map`). The rebound velocity is
     measured independently of the filter: a quadratic fit in time to the samples 4-90 ms
-    after the located bounce (before the measured crossing), at the bounce. Conditioning the
+    after the located bounce (shortened until it fits them within 4 sigma + 2 mm: a racket
+    hit ends the flight), at the bounce. Conditioning the
     joint Gaussian of (pre-bounce spin, rebound velocity) on it gives the spin's posterior
     given the whole track: flight's curvature for the spin across v, eqs. 1-2's change of
     tangential velocity (r w x n) for the spin along v. The track's prior is divided out
@@ -235,15 +236,17 @@ def bounce_spin_observation(rp, params, config):
     if bf.last_bounce is None or bf.last_bounce[1] >= 0.0 or abs(bf.last_bounce[0] - tb) > 0.03:
         return None
     tc = bf.last_bounce[0]
-    end = tb + POST_BOUNCE_WINDOW[1]
-    if rp.crossing is not None:
-        end = min(end, rp.crossing[0])
-    sel = (rp.t > tb + POST_BOUNCE_WINDOW[0]) & (rp.t < end)
-    if sel.sum() < 6:
-        return None
-    dt = rp.t[sel] - tb
-    A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
-    coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
+    sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0])
+                         & (rp.t < tb + POST_BOUNCE_WINDOW[1]))
+    while True:                 # drop the window's end until one flight explains it (racket)
+        if len(sel) < 6:
+            return None
+        dt = rp.t[sel] - tb
+        A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
+        coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
+        if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * config.position_noise + 2e-3:
+            break
+        sel = sel[:-2]
     v_meas = coef[1]
     var_fit = config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
     xc, Cc, _ = _predict_to(x0, P0, t0, tc, bf.P_model, bf._cfg, -1.0, np.zeros(4))
