@@ -62,9 +62,6 @@ class TrackReplay:
     t: np.ndarray
     p: np.ndarray
     bounce_times: list
-    pre_bounce: tuple = None
-    """The filter's (x (9,), P (9, 9), t) at its last accepted sample before the ball's
-    bounce on the robot's half, or None."""
     spin_prior: tuple = None
     """The spin prior the track was replayed with (top/back, side, along v), rad/s."""
     nis: list = None
@@ -82,8 +79,7 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
 
 
 def _replay_samples(t, p, params, config, hit_plane_x, spin):
-    """:func:`replay_samples`'s rows, the filter's last state before the robot-half
-    bounce (x, P, t) or None, and the NIS of its accepted samples."""
+    """:func:`replay_samples`'s rows and the NIS of the filter's accepted samples."""
     t = np.asarray(t, dtype=float)
     p = np.asarray(p, dtype=float)
     order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
@@ -93,7 +89,6 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
     last_pred = None
     spin_used = spin is None
     packed = params.packed()
-    pre, bounced_once = None, False
     for k, i in enumerate(order):
         ti = t[i]
         rows[k, 0] = ti
@@ -103,9 +98,6 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         if not tf.running:
             continue
         f = tf.filter
-        bounced_once = bounced_once or tf.robot_bounced
-        if not bounced_once and status in (tf.ACCEPTED, tf.STARTED) and f.x[3] < 0.0:
-            pre = (f.x, f.P, f.t)
         if not spin_used and status == tf.STARTED:
             f.update_spin(spin, np.eye(3) * 25.0)
             spin_used = True
@@ -125,7 +117,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         if pred.hit is not None:
             rows[k, 13] = pred.hit.t
             rows[k, 14:17] = pred.hit.p
-    return rows, (pre if bounced_once else None), tf.nis
+    return rows, tf.nis
 
 
 def measured_crossing(t, p, bounce_times, plane_x):
@@ -181,7 +173,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
                  spin=None):
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
     config = config or FilterConfig()
-    rows, pre, nis = _replay_samples(t, p, params, config, hit_plane_x, spin)
+    rows, nis = _replay_samples(t, p, params, config, hit_plane_x, spin)
     tt, pp, bounces, crossing = _ground_truth(name, np.asarray(t, float), np.asarray(p, float),
                                               params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
@@ -189,7 +181,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     c = config
     prior = (c.spin_prior, c.spin_prior if c.spin_prior_side is None else c.spin_prior_side,
              c.spin_prior if c.spin_prior_along is None else c.spin_prior_along)
-    return TrackReplay(name, rows, crossing, first, tt, pp, bounces, pre, prior, nis)
+    return TrackReplay(name, rows, crossing, first, tt, pp, bounces, prior, nis)
 
 
 # ----------------------------------------------------------------------------------------------
