@@ -83,8 +83,11 @@ def run_graph_video(rec, session, log_dir, args, collector):
         group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
                                    '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}']
                     + ([] if live else ['-p', 'stale_after_s:=0.0']))
+        # The report strikes the true ball at the prediction's plane: use_hit_plane.
         group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
-                               '-p', f'target_zone:={args.target_zone}'])
+                               '-p', f'target_zone:={args.target_zone}',
+                               '-p', 'use_hit_plane:=true']
+                    + ([] if live else ['-p', 'check_hit_time:=false']))
         group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
         node = collector.node
         wait_until(lambda: collector.spin_once() or (
