@@ -89,20 +89,39 @@ def make_scene(folder):
 
 
 def cpu_s(pid):
-    """CPU time (user + system) of process ``pid`` and its threads, s."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            fields = f.read().rsplit(')', 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-    except OSError:
-        return float('nan')
+    """CPU time (user + system, s) of process ``pid`` and its living descendants (``ros2 run``
+    starts the node as a child)."""
+    stats = {}
+    for entry in os.listdir('/proc'):
+        if entry.isdigit():
+            try:
+                with open(f'/proc/{entry}/stat') as f:
+                    fields = f.read().rsplit(')', 1)[1].split()
+            except OSError:
+                continue
+            stats[int(entry)] = (int(fields[1]), int(fields[11]) + int(fields[12]))
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        total += stats.get(p, (0, 0))[1]
+        todo += [c for c, (parent, _) in stats.items() if parent == p]
+    return total / os.sysconf('SC_CLK_TCK')
+
+
+def spin_until(collector, condition, timeout, what):
+    """Take messages as they come (no sleeps between) until ``condition()``."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f'timed out after {timeout:.0f} s waiting for {what}')
+        collector.executor.spin_once(timeout_sec=0.01)
 
 
 def run():
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from tt_tools.collector import Collector, stamp_s
-    from tt_tools.procs import ProcessGroup, ros_env, wait_until
+    from tt_tools.procs import ProcessGroup, ros_env
 
     from tt_msgs.msg import BallState
 
@@ -132,11 +151,11 @@ def run():
             '-p', f'rig_file:={folder / "rig.yaml"}', '-p', 'video_clock:=wall',
             '-p', 'wait_for_subscribers:=1'])
         duration = meta['frames_per_camera'] / FPS
-        wait_until(lambda: collector.spin_once() or diags.get('video_start_wall_s'), 90.0,
+        spin_until(collector, lambda: diags.get('video_start_wall_s'), 90.0,
                    'perception_node to start the videos')
         cpu_start = cpu_s(proc.pid)
-        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == '2',
-                   duration + 60.0, 'the end of the videos')
+        spin_until(collector, lambda: diags.get('cameras_ended') == '2', duration + 60.0,
+                   'the end of the videos')
         cpu_used = cpu_s(proc.pid) - cpu_start
         # Published after both cameras' last frames were processed: the counts are final.
         final = dict(diags)

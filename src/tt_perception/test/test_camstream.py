@@ -187,3 +187,29 @@ def test_unpaced_lossless_reading_keeps_every_frame(video):
         assert len(q) <= 2
     reader.join(timeout=30)
     assert got == list(range(N_FRAMES)) and drops.snapshot() == ([0], 0)
+
+
+def test_detection_in_the_camera_thread_gives_the_same_states():
+    # Pipeline.detect (run by each camera's thread with the track as the processing thread
+    # left it) then process(detections=...) is the sequential pipeline split in two: with the
+    # snapshot taken after the previous frame, the states are the same, bit for bit.
+    from tt_perception.pipeline import Pipeline
+
+    from tt_perception import synth
+
+    rig = synth.demo_rig()
+    frames, _ = synth.render_balls(rig, [synth.incoming_ball(speed=8.0, topspin_rps=30.0)],
+                                   [0.0], duration=0.35, lead_in=0.05)
+    whole, split = Pipeline(rig), Pipeline(rig)
+    a, b = [], []
+    for t, k, frame in frames:
+        a += whole.process(t, k, frame)
+        detections = split.detect(t, k, frame, split.tracker.snapshot())
+        b += split.process(t, k, None, detections)
+    assert len(a) > 20 and len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        assert x.t == y.t and np.array_equal(x.state, y.state)
+        assert np.array_equal(x.covariance, y.covariance) and x.track_id == y.track_id
+    bad = split.detect(1.0, 0, np.zeros((4, 4, 3), np.uint8))
+    assert isinstance(bad, ValueError)
+    assert split.process(1.0, 0, None, bad) == [] and 'frame size' in split.last_error

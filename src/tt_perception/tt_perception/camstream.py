@@ -18,7 +18,7 @@ files as if they were cameras (paced at the rig's fps). Pure module (no rclpy).
   counted.
 - :class:`DropCounter`: frames lost per camera, and the frame pairs (instants) that lost at
   least one camera's frame.
-- :class:`CameraReader`: the thread of one camera (grab, stamp, retrieve, queue).
+- :class:`CameraReader`: the thread of one camera (grab, stamp, retrieve, detect, queue).
 
 Times: a frame's ``t`` (s) is its exposure time on the source's time base: video time
 (``n / fps``) or, with ``wall_start`` set, the wall-clock time at which the paced frame is
@@ -52,8 +52,10 @@ class Frame:
     t: float
     """Exposure time of the frame, s (video time, or wall clock for live stamps)."""
     image: np.ndarray = None
-    """BGR uint8 image; None for a lost or unreadable frame."""
+    """BGR uint8 image; None for a lost or unreadable frame (or once detected)."""
     kind: str = 'frame'
+    detections: object = None
+    """What the camera's thread detected in it (``CameraReader(detect=...)``), or None."""
 
 
 class MonotonicClock:
@@ -353,9 +355,13 @@ class CameraReader(threading.Thread):
     ``source``: a :class:`PacedVideoSource` or :class:`V4L2Camera`. ``stamp(index)`` gives a
     frame's time (s) from its index (paced files); for a V4L2 camera the driver's timestamp is
     used. Frames the source lost are counted in ``drops``; an END item is queued after the
-    last frame of a file. ``on_status(text)`` reports a device's state changes."""
+    last frame of a file. ``on_status(text)`` reports a device's state changes.
+    ``detect(camera, t, image)``: run on each frame in this thread (the ball detection of
+    this camera, in parallel with the other cameras and the processing thread); its result
+    is queued as ``Frame.detections`` in place of the image."""
 
-    def __init__(self, camera, source, queue, drops, stamp=None, on_status=None, on_error=None):
+    def __init__(self, camera, source, queue, drops, stamp=None, on_status=None, on_error=None,
+                 detect=None):
         super().__init__(daemon=True, name=f'camera-{camera}')
         self.camera = camera
         self.source = source
@@ -364,6 +370,7 @@ class CameraReader(threading.Thread):
         self.stamp = stamp
         self.on_status = on_status
         self.on_error = on_error
+        self.detect = detect
         self.frames = 0
         self.stop_event = source.stop
 
@@ -386,7 +393,11 @@ class CameraReader(threading.Thread):
                 t = self.stamp(index) if self.stamp else self.source.t
                 image = self.source.retrieve()
                 self.frames += 1
-                self.queue.put(Frame(self.camera, index, t, image))
+                if self.detect is not None:
+                    self.queue.put(Frame(self.camera, index, t,
+                                         detections=self.detect(self.camera, t, image)))
+                else:
+                    self.queue.put(Frame(self.camera, index, t, image))
         except Exception as exc:  # noqa: BLE001 - reported by the node, the thread ends
             if self.on_error:
                 self.on_error(self.camera, exc)

@@ -16,11 +16,13 @@ frame of the wrong size or encoding is dropped with a warning; a camera that sto
 is reported (and a device reopened) while the node keeps running.
 """
 
+import gc
 import math
 import os
 import threading
 import time
 
+import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
@@ -29,6 +31,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.identify.blas import blas_threads
 from tt_prediction.nodeutil import set_xyz
 from tt_prediction.params import load_model
 from tt_prediction.spin import spin_node
@@ -54,8 +57,9 @@ from .sources import camera_info_topic, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 DIAGNOSTICS_TOPIC = '/diagnostics'
-CAMERA_BUFFERS = 4
-"""Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE; a paced video file emulates them)."""
+CAMERA_BUFFERS = 8
+"""Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
+emulates them): how long a camera thread may stall before frames are lost."""
 
 
 def _floats(lo, hi):
@@ -162,6 +166,7 @@ class PerceptionNode(Node):
         self.frames_queue = None
         self.drops = None
         self.latency = LatencyWindow()
+        self._snapshot = None               # the track, for the camera threads' detection
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
         self._lost = set()
@@ -231,6 +236,8 @@ class PerceptionNode(Node):
         self._wall_stamps = self._p('video_clock') == 'wall'
         if self._p('video_clock') not in ('video', 'wall'):
             self.get_logger().warning(f"video_clock {self._p('video_clock')!r} unknown: video")
+        if devices:
+            self._t_ref = math.floor(time.time())     # V4L2 stamps are wall-clock times
         for k in devices:
             self._readers.append(self._device_reader(k))
         self._files = files
@@ -247,6 +254,18 @@ class PerceptionNode(Node):
             reader.start()
         if files:
             self._file_timer = self.create_timer(0.01, self._start_files, clock=self.steady)
+        if devices or files:
+            # The objects made so far (ROS, numba, the rig) live as long as the node: out of
+            # the garbage collector's full passes, which would otherwise stall the camera
+            # path for tens of ms now and then.
+            gc.collect()
+            gc.freeze()
+            # One thread per OpenCV call and per BLAS product: the camera threads already use
+            # the other core, and a call split over two threads waits for the slower one,
+            # which on a busy machine may not be running at all.
+            cv2.setNumThreads(1)
+            self._blas = blas_threads(1)
+            self._blas.__enter__()
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
         self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
@@ -302,12 +321,12 @@ class PerceptionNode(Node):
                            height=self._p('device_height'), fps=self.rig.fps,
                            fourcc=self._p('device_fourcc'),
                            exposure=exposure if exposure >= 0 else None,
-                           reopen_interval=self._p('reopen_interval'))
+                           reopen_interval=self._p('reopen_interval'), buffers=CAMERA_BUFFERS)
         source.stop = self._stop
         return CameraReader(k, source, self.frames_queue, self.drops,
                             on_status=lambda k, text: self.get_logger().warning(
                                 f'camera {self.rig.cameras[k].name}: {text}'),
-                            on_error=self._reader_error)
+                            on_error=self._reader_error, detect=self._detect)
 
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
@@ -331,15 +350,24 @@ class PerceptionNode(Node):
                 self.get_logger().error(f'camera {cam.name}: {exc}')
                 continue
             t0 = self._video_start if self._wall_stamps else 0.0
+            if self._t_ref is None:
+                self._t_ref = math.floor(t0)
             readers.append(CameraReader(k, source, self.frames_queue, self.drops,
                                         stamp=lambda n, t0=t0: t0 + n / fps,
-                                        on_error=self._reader_error))
+                                        on_error=self._reader_error, detect=self._detect))
         self._files = [r.camera for r in readers]
         self._readers += readers
         for reader in readers:
             reader.start()
         self.get_logger().info(f'video files started: video time 0 at wall time '
                                f'{self._video_start:.6f} s')
+
+    def _detect(self, k, stamp, image):
+        """Camera ``k``'s ball detection, in its own thread (the search window from the
+        track as the processing thread last left it)."""
+        if image is None:
+            return ValueError('no frame')
+        return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot)
 
     def _reader_error(self, k, exc):
         self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')
@@ -366,7 +394,12 @@ class PerceptionNode(Node):
                 base = 0.0
             else:
                 base = self._video_start if self._p('video_rate') == 1.0 else None
-            self._process(frame.camera, frame.t, frame.image, base)
+            try:
+                self._process(frame.camera, frame.t, frame.image, base, frame.detections)
+            except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the cameras
+                self._warn_once(('worker', type(exc).__name__),
+                                f'camera {self.rig.cameras[frame.camera].name}: frame not '
+                                f'processed: {type(exc).__name__}: {exc}')
 
     def _publish_diagnostics(self):
         """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
@@ -394,26 +427,27 @@ class PerceptionNode(Node):
 
     # --- processing and output ---------------------------------------------------------
 
-    def _process(self, k, stamp, frame, wall_base=None):
+    def _process(self, k, stamp, frame, wall_base=None, detections=None):
         """Camera ``k``'s frame stamped ``stamp`` (s) through the pipeline; its states are
         published. ``wall_base`` (s): the stamp plus it is the wall-clock exposure time, for
         the exposure -> publication latency (frames of the camera threads)."""
         if self.pipeline is None:
             return
         with self._lock:
-            self._process_locked(k, stamp, frame, wall_base)
+            self._process_locked(k, stamp, frame, wall_base, detections)
+            self._snapshot = self.pipeline.tracker.snapshot()
 
-    def _process_locked(self, k, stamp, frame, wall_base):
+    def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
         self._last_frame[k] = time.monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
         if k in self._disabled:
-            frame = None
+            frame, detections = None, None
         if self._t_ref is None:
             self._t_ref = math.floor(stamp)   # keeps sub-microsecond resolution in float64
-        estimates = self.pipeline.process(stamp - self._t_ref, k, frame)
+        estimates = self.pipeline.process(stamp - self._t_ref, k, frame, detections)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:

@@ -157,13 +157,21 @@ class Tracker:
     def active(self):
         return self.filter is not None
 
-    def predicted_position(self, t):
-        """Where the tracked ball should be at ``t`` (ballistic guess), or None."""
-        if self.filter is None:
+    def predicted_position(self, t, snapshot=None):
+        """Where the tracked ball should be at ``t`` (ballistic guess), or None; from
+        ``snapshot`` (see :meth:`snapshot`) instead of the running filter when given."""
+        snap = snapshot if snapshot is not None else self.snapshot()
+        if snap is None:
             return None
-        dt = t - self.filter.t
-        x = self.filter.x
+        t_filter, x = snap
+        dt = t - t_filter
         return x[:3] + x[3:6] * dt + 0.5 * self.gravity * dt * dt
+
+    def snapshot(self):
+        """(time, position and velocity (6,)) of the running track, a copy, or None: what
+        :meth:`predicted_position` needs, for a camera thread to place its search window."""
+        f = self.filter
+        return None if f is None else (f.t, f.x[:6].copy())
 
     def end(self):
         self.filter = None
@@ -240,21 +248,37 @@ class Pipeline:
         self.offsets = [c.time_offset or 0.0 for c in self.cameras]
         self.last_error = None
 
-    def process(self, t, k, frame):
+    def detect(self, t, k, frame, snapshot=None):
+        """Detections in camera ``k``'s frame stamped ``t`` (s, its own clock), for
+        :meth:`process` (``detections=``): a list, or the ValueError of a corrupt frame. The
+        search window comes from ``snapshot`` (:meth:`Tracker.snapshot`, taken by the caller
+        from the processing thread) rather than the running filter, so that each camera's
+        thread can detect in its own frames (only that camera's detector is used) while
+        another thread processes."""
+        t = float(t) - self.offsets[k]
+        try:
+            return self._detect(t, k, frame, snapshot)
+        except ValueError as exc:
+            return exc
+
+    def process(self, t, k, frame, detections=None):
         """Process camera ``k``'s frame stamped ``t`` (s, its own clock); returns the list of
         :class:`BallEstimate` it completes. A missing or corrupt frame (None, wrong size, not
-        8-bit) is skipped: ``last_error`` says why, nothing is estimated from it."""
+        8-bit) is skipped: ``last_error`` says why, nothing is estimated from it.
+        ``detections``: the result of :meth:`detect` on this frame, when done already."""
         t = float(t) - self.offsets[k]
         self.last_error = None
-        detections = []
-        if frame is None:
-            self.last_error = f'camera {self.cameras[k].name}: no frame'
-        else:
-            try:
-                detections = self._detect(t, k, frame)
-            except ValueError as exc:
-                self.last_error = f'camera {self.cameras[k].name}: {exc}'
-                detections = []
+        if detections is None:
+            if frame is None:
+                detections = ValueError('no frame')
+            else:
+                try:
+                    detections = self._detect(t, k, frame)
+                except ValueError as exc:
+                    detections = exc
+        if isinstance(detections, ValueError):
+            self.last_error = f'camera {self.cameras[k].name}: {detections}'
+            detections = []
         out = []
         for t0, group in self.matcher.add(k, t, detections):
             points = self._points(group)
@@ -263,10 +287,10 @@ class Pipeline:
                 out.append(est)
         return out
 
-    def _detect(self, t, k, frame):
+    def _detect(self, t, k, frame, snapshot=None):
         cam = self.cameras[k]
         roi = None
-        predicted = self.tracker.predicted_position(t)
+        predicted = self.tracker.predicted_position(t, snapshot)
         if predicted is not None and cam.in_front(predicted[None])[0]:
             roi = cam.project(predicted[None])[0]
         dets = self.detectors[k].detect(frame, roi)

@@ -107,12 +107,13 @@ class V4L2Source(FrameSource):
     """A V4L2 camera through OpenCV, reopened when it vanishes."""
 
     def __init__(self, device, width=640, height=480, fps=150.0, fourcc='MJPG',
-                 exposure=None, reopen_interval=1.0):
+                 exposure=None, reopen_interval=1.0, buffers=4):
         self.device = int(device) if str(device).isdigit() else str(device)
         self.width, self.height, self.fps = int(width), int(height), float(fps)
         self.fourcc = fourcc
         self.exposure = exposure
         self.reopen_interval = reopen_interval
+        self.buffers = int(buffers)
         self.capture = None
         self._next_try = 0.0
         # V4L2 buffer timestamps are CLOCK_MONOTONIC; this moves them to the wall clock.
@@ -128,7 +129,7 @@ class V4L2Source(FrameSource):
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
         cap.set(cv2.CAP_PROP_FPS, self.fps)
-        cap.set(cv2.CAP_PROP_BUFFERSIZE, 4)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, self.buffers)
         if self.exposure is not None:
             cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)            # V4L2 manual mode
             cap.set(cv2.CAP_PROP_EXPOSURE, float(self.exposure))
