@@ -14,6 +14,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
+from tt_prediction.integrate import rollout
+from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 from tt_tools.procs import ProcessGroup, wait_until
 
@@ -81,14 +83,18 @@ def test_prediction_node_killed_and_restarted_the_strikes_resume(tmp_path):
             first = group.start('prediction', prediction)
             wait_until(lambda: stream.publish_and_spin() or len(stream.commands) >= 3, 120.0,
                        'strike commands through a fresh prediction_node')
-            # The same ball every time (stamps aside): every command is the strike of its
-            # predicted hit point, at the hitting plane x = -1.5 m.
+            # The same ball every time (stamps aside): every command strikes the ball where
+            # its flight (eq. 8 and the bounce, from the state sent) is at the hit time, after
+            # the bounce on the robot's half.
             for c in stream.commands:
                 assert (c.status, c.feasible, c.reason) == ('ok', True, '')
-                assert c.hit_point.x == -1.5
-                assert (c.hit_point.y, c.hit_point.z) == pytest.approx(expected.hit.p[1:],
-                                                                       abs=1e-9)
-                assert Time.from_msg(c.header.stamp).nanoseconds in stream.stamps
+                stamp = Time.from_msg(c.header.stamp).nanoseconds
+                assert stamp in stream.stamps
+                t_hit = (Time.from_msg(c.hit_time).nanoseconds - stamp) * 1e-9
+                assert expected.bounce.t < t_hit < 1.0
+                _, at_hit = rollout(stream.state, ModelParams(), sample_times=[t_hit])
+                hit = (c.hit_point.x, c.hit_point.y, c.hit_point.z)
+                assert hit == pytest.approx(at_hit[0, :3], abs=1e-6)
             first.kill()            # SIGKILL: no chance to clean up
             first.wait(10.0)
             group.stop('prediction')  # already gone: closes its log and forgets it
