@@ -21,13 +21,13 @@ import time
 
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
-from tt_prediction.nodeutil import set_xyz
 from tt_prediction.params import load_model
-from tt_prediction.spin import spin_node
+from tt_ros.executor import run_node
+from tt_ros.messages import set_xyz
+from tt_ros.parameters import Param, Parameters
 
 from tt_msgs.msg import BallState
 
@@ -40,50 +40,39 @@ from .sources import V4L2Source, camera_info_topic, file_frames, image_to_bgr, s
 STATE_TOPIC = '/ball/state'
 
 
-def _floats(lo, hi):
-    return [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-
-
-def _ints(lo, hi):
-    return [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-
-
-# name: (default, description, range)
-PARAMETERS = {
-    'rig_file': ('', 'Rig file (DESIGN.md): camera poses, camera_info files and sources', None),
-    'model_file': ('', 'Ball model YAML written by tt-identify (empty: nominal model)', None),
-    'ball_colour': ('any', 'Ball colour: white, orange or any', None),
-    'diff_threshold': (22.0, 'Grey-level change against the background of a ball pixel',
-                       _floats(2, 200)),
-    'min_area': (4, 'Smallest ball blob, pixels', _ints(1, 10000)),
-    'max_area': (900, 'Largest ball blob (near, motion-blurred), pixels', _ints(4, 1000000)),
-    'max_width': (30.0, 'Largest ball diameter in the image, pixels', _floats(2, 1000)),
-    'roi_half_size': (40, 'Half size of the search window around the predicted ball, pixels',
-                      _ints(8, 2000)),
-    'pixel_sigma': (0.15, 'Standard deviation of a detected centre, pixels', _floats(0.01, 10)),
-    'max_reprojection': (2.5, 'Largest reprojection error of a triangulated ball, pixels',
-                         _floats(0.1, 50)),
-    'accel_noise': (0.05, 'Unmodelled acceleration of the filter, m/s^2/sqrt(Hz)',
-                    _floats(0.0, 100)),
-    'spin_prior': (250.0, 'Prior standard deviation of each spin component, rad/s',
-                   _floats(1, 5000)),
-    'measured_spin_topic': ('', 'geometry_msgs/Vector3Stamped topic of a measured spin (rad/s, '
-                            'table frame, e.g. from a marked ball) fused into the track; '
-                            'empty: none', None),
-    'measured_spin_sigma': (10.0, 'Standard deviation of each measured spin component, rad/s',
-                            _floats(0.01, 1000)),
-    'confirm_updates': (3, 'Filter updates before a track is published', _ints(1, 100)),
-    'max_coast': (0.06, 'Time without a measurement that ends a track, s', _floats(0.001, 5)),
-    'camera_timeout': (1.0, 'Time without frames after which a camera is reported lost, s',
-                       _floats(0.05, 60)),
-    'reopen_interval': (1.0, 'Time between attempts to reopen a lost V4L2 device, s',
-                        _floats(0.05, 60)),
-    'device_width': (640, 'V4L2 frame width, pixels', _ints(16, 8192)),
-    'device_height': (480, 'V4L2 frame height, pixels', _ints(16, 8192)),
-    'device_fourcc': ('MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)', None),
-    'device_exposure': (-1.0, 'V4L2 exposure (driver units; negative: automatic)',
-                        _floats(-1, 100000)),
-}
+# Read once at start (the rig and the pipeline are built from them): read-only.
+PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
+    ('rig_file', '', 'Rig file (DESIGN.md): camera poses, camera_info files and sources'),
+    ('model_file', '', 'Ball model YAML written by tt-identify (empty: nominal model)'),
+    ('ball_colour', 'any', 'Ball colour', '', None, None, ('white', 'orange', 'any')),
+    ('diff_threshold', 22.0, 'Grey-level change against the background of a ball pixel', '',
+     2, 200),
+    ('min_area', 4, 'Smallest ball blob', 'pixels', 1, 10000),
+    ('max_area', 900, 'Largest ball blob (near, motion-blurred)', 'pixels', 4, 1000000),
+    ('max_width', 30.0, 'Largest ball diameter in the image', 'pixels', 2, 1000),
+    ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
+     'pixels', 8, 2000),
+    ('pixel_sigma', 0.15, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
+    ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
+     0.1, 50),
+    ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
+    ('spin_prior', 250.0, 'Prior standard deviation of each spin component', 'rad/s', 1, 5000),
+    ('measured_spin_topic', '', 'geometry_msgs/Vector3Stamped topic of a measured spin '
+     '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
+    ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
+     'rad/s', 0.01, 1000),
+    ('confirm_updates', 3, 'Filter updates before a track is published', '', 1, 100),
+    ('max_coast', 0.06, 'Time without a measurement that ends a track', 's', 0.001, 5),
+    ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
+     0.05, 60),
+    ('reopen_interval', 1.0, 'Time between attempts to reopen a lost V4L2 device', 's',
+     0.05, 60),
+    ('device_width', 640, 'V4L2 frame width', 'pixels', 16, 8192),
+    ('device_height', 480, 'V4L2 frame height', 'pixels', 16, 8192),
+    ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
+    ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
+     -1, 100000),
+))
 
 
 def ball_state_message(est, t_ref, frame_id):
@@ -107,16 +96,7 @@ class PerceptionNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('perception_node', **kwargs)
-        for name, (default, text, ranges) in PARAMETERS.items():
-            # Read once at start (the rig and the pipeline are built from them): read-only.
-            descriptor = ParameterDescriptor(description=text, read_only=True)
-            if ranges and isinstance(default, float):
-                descriptor.floating_point_range = ranges
-            elif ranges:
-                descriptor.integer_range = ranges
-            if isinstance(default, str):
-                descriptor.type = ParameterType.PARAMETER_STRING
-            self.declare_parameter(name, default, descriptor)
+        self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
         self.frames_received = 0
         self.states_published = 0
@@ -135,7 +115,7 @@ class PerceptionNode(Node):
         self._setup()
 
     def _p(self, name):
-        return self.get_parameter(name).value
+        return self.p[name]
 
     def _setup(self):
         rig_file = self._p('rig_file')
@@ -155,9 +135,6 @@ class PerceptionNode(Node):
                                     'will be published')
             return
         colour = self._p('ball_colour')
-        if colour not in ('white', 'orange', 'any'):
-            self.get_logger().warning(f'ball_colour {colour!r} unknown: using any')
-            colour = 'any'
         detector = DetectorConfig(
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
@@ -341,7 +318,7 @@ class PerceptionNode(Node):
 
 
 def main(args=None):
-    spin_node(PerceptionNode, args)
+    run_node(PerceptionNode, args)
 
 
 if __name__ == '__main__':
