@@ -3,7 +3,9 @@
 ROS glue only (the math is in the pure modules). Each camera of the rig file comes from its
 ``source``: an image topic (sensor_msgs/Image on the source, CameraInfo on the sibling
 ``camera_info`` topic, sensor-data QoS), a V4L2 device (a thread per device) or a video file
-(one thread reads the files together, paced at the rig's fps; times are video times). Every
+(one thread reads the files together, paced at the rig's fps; times are video times, from 0,
+published on /clock with ``publish_clock`` so that nodes with ``use_sim_time`` share them;
+timers run on the steady clock). Every
 frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
 tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
 image header stamp), 9x9 covariance row-major (position, velocity, spin).
@@ -21,12 +23,14 @@ import time
 
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.params import load_model
 from tt_ros.executor import run_node
-from tt_ros.messages import set_xyz
+from tt_ros.messages import set_time, set_xyz
 from tt_ros.parameters import Param, Parameters
 
 from tt_msgs.msg import BallState
@@ -72,6 +76,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
     ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
      -1, 100000),
+    ('publish_clock', False, 'publish the time of the frame being processed on /clock, so '
+     "that nodes with use_sim_time run on the recording's time (video files; image topics "
+     'replayed without --clock)'),
 ))
 
 
@@ -98,6 +105,14 @@ class PerceptionNode(Node):
         super().__init__('perception_node', **kwargs)
         self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.clock_pub = None
+        self.clock_msg = ClockMsg()
+        self.last_clock_ns = None
+        if self.p.publish_clock:
+            # Best effort, depth 1: the QoS of the subscription of rclpy's time source.
+            self.clock_pub = self.create_publisher(ClockMsg, '/clock', QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.frames_received = 0
         self.states_published = 0
         self.spin_measurements_used = 0
@@ -170,8 +185,10 @@ class PerceptionNode(Node):
             self.create_subscription(Vector3Stamped, spin_topic, self._on_spin,
                                      qos_profile_sensor_data)
         if self._threads:
-            self.create_timer(0.002, self._drain)     # frames of devices and files
-        self.create_timer(0.25, self._watch_cameras)
+            # Timers on the steady clock: with use_sim_time a ROS-time timer would wait for
+            # /clock (which this node may itself be the source of).
+            self.create_timer(0.002, self._drain, clock=self.steady)
+        self.create_timer(0.25, self._watch_cameras, clock=self.steady)
         for thread in self._threads:
             thread.start()
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
@@ -262,8 +279,8 @@ class PerceptionNode(Node):
                 self._put(k, t, frame, wait=True)
         except OSError as exc:
             self.get_logger().error(str(exc))
-        self.get_logger().info('end of the video files')
         self._ended.update(ks)
+        self._put(None, None, None, wait=True)     # logged once the frames before are done
 
     def _drain(self):
         while True:
@@ -271,6 +288,10 @@ class PerceptionNode(Node):
                 k, t, frame = self._queue.get_nowait()
             except queue.Empty:
                 return
+            if k is None:
+                self.get_logger().info(f'end of the video files: {self.frames_received} '
+                                       f'frames, {self.states_published} states')
+                continue
             self._process(k, t, frame)
 
     # --- processing and output ---------------------------------------------------------
@@ -287,12 +308,23 @@ class PerceptionNode(Node):
             frame = None
         if self._t_ref is None:
             self._t_ref = math.floor(stamp)   # keeps sub-microsecond resolution in float64
+        if self.clock_pub is not None:
+            self._publish_clock(stamp)
         estimates = self.pipeline.process(stamp - self._t_ref, k, frame)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
+
+    def _publish_clock(self, stamp):
+        """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""
+        ns = int(round(stamp * 1e9))
+        if self.last_clock_ns is not None and ns <= self.last_clock_ns:
+            return
+        self.last_clock_ns = ns
+        set_time(self.clock_msg.clock, ns)
+        self.clock_pub.publish(self.clock_msg)
 
     def _watch_cameras(self):
         now = time.monotonic()

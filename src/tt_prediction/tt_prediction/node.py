@@ -15,7 +15,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
@@ -32,6 +32,11 @@ from .uncertainty import predict_uncertainty
 BOUNCE_MARGIN_S = 0.02
 """A track's state stamped this long after its predicted bounce on the robot's half is taken
 to be past that bounce (so the plane crossing ahead is the hit), s."""
+STATE_QUEUE_DEPTH = 100
+"""States kept for the callback (best effort): a replay publishes in bursts."""
+TIME_BASE_MISMATCH_S = 3600.0
+"""A state's stamp this far from the node clock (either way) is on another time base (video
+time from 0, a synthetic recording against the wall clock): its age means nothing, s."""
 MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each)."""
 
@@ -139,13 +144,16 @@ class PredictionNode(Node):
         self.work_s = np.zeros(4096)      # the callback's time for the last states, s
         self.n_predicted = 0
         self.n_dropped = 0
+        self.warned_time_base = False
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(BallPrediction, '/ball/prediction', reliable)
         self.pub_path = self.create_publisher(Path, '/ball/predicted_path', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
+        states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
+                                reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = self.create_subscription(BallState, '/ball/state', self.on_state,
-                                            qos_profile_sensor_data)
+                                            states_qos)
         self.get_logger().info(
             f'predicting /ball/state -> /ball/prediction, hitting plane x = '
             f'{self.p.hit_plane_x:.3f} m, model '
@@ -154,6 +162,15 @@ class PredictionNode(Node):
     def _drop(self, why):
         self.n_dropped += 1
         self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
+
+    def _time_base_mismatch(self, age):
+        if not self.warned_time_base:
+            self.warned_time_base = True
+            self.get_logger().warning(
+                f'state stamps are {age:.0f} s from the node clock: another time base (a '
+                'recording without /clock?), so the stale check is off for them; run with '
+                'use_sim_time:=true and a /clock source (ros2 bag play --clock, '
+                'perception_node publish_clock:=true)')
 
     def on_state(self, msg):
         start = time.perf_counter()
@@ -178,9 +195,12 @@ class PredictionNode(Node):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
             return
         stale = self.p.stale_after_s
-        if stale > 0.0:
-            age = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9
-            if age > stale:
+        now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
+        if now_ns:          # 0: use_sim_time and no /clock yet, nothing to compare with
+            age = (now_ns - stamp_ns) * 1e-9
+            if abs(age) > TIME_BASE_MISMATCH_S:
+                self._time_base_mismatch(age)
+            elif age > stale:
                 self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                 return
         p, v, w = msg.position, msg.velocity, msg.spin
