@@ -25,6 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'ros2 = tt_tools.ros2:main',
+            'bringup = tt_tools.bringup:main',
         ],
     },
 )

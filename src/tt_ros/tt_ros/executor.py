@@ -29,6 +29,8 @@ EXECUTOR_ENV = 'TT_EXECUTOR'
 EXECUTORS = ('events', 'single')
 SPIN_TIMEOUT_S = 0.1
 """Longest wait of one spin_once: a signal is acted on within this time, s."""
+READY = 'ready'
+"""The line a node logs once it is built and about to spin (tt_tools.bringup waits for it)."""
 STARTUP_EXIT = 2
 """Exit status of a node that cannot start (bad parameter, missing file)."""
 
@@ -104,6 +106,7 @@ def run_node(make_node, args=None, on_exit=None, name=None):
         try:
             node = make_node()
             executor.add_node(node)
+            node.get_logger().info(READY)
             while not signals.stop.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
         except StartupError as exc:
