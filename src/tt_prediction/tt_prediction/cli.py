@@ -18,6 +18,7 @@ import sys
 
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, check_state, predict
+from .units import position_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
 
@@ -53,7 +54,7 @@ def parse_state(data, lineno, radius):
         values.extend(float(c) for c in items)
     if not math.isfinite(values[0]):
         raise InputError(f'line {lineno}: "t" is not finite')
-    reason = check_state(values[1:], radius)
+    reason = position_error(values[1:4], '"p"') or check_state(values[1:], radius)
     if reason:
         raise InputError(f'line {lineno}: {reason}')
     return values[0], values[1:]
@@ -97,7 +98,11 @@ def main(argv=None):
         return 2
     try:
         params, states = read_input(args.model, args.input, parse_line)
-    except ValueError as exc:                  # InputError is a ValueError
+    except InputError as exc:
+        where = f'{args.input}: ' if args.input else ''     # the file, when not stdin
+        print(f'tt-predict: {where}{exc}', file=sys.stderr)
+        return 2
+    except ValueError as exc:                  # the model file's own errors
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     out = []

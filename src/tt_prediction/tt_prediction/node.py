@@ -28,6 +28,7 @@ from tt_msgs.msg import BallPrediction, BallState
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
 from .uncertainty import predict_uncertainty
+from .units import ROOM_HALF_EXTENT_M, position_error
 
 BOUNCE_MARGIN_S = 0.02
 """A track's state stamped this long after its predicted bounce on the robot's half is taken
@@ -204,6 +205,9 @@ class PredictionNode(Node):
                 self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                 return
         p, v, w = msg.position, msg.velocity, msg.spin
+        if max(abs(p.x), abs(p.y), abs(p.z)) > ROOM_HALF_EXTENT_M:
+            self._drop(position_error((p.x, p.y, p.z), 'position'))
+            return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
         track = self.tracks.get(msg.track_id)
         if track is None:
