@@ -310,6 +310,8 @@ def parse_args(argv):
     p.add_argument('--params-file', required=True,
                    help='ROS parameters file naming the nodes to start (e.g. the installed '
                         'share/tt_tools/config/robot.yaml or replay.yaml)')
+    p.add_argument('--nodes', help='comma-separated subset of the nodes the file names '
+                   '(e.g. prediction_node,strike_node)')
     p.add_argument('--rig', help='rig file for perception_node (overrides rig_file)')
     p.add_argument('--show', action='store_true',
                    help='print one line per ball: prediction and strike command')
@@ -329,6 +331,13 @@ def main(argv=None):
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
         nodes = nodes_in(args.params_file)
+        if args.nodes:
+            wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
+            unknown = [n for n in wanted if n not in nodes]
+            if unknown or not wanted:
+                raise BringupError(f'--nodes {args.nodes}: not among the nodes of '
+                                   f'{args.params_file} ({", ".join(nodes)})')
+            nodes = [n for n in nodes if n in wanted]
         extra = {}
         if args.rig:
             if 'perception_node' not in nodes:
