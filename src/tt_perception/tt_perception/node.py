@@ -350,7 +350,7 @@ class PerceptionNode(Node):
 
 
 def main(args=None):
-    run_node(PerceptionNode, args)
+    run_node(PerceptionNode, args, name='perception_node')
 
 
 if __name__ == '__main__':

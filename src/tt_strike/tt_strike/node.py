@@ -245,7 +245,7 @@ class StrikeNode(Node):
 
 
 def main(args=None):
-    run_node(StrikeNode, args)
+    run_node(StrikeNode, args, name='strike_node')
 
 
 if __name__ == '__main__':
