@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Set up the tt workspace from nothing, idempotently:
-#   1. find Python 3.12 (Jazzy's own; 3.11 as a fallback, with a message),
+#   1. find Python 3.12 (Jazzy's own; 3.11 as a fallback, with a message), or take the
+#      interpreter named by TT_PYTHON (3.11 or 3.12), e.g.
+#      TT_PYTHON=/usr/bin/python3.11 scripts/setup_workspace.sh,
 #   2. create .venv and install the pinned requirements,
 #   3. rewrite the ROS wheels' stale CMake include paths to this venv's own,
 #   4. colcon build the workspace,
@@ -13,8 +15,16 @@ venv="$top/.venv"
 
 say() { printf 'tt-setup: %s\n' "$*" >&2; }
 
+# The interpreter's "major.minor", or nothing when it cannot run.
+py_version() {
+  "$1" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null
+}
+
 find_python() {
   local cand
+  if [ -n "${TT_PYTHON:-}" ]; then
+    echo "$TT_PYTHON"; return 0
+  fi
   for cand in python3.12 "$(pyenv root 2>/dev/null)/versions/"3.12*/bin/python3.12 \
       /usr/bin/python3.12 /usr/local/bin/python3.12; do
     if [ -n "$cand" ] && "$cand" -c 'import sys; assert sys.version_info[:2] == (3, 12)' \
@@ -34,10 +44,23 @@ find_python() {
 }
 
 # 1-2. venv and pinned requirements (skipped when the pins have not changed).
+if [ -n "${TT_PYTHON:-}" ]; then
+  case "$(py_version "$TT_PYTHON")" in
+    3.11 | 3.12) ;;
+    '') say "error: TT_PYTHON=$TT_PYTHON does not run"; exit 1 ;;
+    *) say "error: TT_PYTHON=$TT_PYTHON is Python $(py_version "$TT_PYTHON"); tt needs 3.11/3.12"
+       exit 1 ;;
+  esac
+fi
 if [ ! -x "$venv/bin/python" ]; then
   py=$(find_python) || { say 'error: neither Python 3.12 nor 3.11 found'; exit 1; }
-  say "creating .venv with $py"
+  say "creating .venv with $py (Python $(py_version "$py"))"
   "$py" -m venv "$venv"
+elif [ -n "${TT_PYTHON:-}" ] \
+    && [ "$(py_version "$venv/bin/python")" != "$(py_version "$TT_PYTHON")" ]; then
+  say "error: .venv is Python $(py_version "$venv/bin/python"), TT_PYTHON is" \
+    "$(py_version "$TT_PYTHON"): remove .venv (and build install log) to switch"
+  exit 1
 fi
 stamp="$venv/.tt-requirements.sha256"
 UV_VERSION=0.13.9

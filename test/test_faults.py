@@ -14,6 +14,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
+from tt_prediction.predict import predict
 from tt_tools.procs import ProcessGroup, wait_until
 
 from tt_msgs.msg import BallState, StrikeCommand
@@ -37,10 +38,12 @@ class StateStream:
         self.executor.add_node(self.node)
         self.state = np.array([1.2, 0.1, 0.35, -5.5, 0.2, 1.0, 0.0, 80.0, 0.0])
         self.sent = 0
+        self.stamps = set()
 
     def publish_and_spin(self):
         msg = BallState()
         msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.stamps.add(Time.from_msg(msg.header.stamp).nanoseconds)
         msg.header.frame_id = 'table'
         msg.track_id = self.sent // 50
         s = self.state
@@ -68,13 +71,22 @@ def test_prediction_node_killed_and_restarted_the_strikes_resume(tmp_path):
     prediction = ['ros2', 'run', 'tt_prediction', 'prediction_node', *remap,
                   '-p', 'stale_after_s:=0.0', '-p', 'uncertainty:=false']
     stream = StateStream(prefix)
+    expected = predict(stream.state)
+    assert expected.status == 'ok'
     try:
         with ProcessGroup(str(tmp_path)) as group:
             group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', *remap])
             first = group.start('prediction', prediction)
             wait_until(lambda: stream.publish_and_spin() or len(stream.commands) >= 3, 120.0,
                        'strike commands through a fresh prediction_node')
-            assert all(c.status for c in stream.commands)
+            # The same ball every time (stamps aside): every command is the strike of its
+            # predicted hit point, at the hitting plane x = -1.5 m.
+            for c in stream.commands:
+                assert (c.status, c.feasible, c.reason) == ('ok', True, '')
+                assert c.hit_point.x == -1.5
+                assert (c.hit_point.y, c.hit_point.z) == pytest.approx(expected.hit.p[1:],
+                                                                       abs=1e-9)
+                assert Time.from_msg(c.header.stamp).nanoseconds in stream.stamps
             first.kill()            # SIGKILL: no chance to clean up
             first.wait(10.0)
             group.stop('prediction')  # already gone: closes its log and forgets it

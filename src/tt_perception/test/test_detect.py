@@ -66,3 +66,28 @@ def test_ball_over_a_white_line_is_flagged():
     found = d.detect(disc(background.copy(), (80.0, 57.0), 5.0))
     assert len(found) == 1 and found[0].hidden > 0.05
     assert found[0].v < 57.0 - 0.2        # the part over the line is lost: biased centre
+
+
+def test_shading_and_a_contact_shadow_do_not_move_the_centre():
+    """Overhead light: a bright top, an underside dimmer than the threshold in grey but of
+    another colour than the blue table, and a shadow below it: the centre stays the disc's."""
+    table = (95, 60, 25)
+    d = BallDetector(DetectorConfig(colour='white'))
+    d.detect(np.full((120, 160, 3), table, np.uint8))
+    centre, radius = np.array([80.3, 60.6]), 6.0
+    ss = 8                                                 # supersampled rendering
+    ys, xs = np.mgrid[0:120 * ss, 0:160 * ss]
+    dx, dy = (xs + 0.5) / ss - 0.5 - centre[0], (ys + 0.5) / ss - 0.5 - centre[1]
+    inside = dx ** 2 + dy ** 2 < radius ** 2
+    lit = np.clip(-dy / radius, 0.0, 1.0)                  # Lambert with light from image-up
+    ball = (0.3 + 0.7 * lit)[..., None] * np.array([235.0, 238.0, 240.0])
+    shadow = 1.0 - 0.5 * np.exp(-0.5 * (dx ** 2 + (dy - radius) ** 2) / radius ** 2)
+    image = np.where(inside[..., None], ball, np.array(table, float) * shadow[..., None])
+    frame = image.reshape(120, ss, 160, ss, 3).mean(axis=(1, 3)).round().astype(np.uint8)
+    grey_under = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)[int(centre[1] + 4), int(centre[0])]
+    assert abs(int(grey_under) - 54) < 22            # the underside: invisible in grey alone
+    found = d.detect(frame)
+    assert len(found) == 1
+    # A sixth of the radius on the mixed shadow/underside outline pixels; the lit cap's own
+    # centroid is a quarter radius (1.5 px) above the centre.
+    assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.3

@@ -19,6 +19,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
@@ -167,17 +168,37 @@ def test_missing_rig_file_publishes_nothing(graph, tmp_path):
 
 
 def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
+    # The watchdog runs on the node clock: simulated time from a /clock this test publishes,
+    # so a camera is lost after camera_timeout of that clock, whatever the test's pace.
     ctx, executor, add = graph
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     frames, _ = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
     frames = list(frames)
-    node = add(PerceptionNode(context=ctx, parameter_overrides=[
-        Parameter('rig_file', value=rig_path), Parameter('camera_timeout', value=0.2)]))
+    node = add(PerceptionNode(
+        context=ctx, cli_args=['--ros-args', '-r', f'/clock:={ns}/clock'],
+        parameter_overrides=[Parameter('rig_file', value=rig_path),
+                             Parameter('camera_timeout', value=0.2),
+                             Parameter('use_sim_time', value=True)]))
     peer = add(rclpy.create_node('image_player', context=ctx))
     pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
-    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
+    clock_pub = peer.create_publisher(
+        Clock, f'{ns}/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs)
+                      and clock_pub.get_subscription_count() > 0)
     sent = 0
+
+    def set_clock(t):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+
+        def arrived():
+            if node.get_clock().now().nanoseconds == round(t * 1e9):
+                return True
+            clock_pub.publish(msg)               # best effort, as /clock is: until seen
+            return False
+
+        assert spin_until(executor, arrived)
 
     def send(cameras):
         nonlocal sent
@@ -187,14 +208,22 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
                 sent += 1
                 assert spin_until(executor, lambda n=sent: node.frames_received >= n)
 
+    set_clock(10.0)
     send({0, 1})
+    # 0.15 s later (< camera_timeout) only camera 0 sends; no camera is lost yet.
+    set_clock(10.15)
+    send({0})
+    node._watch_cameras()
     assert not node._lost
-    # Camera 1 stops: the watchdog reports it while camera 0 goes on.
-    deadline = time.monotonic() + 5.0
-    while 1 not in node._lost and time.monotonic() < deadline:
-        send({0})
+    # At 10.3 s camera 1's last frame is 0.3 s old (> 0.2 s), camera 0's 0.15 s: the watchdog
+    # (its timer, 0.25 s of the node clock, due by then) reports camera 1 alone.
+    set_clock(10.3)
+    assert spin_until(executor, lambda: node._lost)
     assert node._lost == {1}
     send({0, 1})
+    assert not node._lost
+    # The clock stands still: however long the test takes, nothing is lost.
+    node._watch_cameras()
     assert not node._lost
 
 

@@ -49,7 +49,9 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
     # Video time runs from camera 0's first frame, which the scene took at -LEAD_IN.
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
     with open(out / 'index.csv', newline='') as f:
-        assert next(csv.reader(f)) == ['file', 'wx', 'wy', 'wz', 'label', 'source_id']
+        header, row = list(csv.reader(f))[:2]
+    assert header == ['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source']
+    assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
 
 
 def test_time_offset_of_unsynchronised_videos_is_estimated(tmp_path, capsys):

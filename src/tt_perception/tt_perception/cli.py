@@ -5,8 +5,9 @@
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
-image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id``; the spin
-columns are left empty: perception estimates spin, it does not measure it); with
+image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id,spin_source``;
+the spin columns are left empty and spin_source is ``estimated``: perception estimates spin,
+it does not measure it, and tt-identify must not take it as measured); with
 ``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. Bad input: one line
 on stderr, exit status 2 for the rig or calibration, 1 for the data; nothing is written then.
 
@@ -130,9 +131,9 @@ def write_tracks(out, estimates, label):
         names.append(name)
     with open(os.path.join(out, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
         w = csv.writer(f)
-        w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id'])
+        w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source'])
         for name, track_id in zip(names, sorted(tracks), strict=True):
-            w.writerow([name, '', '', '', label, track_id])
+            w.writerow([name, '', '', '', label, track_id, 'estimated'])
     return names
 
 

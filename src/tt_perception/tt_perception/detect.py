@@ -45,6 +45,9 @@ class DetectorConfig:
     """Half size of the search window around a predicted position, pixels."""
     max_candidates: int = 4
     """Most blobs returned per frame (the largest differences first)."""
+    silhouette_threshold: float = 14.0
+    """Smallest colour change (largest over B, G, R against the colour background) of a pixel
+    of the ball's silhouette, grey levels: low enough to keep its shaded underside."""
 
 
 @dataclasses.dataclass
@@ -63,15 +66,44 @@ class Detection:
     of the ball may be missing from the blob there)."""
 
 
-def colour_matches(bgr, colour):
+def colour_matches(bgr, colour, change=None):
     """True when the mean colour ``bgr`` (3,) is that of a ``colour`` ball ('white', 'orange',
-    'any')."""
+    'any'). ``change`` (3,), the colour minus the background's there, when known: an orange
+    ball small enough for JPEG's halved chroma resolution to mix the background into it is
+    still recognised by the red it adds over the blue."""
     b, g, r = (float(c) for c in bgr)
     if colour == 'white':
         return min(b, g, r) > 0.72 * max(b, g, r) and max(b, g, r) > 90.0
     if colour == 'orange':
-        return r > 90.0 and r > 1.6 * b + 20.0 and r > g
+        if r > 90.0 and r > 1.6 * b + 20.0 and r > g:
+            return True
+        if change is None:
+            return False
+        db, dg, dr = (float(c) for c in change)
+        return dr > 30.0 and dr > 1.6 * max(db, 0.0) + 10.0 and dr > dg
     return True
+
+
+def _width_from_moments(cxx, cyy, cxy):
+    """Width across the motion blur (the ball's diameter), pixels, from the central second
+    moments of a blob's pixels (each pixel adds 1/12 of its own): a disc of radius r has
+    variance r^2 / 4 along any axis, and blur only lengthens the other axis."""
+    small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
+    return 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)
+
+
+def _width(cover, dx, dy):
+    """:func:`_width_from_moments` of a coverage image ``cover`` with offsets dx, dy from its
+    centroid."""
+    total = cover.sum()
+    return _width_from_moments((cover * dx * dx).sum() / total, (cover * dy * dy).sum() / total,
+                               (cover * dx * dy).sum() / total)
+
+
+def _shadow(image, background):
+    """Pixels of ``image`` (BGR) darker than the colour ``background`` in all three channels:
+    a shadow dims the light without changing its colour, a ball changes the colour."""
+    return np.all(image.astype(np.float32) < background, axis=2)
 
 
 def _grey(image):
@@ -85,6 +117,7 @@ class BallDetector:
         self.config = config or DetectorConfig()
         self.background = None
         self._bg8 = None
+        self._bg_colour = None
         self._count = 0
 
     def detect(self, frame, roi_centre=None, update_background=True):
@@ -104,6 +137,8 @@ class BallDetector:
             gray = _grey(frame)
             self.background = gray.astype(np.float32)
             self._bg8 = gray.copy()
+            if frame.ndim == 3:
+                self._bg_colour = frame.astype(np.float32)
             return []
         if (h, w) != self.background.shape:
             raise ValueError(f"frame size {w}x{h} differs from the camera's "
@@ -132,7 +167,7 @@ class BallDetector:
                 found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
                                     mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut)
         if update:
-            self._update_background(gray, mask, x0, y0)
+            self._update_background(gray, mask, x0, y0, frame)
         return found
 
     def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False)):
@@ -157,22 +192,73 @@ class BallDetector:
                 continue
             cu = bx + weighted['m10'] / total       # difference-weighted centroid
             cv = by + weighted['m01'] / total
-            # Width across the motion from the blob's second moments (pixel mask, 1/12 per px).
             shape = cv2.moments(sub, binaryImage=True)
-            cxx, cyy, cxy = (shape['mu20'] / area, shape['mu02'] / area, shape['mu11'] / area)
-            small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
-            width = 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)   # disc: var = r^2 / 4
+            width = _width_from_moments(shape['mu20'] / area, shape['mu02'] / area,
+                                        shape['mu11'] / area)
             if width > cfg.max_width:
                 continue
             if cfg.colour != 'any' and frame.ndim == 3:
+                # The colour of the lit half of the blob: the shaded half and the outline
+                # take the background's colour (JPEG's halved chroma resolution spreads it).
                 patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
-                if not colour_matches(cv2.mean(patch, mask=sub)[:3], cfg.colour):
+                grey = _grey(patch)
+                lit = ((sub > 0) & (grey >= np.median(grey[sub > 0]))).astype(np.uint8)
+                colour = cv2.mean(patch, mask=lit)[:3]
+                change = None
+                if self._bg_colour is not None:
+                    bg = self._bg_colour[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
+                    change = np.asarray(colour) - cv2.mean(bg, mask=lit)[:3]
+                if not colour_matches(colour, cfg.colour, change):
                     continue
+            if self._bg_colour is not None and frame.ndim == 3:
+                cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
+                cu, cv = cu - x0, cv - y0
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
                                  float(total / area),
                                  self._hidden(frame, sub, x0 + bx, y0 + by)))
         out.sort(key=lambda d: -d.strength * d.area)
         return out[:cfg.max_candidates]
+
+    def _silhouette_centre(self, frame, sub, x0, y0):
+        """Centre (u, v) and width, pixels, of the silhouette of the ball whose bright blob is
+        ``sub`` at (x0, y0): every pixel near it whose colour differs from the colour
+        background by more than ``silhouette_threshold`` in some channel and is not a shadow
+        (darker in all three channels), connected to the blob. The silhouette's centroid does
+        not lean toward the lit side as a difference-weighted centroid does."""
+        h, w = frame.shape[:2]
+        bh, bw = sub.shape
+        m = max(bw, bh) + 2           # the unlit part may reach a diameter beyond the lit one
+        ax, ay = max(x0 - m, 0), max(y0 - m, 0)
+        bx, by = min(x0 + bw + m, w), min(y0 + bh + m, h)
+        img = frame[ay:by, ax:bx].astype(np.float32)
+        bg = self._bg_colour[ay:by, ax:bx]
+        change = img - bg
+        strong = np.max(np.abs(change), axis=2) > self.config.silhouette_threshold
+        sil = (strong & ~_shadow(img, bg)).astype(np.uint8)
+        seed = np.zeros_like(sil)
+        seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
+        sil |= seed
+        n, labels = cv2.connectedComponents(sil, connectivity=8)
+        keep = np.unique(labels[(seed > 0) & (labels > 0)])
+        region = np.isin(labels, keep)
+        # Coverage: full inside the silhouette, the shaded side included; on its outline
+        # (anti-aliased, blurred) the pixel's change over that of the ball's pixels next to it
+        # (a mixed pixel changes in proportion to the part the ball covers, lit or shaded).
+        size = np.max(np.abs(change), axis=2)
+        region = region.astype(np.uint8)
+        interior = cv2.erode(region, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        inner = interior.astype(np.float32)
+        near_sum = cv2.boxFilter(size * inner, -1, (5, 5), normalize=False)
+        near_n = cv2.boxFilter(inner, -1, (5, 5), normalize=False)
+        fallback = float(np.median(size[seed > 0]))
+        local = np.where(near_n > 0, near_sum / np.maximum(near_n, 1e-6), fallback)
+        cover = np.where(interior > 0, 1.0,
+                         np.where(region > 0, np.clip(size / np.maximum(local, 1e-6), 0.0, 1.0),
+                                  0.0))
+        ys, xs = np.mgrid[0:cover.shape[0], 0:cover.shape[1]]
+        total = cover.sum()
+        cu, cv = float((xs * cover).sum() / total), float((ys * cover).sum() / total)
+        return ax + cu, ay + cv, _width(cover, xs - cu, ys - cv)
 
     def _hidden(self, frame, sub, x0, y0):
         """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
@@ -193,7 +279,7 @@ class BallDetector:
             self.config.diff_threshold
         return float(np.count_nonzero(alike & (ring > 0)) / n_ring)
 
-    def _update_background(self, gray, mask, x0, y0):
+    def _update_background(self, gray, mask, x0, y0, frame=None):
         """Exponential average of the frame into the background, except under blobs."""
         keep = None
         if mask is not None and mask.any():
@@ -201,4 +287,7 @@ class BallDetector:
             h, w = mask.shape
             keep[y0:y0 + h, x0:x0 + w] = cv2.dilate(mask, np.ones((5, 5), np.uint8)) ^ 255
         cv2.accumulateWeighted(gray, self.background, self.config.background_rate, mask=keep)
+        if self._bg_colour is not None and frame.ndim == 3:
+            cv2.accumulateWeighted(frame, self._bg_colour, self.config.background_rate,
+                                   mask=keep)
         self._bg8 = cv2.convertScaleAbs(self.background)

@@ -54,7 +54,7 @@ class TrackerConfig:
     """Fastest speed of a new track, m/s."""
     min_z: float = -0.3
     """A track ends below this height (the ball has left the table's volume), m."""
-    pixel_sigma: float = 0.15
+    pixel_sigma: float = 0.4
     """Standard deviation of a detection's centre, pixels."""
     max_reprojection: float = 2.5
     """Largest reprojection error of a triangulated point, pixels."""

@@ -163,9 +163,98 @@ def _draw_ball(frame, centres, radius, colour, gain):
                                   0, 255).astype(np.uint8)
 
 
+def _draw_ball_lit(frame, centres, radius, colour, gain, R, light):
+    """Blend a motion-blurred ball lit by a directional overhead light into ``frame``.
+
+    Each pixel of the disc at each centre of ``centres`` (n, 2) gets the sphere's normal
+    (camera frame: x right, y down, z forward; ``R`` rotates table to camera), Lambert shading
+    ``ambient + diffuse * max(0, n . l)`` of the ball's ``colour`` and a Blinn-Phong specular
+    highlight; ``light`` is a dict with ``direction`` (table frame, toward the light),
+    ``ambient``, ``diffuse``, ``specular`` and ``shininess``. The pixel is the mean over the
+    exposure of ball (where covered) and background.
+    """
+    h, w = frame.shape[:2]
+    lo = np.floor(centres.min(axis=0) - radius - 2).astype(int)
+    hi = np.ceil(centres.max(axis=0) + radius + 2).astype(int)
+    x0, y0 = max(lo[0], 0), max(lo[1], 0)
+    x1, y1 = min(hi[0] + 1, w), min(hi[1] + 1, h)
+    if x1 <= x0 or y1 <= y0:
+        return
+    l_cam = R @ np.asarray(light['direction'], float)
+    l_cam /= np.linalg.norm(l_cam)
+    half = l_cam + np.array([0.0, 0.0, -1.0])       # toward the light and toward the camera
+    half /= np.linalg.norm(half)
+    ys, xs = np.mgrid[y0:y1, x0:x1] + 0.0
+    patch = frame[y0:y1, x0:x1].astype(float)
+    out = np.zeros_like(patch)
+    colour = np.asarray(colour, float) * gain
+    ss = 4                                          # 4 x 4 samples per pixel for the coverage
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    for cx, cy in centres:
+        acc = np.zeros_like(patch)
+        for oy in offs:
+            for ox in offs:
+                dx, dy = (xs + ox - cx) / radius, (ys + oy - cy) / radius
+                rr = dx * dx + dy * dy
+                inside = rr < 1.0
+                nz = -np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))
+                lam = np.clip(dx * l_cam[0] + dy * l_cam[1] + nz * l_cam[2], 0.0, None)
+                spec = np.clip(dx * half[0] + dy * half[1] + nz * half[2], 0.0, None)
+                shade = (light['ambient'] + light['diffuse'] * lam)[:, :, None] * colour \
+                    + (255.0 * gain * light['specular'] * spec ** light['shininess'])[:, :, None]
+                acc += np.where(inside[:, :, None], np.clip(shade, 0, 255), patch)
+        out += acc / ss ** 2
+    frame[y0:y1, x0:x1] = np.clip(out / len(centres), 0, 255).astype(np.uint8)
+
+
+HALL_LIGHT = {'direction': (0.15, 0.1, 1.0), 'ambient': 0.4, 'diffuse': 0.7,
+              'specular': 0.35, 'shininess': 30.0}
+"""The hall's light: mostly from above, a soft ambient from walls and floor (a fraction of
+full light), a glossy highlight."""
+
+
+def _shadow(frame, cam, ball, radius, gain):
+    """Darken ``frame`` under a ball at ``ball`` (3,): a soft contact shadow on the table top,
+    darker and tighter the closer the ball is to the surface (overhead light)."""
+    height = ball[2] - radius
+    if height > 0.4 or abs(ball[0]) > HALF_LENGTH or abs(ball[1]) > HALF_WIDTH or height < -0.01:
+        return
+    spread = radius * (1.0 + 4.0 * max(height, 0.0))
+    depth = 0.55 * np.exp(-max(height, 0.0) / 0.08)
+    angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    ring = np.stack([ball[0] + 2.0 * spread * np.cos(angles),
+                     ball[1] + 2.0 * spread * np.sin(angles), np.zeros_like(angles)], axis=1)
+    if not np.all(cam.in_front(ring)):
+        return
+    px = cam.project(ring)
+    lo = np.floor(px.min(axis=0)).astype(int) - 2
+    hi = np.ceil(px.max(axis=0)).astype(int) + 3
+    x0, y0 = max(lo[0], 0), max(lo[1], 0)
+    x1, y1 = min(hi[0], frame.shape[1]), min(hi[1], frame.shape[0])
+    if x1 <= x0 or y1 <= y0:
+        return
+    # Shadow density on the table: Gaussian of the distance to the foot of the ball.
+    ys, xs = np.mgrid[y0:y1, x0:x1] + 0.0
+    pts = cam.normalise(np.stack([xs.ravel(), ys.ravel()], axis=1))
+    rays = np.column_stack([pts, np.ones(len(pts))]) @ cam.R       # table frame directions
+    s = -cam.centre[2] / rays[:, 2]
+    hit = cam.centre[None, :2] + s[:, None] * rays[:, :2]
+    d2 = np.sum((hit - ball[None, :2]) ** 2, axis=1).reshape(xs.shape)
+    dark = 1.0 - depth * np.exp(-0.5 * d2 / spread ** 2)
+    frame[y0:y1, x0:x1] = np.clip(frame[y0:y1, x0:x1] * dark[:, :, None], 0, 255).astype(
+        np.uint8)
+
+
+def _vignetting(cam, strength=0.35):
+    """Relative illumination (H, W) of a lens falling as cos^4 toward the corners."""
+    ys, xs = np.mgrid[0:cam.height, 0:cam.width] + 0.0
+    r2 = ((xs - cam.K[0, 2]) ** 2 + (ys - cam.K[1, 2]) ** 2) / cam.focal ** 2
+    return (1.0 - strength) + strength / (1.0 + r2) ** 2
+
+
 def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_in=0.2,
                  exposure=1.5e-3, noise=2.0, lighting=0.15, distractor=True,
-                 time_offsets=None, params=None, drop=None, seed=0):
+                 time_offsets=None, params=None, drop=None, seed=0, imaging='clean'):
     """Render the balls of ``states`` (each (9,), table frame) launched at ``launch_times`` (s).
 
     With no balls the scene holds only the background and the distractor, from ``-lead_in`` to
@@ -180,7 +269,16 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
     ``distractor`` adds a swinging ball-coloured disc of racket size, and ``drop``
     (``{camera_index: (t_from, t_to)}``) replaces that camera's frames in the interval by
     ``None`` (a camera that vanishes).
+
+    ``imaging='hall'`` renders what a hall's camera sees instead of the clean flat-lit ball: a
+    directional overhead light (:data:`HALL_LIGHT`) with Lambert shading and a specular
+    highlight, a soft contact shadow on the table, cos^4 vignetting, sensor noise with a shot
+    part (``noise`` grey levels at mid-grey) and JPEG compression at quality 30; pass
+    ``exposure=2e-3`` for the issue's 2 ms blur.
     """
+    if imaging not in ('clean', 'hall'):
+        raise ValueError(f"imaging must be 'clean' or 'hall', not {imaging!r}")
+    hall = imaging == 'hall'
     params = params or ModelParams()
     rng = np.random.default_rng(seed)
     cams = rig.cameras
@@ -210,8 +308,13 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
         ok = np.all(np.isfinite(st), axis=1) & (st[:, 2] > -0.5)
         truth.append({'t': cam0_t[ok], 'state': st[ok], 'events': events})
     backgrounds = [_background(cam, rng) for cam in cams]
-    noise_bank = [[np.clip(bg + rng.normal(0, noise, bg.shape), 0, 255).astype(np.uint8)
-                   for _ in range(6)] for bg in backgrounds]
+    if hall:
+        backgrounds = [(bg * _vignetting(cam)[:, :, None]).astype(np.uint8)
+                       for bg, cam in zip(backgrounds, cams, strict=True)]
+        noise_bank = None
+    else:
+        noise_bank = [[np.clip(bg + rng.normal(0, noise, bg.shape), 0, 255).astype(np.uint8)
+                       for _ in range(6)] for bg in backgrounds]
     colour_bgr = BALL_COLOURS[colour] if isinstance(colour, str) else colour
     drop = drop or {}
 
@@ -239,7 +342,10 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                 continue
             cam = cams[k]
             gain = 1.0 - lighting * (t - t_begin) / max(t_end - t_begin, 1e-9)
-            frame = cv2.convertScaleAbs(noise_bank[k][n % 6], alpha=gain)
+            if hall:
+                frame = cv2.convertScaleAbs(backgrounds[k], alpha=gain)
+            else:
+                frame = cv2.convertScaleAbs(noise_bank[k][n % 6], alpha=gain)
             if distractor:
                 swing = 0.35 * np.sin(2 * np.pi * 0.8 * (t - t_begin))
                 centre3 = np.array([[-1.75, 0.45 + swing, 0.25 + 0.5 * abs(swing)]])
@@ -254,10 +360,27 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                     continue
                 centres = cam.project(p)
                 depth = cam.to_camera(p[n_sub // 2:n_sub // 2 + 1])[0, 2]
-                _draw_ball(frame, centres, cam.focal * params.radius / depth, colour_bgr, gain)
+                radius = cam.focal * params.radius / depth
+                if hall:
+                    _shadow(frame, cam, p[n_sub // 2], params.radius, gain)
+                    _draw_ball_lit(frame, centres, radius, colour_bgr, gain, cam.R, HALL_LIGHT)
+                else:
+                    _draw_ball(frame, centres, radius, colour_bgr, gain)
+            if hall:
+                frame = _sensor(frame, noise, rng)
             yield t, k, frame
 
     return frames(), truth
+
+
+def _sensor(frame, noise, rng):
+    """A hall camera's sensor and codec: photon (shot) noise growing as the square root of the
+    signal plus read noise, then JPEG at quality 30, as cheap USB cameras send (MJPG)."""
+    signal = frame.astype(np.float32)
+    sigma = noise * np.sqrt(0.5 + signal / 256.0)
+    noisy = np.clip(signal + sigma * rng.standard_normal(frame.shape, dtype=np.float32), 0, 255)
+    ok, data = cv2.imencode('.jpg', noisy.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 30])
+    return cv2.imdecode(data, cv2.IMREAD_COLOR)
 
 
 def write_scene(directory, rig_path, frames, truth, fmt='avi'):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from tt_prediction.identify import report as report_module
 from tt_prediction.identify.cli import main
-from tt_prediction.identify.data import clean_samples, load, load_bag
+from tt_prediction.identify.data import DataError, clean_samples, load, load_bag
 from tt_prediction.identify.segment import segment
 from tt_prediction.identify.synthetic import launch_states
 from tt_prediction.integrate import rollout
@@ -83,7 +83,7 @@ def test_bag_of_point_stamped_loads_as_tracks(tmp_path):
     np.testing.assert_allclose(track.p, p)
 
 
-def test_bag_of_ball_state_splits_tracks_by_id_and_keeps_spin(tmp_path):
+def test_bag_of_ball_state_splits_tracks_by_id_and_marks_its_spin_estimated(tmp_path):
     from tt_prediction.identify.data import _bag_typestore
     store = _bag_typestore()
     msgtype = 'tt_msgs/msg/BallState'
@@ -109,8 +109,42 @@ def test_bag_of_ball_state_splits_tracks_by_id_and_keeps_spin(tmp_path):
                 writer.write(conn, ns, store.serialize_cdr(msg, msgtype))
     first, second = load_bag(str(bag))
     assert len(first.t) == len(second.t) == len(t)
-    np.testing.assert_allclose(first.spin, [0.0, 150.0, 0.0])
-    assert second.spin is None          # all-zero spin: not measured
+    # A BallState's spin is perception's estimate: never a measurement for identification.
+    assert first.spin is None and first.spin_source == 'estimated'
+    assert second.spin is None and second.spin_source == ''     # all-zero spin: none given
+
+
+def _folder_with_index(folder, index_lines):
+    folder.mkdir()
+    t = np.arange(0.0, 0.2, 1 / 150.0)
+    rows = ['t,x,y,z'] + [f'{ti:.5f},{1.0 - 5 * ti:.5f},0.0,0.3' for ti in t]
+    for name in ('a.csv', 'b.csv', 'c.csv'):
+        (folder / name).write_text('\n'.join(rows) + '\n')
+    (folder / 'index.csv').write_text('\n'.join(index_lines) + '\n')
+    return load([str(folder)])
+
+
+def test_index_spin_source_says_which_spin_is_measured(tmp_path):
+    a, b, c = _folder_with_index(tmp_path / 'set', [
+        'file,wx,wy,wz,label,spin_source',
+        'a.csv,0,150,0,x,measured', 'b.csv,0,150,0,x,estimated', 'c.csv,0,150,0,x,'])
+    np.testing.assert_allclose(a.spin, [0.0, 150.0, 0.0])
+    assert a.spin_source == 'measured'
+    assert b.spin is None and b.spin_source == 'estimated'
+    # No column value: spin given in index.csv is measured (the format before the column).
+    np.testing.assert_allclose(c.spin, [0.0, 150.0, 0.0])
+    assert c.spin_source == 'measured'
+
+
+@pytest.mark.parametrize('line, words', [
+    ('a.csv,0,150,0,x,guessed', "spin_source 'guessed' is not one of measured, estimated"),
+    ('a.csv,,,,x,measured', "spin_source 'measured' but no spin given"),
+])
+def test_bad_spin_source_is_one_line_naming_the_file(tmp_path, line, words):
+    with pytest.raises(DataError) as err:
+        _folder_with_index(tmp_path / 'set', ['file,wx,wy,wz,label,spin_source', line])
+    assert str(err.value).startswith(str(tmp_path / 'set' / 'index.csv') + ': line 2: ')
+    assert words in str(err.value) and '\n' not in str(err.value)
 
 
 def test_bag_without_the_topic_is_an_error(tmp_path, capsys):

@@ -13,7 +13,7 @@ from tt_prediction.identify.synthetic import launch_states, make_tracks
 from tt_prediction.params import ModelParams
 
 TRUE = ModelParams(c_d=0.45, e_t=0.88)
-CLEAN = {'noise': 0.0, 'dropout': 0.0, 'outliers': 0}
+CLEAN = {'noise': 0.0, 'dropout': 0.0, 'outliers': 0, 'jitter': 0.0}
 
 
 def _spin_across(v, w):
@@ -42,13 +42,20 @@ def test_pooled_fit_recovers_globals_and_unmeasured_spin_from_the_nominal_model(
 
 
 def test_fixed_globals_fit_each_track_alone():
-    # With the true globals fixed, every track's state fits to the integrator's accuracy and
-    # the globals do not move.
+    # With the true globals fixed, every track's state fits to the integrator's accuracy. With
+    # the nominal ones fixed (C_D 0.54, e_t 0.93 against the tracks' 0.45, 0.88) they stay
+    # where they were put, so the states alone cannot explain the flights: millimetres of
+    # residual remain, where freeing the globals recovers the true ones (the test above).
     prepared, _, _ = prepare(make_tracks(3, TRUE, seed=13, spin_known=False, **CLEAN),
                              TRUE.radius)
-    g0 = fitting.Globals(TRUE, ['c_d', 'e_t'])
-    g, states = fitting.fit_pooled(prepared, g0, fitting.fit_starts(prepared, g0),
-                                   fit_globals=False)
-    np.testing.assert_array_equal(g.values, g0.values)
-    assert max(fitting.fit_rms(tr, x, TRUE.packed())
-               for tr, x in zip(prepared, states, strict=True)) < 1e-4
+    rms = {}
+    for name, model, expected in (('true', TRUE, [0.45, 0.88]),
+                                  ('nominal', ModelParams(), [0.54, 0.93])):
+        g0 = fitting.Globals(model, ['c_d', 'e_t'])
+        g, states = fitting.fit_pooled(prepared, g0, fitting.fit_starts(prepared, g0),
+                                       fit_globals=False)
+        np.testing.assert_array_equal(g.values, expected)
+        rms[name] = [fitting.fit_rms(tr, x, model.packed())
+                     for tr, x in zip(prepared, states, strict=True)]
+    assert max(rms['true']) < 1e-4
+    assert min(rms['nominal']) > 1e-3

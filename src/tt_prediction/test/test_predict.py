@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
-from tt_prediction.predict import STATUSES, check_state, predict, predict_batch, predict_landing
+from tt_prediction.predict import (
+    STATUSES,
+    check_state,
+    predict,
+    predict_batch,
+    predict_landing,
+    predict_many,
+)
 from tt_prediction.reference import reference_predict
 from tt_prediction.table import HALF_LENGTH, NET_HEIGHT
 
@@ -172,3 +179,19 @@ def test_batch_of_returned_balls_matches_predict_landing():
         if math.isfinite(single.net_clearance):
             assert batch.net_clearance[i] == single.net_clearance
     assert 'ok' in seen and len(seen) >= 2
+
+
+@pytest.mark.parametrize('parallel', [False, True])
+def test_predict_many_is_predict_row_by_row_with_the_reasons(parallel):
+    rng = np.random.default_rng(4)
+    states = random_incoming(rng, 40)
+    states[3, 3:6] = 0.0                         # at rest: invalid
+    states[7, 2] = -0.3                          # under the table: invalid
+    t0 = rng.uniform(0.0, 50.0, len(states))
+    many = predict_many(states, NOMINAL, t0=t0, hit_plane_x=-1.4, parallel=parallel)
+    for state, t, got in zip(states, t0, many, strict=True):
+        one = predict(state, NOMINAL, t0=t, hit_plane_x=-1.4)
+        assert got.to_dict() == one.to_dict()
+    assert many[3].reason == check_state(states[3]) and 'at rest' in many[3].reason
+    assert many[7].status == 'invalid' and 'below the table' in many[7].reason
+    assert sum(p.status == 'ok' for p in many) >= 20

@@ -1,5 +1,9 @@
 """prediction_node on a live graph: fresh Context per test, executors spun until a condition
-holds (no sleeps), topics remapped to names no other test on this machine uses."""
+holds (no sleeps), topics remapped to names no other test on this machine uses.
+
+The node runs on simulated time (use_sim_time) from a /clock the test publishes (remapped as
+well), so whether a state is stale depends on its stamp and that clock, never on how long the
+test takes: the stamps are set at or after the clock's time T0."""
 
 import math
 import os
@@ -15,7 +19,8 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
 from tt_prediction.integrate import rollout
 from tt_prediction.node import PredictionNode
 from tt_prediction.params import ModelParams
@@ -28,6 +33,8 @@ from tt_msgs.msg import BallPrediction, BallState
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'prediction.yaml'
 GOOD = [1.6, 0.1, 0.3, -6.0, 0.0, 1.5, 0.0, 100.0, 0.0]
 COV = np.diag([1e-6] * 3 + [1e-2] * 3 + [100.0] * 3)
+T0 = 1_000_000_000_000
+"""The simulated time the test's /clock gives the node, ns."""
 
 
 class Graph:
@@ -38,11 +45,17 @@ class Graph:
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context, args=args)
         remap = ['--ros-args']
-        for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
+        for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers',
+                      '/clock'):
             remap += ['-r', f'{topic}:={self.prefix}{topic}']
-        self.node = PredictionNode(context=self.context, cli_args=remap,
-                                   parameter_overrides=list(overrides))
+        self.node = PredictionNode(
+            context=self.context, cli_args=remap,
+            parameter_overrides=[rclpy.parameter.Parameter('use_sim_time', value=True),
+                                 *overrides])
         self.test = rclpy.create_node(f'test_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.clock_pub = self.test.create_publisher(
+            Clock, f'{self.prefix}/clock',
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.predictions, self.paths = [], []
         self.test.create_subscription(BallPrediction, f'{self.prefix}/ball/prediction',
                                       self.predictions.append, 50)
@@ -54,8 +67,23 @@ class Graph:
         self.executor.add_node(self.node)
         self.executor.add_node(self.test)
         self.spin_until(lambda: self.pub.get_subscription_count() > 0
+                        and self.clock_pub.get_subscription_count() > 0
                         and self.test.count_publishers(f'{self.prefix}/ball/prediction') > 0,
                         10.0, 'discovery')
+        self.set_clock(T0)
+
+    def set_clock(self, t_ns):
+        """Give the node the simulated time ``t_ns`` (ns) and spin until it has it."""
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 1_000_000_000)
+
+        def arrived():
+            if self.node.get_clock().now().nanoseconds == t_ns:
+                return True
+            self.clock_pub.publish(msg)         # best effort, as /clock is: again until seen
+            return False
+
+        self.spin_until(arrived, 10.0, f'the node clock at {t_ns} ns')
 
     def spin_until(self, condition, timeout, what):
         deadline = time.monotonic() + timeout
@@ -64,9 +92,8 @@ class Graph:
                 raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
-    def state(self, values, stamp_ns=None, track_id=1, cov=COV):
+    def state(self, values, stamp_ns=T0, track_id=1, cov=COV):
         msg = BallState()
-        stamp_ns = self.node.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         msg.header.frame_id = 'table'
         (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y,
@@ -111,7 +138,7 @@ def publish_until(graph, make_msg, condition, what, timeout=20.0):
 def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
     # The covariance is propagated in a worker thread: its result comes with a later
     # prediction of the same track.
-    t0 = graph.node.get_clock().now().nanoseconds
+    t0 = T0
     msgs = []
 
     def make(k):
@@ -148,7 +175,7 @@ def test_a_state_gives_a_prediction_stamped_with_the_state_and_a_path(graph):
 def test_a_prediction_carries_nothing_over_from_the_one_before(graph):
     # A full prediction (bounce, hit, propagated uncertainty), then a ball of another track
     # that flies wide of the table: no bounce, no hit, every area 0 (off the table).
-    t0 = graph.node.get_clock().now().nanoseconds
+    t0 = T0
     publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000, track_id=7),
                   lambda: graph.predictions and any(graph.predictions[-1].hit_covariance),
                   'a prediction with its uncertainty')
@@ -175,7 +202,7 @@ def test_each_path_has_the_poses_of_its_own_flight():
     try:
         near = [-1.0, 0.0, 0.3, -6.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         balls = [GOOD, near, GOOD]
-        t0 = g.node.get_clock().now().nanoseconds
+        t0 = T0
         for k, ball in enumerate(balls):
             g.pub.publish(g.state(ball, stamp_ns=t0 + k * 1_000_000, track_id=k))
             g.spin_until(lambda k=k: len(g.paths) > k, 10.0, f'path {k}')
@@ -192,25 +219,34 @@ def test_each_path_has_the_poses_of_its_own_flight():
 
 
 def test_bad_and_stale_states_publish_nothing(graph):
-    now = graph.node.get_clock().now().nanoseconds
+    stale_ns = round(graph.node.get_parameter('stale_after_s').value * 1e9)
+    assert stale_ns > 0                                               # the default drops
     bad = [
         graph.state([math.nan, 0, 0.3, -6, 0, 1, 0, 0, 0]),
         graph.state([0.5, 0.0, -0.1, -6, 0, 1, 0, 0, 0]),            # below the table
         graph.state([1.0, 0.0, 0.3, 0, 0, 0, 0, 0, 0]),               # at rest
-        graph.state(GOOD, stamp_ns=now - 10_000_000_000),             # 10 s old
+        graph.state(GOOD, stamp_ns=T0 - stale_ns - 1_000),            # older than stale_after_s
+        graph.state(GOOD, stamp_ns=T0 - 3 * stale_ns),
     ]
-    for msg in bad:
+    # As old as stale_after_s, not older: kept; and a state stamped at the clock's time.
+    good = [graph.state(GOOD, stamp_ns=T0 - stale_ns + 1_000, track_id=2),
+            graph.state(GOOD, track_id=3)]
+    for k, msg in enumerate(bad + good):     # one at a time: the QoS keeps the last 5 only
         graph.pub.publish(msg)
-    good = graph.state(GOOD)
-    graph.pub.publish(good)
-    graph.spin_until(lambda: graph.predictions, 10.0, 'the prediction of the good state')
+        graph.spin_until(lambda k=k: graph.node.n_received == k + 1, 10.0, f'state {k}')
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'the good states')
     # Messages of one publisher arrive in order: anything for the bad ones would come first.
-    assert [p.header.stamp for p in graph.predictions] == [good.header.stamp]
-    assert graph.node.n_dropped == len(bad) and graph.node.n_predicted == 1
+    assert [p.header.stamp for p in graph.predictions] == [m.header.stamp for m in good]
+    assert graph.node.n_dropped == len(bad) and graph.node.n_predicted == 2
+    # The clock moves on: the same state is now too old.
+    graph.set_clock(T0 + stale_ns)
+    graph.pub.publish(good[0])
+    graph.spin_until(lambda: graph.node.n_received == len(bad) + 3, 10.0, 'the late state')
+    assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == 2
 
 
 def test_a_bad_covariance_still_gives_the_prediction(graph):
-    t0 = graph.node.get_clock().now().nanoseconds
+    t0 = T0
     publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000,
                                                cov=-np.eye(9)),
                   lambda: graph.node.n_bad_covariance >= 1 and len(graph.predictions) >= 2,
@@ -224,7 +260,7 @@ def test_a_bad_covariance_still_gives_the_prediction(graph):
 def test_max_rate_skips_states_by_their_stamps():
     g = Graph(overrides=[rclpy.parameter.Parameter('max_rate_hz', value=100.0)])
     try:
-        t0 = g.node.get_clock().now().nanoseconds
+        t0 = T0
         for k in range(11):                                  # 500 Hz by the stamps
             g.pub.publish(g.state(GOOD, stamp_ns=t0 + k * 2_000_000))
             g.spin_until(lambda k=k: g.node.n_received == k + 1, 10.0, f'state {k}')
@@ -279,8 +315,11 @@ def test_the_executor_is_chosen_by_name_and_a_bad_name_is_one_line():
     rclpy.init(context=context, args=[])
     try:
         assert isinstance(make_executor('single', context), SingleThreadedExecutor)
+        # rclpy 7.1.6 (constraints.txt) has the events executor (rclpy >= 7.1.4): its C++
+        # class, not the fallback.
         events = make_executor('events', context)
-        assert type(events).__name__ in ('EventsExecutor', 'SingleThreadedExecutor')
+        assert type(events).__name__ == 'EventsExecutor'
+        assert not isinstance(events, SingleThreadedExecutor)
         with pytest.raises(ValueError, match="TT_EXECUTOR='multi' is not one of: events, "
                                              'single'):
             make_executor('multi', context)
@@ -294,7 +333,7 @@ def test_the_executor_is_chosen_by_name_and_a_bad_name_is_one_line():
 
 
 def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):
-    t0 = graph.node.get_clock().now().nanoseconds
+    t0 = T0
     before = predict(GOOD)
     graph.pub.publish(graph.state(GOOD, stamp_ns=t0, track_id=3))
     graph.spin_until(lambda: graph.predictions, 10.0, 'the first prediction')

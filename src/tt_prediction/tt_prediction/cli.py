@@ -16,11 +16,16 @@ import json
 import math
 import sys
 
+import numpy as np
+
 from .params import load_model
-from .predict import DEFAULT_HIT_PLANE_X, check_state, predict
+from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
 from .units import position_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
+BATCH_MIN = 16
+"""From this many lines on, tt-predict predicts them in one call of the compiled batch kernel
+(:func:`predict_many`, the same numbers as line by line); fewer go one by one."""
 
 
 class InputError(ValueError):
@@ -83,7 +88,21 @@ def read_input(model_file, input_file, parse):
                     for i, line in enumerate(lines, start=1) if line.strip()]
 
 
+def predictions(states, params, hit_plane_x):
+    """Predictions of the parsed lines ``states`` [(t, state9), ...]: through the batch kernel
+    from BATCH_MIN lines on, else one :func:`predict` call each (identical results)."""
+    if len(states) < BATCH_MIN:
+        return [predict(state, params, t0=t, hit_plane_x=hit_plane_x) for t, state in states]
+    times = np.array([t for t, _ in states])
+    return predict_many(np.array([state for _, state in states]), params, t0=times,
+                        hit_plane_x=hit_plane_x, checked=True)     # parse_state checked them
+
+
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a == '--tracks' or a.startswith('--tracks=') for a in argv):
+        from .tracks_cli import main as tracks_main  # replay of measured tracks
+        return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Input and output formats: see docs/prediction.md.')
@@ -105,10 +124,7 @@ def main(argv=None):
     except ValueError as exc:                  # the model file's own errors
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
-    out = []
-    for t, state in states:
-        pred = predict(state, params, t0=t, hit_plane_x=args.hit_plane_x)
-        out.append(json.dumps(pred.to_dict()))
+    out = [json.dumps(pred.to_dict()) for pred in predictions(states, params, args.hit_plane_x)]
     if out:
         sys.stdout.write('\n'.join(out) + '\n')
     return 0

@@ -45,8 +45,28 @@ _NJIT = {'cache': True, 'nogil': True}
 
 
 @njit(**_NJIT)
-def _rk4(s, h, P, out, k1, k2, k3, k4, tmp):
-    """One classic RK4 step of size h from s into out."""
+def rk4_step(s, h, P, out, k1, k2, k3, k4, tmp):
+    """One classic RK4 step of the flight ODE (eq. 8) of size ``h`` from ``s`` into ``out``.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame, at the start of the step.
+    h : float
+        Step length, s.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9,)
+        Receives the state after ``h`` s of free flight (may not alias ``s``).
+    k1, k2, k3, k4, tmp : ndarray (9,)
+        Scratch arrays (the RK4 stages), overwritten.
+
+    Returns
+    -------
+    None
+        The result is written into ``out``; no table contact is handled (see
+        :func:`rollout_kernel` for the events).
+    """
     flight_derivative(s, P, k1)
     for i in range(9):
         tmp[i] = s[i] + 0.5 * h * k1[i]
@@ -61,6 +81,9 @@ def _rk4(s, h, P, out, k1, k2, k3, k4, tmp):
         out[i] = s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
+_rk4 = rk4_step     # old private name, kept only until tt_perception imports the public one
+
+
 @njit(**_NJIT)
 def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     """Step length tau in (0, h] at which s[axis] (position) crosses level, state into out.
@@ -71,7 +94,7 @@ def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     lo, hi = 0.0, h
     tau = h * g0 / (g0 - g1)
     for _ in range(40):
-        _rk4(s, tau, P, out, k1, k2, k3, k4, tmp)
+        rk4_step(s, tau, P, out, k1, k2, k3, k4, tmp)
         g = out[axis] - level
         if abs(g) < 1e-12:
             break
@@ -85,7 +108,7 @@ def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
             nxt = 0.5 * (lo + hi)
         if abs(nxt - tau) < 1e-13:
             tau = nxt
-            _rk4(s, tau, P, out, k1, k2, k3, k4, tmp)
+            rk4_step(s, tau, P, out, k1, k2, k3, k4, tmp)
             break
         tau = nxt
     return tau
@@ -94,13 +117,42 @@ def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
 @njit(**_NJIT)
 def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample_t, samples,
                    ev_kind, ev_t, ev_s):
-    """Integrate from (t0, s0) until a stopping event; return the number of events.
+    """Integrate from (t0, s0) until a stopping event (compiled); returns the number of events.
 
-    Inputs: s0 (9,), t0 (s), P packed parameters, t_max (absolute, s), dt step (s), plane_x
-    (m, NaN for none), stop_mask (STOP_* bits), max_bounces (stop after this many bounces),
-    sample_t (k,) sorted absolute times at which to write the state into samples (k, 9)
-    (rows not reached stay as they are). Events go into ev_kind, ev_t, ev_s (the state at
-    the event, before any rebound); at most len(ev_kind) are kept, the last is the stop.
+    The flight (eq. 8) is stepped with :func:`rk4_step`; at a table contact inside the
+    outline the rebound (eqs. 1-6, :func:`tt_prediction.model.table_rebound_inplace`) is
+    applied and integration goes on.
+
+    Parameters
+    ----------
+    s0 : ndarray (9,)
+        Initial state [p (m), v (m/s), w (rad/s)], table frame.
+    t0 : float
+        Time of s0, s.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    t_max : float
+        Absolute time limit, s.
+    dt : float
+        RK4 step, s.
+    plane_x : float
+        x of the hitting plane, m (NaN for none).
+    stop_mask : int
+        STOP_AT_PLANE | STOP_AT_NET bits.
+    max_bounces : int
+        Stop after this many table bounces.
+    sample_t : ndarray (k,)
+        Sorted absolute times (s) at which to write the state into ``samples``.
+    samples : ndarray (k, 9)
+        Receives the states at ``sample_t`` (rows not reached stay as they are).
+    ev_kind, ev_t, ev_s : ndarray (e,), (e,), (e, 9)
+        Receive each event's EVENT_* code, time (s) and state (before any rebound); at most
+        e are kept, the last one is the stop.
+
+    Returns
+    -------
+    int
+        Number of events written.
     """
     r = P[I_RADIUS]
     s = s0.copy()
@@ -141,7 +193,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
                 ev_s[n_ev, :] = s
                 n_ev += 1
             return n_ev
-        _rk4(s, h, P, s1, k1, k2, k3, k4, tmp)
+        rk4_step(s, h, P, s1, k1, k2, k3, k4, tmp)
         # Earliest event inside this step.
         best_tau = h + 1.0
         kind = 0
@@ -165,7 +217,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
         if stop_mask & STOP_AT_NET:
             if (s[0] > 0.0) != (s1[0] > 0.0):
                 tau = _locate(s, h, s[0], s1[0], 0, 0.0, P, tmp, k1, k2, k3, k4, se)
-                _rk4(s, tau, P, tmp, k1, k2, k3, k4, se)
+                rk4_step(s, tau, P, tmp, k1, k2, k3, k4, se)
                 if (tau < best_tau and abs(tmp[1]) <= NET_HALF_WIDTH
                         and tmp[2] < NET_HEIGHT + r and tmp[2] > -r):
                     best_tau, kind = tau, EVENT_NET
@@ -181,7 +233,7 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
             t += h
             continue
         # An event at t + best_tau: the state there, recorded before any rebound.
-        _rk4(s, best_tau, P, se, k1, k2, k3, k4, tmp)
+        rk4_step(s, best_tau, P, se, k1, k2, k3, k4, tmp)
         t += best_tau
         for i in range(9):
             s[i] = se[i]
@@ -212,10 +264,18 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
 
 
 class Event:
-    """One event of a rollout: ``kind`` (name), time ``t`` (s) and ``state`` (9,) at it.
+    """One event of a rollout.
 
-    For a bounce the state is the one just before contact; ``after`` holds the state just
-    after the rebound.
+    Attributes
+    ----------
+    kind : str
+        'bounce', 'net', 'plane', 'floor', 'roll' or 'timeout'.
+    t : float
+        Time of the event, s (absolute).
+    state : ndarray (9,)
+        [p (m), v (m/s), w (rad/s)] at the event; for a bounce just before contact.
+    after : ndarray (9,) or None
+        For a bounce (or roll), the state just after the rebound (eqs. 1-6).
     """
 
     __slots__ = ('kind', 't', 'state', 'after')
@@ -230,11 +290,35 @@ class Event:
 def rollout(state, params, t0=0.0, t_max=3.0, plane_x=math.nan, stop_at_plane=True,
             stop_at_net=True, max_bounces=2, sample_times=None, dt=DEFAULT_STEP,
             max_events=8):
-    """Integrate a ball from ``state`` (9,) at time ``t0`` until it stops.
+    """Integrate a ball from ``state`` at time ``t0`` until it stops.
 
-    Returns ``(events, samples)``: a list of :class:`Event` (the last one is why it stopped)
-    and, when ``sample_times`` (sorted, absolute) are given, an array (k, 9) of the state at
-    those times (NaN after the stop). ``params`` is a ModelParams or a packed array.
+    Parameters
+    ----------
+    state : array_like (9,)
+        [p (m), v (m/s), w (rad/s)], table frame.
+    params : ModelParams or ndarray
+        The model, or its packed array.
+    t0, t_max : float
+        Start time and absolute time limit, s.
+    plane_x : float
+        x of the hitting plane, m (NaN: none).
+    stop_at_plane, stop_at_net : bool
+        Stop at the hitting plane's first crossing; at the net.
+    max_bounces : int
+        Stop after this many table bounces.
+    sample_times : array_like (k,), optional
+        Sorted absolute times (s) at which to return the state.
+    dt : float
+        RK4 step, s.
+    max_events : int
+        Most events kept.
+
+    Returns
+    -------
+    events : list of Event
+        In time order; the last one is why it stopped.
+    samples : ndarray (k, 9) or None
+        The states at ``sample_times`` (NaN after the stop); None without sample times.
     """
     P = params if isinstance(params, np.ndarray) else params.packed()
     s0 = np.ascontiguousarray(state, dtype=np.float64)

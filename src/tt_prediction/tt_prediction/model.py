@@ -22,10 +22,13 @@ from .params import (
     I_ER,
     I_ET,
     I_ET_SLOPE,
+    I_ET_SPIN_SLOPE,
+    I_ET_TANGENTIAL,
     I_GRAVITY,
     I_KP,
     I_MASS,
     I_MU,
+    I_MU_SLIP_SLOPE,
     I_MU_SLOPE,
     I_RADIUS,
     I_RHO,
@@ -35,36 +38,62 @@ from .params import (
     I_WIND_Z,
     IMPACT_SPEED_REF,
     LIFT_SPIN_RATIO_REF,
+    SLIP_SPEED_REF,
 )
 
 _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
 
 
 @njit(**_NJIT)
-def flight_derivative(s, P, out):
-    """Time derivative of the state in free flight, written into ``out`` (9,).
-
-    Eq. 8: m a = m g - 1/2 C_D rho A |u| u + 4/3 C_M pi rho r^3 (w x u), with u = v - wind
-    the air-relative velocity (u = v in the paper's still air), and dw/dt = -spin_decay w
-    (0 in the paper: constant spin).
-    """
+def _aero(s, P):
+    """The air terms of eq. 8 at state ``s``: air-relative velocity u = v - wind (m/s), its
+    magnitude, C_D and C_M with their effects, K_D = rho A / (2 m) (1/m) and
+    K_M = 4/3 pi rho r^3 / m (m): the drag acceleration is -K_D C_D |u| u, the Magnus one
+    K_M C_M (w x u)."""
     m = P[I_MASS]
     r = P[I_RADIUS]
     rho = P[I_RHO]
     ux = s[3] - P[I_WIND_X]
     uy = s[4] - P[I_WIND_Y]
     uz = s[5] - P[I_WIND_Z]
-    wx, wy, wz = s[6], s[7], s[8]
     speed = math.sqrt(ux * ux + uy * uy + uz * uz)
     c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
     c_m = P[I_CM]
     if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
-        spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+        spin = math.sqrt(s[6] * s[6] + s[7] * s[7] + s[8] * s[8])
         ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
         c_m += P[I_CM_SLOPE] * ratio
         c_d += P[I_CD_SPIN_SLOPE] * ratio
-    drag = 0.5 * c_d * rho * P[I_AREA] * speed / m           # eq. 8, drag term / m
-    lift = 4.0 / 3.0 * c_m * math.pi * rho * r * r * r / m   # eq. 8, Magnus term / m
+    k_d = 0.5 * rho * P[I_AREA] / m
+    k_m = 4.0 / 3.0 * math.pi * rho * r * r * r / m
+    return ux, uy, uz, speed, c_d, c_m, k_d, k_m
+
+
+@njit(**_NJIT)
+def flight_derivative(s, P, out):
+    """Time derivative of the state in free flight (eq. 8 with its effects), into ``out``.
+
+    Eq. 8: m a = m g - 1/2 C_D rho A |u| u + 4/3 C_M pi rho r^3 (w x u), with u = v - wind
+    the air-relative velocity (u = v in the paper's still air), C_D and C_M with their
+    speed and spin-ratio effects, and dw/dt = -spin_decay w (0 in the paper: constant spin).
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9,)
+        Receives ds/dt = [v (m/s), a (m/s^2), dw/dt (rad/s^2)].
+
+    Returns
+    -------
+    None
+    """
+    ux, uy, uz, speed, c_d, c_m, k_d, k_m = _aero(s, P)
+    wx, wy, wz = s[6], s[7], s[8]
+    drag = k_d * c_d * speed                            # eq. 8, drag term / (m |u|)
+    lift = k_m * c_m                                    # eq. 8, Magnus term / m
     out[0] = s[3]
     out[1] = s[4]
     out[2] = s[5]
@@ -78,29 +107,125 @@ def flight_derivative(s, P, out):
 
 
 @njit(**_NJIT)
+def flight_jacobian(s, P, out):
+    """Jacobian of the free-flight derivative (eq. 8 with its effects) at ``s``, into ``out``.
+
+    With u = v - wind, S = |u|, K_D = rho A / (2 m), K_M = 4/3 pi rho r^3 / m and the
+    coefficients C_D(S, |w|), C_M(S, |w|) of :func:`flight_derivative`:
+
+        a = g - K_D C_D S u + K_M C_M (w x u)
+        da/dv = -K_D (C_D (S I + u u^T / S) + S u dC_D/du^T) + K_M (C_M [w]x + (w x u) dC_M/du^T)
+        da/dw = -K_D S u dC_D/dw^T + K_M (-C_M [u]x + (w x u) dC_M/dw^T)
+        dp'/dv = I,   dw'/dw = -spin_decay I.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    out : ndarray (9, 9)
+        Receives d(ds/dt)/ds, rows and columns in the order of ``s``; each entry in the unit
+        of its row's derivative over its column's state (e.g. 1/s for dv'/dv, m/(s rad) for
+        dv'/dw).
+
+    Returns
+    -------
+    ndarray (9, 9)
+        ``out``. At S = 0 the drag terms are taken as 0 (the derivative's kink).
+    """
+    ux, uy, uz, speed, c_d, c_m, k_d, k_m = _aero(s, P)
+    r = P[I_RADIUS]
+    wx, wy, wz = s[6], s[7], s[8]
+    u = np.array([ux, uy, uz])
+    w = np.array([wx, wy, wz])
+    spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+    dcd_du = np.zeros(3)                                # gradients of C_D, C_M (effects)
+    dcd_dw = np.zeros(3)
+    dcm_du = np.zeros(3)
+    dcm_dw = np.zeros(3)
+    if speed > 0.0:
+        dcd_du += P[I_CD_SLOPE] * u / speed
+    if (P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0) and speed > 0.0:
+        dratio_du = -r * spin / speed ** 3 * u
+        dratio_dw = r / (speed * spin) * w if spin > 0.0 else np.zeros(3)
+        dcd_du += P[I_CD_SPIN_SLOPE] * dratio_du
+        dcd_dw += P[I_CD_SPIN_SLOPE] * dratio_dw
+        dcm_du += P[I_CM_SLOPE] * dratio_du
+        dcm_dw += P[I_CM_SLOPE] * dratio_dw
+    wxu = np.array([wy * uz - wz * uy, wz * ux - wx * uz, wx * uy - wy * ux])
+    for i in range(9):
+        for j in range(9):
+            out[i, j] = 0.0
+    for i in range(3):
+        out[i, 3 + i] = 1.0
+        out[6 + i, 6 + i] = -P[I_SPIN_DECAY]
+    for i in range(3):
+        for j in range(3):
+            dv = -k_d * speed * u[i] * dcd_du[j] + k_m * wxu[i] * dcm_du[j]
+            if speed > 0.0:
+                dv -= k_d * c_d * u[i] * u[j] / speed
+            if i == j:
+                dv -= k_d * c_d * speed
+            out[3 + i, 3 + j] = dv
+            out[3 + i, 6 + j] = -k_d * speed * u[i] * dcd_dw[j] + k_m * wxu[i] * dcm_dw[j]
+    # Magnus: d(w x u)/dv = [w]x, d(w x u)/dw = -[u]x
+    out[3, 4] += -k_m * c_m * wz
+    out[3, 5] += k_m * c_m * wy
+    out[4, 3] += k_m * c_m * wz
+    out[4, 5] += -k_m * c_m * wx
+    out[5, 3] += -k_m * c_m * wy
+    out[5, 4] += k_m * c_m * wx
+    out[3, 7] += k_m * c_m * uz
+    out[3, 8] += -k_m * c_m * uy
+    out[4, 6] += -k_m * c_m * uz
+    out[4, 8] += k_m * c_m * ux
+    out[5, 6] += k_m * c_m * uy
+    out[5, 7] += -k_m * c_m * ux
+    return out
+
+
+@njit(**_NJIT)
 def table_rebound_inplace(s, P):
     """Apply the table rebound (eqs. 1-6, MODEL.md) to the velocity and spin of ``s``.
 
-    The contact point is (0, 0, -r) from the centre. Sliding when nu_s = 1 - 5/2 s > 0 with
-    alpha = s = mu (1 + e_t) |v_z| / |v_T|, rolling (alpha = 2/5) otherwise.
-    Impact-speed-dependent restitution and spin-dependent friction enter through e_t and mu.
+    The contact point is (0, 0, -r) from the centre. Sliding while the slip ratio
+    s = mu (1 + e_t) |v_z| / |v_T| stays below the grip ratio 2/5 (1 + e_x), with alpha = s;
+    gripping otherwise, alpha = 2/5 (1 + e_x), which leaves the contact velocity at
+    v_T' = (1 - 5 alpha / 2) v_T = -e_x v_T. The paper has e_x = 0 (``e_t_tangential``, the
+    ball's tangential compliance): nu_s = 1 - 5/2 s > 0 is sliding, rolling (v_T' = 0)
+    otherwise. The effects enter through e_t (impact speed, spin), mu (spin, slip speed)
+    and e_x.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)] at contact (v_z < 0); v and w are overwritten with
+        the values just after the bounce, p is left as it is.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+
+    Returns
+    -------
+    None
     """
     r = P[I_RADIUS]
     vx, vy, vz = s[3], s[4], s[5]
     wx, wy, wz = s[6], s[7], s[8]
-    e_t = P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
-    e_t = min(max(e_t, 0.0), 1.0)
-    mu = P[I_MU]
-    if P[I_MU_SLOPE] != 0.0:
-        mu += P[I_MU_SLOPE] * math.sqrt(wx * wx + wy * wy + wz * wz)
-    mu = max(mu, 0.0)
+    spin = math.sqrt(wx * wx + wy * wy + wz * wz)
     vtx = vx - r * wy                                   # tangential contact velocity
     vty = vy + r * wx
     vt = math.sqrt(vtx * vtx + vty * vty)
-    alpha = 0.4                                         # rolling
+    e_t = (P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
+           + P[I_ET_SPIN_SLOPE] * r * spin)
+    e_t = min(max(e_t, 0.0), 1.0)
+    mu = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
+    mu = max(mu, 0.0)
+    grip = 0.4 * (1.0 + P[I_ET_TANGENTIAL])             # 2/5 (1 + e_x); 2/5 in the paper
+    alpha = grip                                        # gripping (rolling for e_x = 0)
     if vt > 1e-12:
         slip = mu * (1.0 + e_t) * abs(vz) / vt
-        if 1.0 - 2.5 * slip > 0.0:                      # nu_s > 0: sliding (fixed 5/2)
+        if slip < grip:                                 # nu_s > 0: sliding (fixed 5/2)
             alpha = slip
     s[3] = (1.0 - alpha) * vx + alpha * r * wy          # eq. 1-6, A_v (fixed row 2)
     s[4] = (1.0 - alpha) * vy - alpha * r * wx
@@ -114,13 +239,27 @@ def table_rebound_inplace(s, P):
 def racket_rebound_inplace(s, P, normal, racket_velocity):
     """Apply the racket rubber rebound (eq. 7, MODEL.md) to the velocity and spin of ``s``.
 
-    ``normal``: unit face normal (world), pointing to the side the ball leaves from;
-    ``racket_velocity``: the racket's linear velocity at impact (world), m/s.
     In the racket frame (z = normal) with v the ball velocity relative to the racket,
-    K_v = k_p / m, K_w = k_p / I:
+    K_v = k_p / m (dimensionless) and K_w = k_p / I (1/m^2), k_p in kg:
         v_t' = (1 - K_v) v_t + K_v r (w x n),   v_n' = -e_r v_n,
         w_t' = (1 - K_w r^2) w_t + K_w r (n x v),   w_n' = w_n,
     the frame-free form of eq. 7 (its rows for x and y are the components of these).
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame, at the hit; v and w are overwritten
+        with the values just after it.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    normal : ndarray (3,)
+        Unit face normal, table frame, pointing to the side the ball leaves from.
+    racket_velocity : ndarray (3,)
+        The racket's linear velocity at impact, table frame, m/s.
+
+    Returns
+    -------
+    None
     """
     m = P[I_MASS]
     r = P[I_RADIUS]
@@ -149,7 +288,22 @@ def racket_rebound_inplace(s, P, normal, racket_velocity):
 
 
 def table_rebound(velocity, spin, params):
-    """Velocity and spin just after a table bounce (eqs. 1-6); arrays (3,) in and out."""
+    """Velocity and spin just after a table bounce (eqs. 1-6 with the model's effects).
+
+    Parameters
+    ----------
+    velocity : array_like (3,)
+        Ball velocity at contact, table frame, m/s (v_z < 0).
+    spin : array_like (3,)
+        Ball spin at contact, rad/s.
+    params : ModelParams
+        The model.
+
+    Returns
+    -------
+    velocity, spin : ndarray (3,)
+        Just after the bounce, m/s and rad/s.
+    """
     s = np.zeros(9)
     s[3:6], s[6:9] = velocity, spin
     table_rebound_inplace(s, params.packed())
@@ -157,7 +311,24 @@ def table_rebound(velocity, spin, params):
 
 
 def racket_rebound(velocity, spin, normal, racket_velocity, params):
-    """Ball velocity and spin just after the racket hit (eq. 7), world frame; arrays (3,)."""
+    """Ball velocity and spin just after the racket hit (eq. 7), table frame.
+
+    Parameters
+    ----------
+    velocity, spin : array_like (3,)
+        Ball velocity (m/s) and spin (rad/s) at the hit.
+    normal : array_like (3,)
+        Racket face normal (normalised here), pointing to the side the ball leaves from.
+    racket_velocity : array_like (3,)
+        The racket's linear velocity, m/s.
+    params : ModelParams
+        The model (e_r, k_p).
+
+    Returns
+    -------
+    velocity, spin : ndarray (3,)
+        Just after the hit, m/s and rad/s.
+    """
     normal = np.asarray(normal, dtype=float)
     normal = normal / np.linalg.norm(normal)
     s = np.zeros(9)
@@ -168,7 +339,20 @@ def racket_rebound(velocity, spin, normal, racket_velocity, params):
 
 
 def flight_acceleration(position, velocity, spin, params):
-    """Ball acceleration in free flight (eq. 8), m/s^2; arrays (3,) in and out."""
+    """Ball acceleration in free flight (eq. 8 with the model's effects).
+
+    Parameters
+    ----------
+    position, velocity, spin : array_like (3,)
+        Table frame: m, m/s, rad/s.
+    params : ModelParams
+        The model.
+
+    Returns
+    -------
+    ndarray (3,)
+        Acceleration, m/s^2 (gravity included).
+    """
     s = np.concatenate([position, velocity, spin]).astype(float)
     out = np.empty(9)
     flight_derivative(s, params.packed(), out)

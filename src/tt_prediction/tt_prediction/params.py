@@ -1,17 +1,73 @@
-"""Ball model parameters: one typed structure, YAML in and out, packed for compiled kernels.
+"""Ball model parameters: one declaration, from which the typed structure, the YAML file, the
+packed layout of the compiled kernels and identification's effect library are generated.
 
-The nominal values are those of MODEL.md ("Constants"). The *effects* block holds the extra
-physical mechanisms that identification may switch on (``tt-identify`` writes them to
-``model.yaml``); each is zero (off) by default, so the nominal model is the paper's. The
-integrator evaluates every effect through the same equations, so switching one on never
-touches the integrator.
+:data:`FIELDS` declares every parameter once: name, default (MODEL.md "Constants"), unit,
+plausible range and, for the *effects*, the effect it belongs to. :data:`EFFECTS` declares
+the effects: the extra physical mechanisms that identification may switch on (``tt-identify``
+writes them to ``model.yaml``). Each effect coefficient is zero (off) by default, so the
+default model is the paper's. The integrator evaluates every effect through the same
+equations (model.py), so switching one on never touches the integrator.
+
+Adding an effect: docs/DEVELOPING.md, "Adding a model effect".
 """
 
 import dataclasses
+import hashlib
 import math
+import os
+import shutil
+import time
 
+import numba
 import numpy as np
 import yaml
+
+STALE_CACHE_AGE = 86400.0
+"""A kernel cache of other sources untouched for this long is removed, s."""
+KERNEL_SOURCES = ('params.py', 'model.py', 'integrate.py', 'table.py', 'predict.py')
+"""The files of the ball model's compiled kernels, whose content keys the kernel cache."""
+
+
+def _use_versioned_kernel_cache():
+    """Key numba's on-disk cache by the content of the ball model's sources.
+
+    numba's ``cache=True`` checks the time stamp of the file of the cached function only: a
+    kernel of integrate.py (or of tt_strike) that inlines model.py's equations would keep the
+    old physics after an edit of model.py or of the packed layout. The cache therefore lives
+    in ``__pycache__/numba-<hash of KERNEL_SOURCES>`` (others untouched for a day are
+    removed: a process still running on older sources keeps its cache), unless
+    NUMBA_CACHE_DIR is set or that directory cannot be written (numba's default then).
+    """
+    if numba.config.CACHE_DIR:
+        return
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha1()
+    for name in KERNEL_SOURCES:
+        try:
+            with open(os.path.join(here, name), 'rb') as f:
+                digest.update(f.read())
+        except OSError:
+            continue
+    root = os.path.join(here, '__pycache__')
+    path = os.path.join(root, 'numba-' + digest.hexdigest()[:12])
+    try:
+        os.makedirs(path, exist_ok=True)
+        if not os.access(path, os.W_OK):
+            return
+    except OSError:
+        return
+    for old in os.listdir(root):       # stale caches of older sources, not in use any more
+        old = os.path.join(root, old)
+        try:
+            stale = time.time() - os.path.getmtime(old) > STALE_CACHE_AGE
+        except OSError:
+            continue
+        if os.path.basename(old).startswith('numba-') and old != path and stale:
+            shutil.rmtree(old, ignore_errors=True)
+    numba.config.CACHE_DIR = path
+
+
+_use_versioned_kernel_cache()
 
 # Reference points of the effects (fixed, so that the base coefficients keep their meaning).
 DRAG_SPEED_REF = 6.0
@@ -20,64 +76,239 @@ LIFT_SPIN_RATIO_REF = 0.3
 """Spin ratio r|w|/|v| at which C_M equals ``c_m`` when ``c_m_spin_ratio_slope`` is on."""
 IMPACT_SPEED_REF = 3.0
 """Normal impact speed at which e_t equals ``e_t`` when ``e_t_speed_slope`` is on, m/s."""
-
-# Index of each field in the packed array (order of PACKED_FIELDS; wind takes three slots).
-PACKED_FIELDS = ('mass', 'radius', 'gravity', 'air_density', 'area', 'c_d', 'c_m', 'e_t', 'mu',
-                 'e_r', 'k_p', 'spin_decay', 'wind_x', 'wind_y', 'wind_z', 'c_d_speed_slope',
-                 'c_m_spin_ratio_slope', 'e_t_speed_slope', 'mu_spin_slope',
-                 'c_d_spin_ratio_slope')
-(I_MASS, I_RADIUS, I_GRAVITY, I_RHO, I_AREA, I_CD, I_CM, I_ET, I_MU, I_ER, I_KP, I_SPIN_DECAY,
- I_WIND_X, I_WIND_Y, I_WIND_Z, I_CD_SLOPE, I_CM_SLOPE, I_ET_SLOPE, I_MU_SLOPE,
- I_CD_SPIN_SLOPE) = range(20)
-N_PACKED = len(PACKED_FIELDS)
-
-EFFECT_FIELDS = ('spin_decay', 'wind', 'c_d_speed_slope', 'c_m_spin_ratio_slope',
-                 'e_t_speed_slope', 'mu_spin_slope', 'c_d_spin_ratio_slope')
+SLIP_SPEED_REF = 4.0
+"""Tangential contact speed at which mu equals ``mu`` when ``mu_slip_slope`` is on, m/s."""
 
 
-@dataclasses.dataclass
-class ModelParams:
-    """Parameters of the ball model (SI units; spin in rad/s)."""
+@dataclasses.dataclass(frozen=True)
+class Field:
+    """Declaration of one model parameter.
 
-    mass: float = 2.7e-3
-    """Ball mass m, kg."""
-    radius: float = 0.020
-    """Ball radius r, m."""
-    gravity: float = 9.8
-    """Magnitude of gravity g (acting along -z), m/s^2."""
-    air_density: float = 1.184
-    """Air density rho, kg/m^3."""
-    area: float = 12.5e-4
-    """Projected area A, m^2."""
-    c_d: float = 0.54
-    """Drag coefficient C_D."""
-    c_m: float = 0.069
-    """Magnus (lift) coefficient C_M of eq. 8."""
-    e_t: float = 0.93
-    """Table coefficient of restitution."""
-    mu: float = 0.25
-    """Ball-table dynamic friction coefficient."""
-    e_r: float = 0.81
-    """Racket rubber coefficient of restitution."""
-    k_p: float = 1.9e-3
-    """Rubber tangential stiffness k_p, kg/s."""
+    Attributes
+    ----------
+    name : str
+        Field name (in ModelParams and model.yaml).
+    default : float or tuple
+        Default value: MODEL.md's nominal value; 0 (off) for an effect coefficient. A tuple
+        declares a vector (one packed slot per component, ``<name>_x`` ...).
+    unit : str
+        SI unit of the value ('1' for a dimensionless one).
+    bounds : tuple
+        Plausible range (lo, hi) of the value (of each component of a vector). A model file
+        outside it is refused; identification fits within it.
+    doc : str
+        What the parameter is, with the equation it enters.
+    effect : str
+        Name of the effect (in :data:`EFFECTS`) the coefficient belongs to; '' for the
+        paper's parameters.
+    """
 
+    name: str
+    default: object
+    unit: str
+    bounds: tuple
+    doc: str
+    effect: str = ''
+
+    @property
+    def slots(self):
+        """Names of the packed slots of this field (one per component)."""
+        if isinstance(self.default, tuple):
+            return tuple(f'{self.name}_{c}' for c in 'xyz'[:len(self.default)])
+        return (self.name,)
+
+
+@dataclasses.dataclass(frozen=True)
+class Effect:
+    """Declaration of one model effect: a mechanism the paper's model leaves out.
+
+    Attributes
+    ----------
+    name : str
+        Effect name (as reported by tt-identify and in model.yaml's selected_effects).
+    slots : tuple of str
+        Packed slots identification frees to fit the effect.
+    mechanism : str
+        The equation of the mechanism, in words.
+    needs : str
+        Data it needs to be tested: 'bounces' (a table effect) or '' (any flight).
+    """
+
+    name: str
+    slots: tuple
+    mechanism: str
+    needs: str = ''
+
+
+FIELDS = (
+    # The paper's parameters (MODEL.md, "Constants").
+    Field('mass', 2.7e-3, 'kg', (1.5e-3, 5e-3), 'Ball mass m.'),
+    Field('radius', 0.020, 'm', (0.015, 0.025), 'Ball radius r.'),
+    Field('gravity', 9.8, 'm/s^2', (8.0, 12.0), 'Magnitude of gravity g (along -z).'),
+    Field('air_density', 1.184, 'kg/m^3', (0.5, 1.5), 'Air density rho.'),
+    Field('area', 12.5e-4, 'm^2', (7e-4, 2e-3), 'Projected area A (eq. 8).'),
+    Field('c_d', 0.54, '1', (0.1, 2.0), 'Drag coefficient C_D (eq. 8).'),
+    Field('c_m', 0.069, '1', (0.0, 0.5), 'Magnus (lift) coefficient C_M (eq. 8).'),
+    Field('e_t', 0.93, '1', (0.5, 1.0), 'Table coefficient of restitution (eqs. 1-6).'),
+    Field('mu', 0.25, '1', (0.0, 1.0), 'Ball-table dynamic friction coefficient (eqs. 1-6).'),
+    Field('e_r', 0.81, '1', (0.3, 1.0), 'Racket rubber coefficient of restitution (eq. 7).'),
+    Field('k_p', 1.9e-3, 'kg', (0.0, 5e-3),
+          'Rubber tangential stiffness k_p (eq. 7; K_v = k_p / m is dimensionless).'),
     # Effects (all off at zero).
-    spin_decay: float = 0.0
-    """Spin decay rate in flight: dw/dt = -spin_decay w, 1/s."""
-    wind: tuple = (0.0, 0.0, 0.0)
-    """Steady air velocity (draft), table frame, m/s; drag and lift act on v - wind."""
-    c_d_speed_slope: float = 0.0
-    """Speed-dependent drag: C_D = c_d + slope (|v - wind| - DRAG_SPEED_REF), s/m."""
-    c_m_spin_ratio_slope: float = 0.0
-    """Spin-ratio-dependent lift: C_M = c_m + slope (r|w|/|v - wind| - LIFT_SPIN_RATIO_REF)."""
-    e_t_speed_slope: float = 0.0
-    """Impact-speed-dependent restitution: e_t(v_z) = e_t + slope (|v_z| - IMPACT_SPEED_REF),
-    s/m."""
-    mu_spin_slope: float = 0.0
-    """Spin-dependent table friction: mu(w) = mu + slope |w|, s/rad."""
-    c_d_spin_ratio_slope: float = 0.0
-    """Spin-dependent drag: C_D += slope (r|w|/|v - wind| - LIFT_SPIN_RATIO_REF)."""
+    Field('spin_decay', 0.0, '1/s', (0.0, 10.0),
+          'Spin decay rate in flight: dw/dt = -spin_decay w.', effect='spin_decay'),
+    Field('wind', (0.0, 0.0, 0.0), 'm/s', (-5.0, 5.0),
+          'Steady air velocity (draft), table frame: drag and lift act on v - wind (eq. 8).',
+          effect='wind'),
+    Field('c_d_speed_slope', 0.0, 's/m', (-0.2, 0.2),
+          'Speed-dependent drag: C_D = c_d + slope (|v - wind| - DRAG_SPEED_REF).',
+          effect='drag_reynolds'),
+    Field('c_m_spin_ratio_slope', 0.0, '1', (-1.0, 1.0),
+          'Spin-ratio-dependent lift: C_M = c_m + slope (r|w|/|v - wind| - '
+          'LIFT_SPIN_RATIO_REF).', effect='lift_spin_ratio'),
+    Field('e_t_speed_slope', 0.0, 's/m', (-0.3, 0.3),
+          'Impact-speed-dependent restitution: e_t(v_z) = e_t + slope (|v_z| - '
+          'IMPACT_SPEED_REF).', effect='table_restitution_speed'),
+    Field('mu_spin_slope', 0.0, 's/rad', (-2e-3, 2e-3),
+          'Spin-dependent table friction: mu(w) = mu + slope |w|.',
+          effect='table_friction_spin'),
+    Field('c_d_spin_ratio_slope', 0.0, '1', (-1.0, 1.0),
+          'Spin-dependent drag: C_D += slope (r|w|/|v - wind| - LIFT_SPIN_RATIO_REF).',
+          effect='drag_spin'),
+    Field('e_t_tangential', 0.0, '1', (0.0, 0.9),
+          'Tangential compliance of the ball on the table (its tangential restitution): a '
+          "ball that grips leaves with its contact velocity reversed, v_T' = -e_t_tangential "
+          "v_T, instead of rolling (v_T' = 0, eqs. 1-6); the grip regime starts at the slip "
+          'ratio 2/5 (1 + e_t_tangential).', effect='table_compliance'),
+    Field('e_t_spin_slope', 0.0, 's/m', (-0.03, 0.03),
+          'Spin-dependent restitution: e_t += slope r|w| (eqs. 1-6).',
+          effect='table_restitution_spin'),
+    Field('mu_slip_slope', 0.0, 's/m', (-0.05, 0.05),
+          'Slip-speed-dependent friction: mu += slope (|v_T| - SLIP_SPEED_REF), v_T the '
+          'tangential contact velocity before the bounce (eqs. 1-6).',
+          effect='table_friction_slip'),
+)
+"""The declaration of every model parameter, in packed order."""
+
+EFFECTS = (
+    Effect('spin_decay', ('spin_decay',),
+           'air friction slows the spin in flight: dw/dt = -spin_decay w (1/s)'),
+    Effect('wind', ('wind_x', 'wind_y'),
+           'a steady horizontal air draft (m/s): drag and lift act on v - wind'),
+    Effect('drag_reynolds', ('c_d_speed_slope',),
+           'drag coefficient varies with air speed (Reynolds number): '
+           'C_D = c_d + slope (|v| - 6 m/s)'),
+    Effect('drag_spin', ('c_d_spin_ratio_slope',),
+           'drag coefficient varies with the spin ratio (the spinning boundary layer): '
+           'C_D = c_d + slope (r|w|/|v| - 0.3)'),
+    Effect('lift_spin_ratio', ('c_m_spin_ratio_slope',),
+           'Magnus coefficient varies with the spin ratio: C_M = c_m + slope (r|w|/|v| - 0.3)'),
+    Effect('table_restitution_speed', ('e_t_speed_slope',),
+           'table restitution falls with impact speed: e_t = e_t + slope (|v_z| - 3 m/s)',
+           needs='bounces'),
+    Effect('table_restitution_spin', ('e_t_spin_slope',),
+           'table restitution varies with spin: e_t = e_t + slope r|w|', needs='bounces'),
+    Effect('table_friction_spin', ('mu_spin_slope',),
+           'table friction varies with spin: mu = mu + slope |w|', needs='bounces'),
+    Effect('table_friction_slip', ('mu_slip_slope',),
+           'table friction varies with slip speed: mu = mu + slope (|v_T| - 4 m/s)',
+           needs='bounces'),
+    Effect('table_compliance', ('e_t_tangential',),
+           'the ball grips the table and springs back (tangential compliance, like the '
+           "rubber's k_p): the contact velocity reverses, v_T' = -e_x v_T, spin overshoots",
+           needs='bounces'),
+)
+"""The declaration of the model effects (identification adds measurement effects)."""
+
+FIELD = {f.name: f for f in FIELDS}
+"""Declaration of each field by name."""
+PACKED_FIELDS = tuple(slot for f in FIELDS for slot in f.slots)
+"""Name of each slot of the packed array, in order."""
+INDEX = {slot: i for i, slot in enumerate(PACKED_FIELDS)}
+"""Index of each packed slot by name."""
+N_PACKED = len(PACKED_FIELDS)
+EFFECT_FIELDS = tuple(f.name for f in FIELDS if f.effect)
+"""Names of the effect coefficients (model.yaml's ``effects`` block)."""
+SLOT_BOUNDS = {slot: f.bounds for f in FIELDS for slot in f.slots}
+"""Plausible range of each packed slot (identification's fit range)."""
+
+# Indices of the packed array used by the compiled kernels (generated, not numbered).
+I_MASS = INDEX['mass']
+I_RADIUS = INDEX['radius']
+I_GRAVITY = INDEX['gravity']
+I_RHO = INDEX['air_density']
+I_AREA = INDEX['area']
+I_CD = INDEX['c_d']
+I_CM = INDEX['c_m']
+I_ET = INDEX['e_t']
+I_MU = INDEX['mu']
+I_ER = INDEX['e_r']
+I_KP = INDEX['k_p']
+I_SPIN_DECAY = INDEX['spin_decay']
+I_WIND_X = INDEX['wind_x']
+I_WIND_Y = INDEX['wind_y']
+I_WIND_Z = INDEX['wind_z']
+I_CD_SLOPE = INDEX['c_d_speed_slope']
+I_CM_SLOPE = INDEX['c_m_spin_ratio_slope']
+I_ET_SLOPE = INDEX['e_t_speed_slope']
+I_MU_SLOPE = INDEX['mu_spin_slope']
+I_CD_SPIN_SLOPE = INDEX['c_d_spin_ratio_slope']
+I_ET_TANGENTIAL = INDEX['e_t_tangential']
+I_ET_SPIN_SLOPE = INDEX['e_t_spin_slope']
+I_MU_SLIP_SLOPE = INDEX['mu_slip_slope']
+
+
+def _check_declaration():
+    """The declaration is consistent: effects and fields refer to each other."""
+    effects = {e.name: e for e in EFFECTS}
+    for f in FIELDS:
+        if not f.effect:
+            continue
+        if f.effect not in effects:
+            raise AssertionError(f'field {f.name}: undeclared effect {f.effect}')
+        values = f.default if isinstance(f.default, tuple) else (f.default,)
+        if any(v != 0.0 for v in values):
+            raise AssertionError(f'effect field {f.name}: default must be 0 (off)')
+    for e in EFFECTS:
+        for slot in e.slots:
+            if slot not in INDEX or FIELD[_field_of(slot)].effect != e.name:
+                raise AssertionError(f'effect {e.name}: slot {slot} is not its field')
+
+
+def _field_of(slot):
+    """Name of the field that holds a packed slot."""
+    for f in FIELDS:
+        if slot in f.slots:
+            return f.name
+    raise KeyError(slot)
+
+
+_check_declaration()
+
+
+def _fmt(value):
+    return f'{value:g}'
+
+
+def _declared(cls):
+    """Add the declared fields (FIELDS) to ``cls`` and make it a dataclass."""
+    cls.__annotations__ = {f.name: (tuple if isinstance(f.default, tuple) else float)
+                           for f in FIELDS}
+    for f in FIELDS:
+        setattr(cls, f.name, f.default)
+    lines = ['', 'Attributes', '----------']
+    for f in FIELDS:
+        kind = 'tuple of 3 floats' if isinstance(f.default, tuple) else 'float'
+        lines += [f'{f.name} : {kind}', f'    {f.doc} Unit {f.unit}; default {f.default}.']
+    cls.__doc__ = cls.__doc__.rstrip() + '\n' + '\n'.join(lines) + '\n'
+    return dataclasses.dataclass(cls)
+
+
+@_declared
+class ModelParams:
+    """The ball model's parameters (SI units; spin in rad/s), one field per :data:`FIELDS`
+    entry; the effect coefficients are 0 (off) by default (the Attributes below are
+    generated from the declaration)."""
 
     def __post_init__(self):
         self.wind = tuple(float(w) for w in self.wind)
@@ -98,22 +329,22 @@ class ModelParams:
         return 2.0 / 3.0 * self.mass * self.radius ** 2
 
     def packed(self):
-        """The parameters as a float64 array indexed by the ``I_*`` constants."""
+        """The parameters as a float64 array (N_PACKED,) indexed by the ``I_*`` constants
+        (slot names :data:`PACKED_FIELDS`)."""
         values = []
-        for name in PACKED_FIELDS:
-            if name.startswith('wind_'):
-                values.append(self.wind['xyz'.index(name[-1])])
-            else:
-                values.append(getattr(self, name))
+        for f in FIELDS:
+            value = getattr(self, f.name)
+            values.extend(value if isinstance(value, tuple) else (value,))
         return np.array(values, dtype=np.float64)
 
     @classmethod
     def from_packed(cls, array):
         """Inverse of :meth:`packed`."""
         array = np.asarray(array, dtype=float)
-        kwargs = {name: float(array[i]) for i, name in enumerate(PACKED_FIELDS)
-                  if not name.startswith('wind_')}
-        kwargs['wind'] = tuple(float(w) for w in array[I_WIND_X:I_WIND_Z + 1])
+        kwargs = {}
+        for f in FIELDS:
+            values = tuple(float(array[INDEX[s]]) for s in f.slots)
+            kwargs[f.name] = values if isinstance(f.default, tuple) else values[0]
         return cls(**kwargs)
 
     def replace(self, **changes):
@@ -121,13 +352,27 @@ class ModelParams:
         return dataclasses.replace(self, **changes)
 
     def active_effects(self):
-        """Names of the effects that are switched on (non-zero)."""
+        """Names of the effect coefficients that are switched on (non-zero)."""
         active = []
         for name in EFFECT_FIELDS:
             value = getattr(self, name)
             if any(value) if isinstance(value, tuple) else value != 0.0:
                 active.append(name)
         return active
+
+    def implausible(self):
+        """The first value outside its declared plausible range, as one line naming the field
+        (and what it is), or '' when all are plausible."""
+        for f in FIELDS:
+            value = getattr(self, f.name)
+            lo, hi = f.bounds
+            for v in (value if isinstance(value, tuple) else (value,)):
+                if not lo <= v <= hi:
+                    what = f.doc.split(':')[0].split(' (')[0].rstrip('.')
+                    unit = '' if f.unit == '1' else f' {f.unit}'
+                    return (f'{f.name} = {_fmt(v)}{unit} is outside the plausible range '
+                            f'{_fmt(lo)}..{_fmt(hi)}{unit} ({what})')
+        return ''
 
     def to_dict(self):
         """Plain dict: ``{'ball': {...}, 'effects': {...}}`` as written to model.yaml."""
@@ -140,7 +385,8 @@ class ModelParams:
 
     @classmethod
     def from_dict(cls, data):
-        """Build from :meth:`to_dict` output (or a flat dict); unknown keys are an error."""
+        """Build from :meth:`to_dict` output (or a flat dict); unknown keys and values
+        outside the plausible ranges of :data:`FIELDS` are errors (ValueError, one line)."""
         if not isinstance(data, dict):
             raise ValueError('model file must hold a mapping')
         flat = {}
@@ -153,14 +399,25 @@ class ModelParams:
                 continue
             else:
                 flat[key] = value
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(flat) - names)
+        unknown = sorted(set(flat) - set(FIELD))
         if unknown:
             raise ValueError(f'model file: unknown parameter(s) {", ".join(unknown)}')
+        kwargs = {}
+        for key, value in flat.items():
+            try:
+                kwargs[key] = tuple(float(v) for v in value) if key == 'wind' \
+                    else float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f'model file: {key} must be a number'
+                                 f'{" list" if key == "wind" else ""}, got {value!r}') from None
         try:
-            return cls(**{k: tuple(v) if k == 'wind' else float(v) for k, v in flat.items()})
+            params = cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise ValueError(f'model file: {exc}') from None
+        problem = params.implausible()
+        if problem:
+            raise ValueError(f'model file: {problem}')
+        return params
 
     def save(self, path, meta=None):
         """Write ``model.yaml`` (with an optional ``meta`` mapping, e.g. provenance)."""
@@ -172,7 +429,8 @@ class ModelParams:
 
     @classmethod
     def load(cls, path):
-        """Read ``model.yaml``; raises ValueError naming the file on bad content."""
+        """Read ``model.yaml``; raises ValueError (one line naming the file and the field)
+        on bad content."""
         try:
             with open(path) as f:
                 data = yaml.safe_load(f)
@@ -187,5 +445,21 @@ class ModelParams:
 
 
 def load_model(path=None):
-    """The model of ``path`` (a model.yaml), or the nominal model when ``path`` is empty."""
+    """The model of a model.yaml, or the nominal model.
+
+    Parameters
+    ----------
+    path : str or None
+        model.yaml to read; empty or None for the nominal (paper's) model.
+
+    Returns
+    -------
+    ModelParams
+
+    Raises
+    ------
+    ValueError
+        One line naming the file and what is wrong (unreadable, bad YAML, unknown key,
+        non-number, value outside its declared plausible range).
+    """
     return ModelParams.load(path) if path else ModelParams()

@@ -527,6 +527,57 @@ class BatchPrediction:
         return [STATUSES[s] for s in self.status]
 
 
+def _batch_rows(states, P, t0, hit_plane_x, bounced, outgoing, parallel, validate):
+    """The compiled kernels' output rows (N, _N_OUT) for N states (see predict_batch)."""
+    states = np.ascontiguousarray(states, dtype=np.float64)
+    if states.ndim != 2 or states.shape[1] != 9:
+        raise ValueError(f'states must be an (N, 9) array, got shape {states.shape}')
+    n = states.shape[0]
+    times = np.ascontiguousarray(np.broadcast_to(np.asarray(t0, dtype=np.float64), (n,)))
+    if not outgoing and not math.isfinite(hit_plane_x):
+        raise ValueError(f'hit_plane_x is not finite: {hit_plane_x}')
+    if isinstance(validate, np.ndarray):
+        valid = validate                # the caller's own mask (True where valid)
+    elif validate:
+        valid = _valid_mask(states, P[I_RADIUS])
+    else:
+        valid = np.all(np.isfinite(states), axis=1)
+    states = _touching(states, valid, P[I_RADIUS])
+    out = np.zeros((n, _N_OUT))
+    use_parallel = n >= PARALLEL_MIN if parallel is None else parallel
+    kernel = _batch_parallel if use_parallel else _batch_serial
+    kernel(states, times, valid, P, float(hit_plane_x), bool(bounced), bool(outgoing), out)
+    return out
+
+
+def predict_many(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, parallel=None,
+                 checked=False):
+    """:func:`predict` for N incoming balls through the batch kernel: a list of N Predictions,
+    each the same, to the last bit, as ``predict(states[i], params, t0[i], hit_plane_x)``
+    (same compiled kernel, same inputs), at the batch's cost (tt-predict on many lines).
+
+    ``states`` (N, 9) [p, v, w] in the table frame (m, m/s, rad/s); ``t0`` a scalar or (N,)
+    absolute times (s); ``hit_plane_x`` (m). A row that is not a ball to predict gets status
+    'invalid' with :func:`check_state`'s reason. ``checked``: the caller has already found
+    every row valid with :func:`check_state` (tt-predict does, line by line), so it is not
+    checked again.
+    """
+    P = _packed(params)
+    states = np.asarray(states, dtype=np.float64)
+    if not math.isfinite(hit_plane_x):
+        return [Prediction(status='invalid',
+                           explanation=f'hit_plane_x is not finite: {hit_plane_x}')
+                for _ in range(len(states))]
+    # check_state row by row, as predict does (the vectorised mask may differ in the last bit
+    # at a limit such as MAX_SPEED).
+    reasons = [''] * len(states) if checked else [check_state(s, P[I_RADIUS]) for s in states]
+    valid = np.array([not r for r in reasons], dtype=bool)
+    rows = _batch_rows(states, P, t0, hit_plane_x, False, False, parallel, valid)
+    return [_to_prediction(row, hit_plane_x) if ok
+            else Prediction(status='invalid', explanation=reason)
+            for row, ok, reason in zip(rows, valid, reasons, strict=True)]
+
+
 def predict_batch(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
                   bounced=False, outgoing=False, parallel=None, validate=True):
     """:func:`predict` (or :func:`predict_landing` with ``outgoing``) for N states at once.
@@ -536,23 +587,9 @@ def predict_batch(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
     (for callers that build the states themselves, e.g. sigma points). ``parallel``: None =
     on all cores from PARALLEL_MIN states on. Returns a :class:`BatchPrediction`.
     """
-    P = _packed(params)
-    states = np.ascontiguousarray(states, dtype=np.float64)
-    if states.ndim != 2 or states.shape[1] != 9:
-        raise ValueError(f'states must be an (N, 9) array, got shape {states.shape}')
-    n = states.shape[0]
-    times = np.ascontiguousarray(np.broadcast_to(np.asarray(t0, dtype=np.float64), (n,)))
-    if not outgoing and not math.isfinite(hit_plane_x):
-        raise ValueError(f'hit_plane_x is not finite: {hit_plane_x}')
-    if validate:
-        valid = _valid_mask(states, P[I_RADIUS])
-    else:
-        valid = np.all(np.isfinite(states), axis=1)
-    states = _touching(states, valid, P[I_RADIUS])
-    out = np.zeros((n, _N_OUT))
-    use_parallel = n >= PARALLEL_MIN if parallel is None else parallel
-    kernel = _batch_parallel if use_parallel else _batch_serial
-    kernel(states, times, valid, P, float(hit_plane_x), bool(bounced), bool(outgoing), out)
+    out = _batch_rows(states, _packed(params), t0, hit_plane_x, bounced, outgoing, parallel,
+                      validate)
+    n = out.shape[0]
     has_b = out[:, _O_BOUNCE_OK] > 0.0
     has_h = out[:, _O_HIT_OK] > 0.0
     nan3 = np.full((n, 3), np.nan)

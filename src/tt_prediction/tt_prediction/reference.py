@@ -13,9 +13,16 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .integrate import ROLL_SPEED
+from .ball import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    NET_HALF_WIDTH,
+    NET_HEIGHT,
+    ROLL_SPEED,
+    TABLE_HEIGHT,
+    zone_of,
+)
 from .predict import DEFAULT_HIT_PLANE_X, T_MAX, Contact, Hit, Prediction
-from .table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT, TABLE_HEIGHT, zone_of
 
 RTOL = 1e-9
 ATOL = 1e-12

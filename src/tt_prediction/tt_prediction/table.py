@@ -24,7 +24,17 @@ ZONE_WIDTH = 2.0 * HALF_WIDTH / 3.0
 
 
 def on_table(x, y):
-    """True where the point (x, y) lies on the playing surface (edges included)."""
+    """Whether points lie on the playing surface (edges included).
+
+    Parameters
+    ----------
+    x, y : float or ndarray
+        Table-frame coordinates, m.
+
+    Returns
+    -------
+    bool or ndarray of bool
+    """
     return (np.abs(x) <= HALF_LENGTH) & (np.abs(y) <= HALF_WIDTH)
 
 
@@ -34,8 +44,17 @@ def zone_of(x, y):
     Rows are thirds of |x| in [0, 1.37] (row 0 next to the net), columns thirds of y from
     +0.7625 (column 0) to -0.7625 (column 2); zone = 3 row + col + 1.
 
-    Returns ``(zone, half)``: zone in 1..9 (0 off the table) and half +1 for x > 0 (opponent),
-    -1 for x < 0 (robot), 0 off the table. Scalars in, ints out.
+    Parameters
+    ----------
+    x, y : float
+        Table-frame coordinates of the point, m.
+
+    Returns
+    -------
+    zone : int
+        1..9, 0 off the table.
+    half : int
+        +1 for x > 0 (opponent), -1 for x < 0 (robot), 0 off the table.
     """
     if not (abs(x) <= HALF_LENGTH and abs(y) <= HALF_WIDTH):
         return 0, 0
@@ -46,7 +65,20 @@ def zone_of(x, y):
 
 
 def zone_centre(zone, half=1):
-    """Centre (x, y) of area ``zone`` (1..9) on ``half`` (+1 opponent, -1 robot), m."""
+    """Centre of an area.
+
+    Parameters
+    ----------
+    zone : int
+        Area 1..9 (ValueError otherwise).
+    half : int
+        +1 (opponent) or -1 (robot).
+
+    Returns
+    -------
+    ndarray (2,)
+        (x, y) of the centre, table frame, m.
+    """
     if not 1 <= int(zone) <= 9:
         raise ValueError(f'zone must be 1..9, got {zone}')
     if half not in (1, -1):
@@ -58,7 +90,20 @@ def zone_centre(zone, half=1):
 
 
 def zone_bounds(zone, half=1):
-    """Bounds ``(x_min, x_max, y_min, y_max)`` of area ``zone`` on ``half``, m."""
+    """Bounds of an area.
+
+    Parameters
+    ----------
+    zone : int
+        Area 1..9.
+    half : int
+        +1 (opponent) or -1 (robot).
+
+    Returns
+    -------
+    tuple of float
+        (x_min, x_max, y_min, y_max), table frame, m.
+    """
     row, col = divmod(int(zone) - 1, 3)
     x0, x1 = row * ZONE_LENGTH, (row + 1) * ZONE_LENGTH
     if half < 0:
@@ -68,6 +113,21 @@ def zone_bounds(zone, half=1):
 
 
 def zone_margin(x, y, zone, half=1):
-    """Signed distance from (x, y) to the nearest edge of the area, m (negative outside)."""
+    """Signed distance from a point to the nearest edge of an area.
+
+    Parameters
+    ----------
+    x, y : float
+        Table-frame coordinates, m.
+    zone : int
+        Area 1..9.
+    half : int
+        +1 (opponent) or -1 (robot).
+
+    Returns
+    -------
+    float
+        Distance, m: positive inside the area, negative outside.
+    """
     x0, x1, y0, y1 = zone_bounds(zone, half)
     return min(x - x0, x1 - x, y - y0, y1 - y)

@@ -5,10 +5,11 @@ import json
 
 import numpy as np
 import pytest
+from scipy.special import ndtr
 from tt_prediction.model import racket_rebound
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict_landing
-from tt_prediction.table import zone_centre
+from tt_prediction.table import zone_bounds, zone_centre
 from tt_strike.cli import main
 
 BALL = {'t': 0.5, 'p': [1.3, 0.1, 0.3], 'v': [-6.0, 0.0, 1.0], 'w': [0.0, 0.0, 0.0]}
@@ -46,10 +47,27 @@ def test_zone_and_point_targets(monkeypatch, capsys):
     assert out[1]['target']['zone'] == 0
 
 
-def test_covariance_gives_a_probability(monkeypatch, capsys):
-    cov = np.diag([1e-6] * 3 + [0.01] * 3 + [1.0] * 3).ravel().tolist()
-    code, out, _ = run([dict(BALL, target_zone=5, covariance=cov)], monkeypatch, capsys)
-    assert code == 0 and 0.0 <= out[0]['in_zone_probability'] <= 1.0
+@pytest.mark.parametrize('sigma_y', [0.0, 0.1, 0.3])
+def test_covariance_gives_the_probability_of_the_zone(monkeypatch, capsys, sigma_y):
+    # Only the hit point's y uncertain (sigma_y, m): flight, racket rebound, table and net are
+    # the same at any y, so each landing of the ensemble is the nominal one moved by the
+    # ball's own offset, and the share in zone 5 is the normal distribution's mass between
+    # the zone's side lines: Phi((y1 - y_L) / sigma) - Phi((y0 - y_L) / sigma); all of it
+    # without uncertainty (the nominal landing is inside the zone).
+    cov = np.zeros((9, 9))
+    cov[1, 1] = sigma_y ** 2
+    code, out, _ = run([dict(BALL, target_zone=5, covariance=cov.ravel().tolist())],
+                       monkeypatch, capsys)
+    assert code == 0 and out[0]['status'] == 'ok' and out[0]['margin'] > 0.0
+    _, _, y0, y1 = zone_bounds(5, 1)
+    y_land = out[0]['landing']['p'][1]
+    if sigma_y == 0.0:
+        assert out[0]['in_zone_probability'] == 1.0
+    else:
+        expected = ndtr((y1 - y_land) / sigma_y) - ndtr((y0 - y_land) / sigma_y)
+        assert 0.05 < expected < 0.99
+        # 1024 quasi-random (Sobol) samples: the share is within about 1/1024 of the mass.
+        assert out[0]['in_zone_probability'] == pytest.approx(expected, abs=0.01)
 
 
 def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):

@@ -1,4 +1,5 @@
-"""tt's ``ros2`` command: run, topic, node and bag verbs where ros2cli is not installed.
+"""tt's ``ros2`` command: run, topic, node, param, interface, pkg and bag verbs where ros2cli
+is not installed.
 
 Where a real ros2cli is importable, ``main`` hands the whole command line to it (set
 ``TT_ROS2_NO_HANDOVER=1`` to keep tt's own). Errors are one line on stderr and exit 1.
@@ -27,7 +28,8 @@ def build_parser(only_run=False):
     """The argument parser; ``only_run`` skips the verbs that import rclpy (``ros2 run`` starts
     the executable without that second of imports)."""
     parser = argparse.ArgumentParser(
-        prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, bag)")
+        prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, "
+                                 'param, interface, pkg, bag)')
     verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
 
     p = verbs.add_parser('run', help='run an executable of a package')
@@ -39,13 +41,22 @@ def build_parser(only_run=False):
     p.set_defaults(func=_run)
     if only_run:
         return parser
-    from tt_tools import bag, topic
+    from tt_tools import bag, interface, param, topic
 
     p = verbs.add_parser('topic', help='inspect and publish topics')
     topic_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
     p = verbs.add_parser('node', help='inspect nodes')
     node_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
     topic.add_arguments(topic_sub, node_sub)
+
+    p = verbs.add_parser('param', help="list, get, set, describe and dump a node's parameters")
+    param.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
+
+    p = verbs.add_parser('interface', help='show message, service and action definitions')
+    interface_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
+    p = verbs.add_parser('pkg', help='packages and their executables')
+    interface.add_arguments(
+        interface_sub, p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
     p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
     bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))

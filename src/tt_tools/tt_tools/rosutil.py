@@ -24,6 +24,17 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from tt_tools.output import say
+
+SETTLE_MIN_S = 2.0
+SETTLE_QUIET_S = 1.0
+SETTLE_ALONE_S = 4.0
+SETTLE_MAX_S = 15.0
+DISCOVERY_TOPIC = 'ros_discovery_info'
+"""The DDS topic on which every ROS participant announces its nodes and their endpoints."""
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+"""The node name of an endpoint whose participant's node list has not arrived yet."""
+
 RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
                'best_effort': ReliabilityPolicy.BEST_EFFORT,
                'system_default': ReliabilityPolicy.SYSTEM_DEFAULT}
@@ -41,6 +52,7 @@ class CliNode:
 
     def __init__(self, name):
         self.stopped = False
+        self._participants = 0
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f'_ros2cli_{name}_{os.getpid()}', context=self.context,
@@ -64,6 +76,96 @@ class CliNode:
             self.executor.spin_once(timeout_sec=left)
         return False
 
+    def graph_snapshot(self):
+        """Everything discovery has told this node so far: nodes, topics and services with
+        their types, and every topic endpoint with its node (tt's own node left out)."""
+        node, own = self.node, self.node.get_name()
+        nodes = sorted((ns, name) for name, ns in node.get_node_names_and_namespaces()
+                       if name != own)
+        topics = sorted((name, tuple(types)) for name, types in node.get_topic_names_and_types())
+        services = sorted((name, tuple(types))
+                          for name, types in node.get_service_names_and_types())
+        endpoints = []
+        for name, _ in topics:
+            for kind, infos in (('pub', node.get_publishers_info_by_topic(name)),
+                                ('sub', node.get_subscriptions_info_by_topic(name))):
+                endpoints.extend((name, kind, i.node_namespace, i.node_name) for i in infos
+                                 if i.node_name != own)
+        return nodes, topics, services, sorted(endpoints)
+
+    def discovery_complete(self):
+        """Whether discovery of the participants seen so far looks complete.
+
+        Every ROS participant has one writer and one reader on the DDS topic
+        ``ros_discovery_info``, created before any node's endpoint. Complete means: each
+        participant with one of them known has the other known too (Fast DDS announces
+        writers and readers separately, and a participant's readers can come seconds after
+        its writers on a loaded machine), and every endpoint's node is known (its
+        participant's node list has arrived). What it cannot know: a participant none of
+        whose announcements has arrived yet (``settle`` waits ``min_time`` for those).
+        """
+        node = self.node
+        ends = {'PUBLISHER': set(), 'SUBSCRIPTION': set()}
+        for info in (node.get_publishers_info_by_topic(DISCOVERY_TOPIC, no_mangle=True)
+                     + node.get_subscriptions_info_by_topic(DISCOVERY_TOPIC, no_mangle=True)):
+            ends.setdefault(info.endpoint_type.name, set()).add(bytes(info.endpoint_gid[:12]))
+        if ends['PUBLISHER'] != ends['SUBSCRIPTION']:
+            return False
+        self._participants = len(ends['PUBLISHER'])
+        for name, _ in node.get_topic_names_and_types():
+            for info in (node.get_publishers_info_by_topic(name)
+                         + node.get_subscriptions_info_by_topic(name)):
+                if info.node_name == UNKNOWN_NODE:
+                    return False
+        return True
+
+    def settle(self, spin_time=None, done=None, min_time=SETTLE_MIN_S, quiet=SETTLE_QUIET_S,
+               max_time=SETTLE_MAX_S):
+        """Spin until discovery has settled; True when ``done()`` became true first.
+
+        Without a daemon the first answer of a new process is incomplete while discovery
+        runs (0.5-4 s on a loaded machine). Settled means: at least ``min_time`` s spun, the
+        graph (``graph_snapshot``) unchanged for the last ``quiet`` s, and
+        ``discovery_complete()``; at most ``max_time`` s. ``spin_time`` given
+        (``--spin-time``): spin exactly that long instead (or until ``done()``). False also
+        on a signal.
+        """
+        done = done or (lambda: False)
+        if spin_time is not None:
+            return self.spin_until(done, timeout=spin_time)
+        start = last_change = time.monotonic()
+        last = None
+        while not self.stopped:
+            if done():
+                return True
+            now = time.monotonic()
+            snapshot = self.graph_snapshot()
+            if snapshot != last:
+                last, last_change = snapshot, now
+                if os.environ.get('TT_SETTLE_DEBUG'):
+                    say(f'settle {now - start:.2f} s: {len(snapshot[0])} nodes, '
+                        f'{len(snapshot[1])} topics, {len(snapshot[3])} endpoints')
+            if now - start >= max_time:
+                return False
+            if (now - start >= min_time and now - last_change >= quiet
+                    and self.discovery_complete()
+                    and (self._participants > 1 or now - start >= SETTLE_ALONE_S)):
+                if os.environ.get('TT_SETTLE_DEBUG'):
+                    say(f'settled {now - start:.2f} s')
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return False
+
+    def wait_saying(self, condition, message):
+        """Spin until ``condition()`` (True) or a signal (False). If discovery settles and it
+        is still false, write ``message()`` (one line, what we wait for) to stderr, once."""
+        if self.settle(done=condition):
+            return True
+        if self.stopped:
+            return False
+        say(message())
+        return self.spin_until(condition)
+
     def drain(self, progress, idle_rounds=3):
         """Run callbacks already waiting (messages received before a stop) without blocking.
 
@@ -86,6 +188,15 @@ class CliNode:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def add_spin_time_argument(parser):
+    """``--spin-time S`` of the verbs that look at the graph."""
+    parser.add_argument(
+        '--spin-time', type=float, default=None,
+        help='seconds to wait for discovery (default: until discovery has settled: the graph '
+             f'unchanged for {SETTLE_QUIET_S:g} s, at least {SETTLE_MIN_S:g} s, at most '
+             f'{SETTLE_MAX_S:g} s)')
 
 
 def full_topic_name(topic):

@@ -1,9 +1,13 @@
 """``ros2 topic list | echo | hz | info | pub`` and ``ros2 node list`` on rclpy."""
 
 import collections
-import sys
+import difflib
 import time
 
+from rclpy.action import (
+    get_action_client_names_and_types_by_node,
+    get_action_server_names_and_types_by_node,
+)
 from rclpy.duration import Duration
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
@@ -15,29 +19,32 @@ from tt_tools.introspect import (
     message_to_yaml,
     parse_yaml_values,
 )
+from tt_tools.output import say, write
 from tt_tools.rate import format_stats, rate_stats
 from tt_tools.rosutil import (
     DURABILITY,
     RELIABILITY,
     CliNode,
+    add_spin_time_argument,
     full_topic_name,
     qos_matching,
     topic_type,
 )
 
 
-def _write(text):
-    """Write to stdout now; False when the reader has gone (``| head``)."""
-    try:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-        return True
-    except BrokenPipeError:
-        return False
+def _known_topics(cli, limit=8):
+    """'/a, /b, ...' of the topics in the graph (tt's own nodes' topics left out)."""
+    names = sorted({e[0] for e in cli.graph_snapshot()[3]} - {'/rosout', '/parameter_events'})
+    more = f', ... ({len(names)} in all)' if len(names) > limit else ''
+    return ', '.join(names[:limit]) + more if names else 'none'
 
 
 def _wait_for_publishers(cli, topic, type_str):
-    """Spin until ``topic`` has a publisher; return (message class, publisher infos) or None."""
+    """Spin until ``topic`` has a publisher; return (message class, publisher infos) or None.
+
+    If discovery settles without one, says so on stderr (with the known topics and the
+    closest name) and goes on waiting.
+    """
     state = {}
 
     def found():
@@ -47,43 +54,43 @@ def _wait_for_publishers(cli, topic, type_str):
             state['type'] = type_str or topic_type(cli.node, topic) or pubs[0].topic_type
         return bool(pubs)
 
-    if not cli.spin_until(found):
+    def message():
+        topics = [name for name, _ in cli.node.get_topic_names_and_types()]
+        close = difflib.get_close_matches(topic, topics, n=1)
+        hint = f"; did you mean '{close[0]}'?" if close and close[0] != topic else ''
+        return (f'waiting for a publisher on {topic} (none yet; known topics: '
+                f'{_known_topics(cli)}){hint}')
+
+    if not cli.wait_saying(found, message):
         return None
     return import_message_type(state['type']), state['pubs']
 
 
 def topic_list(args):
     with CliNode('topic_list') as cli:
-        cli.spin_until(timeout=args.spin_time)
+        cli.settle(args.spin_time)
         for name, types in sorted(cli.node.get_topic_names_and_types()):
-            _write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+            write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
     return 0
 
 
 def node_list(args):
     with CliNode('node_list') as cli:
-        cli.spin_until(timeout=args.spin_time)
+        cli.settle(args.spin_time)
         names = []
         for name, ns in cli.node.get_node_names_and_namespaces():
             if name.startswith('_') and not args.all:
                 continue
             names.append(f'{ns.rstrip("/")}/{name}')
     for name in sorted(set(names)):
-        _write(name + '\n')
+        write(name + '\n')
     return 0
 
 
 def topic_info(args):
     topic = full_topic_name(args.topic)
     with CliNode('topic_info') as cli:
-        def known():
-            # The type, and with -v the names of the endpoints' nodes, which come a bit later.
-            endpoints = (cli.node.get_publishers_info_by_topic(topic)
-                         + cli.node.get_subscriptions_info_by_topic(topic))
-            return topic_type(cli.node, topic) is not None and not (
-                args.verbose and any(e.node_name == '_NODE_NAME_UNKNOWN_' for e in endpoints))
-
-        cli.spin_until(known, timeout=args.spin_time)
+        cli.settle(args.spin_time)
         type_str = topic_type(cli.node, topic)
         if type_str is None:
             raise ValueError(f"Unknown topic '{topic}'")
@@ -95,7 +102,58 @@ def topic_info(args):
         lines.append(('\n' if args.verbose else '') + f'{label} count: {len(infos)}')
         if args.verbose:
             lines.extend('\n' + str(info) for info in infos)
-    _write('\n'.join(lines) + '\n')
+    write('\n'.join(lines) + '\n')
+    return 0
+
+
+def topic_type_verb(args):
+    topic = full_topic_name(args.topic)
+    with CliNode('topic_type') as cli:
+        def types():
+            return dict(cli.node.get_topic_names_and_types()).get(topic)
+
+        cli.settle(args.spin_time, done=types)
+        found = types()
+    if not found:
+        raise ValueError(f"Unknown topic '{topic}'")
+    write(''.join(t + '\n' for t in found))
+    return 0
+
+
+def split_node_name(full_name):
+    """``'/ns/node'`` -> ``('node', '/ns')``; ``'node'`` or ``'/node'`` -> ``('node', '/')``."""
+    full_name = full_name if full_name.startswith('/') else '/' + full_name
+    ns, _, name = full_name.rpartition('/')
+    return name, ns or '/'
+
+
+def _hidden(name):
+    return any(part.startswith('_') for part in name.split('/'))
+
+
+def node_info(args):
+    name, ns = split_node_name(args.node_name)
+    full = f'{ns.rstrip("/")}/{name}'
+    with CliNode('node_info') as cli:
+        cli.settle(args.spin_time)
+        if (name, ns) not in cli.node.get_node_names_and_namespaces():
+            raise ValueError(f"Unable to find node '{full}'")
+        graph = cli.node
+        sections = [
+            ('Subscribers', graph.get_subscriber_names_and_types_by_node(name, ns)),
+            ('Publishers', graph.get_publisher_names_and_types_by_node(name, ns)),
+            ('Service Servers', graph.get_service_names_and_types_by_node(name, ns)),
+            ('Service Clients', graph.get_client_names_and_types_by_node(name, ns)),
+            ('Action Servers', get_action_server_names_and_types_by_node(graph, name, ns)),
+            ('Action Clients', get_action_client_names_and_types_by_node(graph, name, ns)),
+        ]
+    lines = [full]
+    for title, names_and_types in sections:
+        lines.append(f'  {title}:')
+        shown = [f'    {n}: {", ".join(t)}' for n, t in sorted(names_and_types)
+                 if args.include_hidden or not _hidden(n)]
+        lines.extend(shown or [''])
+    write('\n'.join(lines) + '\n')
     return 0
 
 
@@ -120,7 +178,7 @@ def topic_echo(args):
             text = message_to_yaml(msg, None if args.full_length else args.truncate_length,
                                    args.field)
             state['count'] += 1
-            state['done'] = not _write(text + '---\n') or (
+            state['done'] = not write(text + '---\n') or (
                 args.once or (args.times and state['count'] >= args.times))
 
         cli.node.create_subscription(cls, topic, on_message, qos, raw=True)
@@ -151,10 +209,34 @@ def topic_hz(args):
             state['next'] += 1.0
             stats = rate_stats(list(arrivals))
             if state['new'] and stats is not None:
-                if not _write(format_stats(stats) + '\n'):
+                if not write(format_stats(stats) + '\n'):
                     break
             state['new'] = False
     return 0
+
+
+def _wait_for_subscriptions(cli, pub, topic, count, max_wait):
+    """Spin until ``pub`` has ``count`` matching subscriptions (True); says on stderr what it
+    waits for when discovery settles without them. False on a signal or after ``max_wait``
+    s (with a one-line error)."""
+    def matched():
+        return pub.get_subscription_count() >= count
+
+    def bounded():
+        return matched() or time.monotonic() >= deadline
+
+    deadline = time.monotonic() + (max_wait if max_wait is not None else float('inf'))
+    limit = (f'up to {max_wait:g} s (--max-wait-time-secs)' if max_wait is not None
+             else 'until there is one; -w 0 publishes without waiting')
+    if not cli.wait_saying(bounded, lambda: (
+            f'waiting for {count} matching subscription(s) on {topic} '
+            f'({pub.get_subscription_count()} now), {limit}')):
+        return False
+    if not matched():
+        say(f'ros2 topic: no {count} matching subscription(s) on {topic} after '
+            f'{max_wait:g} s: nothing published')
+        return False
+    return True
 
 
 def topic_pub(args):
@@ -174,16 +256,17 @@ def topic_pub(args):
                          reliability=RELIABILITY[args.qos_reliability],
                          durability=DURABILITY[args.qos_durability])
         pub = cli.node.create_publisher(cls, topic, qos)
-        if not cli.spin_until(lambda: pub.get_subscription_count() >= wait_subs):
-            return 0
-        _write('publisher: beginning loop\n')
+        if wait_subs and not _wait_for_subscriptions(cli, pub, topic, wait_subs,
+                                                     args.max_wait_time_secs):
+            return 1 if not cli.stopped else 0
+        write('publisher: beginning loop\n')
         state = {'count': 0}
 
         def tick():
             msg = build()
             pub.publish(msg)
             state['count'] += 1
-            _write(f'publishing #{state["count"]}: {msg}\n\n')
+            write(f'publishing #{state["count"]}: {msg}\n\n')
 
         period = 1.0 / args.rate if args.rate > 0 else None
         tick()
@@ -208,20 +291,21 @@ def add_arguments(topic_sub, node_sub):
                        if durability_default is None else 'QoS durability')
         p.add_argument('--qos-depth', type=int, default=10, help='QoS history depth')
 
-    def spin_arg(p):
-        p.add_argument('--spin-time', type=float, default=2.0,
-                       help='seconds to wait for discovery (default 2.0)')
-
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=topic_list)
 
     p = topic_sub.add_parser('info', help='type and endpoints of a topic')
     p.add_argument('topic')
     p.add_argument('-v', '--verbose', action='store_true', help='print every endpoint and QoS')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=topic_info)
+
+    p = topic_sub.add_parser('type', help='print the type of a topic')
+    p.add_argument('topic')
+    add_spin_time_argument(p)
+    p.set_defaults(func=topic_type_verb)
 
     p = topic_sub.add_parser('echo', help='print the messages of a topic as YAML')
     p.add_argument('topic')
@@ -254,6 +338,9 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('-w', '--wait-matching-subscriptions', type=int, default=None,
                    help='wait for N matching subscriptions first (default 1 with --once or '
                         '--times, else 0)')
+    p.add_argument('--max-wait-time-secs', type=float, default=None,
+                   help='with -w, give up (exit 1) after this long (default: wait until the '
+                        'subscriptions appear, saying so on stderr)')
     p.add_argument('--keep-alive', type=float, default=1.0,
                    help='with --once/--times, wait up to this long (s) for delivery')
     qos_args(p, 'reliable', 'volatile')
@@ -261,5 +348,12 @@ def add_arguments(topic_sub, node_sub):
 
     p = node_sub.add_parser('list', help='list the nodes in the graph')
     p.add_argument('-a', '--all', action='store_true', help='also hidden nodes')
-    spin_arg(p)
+    add_spin_time_argument(p)
     p.set_defaults(func=node_list)
+
+    p = node_sub.add_parser('info', help='subscribers, publishers, services and actions of a node')
+    p.add_argument('node_name', help="full node name, e.g. '/prediction_node'")
+    p.add_argument('--include-hidden', action='store_true',
+                   help='also hidden topics, services and actions')
+    add_spin_time_argument(p)
+    p.set_defaults(func=node_info)

@@ -8,7 +8,7 @@ Writes DIR/report.json, DIR/report.md, plots and DIR/model.yaml (the model for
 import argparse
 import sys
 
-from ..params import load_model
+from ..ball import load_model
 from .data import DataError, load
 from .pipeline import identify
 from .report import write_outputs
@@ -67,6 +67,8 @@ def main(argv=None):
     except KeyboardInterrupt:
         print('tt-identify: interrupted, nothing written', file=sys.stderr)
         return 130
+    if result.get('selection_note'):
+        print(f"tt-identify: {result['selection_note']}", file=sys.stderr)
     print(f'tt-identify: wrote {args.out} (selected effects: '
           f"{', '.join(result['selected_effects']) or 'none'})", file=sys.stderr)
     return 0

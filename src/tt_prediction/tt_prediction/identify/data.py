@@ -1,7 +1,10 @@
 """Loading measured ball tracks: trajectory folders (CSV) and rosbag2 bags.
 
 A *track* is one measured ball: sample times ``t`` (s, sorted), positions ``p`` (n, 3) in the
-table frame (m), the measured initial spin (rad/s) or None, and a label. Loading checks the
+table frame (m), the measured initial spin (rad/s) or None, and a label. Spin counts as
+measured only where index.csv says so (column ``spin_source``: ``measured``, the default
+where spin is given, or ``estimated``); a bag's BallState spin is perception's estimate and
+never counts as measured. Loading checks the
 format and raises :class:`DataError` with a one-line message naming the file; cleaning
 (sorting, duplicate stamps, non-finite rows) is explicit and counted in ``Track.notes``.
 """
@@ -31,10 +34,14 @@ class Track:
     p: np.ndarray
     """Measured ball-centre positions (n, 3), m."""
     spin: np.ndarray = None
-    """Measured spin at t[0], rad/s (3,), or None when not measured."""
+    """Measured spin at t[0], rad/s (3,), or None when not measured (an estimate of the
+    spin, e.g. by perception, is never put here: see ``spin_source``)."""
     label: str = ''
     notes: dict = dataclasses.field(default_factory=dict)
     """Counts of what cleaning and segmentation dropped, by reason."""
+    spin_source: str = ''
+    """Where the track's spin came from: 'measured' (then ``spin`` holds it), 'estimated'
+    (by perception or a filter: not used as a measurement) or '' (none given)."""
 
 
 def clean_samples(name, t, p):
@@ -95,8 +102,13 @@ def read_track_csv(path):
     return values[:, 0], values[:, 1:4]
 
 
+SPIN_SOURCES = ('measured', 'estimated')
+"""Values of index.csv's optional ``spin_source`` column ('' = measured where spin is given)."""
+
+
 def _read_index(folder):
-    """index.csv of a trajectory folder: {file: (spin or None, label)}; {} when absent."""
+    """index.csv of a trajectory folder: {file: (spin or None, label, spin_source)}; {} when
+    absent. Spin given as ``estimated`` is not returned as spin (it is not a measurement)."""
     path = os.path.join(folder, 'index.csv')
     if not os.path.exists(path):
         return {}
@@ -106,6 +118,7 @@ def _read_index(folder):
         raise DataError(f"{path}: header must start with 'file,wx,wy,wz', "
                         f"got '{','.join(header)}'")
     label_col = header.index('label') if 'label' in header else None
+    source_col = header.index('spin_source') if 'spin_source' in header else None
     index = {}
     for i, row in enumerate(rows):
         row = row + [''] * (len(header) - len(row))
@@ -119,8 +132,18 @@ def _read_index(folder):
                                 ) from None
             if not np.all(np.isfinite(spin)):
                 raise DataError(f'{path}: line {i + 2}: spin {cells} is not finite')
+        source = row[source_col].strip().lower() if source_col is not None else ''
+        if source and source not in SPIN_SOURCES:
+            raise DataError(f"{path}: line {i + 2}: spin_source '{source}' is not one of "
+                            f"{', '.join(SPIN_SOURCES)}")
+        if source == 'measured' and spin is None:
+            raise DataError(f"{path}: line {i + 2}: spin_source 'measured' but no spin given")
+        if spin is not None and not source:
+            source = 'measured'
+        if source == 'estimated':
+            spin = None
         label = row[label_col].strip() if label_col is not None else ''
-        index[row[0].strip()] = (spin, label)
+        index[row[0].strip()] = (spin, label, source)
     return index
 
 
@@ -138,9 +161,9 @@ def load_folder(folder):
         t, p, notes = clean_samples(path, t, p)
         if len(t) < 2:
             raise DataError(f'{path}: {len(t)} valid sample(s); a trajectory needs at least 2')
-        spin, label = index.get(name, (None, ''))
+        spin, label, spin_source = index.get(name, (None, '', ''))
         source = os.path.basename(os.path.normpath(folder))
-        tracks.append(Track(f'{source}/{name}', t, p, spin, label, notes))
+        tracks.append(Track(f'{source}/{name}', t, p, spin, label, notes, spin_source))
     return tracks
 
 
@@ -217,10 +240,12 @@ def _tracks_from_stream(path, rows):
             tt, pp, notes = clean_samples(path, t[a:b], p[a:b])
             if len(tt) < 2:
                 continue
+            # A BallState's spin is perception's estimate, never a measurement: the track is
+            # fitted with its spin unknown (all zeros: the publisher had no estimate).
             spin = sel[a][5]
-            # A BallState's spin is an estimate; all zeros means the publisher did not have one.
-            spin = np.array(spin) if spin is not None and any(spin) else None
-            tracks.append(Track(f'{source}/{track_id}.{k}', tt - tt[0], pp, spin, '', notes))
+            spin_source = 'estimated' if spin is not None and any(spin) else ''
+            tracks.append(Track(f'{source}/{track_id}.{k}', tt - tt[0], pp, None, '', notes,
+                                spin_source))
     if not tracks:
         raise DataError(f'{path}: no track with at least 2 samples in the bag')
     return tracks

@@ -1,7 +1,8 @@
 """The library of candidate effects: physical mechanisms the paper's model leaves out.
 
 Each effect is one mechanism with one or two global parameters (see fitting.GLOBAL_BOUNDS
-for their ranges and tt_prediction.params for the equations they enter). Model physics lives
+for their ranges and tt_prediction.params for the equations they enter). The model's effects
+are declared once, in tt_prediction.params (FIELDS, EFFECTS). Model physics lives
 in ModelParams (so that the prediction and strike nodes use it through model.yaml); the
 spin bias belongs to the measurement model. An effect may not apply to a data set: table
 effects need bounces, the spin bias needs measured spin; a constant time offset between the
@@ -10,6 +11,8 @@ alone cannot identify it and it is reported as not identifiable rather than fitt
 """
 
 import dataclasses
+
+from ..ball import EFFECTS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,24 +26,10 @@ class Effect:
     """'bounces' (table effects), 'spin' (measured spin), or '' (any flight data)."""
 
 
-LIBRARY = (
-    Effect('spin_decay', ('spin_decay',),
-           'air friction slows the spin in flight: dw/dt = -spin_decay w (1/s)'),
-    Effect('wind', ('wind_x', 'wind_y'),
-           'a steady horizontal air draft (m/s): drag and lift act on v - wind'),
-    Effect('drag_reynolds', ('c_d_speed_slope',),
-           'drag coefficient varies with air speed (Reynolds number): '
-           'C_D = c_d + slope (|v| - 6 m/s)'),
-    Effect('drag_spin', ('c_d_spin_ratio_slope',),
-           'drag coefficient varies with the spin ratio (the spinning boundary layer): '
-           'C_D = c_d + slope (r|w|/|v| - 0.3)'),
-    Effect('lift_spin_ratio', ('c_m_spin_ratio_slope',),
-           'Magnus coefficient varies with the spin ratio: C_M = c_m + slope (r|w|/|v| - 0.3)'),
-    Effect('table_restitution_speed', ('e_t_speed_slope',),
-           'table restitution falls with impact speed: e_t = e_t + slope (|v_z| - 3 m/s)',
-           needs='bounces'),
-    Effect('table_friction_spin', ('mu_spin_slope',),
-           'table friction varies with spin: mu = mu + slope |w|', needs='bounces'),
+MODEL_EFFECTS = tuple(Effect(e.name, e.slots, e.mechanism, e.needs) for e in EFFECTS)
+"""The model's effects, as declared in tt_prediction.params.EFFECTS (model.yaml)."""
+
+LIBRARY = MODEL_EFFECTS + (
     Effect('spin_measurement_bias', ('spin_scale',),
            'measured spin is off by a scale: w_true = (1 + spin_scale) w_measured',
            needs='spin'),
@@ -50,6 +39,8 @@ LIBRARY = (
            'gravity, or equivalently a position-scale error of the calibration '
            '(g_apparent = s g), differs from 9.8 m/s^2'),
 )
+"""Every candidate effect: the model's, then those of the measurement (spin bias, time
+offset) and of the calibration (gravity or scale)."""
 
 NOT_IDENTIFIABLE = {
     'time_offset': "a constant offset of all time stamps shifts each track's fitted initial "
@@ -58,12 +49,33 @@ NOT_IDENTIFIABLE = {
 }
 
 
-def applicable(effect, has_bounces, has_spin):
-    """Why an effect cannot be tested on this data, or '' when it can."""
+MIN_TRACKS = 8
+"""Fewest usable tracks on which an effect is selected: held-out gains over fewer tracks (a
+few folds of one or two tracks each) are not evidence of a mechanism."""
+MIN_BOUNCES = 8
+"""Fewest located table bounces on which a table effect is tested."""
+MIN_SPIN_TRACKS = 8
+"""Fewest tracks with measured spin on which a spin-measurement effect is tested."""
+
+
+def too_small(n_tracks):
+    """Why the data is too small to select any effect, or '' when it is not."""
+    if n_tracks < MIN_TRACKS:
+        return (f'data too small to select an effect: {n_tracks} usable tracks, at least '
+                f'{MIN_TRACKS} are needed; nothing selected')
+    return ''
+
+
+def applicable(effect, n_bounces, n_spin):
+    """Why an effect cannot be tested on this data, or '' when it can. ``n_bounces``: table
+    bounces located in the data; ``n_spin``: tracks with measured (not estimated) spin."""
     if effect.name in NOT_IDENTIFIABLE:
         return NOT_IDENTIFIABLE[effect.name]
-    if effect.needs == 'bounces' and not has_bounces:
-        return 'no table bounce in the data'
-    if effect.needs == 'spin' and not has_spin:
-        return 'no measured spin in the data (index.csv)'
+    if effect.needs == 'bounces' and n_bounces < MIN_BOUNCES:
+        return (f'{n_bounces} table bounces in the data, at least {MIN_BOUNCES} needed'
+                if n_bounces else 'no table bounce in the data')
+    if effect.needs == 'spin' and n_spin < MIN_SPIN_TRACKS:
+        return (f'measured spin on {n_spin} tracks, at least {MIN_SPIN_TRACKS} needed'
+                if n_spin else 'no measured spin in the data (index.csv; estimated spin '
+                               'does not count)')
     return ''

@@ -16,8 +16,7 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..integrate import DEFAULT_STEP, rollout_kernel
-from ..params import PACKED_FIELDS, ModelParams
+from ..ball import DEFAULT_STEP, INDEX, SLOT_BOUNDS, ModelParams, rollout_kernel
 
 NOISE_SCALE = 0.005
 """Residual (m) beyond which the soft-L1 loss turns linear."""
@@ -32,15 +31,9 @@ MISSING_RESIDUAL = 0.1
 SPIN_SCALE = 'spin_scale'
 """Name of the measurement-model global: w_true = (1 + spin_scale) w_measured."""
 
-GLOBAL_BOUNDS = {
-    'c_d': (0.1, 1.5), 'c_m': (-0.5, 0.5), 'e_t': (0.5, 1.0), 'mu': (0.0, 1.0),
-    'gravity': (8.0, 12.0), 'spin_decay': (0.0, 10.0), 'wind_x': (-5.0, 5.0),
-    'wind_y': (-5.0, 5.0), 'wind_z': (-5.0, 5.0), 'c_d_speed_slope': (-0.2, 0.2),
-    'c_m_spin_ratio_slope': (-1.0, 1.0), 'c_d_spin_ratio_slope': (-1.0, 1.0),
-    'e_t_speed_slope': (-0.3, 0.3),
-    'mu_spin_slope': (-2e-3, 2e-3), SPIN_SCALE: (-0.5, 0.5),
-}
-"""Physical ranges of the global parameters (SI units; slopes per the params.py docs)."""
+GLOBAL_BOUNDS = {**SLOT_BOUNDS, SPIN_SCALE: (-0.5, 0.5)}
+"""Physical ranges of the global parameters: the plausible ranges declared in
+tt_prediction.params.FIELDS, and the measurement model's spin scale."""
 
 
 @dataclasses.dataclass
@@ -95,7 +88,7 @@ class Globals:
         P = self.base.packed()
         for name, value in zip(self.names, self.values, strict=True):
             if name != SPIN_SCALE:
-                P[PACKED_FIELDS.index(name)] = value
+                P[INDEX[name]] = value
         return P
 
     def params(self):
@@ -209,13 +202,13 @@ def fit_rms(track, x, P, spin_scale=0.0):
     return float(np.sqrt(np.mean(res ** 2)))
 
 
-def gate(tracks, states, P):
+def gate(tracks, states, P, spin_scale=0.0):
     """Gate isolated spikes: samples more than GATE from the fitted model track and more
     than GATE / 2 farther than both neighbours. A contiguous misfit is the model's residual,
     not an outlier, and stays. Returns the number gated."""
     dropped = 0
     for tr, x in zip(tracks, states, strict=True):
-        pred = simulate(full_state(tr, x), P, tr.t, tr.n_bounces + 1)[:, :3]
+        pred = simulate(full_state(tr, x, spin_scale), P, tr.t, tr.n_bounces + 1)[:, :3]
         dist = np.linalg.norm(pred - tr.p, axis=1)
         dist[~np.isfinite(dist)] = 0.0
         nb = np.maximum(np.r_[dist[1:], 0.0], np.r_[0.0, dist[:-1]])

@@ -5,18 +5,19 @@ plots under the key ``_plots``). Selection is greedy forward: each applicable ef
 library is added to the current model and scored by the held-out fit RMS of K-fold
 cross-validation; the best one is kept if its relative gain exceeds PENALTY_PER_PARAM per
 added parameter and it moves the modelled tracks by more than MIN_EFFECT_SIZE, then the
-remaining effects that also paid are tried on top of it.
+remaining effects that also paid are tried on top of it. On fewer than effects.MIN_TRACKS
+usable tracks nothing is tested or selected, and the report says so (``selection_note``).
 """
 
 import dataclasses
 
 import numpy as np
 
-from ..params import ModelParams
+from ..ball import ModelParams
 from . import diagnose, evaluate, fitting
 from .blas import blas_threads
 from .data import DataError
-from .effects import LIBRARY, applicable
+from .effects import LIBRARY, applicable, too_small
 from .segment import segment
 
 PENALTY_PER_PARAM = 0.02
@@ -105,12 +106,14 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
                         f'({len(tracks)} loaded{why}); identification needs at least 2')
     has_spin = any(tr.spin is not None for tr in prepared)
-    has_bounces = any(tr.n_bounces for tr in prepared)
     folds = int(min(folds, len(prepared)))
     g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
-    candidates = [(e, applicable(e, has_bounces, has_spin)) for e in LIBRARY]
+    n_bounces = int(sum(tr.n_bounces for tr in prepared))
+    n_spin = sum(tr.spin is not None for tr in prepared)
+    small = too_small(len(prepared))
+    candidates = [(e, small or applicable(e, n_bounces, n_spin)) for e in LIBRARY]
     tested = [{'name': e.name, 'mechanism': e.mechanism, 'tested': False, 'reason': reason,
                'params': {}, 'heldout_gain': 0.0} for e, reason in candidates if reason]
     current, best = [], (None, None, None, g_base, states)
@@ -156,7 +159,9 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
             'tracks_dropped': dropped, 'samples_dropped': notes,
             'samples_used': int(sum(tr.mask.sum() for tr in prepared)),
             'bounces': int(sum(tr.n_bounces for tr in prepared)),
-            'spin_measured': has_spin, 'folds': folds, 'hit_plane_x': hit_plane_x,
+            'spin_measured': has_spin, 'tracks_spin_measured': int(n_spin),
+            'tracks_spin_estimated': sum(tr.spin_source == 'estimated' for tr in tracks),
+            'folds': folds, 'hit_plane_x': hit_plane_x,
             'predict_window_s': evaluate.PREDICT_WINDOW,
         },
         'paper_style': {'per_trajectory': paper, 'pooled': _round(g_base.as_dict())},
@@ -170,6 +175,7 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
                   'rebound': _strip(rebound_after)},
         'effects_tested': tested,
         'selected_effects': current,
+        'selection_note': small,
         'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
                            f'held-out fit RMS ({folds}-fold, by trajectory) exceeds '
                            f'{PENALTY_PER_PARAM} per added parameter and switching it off '

@@ -66,7 +66,9 @@ def markdown(r):
              '## Data', '',
              f"{d['tracks_used']} of {d['tracks_loaded']} tracks used, {d['samples_used']} "
              f"samples, {d['bounces']} table bounces located; spin measured: "
-             f"{'yes' if d['spin_measured'] else 'no'}.", '']
+             f"{'yes' if d['spin_measured'] else 'no'}"
+             + (f" ({d['tracks_spin_estimated']} tracks with estimated spin, not used as "
+                'measured)' if d.get('tracks_spin_estimated') else '') + '.', '']
     if d['samples_dropped']:
         lines += ['| samples dropped | count |', '|---|---|']
         lines += [f'| {k} | {v} |' for k, v in d['samples_dropped'].items()]
@@ -117,9 +119,11 @@ def markdown(r):
                      f" | {100 * e['penalty']:.0f} % | {e['effect_size_mm']:.1f} | "
                      f"{'yes' if e['pays'] else 'no'} |")
     sel = r['selected_effects']
-    lines += ['', '**Selected:** ' + (', '.join(sel) if sel else
-                                     'none. No effect of the library pays for its parameters '
-                                     'on held-out data; the residual shape is shown below.'),
+    none = ('none. No effect of the library pays for its parameters on held-out data; the '
+            'residual shape is shown below.')
+    if r.get('selection_note'):
+        none = f"none: {r['selection_note']}."
+    lines += ['', '**Selected:** ' + (', '.join(sel) if sel else none),
               '', '## Held-out errors before and after', '',
               f"{d['folds']}-fold cross-validation by trajectory; prediction from the first "
               f"{1e3 * d['predict_window_s']:.0f} ms of each track; hitting plane "

@@ -187,5 +187,5 @@ def segment(track, radius=0.02):
     if len(t) < 8 or t[-1] - t[0] < MIN_DURATION:
         return None, f'{len(t)} samples over {np.ptp(t) if len(t) else 0.0:.3f} s left ' \
                      'after cleaning'
-    out = Track(track.name, t, p, track.spin, track.label, notes)
+    out = Track(track.name, t, p, track.spin, track.label, notes, track.spin_source)
     return out, bounces

@@ -2,14 +2,14 @@
 
 Balls are served from the opponent's end towards the robot (x from about +1.3 to past the
 robot's end line), integrated with the model (including any effect switched on in the
-parameters), then degraded like a real tracker: a fixed sample rate with time-stamp jitter,
-Gaussian position noise, drop-outs, a few outliers of centimetres, and a track that starts
-mid-air. The generator knows nothing of identification.
+parameters) at the true frame times, then degraded like a real tracker: time stamps with
+jitter, Gaussian position noise, drop-outs, a few outliers of centimetres, and a track that
+starts mid-air. The generator knows nothing of identification.
 """
 
 import numpy as np
 
-from ..integrate import rollout
+from ..ball import rollout
 from .data import Track
 
 
@@ -25,26 +25,28 @@ def launch_states(n, rng):
 
 
 def make_tracks(n, params, seed=0, rate=150.0, noise=0.0015, dropout=0.05, outliers=2,
-                duration=0.9, spin_known=True, spin_scale=0.0):
+                duration=0.9, spin_known=True, spin_scale=0.0, jitter=2e-4, states=None):
     """``n`` tracks of the model ``params`` as a tracker would measure them.
 
-    noise: position noise std (m); dropout: fraction of frames lost; outliers: per track,
-    displaced by 3 to 8 cm; spin_known: store the true spin (divided by 1 + spin_scale, a
-    biased spin measurement) as the track's measured spin, else None.
+    The ball is sampled at the true frame times (a fixed ``rate``, Hz) and each sample is
+    stamped with that time plus Gaussian jitter of std ``jitter`` (s): the stamps carry the
+    error, as a camera's do. noise: position noise std (m); dropout: fraction of frames
+    lost; outliers: per track, displaced by 3 to 8 cm; spin_known: store the true spin
+    (divided by 1 + spin_scale, a biased spin measurement) as the track's measured spin,
+    else None. ``states``: the launch states (n, 9) to use instead of random ones.
     """
     rng = np.random.default_rng(seed)
     tracks = []
-    for i, s0 in enumerate(launch_states(n, rng)):
-        times = np.arange(0.0, duration, 1.0 / rate)
-        times = times + rng.normal(0.0, 2e-4, len(times))          # stamp jitter
-        times[0] = 0.0
-        times = np.sort(times)
+    launches = launch_states(n, rng) if states is None else np.asarray(states, dtype=float)
+    for i, s0 in enumerate(launches):
+        times = np.arange(0.0, duration, 1.0 / rate)                # true frame times
         _, samples = rollout(s0, params, sample_times=times, stop_at_plane=False,
                              stop_at_net=False, max_bounces=2, t_max=duration)
+        stamps = times + rng.normal(0.0, jitter, len(times))         # stamp jitter
         ok = np.all(np.isfinite(samples[:, :3]), axis=1) & (samples[:, 0] > -2.0)
         keep = ok & (rng.random(len(times)) > dropout)
         keep[:3] = ok[:3]
-        t, p = times[keep], samples[keep, :3] + rng.normal(0.0, noise, (keep.sum(), 3))
+        t, p = stamps[keep], samples[keep, :3] + rng.normal(0.0, noise, (keep.sum(), 3))
         for j in rng.choice(np.arange(5, len(t)), size=min(outliers, len(t) - 5),
                             replace=False):
             direction = rng.normal(size=3)

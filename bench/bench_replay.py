@@ -1,0 +1,76 @@
+"""Speed of the replay (issue 14): the ball filter + predictor per measured sample.
+
+- ``samples_per_s``: data/mpi_launcher (every track, every sample) through
+  :func:`tt_prediction.replay.replay_samples` (TrackFilter update + predict per sample, what
+  the two nodes do per BallState) on one core, after a warm-up track (numba compiled and
+  cached); target >= 10,000.
+- ``per_sample_ms``: p50 and p99 of one sample's filter update + prediction, timed per call
+  with the thread's CPU clock (on this shared 2-core machine the wall clock mostly measures
+  other processes) and, for reference, with the wall clock; target p99 <= 0.5 ms (CPU clock).
+Runs in about 30 s. ``python bench/run_all.py --only replay`` or this file directly.
+"""
+
+import json
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+from tt_prediction.ball_filter import FilterConfig, TrackFilter
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+from tt_prediction.replay import replay_samples
+from tt_prediction.tracks_cli import read_tracks
+
+DATA = pathlib.Path(__file__).resolve().parent.parent / 'data' / 'mpi_launcher'
+PLANE = -1.2
+
+
+def run():
+    if hasattr(os, 'sched_setaffinity'):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})   # one core
+    tracks = read_tracks(str(DATA))
+    params = ModelParams()
+    packed = params.packed()
+    config = FilterConfig(position_noise=0.9e-3)
+    replay_samples(tracks[0][1], tracks[0][2], params, config, PLANE)        # warm-up
+    n = sum(len(t) for _, t, _, _ in tracks)
+    start = time.perf_counter()
+    for _, t, p, _ in tracks:
+        replay_samples(t, p, params, config, PLANE)
+    wall = time.perf_counter() - start
+    cpu, wall_each = [], []
+    for _, t, p, _ in tracks:
+        tf = TrackFilter(params, config)
+        for ti, pi in zip(t, p, strict=True):
+            c0, w0 = time.thread_time(), time.perf_counter()
+            tf.add(ti, pi)
+            if tf.running:
+                predict(tf.filter.x, packed, t0=tf.filter.t, hit_plane_x=PLANE,
+                        bounced=tf.robot_bounced)
+            cpu.append(time.thread_time() - c0)
+            wall_each.append(time.perf_counter() - w0)
+    cpu_ms, wall_ms = np.array(cpu) * 1e3, np.array(wall_each) * 1e3
+    rate = n / wall
+    p99 = float(np.percentile(cpu_ms, 99))
+    return {
+        'samples': n,
+        'samples_per_s': round(rate),
+        'per_sample_ms': {'cpu_p50': round(float(np.median(cpu_ms)), 4),
+                          'cpu_p99': round(p99, 4),
+                          'wall_p50': round(float(np.median(wall_ms)), 4),
+                          'wall_p99': round(float(np.percentile(wall_ms, 99)), 4)},
+        'load_average_1min': os.getloadavg()[0],
+        'targets': {'samples_per_s': '>= 10000', 'per_sample_cpu_p99_ms': '<= 0.5'},
+        'passed': bool(rate >= 10000 and p99 <= 0.5),
+    }
+
+
+if __name__ == '__main__':
+    result = run()
+    print(json.dumps(result, indent=2))
+    out = pathlib.Path(__file__).resolve().parent / 'results'
+    out.mkdir(exist_ok=True)
+    (out / 'replay.json').write_text(json.dumps(result, indent=2))
+    sys.exit(0 if result['passed'] else 1)

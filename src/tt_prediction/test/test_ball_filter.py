@@ -1,0 +1,244 @@
+"""The ball filter: its Jacobians against the model, the bounce as a spin measurement, the
+consistency of its covariance (NEES against chi-square bounds) and stream handling."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+from tt_prediction.ball_filter import (
+    FilterConfig,
+    TrackFilter,
+    estimate_measurement_noise,
+    estimate_position_noise,
+    flight_jacobian,
+    rebound_jacobian,
+)
+from tt_prediction.integrate import rollout
+from tt_prediction.model import flight_derivative, table_rebound_inplace
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+
+EFFECTS = ModelParams(c_d_speed_slope=0.02, c_m_spin_ratio_slope=0.05,
+                      c_d_spin_ratio_slope=0.08, spin_decay=0.3, wind=(0.2, -0.1, 0.05),
+                      e_t_speed_slope=-0.1, mu_spin_slope=2e-4)
+# An incoming ball with top and side spin: bounces on the robot's half, crosses x = -1.2.
+INCOMING = np.array([1.3, 0.1, 0.3, -5.5, -0.2, 1.0, 20.0, -150.0, 40.0])
+
+
+def _numeric(fun, s, eps):
+    J = np.empty((9, 9))
+    for j in range(9):
+        a, b = s.copy(), s.copy()
+        a[j] += eps[j]
+        b[j] -= eps[j]
+        J[:, j] = (fun(a) - fun(b)) / (2 * eps[j])
+    return J
+
+
+@pytest.mark.parametrize('params', [ModelParams(), EFFECTS])
+def test_flight_jacobian_is_the_derivative_of_eq_8(params):
+    P = params.packed()
+    s = np.array([0.3, 0.1, 0.4, -5.0, 0.7, 1.2, 30.0, -120.0, 60.0])
+
+    def deriv(x):
+        out = np.empty(9)
+        flight_derivative(x, P, out)
+        return out
+
+    F = np.empty((9, 9))
+    flight_jacobian(s, P, F)
+    eps = np.array([1e-4] * 3 + [1e-5] * 3 + [1e-3] * 3)
+    assert np.allclose(F, _numeric(deriv, s, eps), rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize('params', [ModelParams(), EFFECTS])
+@pytest.mark.parametrize('spin_y', [-150.0, 0.0, 400.0])
+def test_rebound_jacobian_is_the_derivative_of_eqs_1_to_6(params, spin_y):
+    P = params.packed()
+    s = np.array([-0.5, 0.1, 0.02, -4.0, 0.5, -3.0, 25.0, spin_y, 50.0])
+
+    def rebound(x):
+        y = x.copy()
+        table_rebound_inplace(y, P)
+        return y
+
+    J = np.empty((9, 9))
+    rebound_jacobian(s, P, J)
+    eps = np.array([1e-4] * 3 + [1e-6] * 3 + [1e-4] * 3)
+    assert np.allclose(J, _numeric(rebound, s, eps), rtol=1e-5, atol=1e-6)
+
+
+def _measured(state, times, noise, rng, params=None):
+    _, samples = rollout(state, params or ModelParams(), sample_times=times,
+                         stop_at_plane=False, stop_at_net=False, max_bounces=2,
+                         t_max=times[-1] + 1e-6)
+    return samples, samples[:, :3] + rng.normal(0.0, noise, (len(times), 3))
+
+
+def test_the_bounce_measures_the_spin_flight_cannot_see():
+    """In flight only the spin across v is observed (Magnus); eqs. 1-2 turn r w_x into v_y at
+    the contact, so post-bounce samples pin the spin along v (here mostly w_x)."""
+    rng = np.random.default_rng(3)
+    times = np.arange(0.0, 0.75, 1.0 / 180.0)
+    truth, z = _measured(INCOMING, times, 1e-3, rng)
+    events, _ = rollout(INCOMING, ModelParams(), stop_at_plane=False, max_bounces=1)
+    t_bounce = events[-1].t
+    cfg = FilterConfig(position_noise=1e-3, accel_noise=0.01, spin_noise=0.1, spin_prior=150.0)
+    tf = TrackFilter(config=cfg)
+    before = after = None
+    for t, p in zip(times, z, strict=True):
+        tf.add(t, p)
+        if before is None and t > t_bounce - 0.01:
+            before = tf.filter.P[6, 6]
+        if t > t_bounce + 0.08:
+            after = tf.filter.P[6, 6]
+            est, true = tf.filter.x[6], truth[np.searchsorted(times, t), 6]
+            break
+    assert tf.filter.bounces == 1 and tf.robot_bounced
+    assert np.sqrt(before) > 0.5 * 150.0            # along v: still close to its prior
+    assert np.sqrt(after) < 0.5 * np.sqrt(before)   # the bounce measured it
+    assert abs(est - true) < 3.0 * np.sqrt(after)
+
+
+def _with_rebound_noise(s0, times, cfg, rng):
+    """True states at ``times`` of a ball whose rebound has the filter's rebound noise:
+    eqs. 1-6 plus N(0, bounce_velocity_noise^2) on each velocity and N(0, bounce_spin_noise^2)
+    on each spin component. Returns (states (n, 9), bounce time)."""
+    params = ModelParams()
+    events, before = rollout(s0, params, sample_times=times, stop_at_plane=False,
+                             stop_at_net=False, max_bounces=1, t_max=times[-1] + 1e-6)
+    b = events[-1]
+    after = b.after.copy()
+    after[3:6] += rng.normal(0.0, cfg.bounce_velocity_noise, 3)
+    after[6:9] += rng.normal(0.0, cfg.bounce_spin_noise, 3)
+    later = times > b.t
+    _, rest = rollout(after, params, t0=b.t, sample_times=times[later], stop_at_plane=False,
+                      stop_at_net=False, max_bounces=1, t_max=times[-1] + 1e-6)
+    states = before.copy()
+    states[later] = rest
+    return states, b.t
+
+
+@pytest.mark.parametrize('transform', ['linear', 'unscented'])
+@pytest.mark.parametrize('phase', ['flight', 'after_bounce'])
+def test_covariance_is_consistent_nees_within_chi_square_bounds(phase, transform):
+    """Monte Carlo with the filter's own statistics: spin drawn from its prior, positions with
+    its noise, the rebound perturbed by its rebound noise. The mean NEES of the 9-dim state
+    over N runs must lie in the two-sided 99 % interval chi-square(9 N) / N, in flight 30 ms
+    before the bounce and 60 ms after it, with either transform of the rebound (eqs. 1-6)."""
+    rng = np.random.default_rng(7)
+    prior, noise, n = 60.0, 1e-3, 40
+    cfg = FilterConfig(position_noise=noise, accel_noise=1e-3, spin_noise=0.05,
+                       spin_prior=prior, start_velocity_noise=0.02, bounce_transform=transform)
+    times = np.arange(0.0, 0.5, 1.0 / 180.0)
+    values = []
+    for _ in range(n):
+        s0 = INCOMING.copy()
+        s0[6:] = rng.normal(0.0, prior, 3)
+        truth, tb = _with_rebound_noise(s0, times, cfg, rng)
+        z = truth[:, :3] + rng.normal(0.0, noise, (len(times), 3))
+        mark = tb - 0.03 if phase == 'flight' else tb + 0.06
+        tf = TrackFilter(config=cfg)
+        for i, (t, p) in enumerate(zip(times, z, strict=True)):
+            tf.add(t, p)
+            if t >= mark:
+                e = tf.filter.x - truth[i]
+                values.append(float(e @ np.linalg.solve(tf.filter.P, e)))
+                break
+    assert len(values) == n
+    lo, hi = chi2.ppf([0.005, 0.995], 9 * n) / n
+    assert lo < np.mean(values) < hi, (phase, np.mean(values), lo, hi)
+
+
+def _stream():
+    rng = np.random.default_rng(11)
+    times = np.arange(0.0, 0.8, 1.0 / 180.0)
+    truth, z = _measured(INCOMING, times, 1e-3, rng)
+    return times, truth, z
+
+
+def test_stream_with_spikes_gaps_duplicates_and_nan_keeps_tracking():
+    times, truth, z = _stream()
+    t, p = times.copy(), z.copy()
+    p[[30, 31, 70]] += [0.08, 0.0, 0.05]                 # spikes
+    gap = (t > 0.2) & (t < 0.25)                          # 50 ms without data
+    p[[10, 50]] = np.nan                                 # NaN rows
+    keep = ~gap
+    t, p, tr = t[keep], p[keep], truth[keep]
+    t = np.insert(t, 20, t[20])                           # a duplicate stamp
+    p = np.insert(p, 20, p[20], axis=0)
+    tr = np.insert(tr, 20, tr[20], axis=0)
+    tf = TrackFilter(config=FilterConfig(position_noise=1e-3))
+    statuses = [tf.add(ti, pi) for ti, pi in zip(t, p, strict=True)]
+    assert statuses[21] == TrackFilter.SKIPPED            # the duplicate
+    assert statuses[10] == TrackFilter.COASTED            # the NaN row
+    assert TrackFilter.REJECTED in statuses[29:33]        # the spikes are gated
+    assert np.linalg.norm(tf.filter.x[:3] - tr[-1, :3]) < 5e-3
+    assert tf.filter.t == pytest.approx(t[-1])
+
+
+def test_out_of_order_stamp_is_skipped():
+    times, _, z = _stream()
+    tf = TrackFilter(config=FilterConfig(position_noise=1e-3))
+    for t, p in zip(times[:20], z[:20], strict=True):
+        tf.add(t, p)
+    assert tf.add(times[5], z[5]) == TrackFilter.SKIPPED
+
+
+def test_restart_after_a_racket_like_turn():
+    """The velocity turned by a hit: the gate rejects, then the filter restarts from the data
+    and follows the new flight."""
+    rng = np.random.default_rng(5)
+    times = np.arange(0.0, 0.25, 1.0 / 180.0)
+    _, z1 = _measured(INCOMING, times, 1e-3, rng)
+    s = INCOMING.copy()
+    s[:3] = z1[-1]
+    s[3:6] = [5.0, 0.3, 2.0]
+    t2 = times[-1] + np.arange(1, 40) / 180.0
+    truth2, z2 = _measured(s, np.concatenate([[times[-1]], t2]), 1e-3, rng)
+    tf = TrackFilter(config=FilterConfig(position_noise=1e-3))
+    for t, p in zip(np.concatenate([times, t2]), np.concatenate([z1, z2[1:]]), strict=True):
+        tf.add(t, p)
+    assert np.linalg.norm(tf.filter.x[3:6] - truth2[-1, 3:6]) < 0.3
+    assert not tf.robot_bounced                              # moving away from the robot
+
+
+def test_position_noise_estimate_recovers_the_noise():
+    rng = np.random.default_rng(2)
+    times = np.arange(0.0, 0.4, 1.0 / 180.0)
+    tracks = [_measured(INCOMING, times, 1.5e-3, rng)[1] for _ in range(10)]
+    est = estimate_position_noise((times, p) for p in tracks)
+    assert est == pytest.approx(1.5e-3, rel=0.15)
+
+
+def test_measurement_noise_estimate_separates_stamp_jitter():
+    """Positions sampled at jittered times but stamped at the nominal ones: the error along
+    the velocity is v dt, across it only the position noise."""
+    rng = np.random.default_rng(6)
+    nominal = np.arange(0.0, 0.3, 1.0 / 180.0)
+    tracks = []
+    for _ in range(20):
+        true_t = nominal + 0.002 + rng.normal(0.0, 4e-4, len(nominal))
+        _, s = rollout(INCOMING, ModelParams(), sample_times=np.sort(true_t),
+                       stop_at_plane=False, stop_at_net=False, max_bounces=2, t_max=0.31)
+        tracks.append((nominal, s[:, :3] + rng.normal(0.0, 6e-4, (len(nominal), 3))))
+    assert all(np.isfinite(p).all() for _, p in tracks)
+    sigma_p, sigma_t = estimate_measurement_noise(tracks)
+    assert sigma_p == pytest.approx(6e-4, rel=0.15)
+    assert sigma_t == pytest.approx(4e-4, rel=0.2)
+
+
+def test_filter_state_predicts_the_hit_the_model_predicts():
+    """Fed the model's own flight, the filter's state 50 ms after the bounce (spin measured by
+    it) gives the predictor's hit to < 2 mm."""
+    rng = np.random.default_rng(4)
+    times = np.arange(0.0, 0.8, 1.0 / 180.0)
+    _, z = _measured(INCOMING, times, 1e-3, rng)
+    ref = predict(INCOMING, hit_plane_x=-1.2)
+    tf = TrackFilter(config=FilterConfig(position_noise=1e-3, accel_noise=0.01))
+    for t, p in zip(times, z, strict=True):
+        if t > ref.bounce.t + 0.05:
+            break
+        tf.add(t, p)
+    pred = predict(tf.filter.x, t0=tf.filter.t, hit_plane_x=-1.2, bounced=True)
+    assert pred.status == 'ok'
+    assert np.linalg.norm(pred.hit.p - ref.hit.p) < 2e-3

@@ -1,0 +1,149 @@
+"""tt-predict --tracks: rows per input sample, the lead-time summary, robustness to bad
+samples, and bad input (one-line error naming the file, exit 2, no output)."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from tt_prediction.cli import main
+from tt_prediction.integrate import rollout
+from tt_prediction.params import ModelParams
+from tt_prediction.predict import predict
+from tt_prediction.replay import COLUMNS, LEADS_MS, measured_crossing
+
+PLANE = -1.2
+RATE = 180.0
+
+
+def _states(n, rng):
+    """Incoming balls (model flights) that bounce once on the robot's half and cross x = -1.2."""
+    out = []
+    while len(out) < n:
+        s = np.array([1.3, rng.uniform(-0.2, 0.2), rng.uniform(0.25, 0.4),
+                      rng.uniform(-6.0, -4.5), rng.uniform(-0.3, 0.3), rng.uniform(0.5, 1.5),
+                      rng.uniform(-20, 20), rng.uniform(-150, 100), rng.uniform(-40, 40)])
+        if predict(s, hit_plane_x=PLANE).status == 'ok':
+            out.append(s)
+    return out
+
+
+def _write(folder, tracks):
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / 'index.csv', 'w') as f:
+        f.write('file,wx,wy,wz,label\n')
+        for name, _, _ in tracks:
+            f.write(f'{name},,,,synthetic\n')
+    for name, t, p in tracks:
+        with open(folder / name, 'w') as f:
+            f.write('t,x,y,z\n')
+            for ti, pi in zip(t, p, strict=True):
+                f.write(f'{ti:.6f},{pi[0]:.6f},{pi[1]:.6f},{pi[2]:.6f}\n')
+
+
+def _track(state, rng, noise=1e-3, duration=0.75):
+    t = np.arange(0.0, duration, 1.0 / RATE)
+    _, s = rollout(state, ModelParams(), sample_times=t, stop_at_plane=False,
+                   stop_at_net=False, max_bounces=2, t_max=duration)
+    ok = np.isfinite(s[:, 0]) & (s[:, 0] > -1.6)
+    return t[ok], s[ok, :3] + rng.normal(0.0, noise, (ok.sum(), 3))
+
+
+@pytest.fixture(scope='module')
+def data(tmp_path_factory):
+    rng = np.random.default_rng(1)
+    tracks = [(f'{i:04d}.csv', *_track(s, rng)) for i, s in enumerate(_states(6, rng))]
+    folder = tmp_path_factory.mktemp('tracks') / 'set'
+    _write(folder, tracks)
+    return folder, tracks
+
+
+def _rows(path):
+    with open(path) as f:
+        reader = csv.reader(f)
+        header = next(reader)
+        return header, list(reader)
+
+
+def test_rows_for_every_sample_and_the_lead_time_summary(data, tmp_path):
+    folder, tracks = data
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE)]) == 0
+    for name, t, _ in tracks:
+        header, rows = _rows(out / name)
+        assert header == list(COLUMNS)
+        assert len(rows) == len(t)
+        assert np.allclose([float(r[0]) for r in rows], t, atol=1e-6)
+        assert all(r[14] == '' or float(r[14]) == pytest.approx(PLANE) for r in rows)
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['tracks'] == len(tracks) == summary['tracks_with_crossing']
+    for lead in LEADS_MS:
+        s = summary['hit_error'][str(lead)]
+        assert s['count'] + s['missing'] + s['too_short'] == len(tracks)
+        assert s['missing'] == 0
+        assert set(summary['textbook_hit_error'][str(lead)]) >= {'median_mm', 'p90_mm'}
+    # The model's own flights: after the bounce the spin is measured and the hit is close
+    # to the measured crossing (1 mm noise).
+    assert summary['hit_error']['50']['median_mm'] < 5.0
+
+
+def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
+    """Spikes, a 50 ms gap, duplicate and unsorted stamps, NaN rows and a second bounce."""
+    _, tracks = data
+    name, t, p = tracks[0]
+    t, p = t.copy(), p.copy()
+    p[[20, 45]] += [[0.1, 0.0, 0.0], [0.0, 0.06, 0.0]]          # spikes
+    keep = ~((t > 0.15) & (t < 0.2))                             # 50 ms gap
+    t, p = t[keep], p[keep]
+    p[[10, 30]] = np.nan                                        # NaN rows
+    t = np.insert(t, 25, t[25])                                 # duplicate stamp
+    p = np.insert(p, 25, p[25], axis=0)
+    t[[40, 41]] = t[[41, 40]]                                   # unsorted pair
+    p[[40, 41]] = p[[41, 40]]
+    # A second bounce: the ball rebounds from the table again beyond the first.
+    rng = np.random.default_rng(9)
+    t2, p2 = _track(np.array([-0.9, 0.0, 0.1, -2.0, 0.0, -1.5, 0, 0, 0]), rng, duration=0.15)
+    t = np.concatenate([t, t[-1] + 0.005 + t2])
+    p = np.concatenate([p, p2])
+    folder = tmp_path / 'bad'
+    _write(folder, [(name, t, p)])
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
+                 '--no-textbook']) == 0
+    _, rows = _rows(out / name)
+    assert len(rows) == len(t)
+    times = [float(r[0]) for r in rows]
+    assert times == sorted(times)
+    after_gap = [r for r in rows if 0.23 < float(r[0]) < 0.3]
+    assert after_gap and all(r[1] != '' for r in after_gap)     # tracking resumed
+    assert any(r[14] != '' for r in after_gap)                  # and predicting
+    last = [r for r in rows if float(r[0]) > t[-1] - 0.03]
+    assert all(r[1] != '' for r in last)                        # the second flight tracked
+
+
+@pytest.mark.parametrize('content, what', [
+    ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
+    ('a,b,c\n1,2,3\n', "header must start with 't,x,y,z'"),
+    (b'\xff\xfe\x00bad', 'not a text CSV file'),
+])
+def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, content, what):
+    folder, tracks = data
+    bad = tmp_path / 'bad'
+    _write(bad, tracks[:2])
+    path = bad / '0001.csv'
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(bad), '--out', str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and what in err[0]
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith('.tt-predict')]
+
+
+def test_measured_crossing_of_a_sampled_parabola():
+    """Local quadratic fit: exact for a parabola in time, whatever the sample phase."""
+    t = np.arange(0.0, 0.2, 1.0 / RATE) + 0.0013
+    p = np.stack([0.0 - 4.0 * t, 0.1 + 0.5 * t, 0.3 + 1.0 * t - 4.9 * t * t], axis=1)
+    tc, pc = measured_crossing(t, p, [(0.0, -0.5)], -0.5)
+    assert tc == pytest.approx(0.125, abs=1e-9)
+    assert pc == pytest.approx([-0.5, 0.1625, 0.3 + 0.125 - 4.9 * 0.125 ** 2], abs=1e-9)

@@ -1,0 +1,126 @@
+"""The ball model's public interface: parameters, equations, integrator, table geometry.
+
+Everything another package (perception's filter, strike, identification, the reference)
+needs of the ball model is imported from here; the modules behind it (params, model,
+integrate, table, predict) are implementation. Units are SI, spin in rad/s, positions in the
+``table`` frame (MODEL.md). The state of a ball is ``s = [p (m), v (m/s), w (rad/s)]`` (9,);
+compiled kernels take the model as the packed float64 array of
+:meth:`ModelParams.packed`, indexed by the ``I_*`` constants generated from the declaration
+:data:`FIELDS`.
+
+Equations (MODEL.md, paper numbering):
+
+- :func:`flight_derivative` / :func:`flight_acceleration`: eq. 8 (with its effects);
+  :func:`flight_jacobian`: its Jacobian, for filters.
+- :func:`table_rebound` / :func:`table_rebound_inplace`: eqs. 1-6.
+- :func:`racket_rebound` / :func:`racket_rebound_inplace`: eq. 7.
+
+Integration: :func:`rk4_step` (one step of eq. 8), :func:`rollout_kernel` (events: bounce,
+net, plane, floor, roll, timeout) and :func:`rollout` (its Python face), and the one landing
+kernel :func:`landing_kernel` (a ball leaving the racket until its first table contact).
+"""
+
+from .integrate import (
+    DEFAULT_STEP,
+    EVENT_BOUNCE,
+    EVENT_FLOOR,
+    EVENT_NAMES,
+    EVENT_NET,
+    EVENT_PLANE,
+    EVENT_ROLL,
+    EVENT_TIMEOUT,
+    ROLL_SPEED,
+    STOP_AT_NET,
+    STOP_AT_PLANE,
+    Event,
+    rk4_step,
+    rollout,
+    rollout_kernel,
+)
+from .model import (
+    flight_acceleration,
+    flight_derivative,
+    flight_jacobian,
+    racket_rebound,
+    racket_rebound_inplace,
+    table_rebound,
+    table_rebound_inplace,
+)
+from .params import (
+    DRAG_SPEED_REF,
+    EFFECT_FIELDS,
+    EFFECTS,
+    FIELD,
+    FIELDS,
+    I_AREA,
+    I_CD,
+    I_CD_SLOPE,
+    I_CD_SPIN_SLOPE,
+    I_CM,
+    I_CM_SLOPE,
+    I_ER,
+    I_ET,
+    I_ET_SLOPE,
+    I_ET_SPIN_SLOPE,
+    I_ET_TANGENTIAL,
+    I_GRAVITY,
+    I_KP,
+    I_MASS,
+    I_MU,
+    I_MU_SLIP_SLOPE,
+    I_MU_SLOPE,
+    I_RADIUS,
+    I_RHO,
+    I_SPIN_DECAY,
+    I_WIND_X,
+    I_WIND_Y,
+    I_WIND_Z,
+    IMPACT_SPEED_REF,
+    INDEX,
+    LIFT_SPIN_RATIO_REF,
+    N_PACKED,
+    PACKED_FIELDS,
+    SLIP_SPEED_REF,
+    SLOT_BOUNDS,
+    Effect,
+    Field,
+    ModelParams,
+    load_model,
+)
+from .predict import landing_kernel
+from .table import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    NET_HALF_WIDTH,
+    NET_HEIGHT,
+    TABLE_HEIGHT,
+    ZONE_LENGTH,
+    ZONE_WIDTH,
+    on_table,
+    zone_bounds,
+    zone_centre,
+    zone_margin,
+    zone_of,
+)
+
+__all__ = [
+    # parameters: the declaration, the typed structure, the packed layout
+    'FIELDS', 'EFFECTS', 'FIELD', 'Field', 'Effect', 'ModelParams', 'load_model',
+    'PACKED_FIELDS', 'INDEX', 'N_PACKED', 'SLOT_BOUNDS', 'EFFECT_FIELDS',
+    'DRAG_SPEED_REF', 'LIFT_SPIN_RATIO_REF', 'IMPACT_SPEED_REF', 'SLIP_SPEED_REF',
+    'I_AREA', 'I_CD', 'I_CD_SLOPE', 'I_CD_SPIN_SLOPE', 'I_CM', 'I_CM_SLOPE', 'I_ER', 'I_ET',
+    'I_ET_SLOPE', 'I_ET_SPIN_SLOPE', 'I_ET_TANGENTIAL', 'I_GRAVITY', 'I_KP', 'I_MASS', 'I_MU',
+    'I_MU_SLIP_SLOPE', 'I_MU_SLOPE', 'I_RADIUS', 'I_RHO', 'I_SPIN_DECAY', 'I_WIND_X',
+    'I_WIND_Y', 'I_WIND_Z',
+    # equations
+    'flight_derivative', 'flight_jacobian', 'flight_acceleration', 'table_rebound',
+    'table_rebound_inplace', 'racket_rebound', 'racket_rebound_inplace',
+    # integration
+    'rk4_step', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event', 'DEFAULT_STEP',
+    'ROLL_SPEED', 'STOP_AT_NET', 'STOP_AT_PLANE', 'EVENT_BOUNCE', 'EVENT_NET', 'EVENT_PLANE',
+    'EVENT_FLOOR', 'EVENT_ROLL', 'EVENT_TIMEOUT', 'EVENT_NAMES',
+    # table
+    'HALF_LENGTH', 'HALF_WIDTH', 'NET_HEIGHT', 'NET_HALF_WIDTH', 'TABLE_HEIGHT',
+    'ZONE_LENGTH', 'ZONE_WIDTH', 'on_table', 'zone_of', 'zone_centre', 'zone_bounds',
+    'zone_margin',
+]

@@ -1,0 +1,758 @@
+"""Extended Kalman filter of one ball, s = [p, v, w] (9,), through flight and table bounces.
+
+Frames and units: ``table`` frame (MODEL.md), p in m, v in m/s, w (spin) in rad/s, t in s.
+No rclpy: perception_node (triangulated points, ``tt_perception.estimator``) and the replay of
+measured tracks (``tt_prediction.replay``, 3-D positions) run this same filter.
+
+Flight. The state follows eq. 8 (drag + Magnus, with the effects of model.yaml) by one RK4
+step of the model's own derivative; the covariance by Phi = I + F h + (F h)^2 / 2 with F the
+analytic Jacobian of eq. 8 (:func:`flight_jacobian`) and the process noise of a white
+unmodelled acceleration (``accel_noise``) and a spin random walk (``spin_noise``). The spin
+enters the positions only through the Magnus term k_M w x u, so flight observes the spin
+across the velocity (from the curvature of the path) and not the component along it: that
+component keeps its prior variance, it is not invented.
+
+Bounce. When the predicted centre reaches the contact height (z = r, the table surface)
+moving down over the table, the state is taken to the contact, the rebound of eqs. 1-6 is
+applied with its analytic Jacobian (:func:`rebound_jacobian`), so the covariance of the spin
+(along the velocity too) goes through the bounce, and extra noise for the rebound's own
+uncertainty is added. The rebound turns the spin into tangential velocity (eqs. 1-2: the
+change of v_T at the contact is alpha (v_T + r w x n)), so the post-bounce samples fused
+next measure r w through the cross-covariance the Jacobian built. A ball that bounced earlier
+or later than the model's contact height says so by a kink the gate rejects; the filter then
+tries a few contact heights around the nominal one and keeps the one that explains the sample
+(:meth:`BallFilter.update` with ``rebounce``).
+
+Measurements: positions (3,) with covariance R (3, 3); an innovation whose squared
+Mahalanobis distance exceeds ``gate`` (3 dof) is rejected, one beyond ``robust`` counts with a
+proportionally inflated covariance (Huber-like).
+
+:class:`TrackFilter` wraps it for a stream of measured positions: NaN rows and out-of-order or
+duplicate stamps are skipped, spikes gated, gaps coasted over, and the filter re-started from
+the data after a run of rejected samples (a racket hit, a missed bounce) or a long gap.
+"""
+
+import dataclasses
+import math
+
+from numba import njit
+import numpy as np
+
+from .integrate import _rk4  # TODO(ball): tt_prediction.ball.rk4_step once it lands
+from .model import flight_derivative, table_rebound_inplace
+from .params import (
+    DRAG_SPEED_REF,
+    I_AREA,
+    I_CD,
+    I_CD_SLOPE,
+    I_CD_SPIN_SLOPE,
+    I_CM,
+    I_CM_SLOPE,
+    I_ET,
+    I_ET_SLOPE,
+    I_MASS,
+    I_MU,
+    I_MU_SLOPE,
+    I_RADIUS,
+    I_RHO,
+    I_SPIN_DECAY,
+    I_WIND_X,
+    I_WIND_Y,
+    I_WIND_Z,
+    IMPACT_SPEED_REF,
+    LIFT_SPIN_RATIO_REF,
+    ModelParams,
+)
+from .table import HALF_LENGTH, HALF_WIDTH
+
+__all__ = ['BallFilter', 'FilterConfig', 'TrackFilter', 'flight_jacobian', 'rebound_jacobian',
+           'skew', 'estimate_position_noise', 'estimate_measurement_noise']
+
+_NJIT = {'cache': True, 'nogil': True}
+
+
+@dataclasses.dataclass
+class FilterConfig:
+    """Noise, gating and track handling of :class:`BallFilter` / :class:`TrackFilter` (SI)."""
+
+    accel_noise: float = 0.05
+    """Unmodelled acceleration as a white-noise density, m/s^2 / sqrt(Hz)."""
+    spin_noise: float = 2.0
+    """Random walk of the spin, rad/s / sqrt(s)."""
+    spin_prior: float = 250.0
+    """Prior standard deviation of the spin about the horizontal axis across the velocity
+    (top/back spin), rad/s; of every component unless the two below are set."""
+    spin_prior_side: float = None
+    """Prior standard deviation of the side spin (about the axis across the velocity in
+    the vertical plane), rad/s; None: ``spin_prior``."""
+    spin_prior_along: float = None
+    """Prior standard deviation of the spin along the velocity (gyro spin, which flight
+    cannot observe), rad/s; None: ``spin_prior``."""
+    bounce_velocity_noise: float = 0.15
+    """Standard deviation added to each velocity component at a bounce, m/s."""
+    bounce_spin_noise: float = 25.0
+    """Standard deviation added to each spin component at a bounce, rad/s."""
+    gate: float = 25.0
+    """Squared Mahalanobis distance above which a measurement is an outlier (3 dof)."""
+    robust: float = 9.0
+    """Squared Mahalanobis distance above which a measurement's covariance is inflated."""
+    max_step: float = 1.0 / 150.0
+    """Longest integration step, s."""
+    position_noise: float = 1.5e-3
+    """Standard deviation of a measured position per axis (TrackFilter, replay), m."""
+    stamp_noise: float = 0.0
+    """Standard deviation of a sample's time stamp against its exposure (TrackFilter), s: a
+    stamp off by dt puts the ball off by v dt along its velocity, so the measurement
+    covariance is position_noise^2 I + stamp_noise^2 v v^T."""
+    start_velocity_noise: float = 0.3
+    """Velocity standard deviation per axis added to the two-sample start (drag, jitter), m/s."""
+    max_rejects: int = 3
+    """TrackFilter restarts from the data after this many rejected samples in a row."""
+    max_gap: float = 0.2
+    """TrackFilter restarts after a gap without accepted samples longer than this, s."""
+    bounce_transform: str = 'linear'
+    """How the covariance goes through a bounce: 'linear' (the Jacobian of eqs. 1-6 with the
+    saltation term) or 'unscented' (sigma points through eqs. 1-6)."""
+    rebounce_range: float = 0.015
+    """Contact heights tried around z = r when a sample near a bounce fails the gate, +-m."""
+
+
+_EYE3 = np.eye(3)
+
+
+def skew(a):
+    """Cross-product matrix [a]x (3, 3), so that [a]x b = a x b."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled kernels
+
+
+@njit(**_NJIT)
+def flight_jacobian(s, P, F):
+    """Continuous-time Jacobian d(ds/dt)/ds of the flight (eq. 8) at ``s`` into ``F`` (9, 9).
+
+    With u = v - wind, a = -k_D c_D(|u|, rho_s) |u| u + k_M c_M(rho_s) (w x u) - g e_z,
+    k_D = rho A / (2 m), k_M = 4/3 pi rho r^3 / m, spin ratio rho_s = r |w| / |u|:
+        da/du = -k_D (c_D |u| I + u (c_D u/|u| + |u| dc_D/du)^T) + k_M (c_M [w]x
+                + (w x u) (dc_M/du)^T),
+        da/dw = -k_D |u| u (dc_D/dw)^T + k_M (-c_M [u]x + (w x u) (dc_M/dw)^T),
+        dw'/dw = -spin_decay I;
+    the effect slopes of params.py enter through dc_D and dc_M.
+    """
+    for i in range(9):
+        for j in range(9):
+            F[i, j] = 0.0
+    F[0, 3] = 1.0
+    F[1, 4] = 1.0
+    F[2, 5] = 1.0
+    m = P[I_MASS]
+    r = P[I_RADIUS]
+    rho = P[I_RHO]
+    u = np.empty(3)
+    u[0] = s[3] - P[I_WIND_X]
+    u[1] = s[4] - P[I_WIND_Y]
+    u[2] = s[5] - P[I_WIND_Z]
+    w = s[6:9]
+    speed = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    if speed < 1e-9:
+        speed = 1e-9
+    spin = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    kd = 0.5 * rho * P[I_AREA] / m
+    km = 4.0 / 3.0 * math.pi * rho * r * r * r / m
+    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
+    c_m = P[I_CM]
+    dcd_du = np.zeros(3)
+    dcd_dw = np.zeros(3)
+    dcm_du = np.zeros(3)
+    dcm_dw = np.zeros(3)
+    for i in range(3):
+        dcd_du[i] = P[I_CD_SLOPE] * u[i] / speed
+    if P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0:
+        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
+        c_m += P[I_CM_SLOPE] * ratio
+        c_d += P[I_CD_SPIN_SLOPE] * ratio
+        for i in range(3):
+            dr_du = -r * spin * u[i] / (speed * speed * speed)
+            dr_dw = r * w[i] / (max(spin, 1e-9) * speed)
+            dcm_du[i] = P[I_CM_SLOPE] * dr_du
+            dcm_dw[i] = P[I_CM_SLOPE] * dr_dw
+            dcd_du[i] += P[I_CD_SPIN_SLOPE] * dr_du
+            dcd_dw[i] += P[I_CD_SPIN_SLOPE] * dr_dw
+    wxu = np.empty(3)
+    wxu[0] = w[1] * u[2] - w[2] * u[1]
+    wxu[1] = w[2] * u[0] - w[0] * u[2]
+    wxu[2] = w[0] * u[1] - w[1] * u[0]
+    for i in range(3):
+        for j in range(3):
+            # drag: d(c_D |u| u_i)/du_j
+            d = c_d * speed * (1.0 if i == j else 0.0) + u[i] * (
+                c_d * u[j] / speed + speed * dcd_du[j])
+            F[3 + i, 3 + j] = -kd * d + km * wxu[i] * dcm_du[j]
+            F[3 + i, 6 + j] = -kd * speed * u[i] * dcd_dw[j] + km * wxu[i] * dcm_dw[j]
+    # Magnus: d(w x u)/du = [w]x, d(w x u)/dw = -[u]x
+    F[3, 4] += km * c_m * -w[2]
+    F[3, 5] += km * c_m * w[1]
+    F[4, 3] += km * c_m * w[2]
+    F[4, 5] += km * c_m * -w[0]
+    F[5, 3] += km * c_m * -w[1]
+    F[5, 4] += km * c_m * w[0]
+    F[3, 7] += -km * c_m * -u[2]
+    F[3, 8] += -km * c_m * u[1]
+    F[4, 6] += -km * c_m * u[2]
+    F[4, 8] += -km * c_m * -u[0]
+    F[5, 6] += -km * c_m * -u[1]
+    F[5, 7] += -km * c_m * u[0]
+    k = P[I_SPIN_DECAY]
+    F[6, 6] = -k
+    F[7, 7] = -k
+    F[8, 8] = -k
+
+
+@njit(**_NJIT)
+def rebound_jacobian(s, P, J):
+    """Jacobian (9, 9) of the table rebound (eqs. 1-6) at the pre-contact state ``s`` into J.
+
+    Positions pass unchanged. With v_T = (v_x - r w_y, v_y + r w_x) and sliding
+    alpha = mu (1 + e_t) |v_z| / |v_T| (alpha = 2/5 when rolling, a constant):
+        v_x' = (1 - alpha) v_x + alpha r w_y,   w_x' = (1 - 3 alpha/2) w_x - 3 alpha/(2r) v_y,
+        v_y' = (1 - alpha) v_y - alpha r w_x,   w_y' = (1 - 3 alpha/2) w_y + 3 alpha/(2r) v_x,
+        v_z' = -e_t(v_z) v_z,                   w_z' = w_z;
+    J holds the explicit partials plus (d out / d alpha) (d alpha / d s)^T, with the
+    impact-speed restitution and spin-dependent friction effects in e_t and mu.
+    """
+    for i in range(9):
+        for j in range(9):
+            J[i, j] = 1.0 if i == j else 0.0
+    r = P[I_RADIUS]
+    vx, vy, vz = s[3], s[4], s[5]
+    wx, wy, wz = s[6], s[7], s[8]
+    e_raw = P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
+    e_t = min(max(e_raw, 0.0), 1.0)
+    de_dvz = P[I_ET_SLOPE] * (1.0 if vz > 0.0 else -1.0) if 0.0 < e_raw < 1.0 else 0.0
+    spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+    mu_raw = P[I_MU] + P[I_MU_SLOPE] * spin
+    mu = max(mu_raw, 0.0)
+    dmu_dw = np.zeros(3)
+    if P[I_MU_SLOPE] != 0.0 and mu_raw > 0.0 and spin > 1e-9:
+        dmu_dw[0] = P[I_MU_SLOPE] * wx / spin
+        dmu_dw[1] = P[I_MU_SLOPE] * wy / spin
+        dmu_dw[2] = P[I_MU_SLOPE] * wz / spin
+    vtx = vx - r * wy
+    vty = vy + r * wx
+    vt = math.sqrt(vtx * vtx + vty * vty)
+    alpha = 0.4
+    da = np.zeros(9)          # d alpha / d s
+    if vt > 1e-12:
+        slip = mu * (1.0 + e_t) * abs(vz) / vt
+        if 1.0 - 2.5 * slip > 0.0:
+            alpha = slip
+            sgn = 1.0 if vz > 0.0 else -1.0
+            da[5] = mu * (de_dvz * abs(vz) + (1.0 + e_t) * sgn) / vt
+            # d|v_T|: dvt/dvx = vtx/vt, dvt/dvy = vty/vt, dvt/dwx = r vty/vt, dvt/dwy = -r vtx/vt
+            c = -slip / (vt * vt)
+            da[3] = c * vtx
+            da[4] = c * vty
+            da[6] = c * r * vty
+            da[7] = -c * r * vtx
+            k = (1.0 + e_t) * abs(vz) / vt
+            da[6] += k * dmu_dw[0]
+            da[7] += k * dmu_dw[1]
+            da[8] += k * dmu_dw[2]
+    # Explicit partials (alpha fixed).
+    J[3, 3] = 1.0 - alpha
+    J[3, 7] = alpha * r
+    J[4, 4] = 1.0 - alpha
+    J[4, 6] = -alpha * r
+    J[5, 5] = -e_t - vz * de_dvz
+    J[6, 6] = 1.0 - 1.5 * alpha
+    J[6, 4] = -1.5 * alpha / r
+    J[7, 7] = 1.0 - 1.5 * alpha
+    J[7, 3] = 1.5 * alpha / r
+    # d out / d alpha
+    dout = np.zeros(9)
+    dout[3] = -vx + r * wy
+    dout[4] = -vy - r * wx
+    dout[6] = -1.5 * wx - 1.5 / r * vy
+    dout[7] = -1.5 * wy + 1.5 / r * vx
+    for i in range(3, 8):
+        if dout[i] != 0.0:
+            for j in range(9):
+                J[i, j] += dout[i] * da[j]
+
+
+@njit(**_NJIT)
+def _propagate(x, C, h, P, q_acc, q_spin):
+    """State and covariance after ``h`` s of flight: RK4 of eq. 8 and Phi C Phi^T + Q."""
+    F = np.empty((9, 9))
+    flight_jacobian(x, P, F)
+    Fh = F * h
+    Phi = np.eye(9) + Fh + 0.5 * (Fh @ Fh)
+    out = np.empty(9)
+    k1 = np.empty(9)
+    k2 = np.empty(9)
+    k3 = np.empty(9)
+    k4 = np.empty(9)
+    tmp = np.empty(9)
+    _rk4(x, h, P, out, k1, k2, k3, k4, tmp)
+    Cn = Phi @ C @ Phi.T
+    a = q_acc * h
+    for i in range(3):
+        Cn[i, i] += a * h * h / 3.0
+        Cn[i, 3 + i] += a * h / 2.0
+        Cn[3 + i, i] += a * h / 2.0
+        Cn[3 + i, 3 + i] += a
+        Cn[6 + i, 6 + i] += q_spin * h
+    return out, Cn
+
+
+@njit(**_NJIT)
+def _rebound_linear(xc, Cc, P):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` and its covariance by the Jacobian and
+    the saltation term: a state error also moves the contact time, dt_c/ds = -e_z / v_z, so
+    S = J + (f_out - J f_in) (dt_c/ds)^T maps the covariance through the bounce."""
+    J = np.empty((9, 9))
+    rebound_jacobian(xc, P, J)
+    f_in = np.empty(9)
+    flight_derivative(xc, P, f_in)
+    x = xc.copy()
+    table_rebound_inplace(x, P)       # eqs. 1-6
+    f_out = np.empty(9)
+    flight_derivative(x, P, f_out)
+    jump = f_out - J @ f_in
+    vz = min(f_in[2], -1e-3)
+    for i in range(9):
+        J[i, 2] -= jump[i] / vz
+    return x, J @ Cc @ J.T
+
+
+@njit(**_NJIT)
+def _rebound_unscented(xc, Cc, P, contact_z):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` and covariance ``Cc`` by the unscented
+    transform: the rebound is far from linear in the spin the flight could not observe (the
+    slip ratio alpha of eqs. 1-6 depends on |v_T| = |v - r w x n|, and sliding turns into
+    rolling at alpha = 2/5), so 2n sigma points at +-sqrt(n) standard deviations go through
+    it. Each point meets the table at its own time, t_c + d with d = (z - z_c) / -v_z: it is
+    moved to its contact along its flight derivative, rebounded, and moved back by d along
+    its new derivative, so the spread of contact times (the saltation term) is in the
+    result too. Returns the mean and covariance at the mean's contact time."""
+    n = 9
+    Cs = 0.5 * (Cc + Cc.T)
+    for i in range(n):
+        Cs[i, i] += 1e-12
+    L = np.linalg.cholesky(Cs) * math.sqrt(n)
+    Y = np.empty((2 * n, n))
+    f = np.empty(9)
+    for k in range(2 * n):
+        X = xc + (L[:, k % n] if k < n else -L[:, k % n])
+        vz = min(X[5], -0.05)
+        d = (X[2] - contact_z) / -vz
+        flight_derivative(X, P, f)
+        X = X + f * d
+        X[5] = vz
+        X[2] = contact_z
+        table_rebound_inplace(X, P)
+        flight_derivative(X, P, f)
+        Y[k] = X - f * d
+    mean = np.zeros(n)
+    for k in range(2 * n):
+        mean += Y[k]
+    mean /= 2 * n
+    cov = np.zeros((n, n))
+    for k in range(2 * n):
+        dy = Y[k] - mean
+        cov += np.outer(dy, dy)
+    cov /= 2 * n
+    return mean, cov
+
+
+@njit(**_NJIT)
+def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
+    """Advance (x, C) from t to t_end, bouncing on the table at centre height ``contact_z``.
+
+    cfg = (accel_noise^2, spin_noise^2, bounce_velocity_noise^2, bounce_spin_noise^2,
+    max_step, 1 for the unscented rebound else 0). ``bounce`` (4,) receives the last contact
+    (t, x, y, contact_z); returns the new state and the number of contacts: (x, C, n).
+    """
+    r = P[I_RADIUS]
+    n_bounce = 0
+    while t_end - t > 1e-9:
+        h = min(cfg[4], t_end - t)
+        z0 = x[2]
+        xn, Cn = _propagate(x, C, h, P, cfg[0], cfg[1])
+        on_table = abs(xn[0]) <= HALF_LENGTH + r and abs(xn[1]) <= HALF_WIDTH + r
+        if xn[2] < contact_z <= z0 and xn[5] < 0.0 and on_table:
+            tau = h * (z0 - contact_z) / max(z0 - xn[2], 1e-12)
+            if tau <= 1e-9:
+                # Already in contact (rolling on the surface): no impact, stay on it.
+                xn[2] = contact_z
+                xn[5] = max(xn[5], 0.0)
+                x, C = xn, Cn
+                t += h
+                continue
+            for _ in range(2):          # Newton on the contact time (z linear in tau)
+                xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1])
+                if xc[5] >= 0.0:
+                    break
+                step = (xc[2] - contact_z) / xc[5]
+                tau = min(max(tau + step, 1e-9), h)
+            xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1])
+            xc[2] = contact_z
+            if cfg[5] > 0.0:
+                xc, Cc = _rebound_unscented(xc, Cc, P, contact_z)
+            else:
+                xc, Cc = _rebound_linear(xc, Cc, P)
+            for i in range(3):
+                Cc[3 + i, 3 + i] += cfg[2]
+                Cc[6 + i, 6 + i] += cfg[3]
+            x, C = xc, Cc
+            t += tau
+            n_bounce += 1
+            bounce[0] = t
+            bounce[1] = x[0]
+            bounce[2] = x[1]
+            bounce[3] = contact_z
+            continue
+        x, C = xn, Cn
+        t += h
+    return x, C, n_bounce
+
+
+@njit(**_NJIT)
+def _fuse_position(x, C, z, R, gate, robust):
+    """Kalman update with a position z (3,), covariance R; returns (x, C, d2, accepted)."""
+    y = z - x[:3]
+    S = C[:3, :3] + R
+    Si = np.linalg.inv(S)
+    d2 = y @ Si @ y
+    if d2 > gate:
+        return x, C, d2, False
+    if d2 > robust:
+        R = R * (d2 / robust)
+        S = C[:3, :3] + R
+        Si = np.linalg.inv(S)
+    K = C[:, :3] @ Si                      # P H^T S^-1
+    xn = x + K @ y
+    IKH = np.eye(9)
+    IKH[:, :3] -= K
+    Cn = IKH @ C @ IKH.T + K @ R @ K.T     # Joseph form
+    return xn, 0.5 * (Cn + Cn.T), d2, True
+
+
+# ----------------------------------------------------------------------------------------------
+# The filter
+
+
+class BallFilter:
+    """EKF of one ball. Create, :meth:`start`, then :meth:`predict` and :meth:`update`.
+
+    Attributes: ``x`` (9,) state [p, v, w] (m, m/s, rad/s, table frame), ``P`` (9, 9) its
+    covariance, ``t`` its time (s), ``bounces`` table contacts so far, ``last_bounce`` (t, x, y)
+    of the latest contact (s, m) or None.
+    """
+
+    def __init__(self, params=None, config=None):
+        self.params = params or ModelParams()
+        self.config = config or FilterConfig()
+        self.P_model = self.params.packed()
+        c = self.config
+        self._cfg = np.array([c.accel_noise ** 2, c.spin_noise ** 2,
+                              c.bounce_velocity_noise ** 2, c.bounce_spin_noise ** 2,
+                              c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0])
+        self.x = np.zeros(9)
+        self.P = np.eye(9)
+        self.t = 0.0
+        self.bounces = 0
+        self.last_bounce = None
+        self._bounce = np.zeros(4)
+        self._prev = None          # (x, P, t, bounces, last_bounce) before the last predict
+
+    def start(self, t, position, velocity, position_cov, velocity_cov, spin=None,
+              spin_cov=None):
+        """Initialise at time ``t`` (s) from a position (m) and velocity (m/s) with their
+        covariances (3, 3); the spin (rad/s) is zero with ``spin_prior`` unless given."""
+        self.t = float(t)
+        w = np.zeros(3) if spin is None else np.asarray(spin, dtype=float)
+        self.x = np.concatenate([position, velocity, w]).astype(float)
+        self.P = np.zeros((9, 9))
+        self.P[:3, :3] = position_cov
+        self.P[3:6, 3:6] = velocity_cov
+        self.P[6:, 6:] = self.spin_prior_cov(velocity) if spin_cov is None else spin_cov
+        self.bounces = 0
+        self.last_bounce = None
+        self._prev = None
+
+    def spin_prior_cov(self, velocity):
+        """Prior covariance (3, 3) of the spin, (rad/s)^2, for a ball moving with
+        ``velocity``: ``spin_prior`` about the horizontal axis across it (top/back spin),
+        ``spin_prior_side`` about the third axis and ``spin_prior_along`` along it."""
+        c = self.config
+        top = c.spin_prior
+        side = top if c.spin_prior_side is None else c.spin_prior_side
+        along = top if c.spin_prior_along is None else c.spin_prior_along
+        if side == top == along:
+            return np.eye(3) * top ** 2
+        v = np.asarray(velocity, dtype=float)
+        e1 = v / max(np.linalg.norm(v), 1e-9)
+        e2 = np.cross([0.0, 0.0, 1.0], e1)
+        if np.linalg.norm(e2) < 1e-6:
+            e2 = np.array([0.0, 1.0, 0.0])
+        e2 /= np.linalg.norm(e2)
+        e3 = np.cross(e1, e2)
+        return (along ** 2 * np.outer(e1, e1) + top ** 2 * np.outer(e2, e2)
+                + side ** 2 * np.outer(e3, e3))
+
+    def predict(self, t, contact_z=None):
+        """Advance to time ``t`` (s), bouncing on the table (eqs. 1-6) when the ball does;
+        ``contact_z``: centre height at contact (default the radius: the table surface)."""
+        if t <= self.t:
+            return
+        self._prev = (self.x, self.P, self.t, self.bounces, self.last_bounce)
+        cz = self.params.radius if contact_z is None else contact_z
+        x, P, n = _predict_to(self.x, self.P, self.t, float(t), self.P_model, self._cfg, cz,
+                              self._bounce)
+        self.x, self.P, self.t = x, P, float(t)
+        if n:
+            self.bounces += n
+            self.last_bounce = (float(self._bounce[0]), float(self._bounce[1]),
+                                float(self._bounce[2]))
+
+    def innovation(self, z, R):
+        """Innovation y (3,), its covariance S (3, 3) and squared Mahalanobis distance."""
+        y = np.asarray(z, dtype=float) - self.x[:3]
+        S = self.P[:3, :3] + R
+        return y, S, float(y @ np.linalg.solve(S, y))
+
+    def update(self, z, R, rebounce=False):
+        """Fuse a position measurement ``z`` (3,), m, covariance ``R`` (3, 3), m^2.
+
+        Returns False (and leaves the state) when it fails the Mahalanobis gate. With
+        ``rebounce``, a sample that fails the gate right after the last :meth:`predict`
+        near the table is tried against contact heights within ``rebounce_range`` of z = r
+        (an earlier or later bounce, seen as a kink); the best one that passes is kept.
+        """
+        z = np.asarray(z, dtype=float)
+        R = np.asarray(R, dtype=float)
+        cfg = self.config
+        x, P, d2, ok = _fuse_position(self.x, self.P, z, R, cfg.gate, cfg.robust)
+        if ok:
+            self.x, self.P = x, P
+            return True
+        if not rebounce or self._prev is None:
+            return False
+        x0, P0, t0, b0, lb0 = self._prev
+        r = self.params.radius
+        near = self.bounces > b0 or (x0[2] < r + 4.0 * cfg.rebounce_range and x0[5] < 0.0)
+        if not near:
+            return False
+        t = self.t
+        best = None
+        for cz in r + np.linspace(-cfg.rebounce_range, cfg.rebounce_range, 11):
+            bounce = np.zeros(4)
+            xb, Pb, n = _predict_to(x0, P0, t0, t, self.P_model, self._cfg, cz, bounce)
+            if n == 0:
+                continue
+            xu, Pu, d2, ok = _fuse_position(xb, Pb, z, R, cfg.gate, cfg.robust)
+            if ok and (best is None or d2 < best[0]):
+                best = (d2, xu, Pu, n, bounce)
+        if best is None:
+            return False
+        _, self.x, self.P, n, bounce = best
+        self.bounces = b0 + n
+        self.last_bounce = (float(bounce[0]), float(bounce[1]), float(bounce[2]))
+        return True
+
+    def update_spin(self, w, R):
+        """Fuse a measured spin ``w`` (3,), rad/s, covariance ``R`` (3, 3) (e.g. from a marked
+        ball); it fills in the component along the velocity that flight cannot observe."""
+        y = np.asarray(w, dtype=float) - self.x[6:]
+        S = self.P[6:, 6:] + R
+        K = np.linalg.solve(S, self.P[6:, :]).T
+        self.x = self.x + K @ y
+        IKH = np.eye(9)
+        IKH[:, 6:] -= K
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+
+    def spin_variance_along_velocity(self):
+        """Variance (rad/s)^2 of the spin component along the current velocity."""
+        u = self.x[3:6] / max(np.linalg.norm(self.x[3:6]), 1e-9)
+        return float(u @ self.P[6:, 6:] @ u)
+
+
+# ----------------------------------------------------------------------------------------------
+# A stream of measured positions
+
+
+class TrackFilter:
+    """Runs a :class:`BallFilter` over one ball's stream of measured positions.
+
+    :meth:`add` takes samples in arrival order: a NaN row or a stamp not after the filter's
+    time (duplicate, out of order) is skipped (the filter coasts); a sample failing the gate
+    is rejected; after ``max_rejects`` rejections in a row or a gap over ``max_gap`` the
+    filter restarts from the last two samples. ``robot_bounced`` says whether the ball has
+    bounced on the robot's half (x < 0) on its way in (reset once it moves away, vx > 0).
+    """
+
+    SKIPPED, COASTED, REJECTED, ACCEPTED, STARTED = range(5)
+
+    def __init__(self, params=None, config=None):
+        self.params = params or ModelParams()
+        self.config = config or FilterConfig()
+        self.filter = None
+        self.updates = 0
+        self.rejects = 0
+        self.last_accept = -math.inf
+        self.robot_bounced = False
+        self.robot_bounce = None
+        self._last = None          # the latest valid sample (t, p)
+        self._seen_bounce = None
+        self._g = np.array([0.0, 0.0, -self.params.gravity])
+        self._R = np.eye(3) * self.config.position_noise ** 2
+
+    @property
+    def running(self):
+        return self.filter is not None
+
+    def _start(self, t, p):
+        t1, p1 = self._last
+        dt = t - t1
+        v = (p - p1) / dt + 0.5 * self._g * dt    # velocity at t (constant acceleration)
+        cfg = self.config
+        vcov = np.eye(3) * (2.0 * cfg.position_noise ** 2 / dt ** 2
+                            + cfg.start_velocity_noise ** 2)
+        spin = spin_cov = None
+        f = BallFilter(self.params, cfg)
+        f_prior = f.spin_prior_cov
+        if self.filter is not None:
+            # Keep what is known of the spin (it changes little), with the prior's variance
+            # added back for what a racket hit or a bounce might have done to it.
+            spin = self.filter.x[6:].copy()
+            spin_cov = self.filter.P[6:, 6:] + f_prior(v)
+        f.start(t, p, v, self._R, vcov, spin, spin_cov)
+        if self.filter is not None and not self.robot_bounced:
+            # Restarted from a kink near the table on the robot's half: a bounce the model
+            # missed (its contact height or time was off).
+            old = self.filter
+            if old.x[2] < self.params.radius + 0.05 and p[0] < 0.0 and v[2] > 0.0:
+                self.robot_bounced = True
+                self.robot_bounce = (float(t1), float(p1[0]), float(p1[1]))
+        self.filter = f
+        self.updates = 1
+        self.rejects = 0
+        self.last_accept = t
+
+    def add(self, t, p):
+        """Feed one sample: time ``t`` (s), measured position ``p`` (3,) (m, may hold NaN).
+        Returns one of SKIPPED, COASTED, REJECTED, ACCEPTED, STARTED."""
+        t = float(t)
+        p = np.asarray(p, dtype=float)
+        cfg = self.config
+        f = self.filter
+        if not math.isfinite(t) or (f is not None and t <= f.t) or (
+                self._last is not None and t <= self._last[0]):
+            return self.SKIPPED
+        if not np.all(np.isfinite(p)):
+            if f is not None:
+                self._predict(t)
+            return self.COASTED
+        status = self.REJECTED
+        if f is not None and t - self.last_accept > cfg.max_gap:
+            self.filter = f = None           # too long without data: start afresh
+        if f is not None:
+            self._predict(t)
+            R = self._R
+            if cfg.stamp_noise > 0.0:
+                v = f.x[3:6]
+                R = R + cfg.stamp_noise ** 2 * np.outer(v, v)
+            if f.update(p, R, rebounce=True):
+                self.updates += 1
+                self.rejects = 0
+                self.last_accept = t
+                status = self.ACCEPTED
+                self._note_bounce()
+            else:
+                self.rejects += 1
+        if ((f is None or self.rejects >= cfg.max_rejects) and self._last is not None
+                and t - self._last[0] <= cfg.max_gap):
+            self._start(t, p)
+            status = self.STARTED
+        self._last = (t, p)
+        return status
+
+    def _predict(self, t):
+        self.filter.predict(t)
+        self._note_bounce()
+
+    def _note_bounce(self):
+        """Track the ball's bounce on the robot's half (the predictor's ``bounced``)."""
+        f = self.filter
+        if f.x[3] > 0.0:
+            self.robot_bounced = False          # moving away (returned): a new ball comes
+            self.robot_bounce = None
+        elif (f.last_bounce is not None and f.last_bounce is not self._seen_bounce
+                and f.last_bounce[1] < 0.0):
+            self.robot_bounced = True
+            self.robot_bounce = f.last_bounce
+        if f.last_bounce is not None:
+            self._seen_bounce = f.last_bounce
+
+
+def estimate_measurement_noise(tracks, window=7):
+    """Position and stamp noise of measured tracks, from local fits: (m, s).
+
+    Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis
+    (flight over ~40 ms is a parabola to far below 0.1 mm). Its residuals across the fitted
+    velocity give the position noise; along it they hold the stamp jitter too, var_along =
+    sigma_p^2 + sigma_t^2 |v|^2. Medians over windows (scaled to the mean of their chi-square
+    distributions) keep bounces and spikes out. ``tracks``: iterable of (t (n,), p (n, 3)).
+    Returns ``(position_noise, stamp_noise)``.
+    """
+    across, along, speed2 = [], [], []
+    for t, p in tracks:
+        for a in range(0, len(t) - window + 1, window):
+            tt = t[a:a + window] - t[a + window // 2]
+            A = np.stack([np.ones(window), tt, tt * tt], axis=1)
+            coef, *_ = np.linalg.lstsq(A, p[a:a + window], rcond=None)
+            res = p[a:a + window] - A @ coef
+            v = coef[1]
+            sp = float(np.linalg.norm(v))
+            if sp < 0.5:
+                continue
+            ra = res @ (v / sp)
+            across.append((float(np.sum(res * res)) - float(ra @ ra)) / (2 * (window - 3)))
+            along.append(float(ra @ ra) / (window - 3))
+            speed2.append(sp * sp)
+    if not across:
+        return math.nan, math.nan
+
+    def median_ratio(dof):          # median of chi2(dof) / dof (Wilson-Hilferty)
+        return (1.0 - 2.0 / (9.0 * dof)) ** 3
+
+    var_p = float(np.median(across)) / median_ratio(2 * (window - 3))
+    extra = (np.array(along) / median_ratio(window - 3) - var_p) / np.array(speed2)
+    return math.sqrt(var_p), math.sqrt(max(float(np.median(extra)), 0.0))
+
+
+def estimate_position_noise(tracks, window=7):
+    """Isotropic measurement noise per axis (m) of measured tracks, from local fits.
+
+    Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis;
+    the residual variance, corrected for the fitted parameters, is the noise variance; the
+    median over windows (scaled to the mean of a chi-square with its dof) keeps windows with a
+    bounce or a spike out. ``tracks``: iterable of (t (n,), p (n, 3)). Returns m.
+    """
+    variances = []
+    for t, p in tracks:
+        n = len(t)
+        for a in range(0, n - window + 1, window):
+            tt = t[a:a + window] - t[a]
+            A = np.stack([np.ones(window), tt, tt * tt], axis=1)
+            coef, *_ = np.linalg.lstsq(A, p[a:a + window], rcond=None)
+            res = p[a:a + window] - A @ coef
+            variances.append(float(np.sum(res * res)) / (3 * (window - 3)))
+    if not variances:
+        return math.nan
+    dof = 3 * (window - 3)
+    med_ratio = (1.0 - 2.0 / (9.0 * dof)) ** 3
+    return math.sqrt(float(np.median(variances)) / med_ratio)

@@ -1,0 +1,118 @@
+"""Hit-point error against lead time for the report: baseline model against the final one.
+
+``python -m tt_prediction.lead_report --data DIR --model FILE --out FOLDER [--hit-plane-x X]
+[--filter-config FILE]`` replays DIR's tracks (:mod:`tt_prediction.replay`) with the nominal
+model (the baseline) and with FILE (the model.yaml tt-identify selected), and writes into
+FOLDER: ``lead_time.png`` (median and p90 hit-point error against lead time, both models and
+the textbook refit), ``lead_time.md`` (the same numbers as a table) and ``lead_time.json``.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interactive backend)
+
+from .identify.data import DataError  # noqa: E402
+from .params import load_model  # noqa: E402
+from .replay import LEADS_MS, replay_tracks  # noqa: E402
+from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
+
+
+def lead_time_errors_for(data_dir, model_file, hit_plane_x, filter_config=None):
+    """Summaries (``replay_tracks``) of DIR with the nominal model and with ``model_file``:
+    ``{'baseline': summary, 'final': summary}`` (the textbook refit in the final one)."""
+    tracks = read_tracks(data_dir)
+    config = load_filter_config(filter_config, tracks)
+    out = {}
+    for key, path in (('baseline', None), ('final', model_file)):
+        _, summary = replay_tracks(tracks, load_model(path), config, hit_plane_x,
+                                   textbook=key == 'final')
+        summary['model'] = path or 'nominal'
+        out[key] = summary
+    return out
+
+
+def table(result):
+    """Markdown table: lead (ms) | baseline | final | textbook, median / p90 mm (missing)."""
+    base, final = result['baseline'], result['final']
+
+    def cell(s):
+        if s['median_mm'] is None:
+            return '–'
+        miss = f", {s['missing']} missing" if s['missing'] else ''
+        return f"{s['median_mm']:.1f} / {s['p90_mm']:.1f}{miss}"
+
+    lines = ['| lead, ms | baseline model | final model | textbook refit (final model) |',
+             '|---|---|---|---|']
+    for lead in base['leads_ms']:
+        k = str(lead)
+        lines.append(f"| {lead} | {cell(base['hit_error'][k])} | {cell(final['hit_error'][k])}"
+                     f" | {cell(final['textbook_hit_error'][k])} |")
+    lines.append('')
+    lines.append(f"Hit-point error at x = {final['hit_plane_x']} m, median / p90 in mm over "
+                 f"{final['tracks_with_crossing']} tracks with a measured crossing "
+                 f"(of {final['tracks']}).")
+    return '\n'.join(lines)
+
+
+def plot(result, path):
+    """PNG of median (solid) and p90 (dashed) hit error against lead time."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    series = (('baseline', 'hit_error', 'baseline model', 'C0'),
+              ('final', 'hit_error', 'final model', 'C1'),
+              ('final', 'textbook_hit_error', 'textbook refit', 'C2'))
+    for key, field, label, color in series:
+        stats = result[key][field]
+        leads = [lead for lead in LEADS_MS if stats[str(lead)]['median_mm'] is not None]
+        ax.plot(leads, [stats[str(lead)]['median_mm'] for lead in leads], 'o-', color=color,
+                label=f'{label}, median')
+        ax.plot(leads, [stats[str(lead)]['p90_mm'] for lead in leads], 's--', color=color,
+                alpha=0.6, label=f'{label}, p90')
+    ax.set_yscale('log')
+    ax.set_xlabel('lead time before the hitting-plane crossing, ms')
+    ax.set_ylabel('hit-point error, mm')
+    ax.set_title('Replay through the ball filter and predictor')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write(result, folder):
+    """lead_time.png, lead_time.md and lead_time.json into ``folder``."""
+    os.makedirs(folder, exist_ok=True)
+    plot(result, os.path.join(folder, 'lead_time.png'))
+    with open(os.path.join(folder, 'lead_time.md'), 'w') as f:
+        f.write('# Hit-point error against lead time\n\n' + table(result)
+                + '\n\n![lead time](lead_time.png)\n')
+    with open(os.path.join(folder, 'lead_time.json'), 'w') as f:
+        json.dump(result, f, indent=2)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--data', required=True, metavar='DIR')
+    parser.add_argument('--model', required=True, metavar='FILE')
+    parser.add_argument('--out', required=True, metavar='FOLDER')
+    parser.add_argument('--hit-plane-x', type=float, default=-1.2, metavar='X')
+    parser.add_argument('--filter-config', metavar='FILE')
+    args = parser.parse_args(argv)
+    try:
+        result = lead_time_errors_for(args.data, args.model, args.hit_plane_x,
+                                      args.filter_config)
+    except (DataError, ValueError) as exc:
+        print(f'lead_report: {exc}', file=sys.stderr)
+        return 2
+    write(result, args.out)
+    print(table(result))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,317 @@
+"""Replay of measured ball tracks through the live ball filter and predictor (no rclpy).
+
+Each track's samples go, in time order, through :class:`tt_prediction.ball_filter.TrackFilter`
+(the EKF perception_node runs, fed 3-D positions instead of triangulated images) and, once
+the filter runs, through :func:`tt_prediction.predict.predict` (what prediction_node runs)
+with ``bounced`` set once the filter has taken the ball through its bounce on the robot's
+half. One output row per input sample:
+
+    t, x, y, z, vx, vy, vz, wx, wy, wz     filtered state at t (s, m, m/s, rad/s)
+    bounce_t, bounce_x, bounce_y           the bounce on the robot's half: predicted, or the
+                                           one the filter went through (s, m)
+    hit_t, hit_x, hit_y, hit_z             predicted crossing of x = hit_plane_x after it
+
+NaN where there is no estimate or no prediction. :func:`lead_time_errors` compares the
+predicted hit with the measured crossing at fixed lead times before it; :func:`textbook_hit`
+is the reference predictor that refits a fresh flight state to the last samples.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .ball_filter import FilterConfig, TrackFilter
+from .identify.segment import drop_outliers, segment
+from .integrate import rollout
+from .predict import DEFAULT_HIT_PLANE_X, predict
+
+COLUMNS = ('t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz', 'bounce_t', 'bounce_x',
+           'bounce_y', 'hit_t', 'hit_x', 'hit_y', 'hit_z')
+LEADS_MS = (300, 200, 150, 100, 50)
+"""Lead times before the measured crossing at which the hit error is evaluated, ms."""
+MIN_HISTORY = 0.05
+"""A track with less than this much data before the prediction time has no prediction due:
+it is counted as too short, not as missing, s."""
+CROSSING_WINDOW = 3
+"""Samples on each side of the measured crossing used for its local quadratic fit."""
+TEXTBOOK_SAMPLES = 20
+"""The textbook predictor fits the flight model to this many last samples (~110 ms)."""
+
+
+@dataclasses.dataclass
+class TrackReplay:
+    """Replay of one track: ``rows`` (n, 17) in COLUMNS order (input order sorted by time),
+    ``crossing`` the measured crossing (t, p (3,)) or None, ``first_t`` the first valid
+    sample time (s), the cleaned samples ``t``, ``p`` and the located bounces."""
+
+    name: str
+    rows: np.ndarray
+    crossing: tuple
+    first_t: float
+    t: np.ndarray
+    p: np.ndarray
+    bounce_times: list
+
+
+def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
+    """Rows (n, 17) of the filter and predictor over one track's samples.
+
+    ``t`` (n,) s and ``p`` (n, 3) m as measured (NaN rows, duplicate or unsorted stamps
+    allowed); rows come in time order (a stable sort of the input; NaN stamps last).
+    ``spin``: measured spin at the start (rad/s, (3,)) or None.
+    """
+    t = np.asarray(t, dtype=float)
+    p = np.asarray(p, dtype=float)
+    order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
+    rows = np.full((len(t), len(COLUMNS)), np.nan)
+    tf = TrackFilter(params, config)
+    last_key = None
+    last_pred = None
+    spin_used = spin is None
+    packed = params.packed()
+    for k, i in enumerate(order):
+        ti = t[i]
+        rows[k, 0] = ti
+        if not math.isfinite(ti):
+            continue
+        status = tf.add(ti, p[i])
+        if not tf.running:
+            continue
+        f = tf.filter
+        if not spin_used and status == tf.STARTED:
+            f.update_spin(spin, np.eye(3) * 25.0)
+            spin_used = True
+        rows[k, 1:10] = f.x
+        key = (f.t, tf.updates, tf.filter)
+        if key == last_key:
+            pred = last_pred                  # a skipped duplicate: same state, same answer
+        else:
+            pred = predict(f.x, packed, t0=f.t, hit_plane_x=hit_plane_x,
+                           bounced=tf.robot_bounced)
+            last_key, last_pred = key, pred
+        if tf.robot_bounced and tf.robot_bounce is not None:
+            rows[k, 10:13] = tf.robot_bounce
+        elif pred.bounce is not None and pred.bounce.half < 0:
+            rows[k, 10] = pred.bounce.t
+            rows[k, 11:13] = pred.bounce.p[:2]
+        if pred.hit is not None:
+            rows[k, 13] = pred.hit.t
+            rows[k, 14:17] = pred.hit.p
+    return rows
+
+
+def measured_crossing(t, p, bounce_times, plane_x):
+    """First crossing of x = plane_x after the first bounce on the robot's half: (t, p).
+
+    Local quadratic fits in time (CROSSING_WINDOW samples each side) average the measurement
+    noise; None when the data does not cross the plane after such a bounce.
+    """
+    robot = [tb for tb, xb in bounce_times if xb < 0.0]
+    if not robot:
+        return None
+    after = t > robot[0]
+    g = p[:, 0] - plane_x
+    idx = np.flatnonzero(after[:-1] & after[1:] & (np.sign(g[:-1]) * np.sign(g[1:]) < 0))
+    if not len(idx):
+        return None
+    i = idx[0]
+    lo = max(i - CROSSING_WINDOW + 1, int(np.argmax(after)))
+    hi = min(i + CROSSING_WINDOW + 1, len(t))
+    w = g[i] / (g[i] - g[i + 1])
+    tc = t[i] + w * (t[i + 1] - t[i])
+    if hi - lo < 4:
+        return tc, (1 - w) * p[i] + w * p[i + 1]
+    ts = t[lo:hi] - tc
+    fits = [np.polyfit(ts, p[lo:hi, k], 2) for k in range(3)]
+    for _ in range(3):                      # Newton on x(t) = plane_x
+        dx = np.polyval(fits[0], 0.0) - plane_x
+        v = np.polyval(np.polyder(fits[0]), 0.0)
+        if abs(v) < 1e-6:
+            break
+        tc -= dx / v
+        ts = t[lo:hi] - tc
+        fits = [np.polyfit(ts, p[lo:hi, k], 2) for k in range(3)]
+    pc = np.array([plane_x, np.polyval(fits[1], 0.0), np.polyval(fits[2], 0.0)])
+    return float(tc), pc
+
+
+def _ground_truth(name, t, p, params, plane_x):
+    """Cleaned samples, located bounces [(t, x)] and measured crossing of one track."""
+    from .identify.data import Track, clean_samples
+    tc, pc, notes = clean_samples(name, t, p)
+    if len(tc) < 3:
+        return tc, pc, [], None
+    seg, bounces = segment(Track(name, tc, pc, None, '', notes), params.radius)
+    if seg is None:
+        tt, pp = drop_outliers(tc, pc, {})
+        return tt, pp, [], None
+    times = [(b.t, b.p[0]) for b in bounces]
+    return seg.t, seg.p, times, measured_crossing(seg.t, seg.p, times, plane_x)
+
+
+def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
+                 spin=None):
+    """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
+    rows = replay_samples(t, p, params, config, hit_plane_x, spin)
+    tt, pp, bounces, crossing = _ground_truth(name, np.asarray(t, float), np.asarray(p, float),
+                                              params, hit_plane_x)
+    valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+    first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
+    return TrackReplay(name, rows, crossing, first, tt, pp, bounces)
+
+
+# ----------------------------------------------------------------------------------------------
+# The textbook reference
+
+
+def textbook_hit(t, p, bounce_times, t_query, params, hit_plane_x, n=TEXTBOOK_SAMPLES):
+    """Hit point (3,) of the textbook predictor at ``t_query``, or None.
+
+    It refits a fresh flight state to the last ``n`` samples up to t_query that follow the
+    last measured bounce before it (at least 5, else it keeps the samples before the bounce):
+    least squares of the model's flight (eq. 8, spin included with a weak prior) to those
+    positions, then the same :func:`predict` from the fitted state at the last sample.
+    """
+    upto = t <= t_query + 1e-12
+    past = [tb for tb, _ in bounce_times if tb <= t_query]
+    sel = upto.copy()
+    bounced = False
+    if past:
+        post = upto & (t > past[-1])
+        if post.sum() >= 5:
+            sel, bounced = post, any(xb < 0.0 for tb, xb in bounce_times if tb <= t_query)
+        else:
+            sel = upto & (t < past[-1])
+            bounced = any(xb < 0.0 for tb, xb in bounce_times if tb < past[-1]) if len(
+                past) > 1 else False
+    idx = np.flatnonzero(sel)[-n:]
+    if len(idx) < 5:
+        return None
+    ts, ps = t[idx], p[idx]
+    packed = params.packed()
+    v0 = np.polyfit(ts - ts[-1], ps, 2)[1]
+    x0 = np.concatenate([ps[-1], v0, np.zeros(3)])
+    spin_scale = 100.0           # rad/s of spin per unit of the fitted variable (weak prior)
+
+    def residual(q):
+        s = np.concatenate([q[:6], q[6:] * spin_scale])
+        # The state is fitted at the window's first sample (forward integration only).
+        events, samples = rollout(s, packed, t0=ts[0], t_max=ts[-1] + 1e-9, sample_times=ts,
+                                  stop_at_plane=False, stop_at_net=False, max_bounces=0)
+        r = (samples[:, :3] - ps).ravel()
+        r = np.where(np.isfinite(r), r, 1.0)
+        return np.concatenate([r / 1e-3, q[6:] / 3.0])
+
+    first = np.concatenate([ps[0], v0, np.zeros(3)])
+    first[3:6] = np.polyfit(ts - ts[0], ps, 2)[1]
+    try:
+        sol = least_squares(residual, first, method='lm', max_nfev=200)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    s = np.concatenate([sol.x[:6], sol.x[6:] * spin_scale])
+    _, end = rollout(s, packed, t0=ts[0], t_max=ts[-1] + 1e-9, sample_times=ts[-1:],
+                     stop_at_plane=False, stop_at_net=False, max_bounces=0)
+    state = end[0] if np.all(np.isfinite(end[0])) else x0
+    pred = predict(state, packed, t0=ts[-1], hit_plane_x=hit_plane_x, bounced=bounced)
+    return None if pred.hit is None else pred.hit.p
+
+
+# ----------------------------------------------------------------------------------------------
+# Lead-time errors
+
+
+def _row_at(rows, t_query):
+    """Index of the last row with t <= t_query, or None."""
+    ok = np.flatnonzero(np.isfinite(rows[:, 0]) & (rows[:, 0] <= t_query + 1e-12))
+    return int(ok[-1]) if len(ok) else None
+
+
+def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=True):
+    """Hit-point errors at each lead time before every track's measured crossing.
+
+    Returns ``{'filter': {lead: stats}, 'textbook': {lead: stats}}`` with stats = median_mm,
+    p90_mm, mean_mm, count (tracks evaluated), missing (no prediction although the track had
+    MIN_HISTORY of samples), too_short (less data than that: not counted) and the per-track
+    errors ``errors_mm``.
+    """
+    out = {'filter': {}, 'textbook': {}} if textbook else {'filter': {}}
+    for lead in leads_ms:
+        acc = {k: {'errors': [], 'missing': [], 'too_short': 0} for k in out}
+        for rp in replays:
+            if rp.crossing is None:
+                continue
+            tc, pc = rp.crossing
+            tq = tc - lead * 1e-3
+            if not math.isfinite(rp.first_t) or tq - rp.first_t < MIN_HISTORY:
+                for k in out:
+                    acc[k]['too_short'] += 1
+                continue
+            i = _row_at(rp.rows, tq)
+            hit = rp.rows[i, 14:17] if i is not None else np.full(3, np.nan)
+            if np.all(np.isfinite(hit)):
+                acc['filter']['errors'].append(float(np.linalg.norm(hit - pc)))
+            else:
+                acc['filter']['missing'].append(rp.name)
+            if textbook:
+                h = textbook_hit(rp.t, rp.p, rp.bounce_times, tq, params, hit_plane_x)
+                if h is None:
+                    acc['textbook']['missing'].append(rp.name)
+                else:
+                    acc['textbook']['errors'].append(float(np.linalg.norm(h - pc)))
+        for k, a in acc.items():
+            e = np.array(a['errors']) * 1e3
+            out[k][str(lead)] = {
+                'median_mm': round(float(np.median(e)), 2) if len(e) else None,
+                'p90_mm': round(float(np.percentile(e, 90)), 2) if len(e) else None,
+                'mean_mm': round(float(np.mean(e)), 2) if len(e) else None,
+                'count': int(len(e)), 'missing': len(a['missing']),
+                'missing_tracks': a['missing'][:20], 'too_short': a['too_short'],
+            }
+    return out
+
+
+def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
+                  leads_ms=LEADS_MS, textbook=True):
+    """Replay every track and score it.
+
+    ``tracks``: iterable of (name, t (n,), p (n, 3), spin (3,) or None) as measured.
+    Returns ``(replays, summary)``: the :class:`TrackReplay` list and a JSON-ready dict.
+    """
+    config = config or FilterConfig()
+    replays = [replay_track(name, t, p, params, config, hit_plane_x, spin)
+               for name, t, p, spin in tracks]
+    errors = lead_time_errors(replays, params, hit_plane_x, leads_ms, textbook)
+    summary = {
+        'hit_plane_x': hit_plane_x,
+        'leads_ms': list(leads_ms),
+        'tracks': len(replays),
+        'tracks_with_crossing': sum(rp.crossing is not None for rp in replays),
+        'samples': int(sum(len(rp.rows) for rp in replays)),
+        'filter_config': dataclasses.asdict(config),
+        'hit_error': errors['filter'],
+    }
+    if textbook:
+        summary['textbook_hit_error'] = errors['textbook']
+    summary['rows_without_hit'] = rows_without_hit(replays)
+    return replays, summary
+
+
+def rows_without_hit(replays, history=MIN_HISTORY):
+    """Rows without a predicted hit among those from ``history`` s after a track's first
+    sample up to its measured crossing: ``{'rows': n checked, 'missing': k, 'tracks': [...]}``
+    (the stricter form of "no missing prediction once a track has 50 ms of samples")."""
+    checked, missing, names = 0, 0, []
+    for rp in replays:
+        if rp.crossing is None:
+            continue
+        t = rp.rows[:, 0]
+        sel = np.isfinite(t) & (t >= rp.first_t + history) & (t < rp.crossing[0])
+        bad = sel & ~np.isfinite(rp.rows[:, 14])
+        checked += int(sel.sum())
+        missing += int(bad.sum())
+        if bad.any():
+            names.append(rp.name)
+    return {'rows': checked, 'missing': missing, 'tracks': names[:20]}
+

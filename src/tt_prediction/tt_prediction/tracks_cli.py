@@ -1,0 +1,169 @@
+"""tt-predict --tracks DIR --out OUT: replay measured tracks through the live filter and predictor.
+
+DIR is a data set as tt-identify reads it (track CSVs ``t,x,y,z[,...]`` and an optional
+index.csv with measured spin). For every input sample OUT/<track file name> gets a row
+``t,x,y,z,vx,vy,vz,wx,wy,wz,bounce_t,bounce_x,bounce_y,hit_t,hit_x,hit_y,hit_z`` (empty where
+there is no estimate or prediction) and OUT/summary.json the hit-point error against each
+track's measured crossing of the hitting plane at lead times 300, 200, 150, 100 and 50 ms,
+for this filter + predictor and for the textbook refit. Everything is read and checked before
+anything is written; the output is written to a temporary folder and renamed into place, so
+a file that cannot be read leaves no partial output (one-line error naming it, exit 2).
+"""
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import shutil
+import sys
+import tempfile
+
+import numpy as np
+import yaml
+
+from .ball_filter import FilterConfig, estimate_measurement_noise
+from .identify.data import DataError, _read_index, read_track_csv
+from .params import load_model
+from .predict import DEFAULT_HIT_PLANE_X
+from .replay import COLUMNS, replay_tracks
+
+_FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
+
+
+def read_tracks(folder):
+    """Every track of ``folder`` as read, uncleaned: [(file name, t, p, spin or None)].
+
+    Raises DataError (naming the file) for a folder or file that cannot be read."""
+    if not os.path.isdir(folder):
+        raise DataError(f'{folder}: not a folder of track CSV files')
+    try:
+        files = sorted(f for f in os.listdir(folder) if f.endswith('.csv') and f != 'index.csv')
+    except OSError as exc:
+        raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
+    if not files:
+        raise DataError(f'{folder}: no trajectory CSV files in the folder')
+    index = _read_index(folder)
+    tracks = []
+    for name in files:
+        path = os.path.join(folder, name)
+        t, p = read_track_csv(path)
+        valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+        if valid.sum() < 2:
+            raise DataError(f'{path}: {int(valid.sum())} valid sample(s); a track needs 2')
+        tracks.append((name, t, p, index.get(name, (None, ''))[0]))
+    return tracks
+
+
+def load_filter_config(path, tracks):
+    """FilterConfig from a YAML mapping of its fields (``path``), or the defaults; a
+    ``position_noise`` or ``stamp_noise`` of ``auto`` (the default) is estimated from the data
+    (:func:`tt_prediction.ball_filter.estimate_measurement_noise`)."""
+    data = {}
+    if path:
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f) or {}
+        except OSError as exc:
+            raise DataError(f'{path}: cannot read filter config: {exc.strerror}') from None
+        except yaml.YAMLError as exc:
+            raise DataError(f'{path}: not valid YAML: {str(exc).splitlines()[0]}') from None
+        if not isinstance(data, dict):
+            raise DataError(f'{path}: filter config must be a mapping')
+    names = {f.name for f in dataclasses.fields(FilterConfig)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise DataError(f'{path}: unknown filter setting(s) {", ".join(unknown)}')
+    noise = data.pop('position_noise', 'auto')
+    stamp = data.pop('stamp_noise', 'auto')
+    if 'auto' in (noise, stamp):
+        clean = [(t[ok], p[ok]) for _, t, p, _ in tracks
+                 for ok in [np.isfinite(t) & np.isfinite(p).all(axis=1)]]
+        est_noise, est_stamp = estimate_measurement_noise(clean)
+        noise = est_noise if noise == 'auto' else noise
+        stamp = est_stamp if stamp == 'auto' else stamp
+    def typed(name, value):
+        default = getattr(FilterConfig, name)
+        return (str(value) if isinstance(default, str) else
+                int(value) if isinstance(default, int) else float(value))
+
+    try:
+        config = FilterConfig(**{k: typed(k, v) for k, v in data.items()},
+                              position_noise=float(noise), stamp_noise=float(stamp))
+    except (TypeError, ValueError) as exc:
+        raise DataError(f'{path}: {exc}') from None
+    return config
+
+
+def write_rows(path, rows):
+    """One CSV of replay rows (COLUMNS), empty fields where NaN."""
+    with open(path, 'w') as f:
+        f.write(','.join(COLUMNS) + '\n')
+        for row in rows:
+            f.write(','.join('' if not math.isfinite(v) else fmt % v
+                             for fmt, v in zip(_FORMATS, row, strict=True)) + '\n')
+
+
+def write_output(out_dir, replays, summary):
+    """Write the rows and summary.json into a temporary folder, then move them into place."""
+    out_dir = os.path.abspath(out_dir)
+    parent = os.path.dirname(out_dir)
+    os.makedirs(parent, exist_ok=True)
+    tmp = tempfile.mkdtemp(prefix='.tt-predict-', dir=parent)
+    try:
+        for rp in replays:
+            write_rows(os.path.join(tmp, rp.name), rp.rows)
+        with open(os.path.join(tmp, 'summary.json'), 'w') as f:
+            json.dump(summary, f, indent=2)
+        if not os.path.exists(out_dir):
+            os.rename(tmp, out_dir)
+            return
+        for name in os.listdir(tmp):
+            os.replace(os.path.join(tmp, name), os.path.join(out_dir, name))
+        os.rmdir(tmp)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='tt-predict --tracks', description=__doc__.splitlines()[0],
+        epilog='Output format and measured numbers: see docs/prediction.md.')
+    parser.add_argument('--tracks', metavar='DIR', required=True,
+                        help='data set: track CSVs t,x,y,z and index.csv')
+    parser.add_argument('--out', metavar='OUT', required=True, help='output folder')
+    parser.add_argument('--model', metavar='FILE',
+                        help='model.yaml written by tt-identify (default: nominal model)')
+    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,
+                        metavar='X', help='hitting plane x, m (default: %(default)s)')
+    parser.add_argument('--filter-config', metavar='FILE',
+                        help='YAML of FilterConfig fields (default: defaults, position noise '
+                             'estimated from the data)')
+    parser.add_argument('--no-textbook', action='store_true',
+                        help='skip the textbook reference predictor in summary.json')
+    args = parser.parse_args(argv)
+    if not math.isfinite(args.hit_plane_x):
+        print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
+        return 2
+    try:
+        params = load_model(args.model)
+        tracks = read_tracks(args.tracks)
+        config = load_filter_config(args.filter_config, tracks)
+    except ValueError as exc:                  # DataError is a ValueError
+        print(f'tt-predict: {exc}', file=sys.stderr)
+        return 2
+    replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
+                                     textbook=not args.no_textbook)
+    summary['model'] = args.model or 'nominal'
+    summary['data'] = args.tracks
+    try:
+        write_output(args.out, replays, summary)
+    except OSError as exc:
+        print(f'tt-predict: {args.out}: cannot write: {exc.strerror}', file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,334 @@
+"""ros2 param / node info / topic type / interface show / pkg executables, the waits that say
+what they wait for, a closed pipe, and list/info under load: each verb against live nodes."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import uuid
+
+from conftest import ROS2, Graph, Ros2Process, error_lines, ros2
+import pytest
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.qos import QoSProfile
+from tt_tools.introspect import import_message_type
+from tt_tools.procs import ros_env
+from tt_tools.run import package_prefix
+import yaml
+
+from tt_msgs.msg import BallPrediction, BallState
+
+pytestmark = pytest.mark.graph
+
+
+def run_all(graph, *commands, timeout=120):
+    """Run ``ros2`` commands concurrently while the test's graph spins (its node answers
+    service calls); [(exit code, stdout, stderr)] in the order given."""
+    procs = [Ros2Process(*c) for c in commands]
+    try:
+        graph.spin_until(lambda: all(p.proc.poll() is not None for p in procs), timeout,
+                         f'{len(procs)} ros2 commands to end')
+        return [(p.wait(), p.stdout, p.stderr) for p in procs]
+    finally:
+        for p in procs:
+            p.stop()
+
+
+@pytest.fixture
+def param_node(graph):
+    """The test graph's node with declared parameters: ranges, a read-only one, dotted names,
+    an array, and a set-callback that refuses a negative 'count'."""
+    node = graph.node
+    node.declare_parameter('gain', 0.5, ParameterDescriptor(
+        description='a gain, 1', floating_point_range=[
+            FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]))
+    node.declare_parameter('count', 3, ParameterDescriptor(
+        description='a count', integer_range=[IntegerRange(from_value=-5, to_value=10, step=1)]))
+    node.declare_parameter('mode', 'fast', ParameterDescriptor(read_only=True))
+    node.declare_parameter('limits.low', -1.0)
+    node.declare_parameter('limits.high', 2.0)
+    node.declare_parameter('flags', [True, False])
+
+    def check(params):
+        for p in params:
+            if p.name == 'count' and p.value < 0:
+                return SetParametersResult(successful=False, reason='count must be >= 0')
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(check)
+    return '/' + node.get_name()
+
+
+def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
+    n = param_node
+    (get, get_hidden, desc, dump, lst, lst_types, lst_all, get_nope, get_no_node, set_count,
+     set_neg, set_ro, set_range, set_int) = run_all(
+        graph,
+        ('param', 'get', n, 'gain'),
+        ('param', 'get', n, 'flags', '--hide-type'),
+        ('param', 'describe', n, 'gain', 'count', 'mode'),
+        ('param', 'dump', n),
+        ('param', 'list', n),
+        ('param', 'list', n, '--param-type', '--param-prefixes', 'limits'),
+        ('param', 'list'),
+        ('param', 'get', n, 'nope'),
+        ('param', 'get', n + '_absent', 'gain'),
+        ('param', 'set', n, 'count', '7'),
+        ('param', 'set', n, 'count', '-1'),
+        ('param', 'set', n, 'mode', 'slow'),
+        ('param', 'set', n, 'gain', '2.0'),
+        ('param', 'set', n, 'limits.low', '-2'),  # an integer for a double parameter
+    )
+    assert get == (0, 'Double value is: 0.5\n', get[2])
+    assert get_hidden[:2] == (0, '[True, False]\n')
+    assert desc[0] == 0, desc[2]
+    assert desc[1].splitlines() == [
+        'Parameter name: gain', '  Type: double', '  Description: a gain, 1',
+        '  Constraints:', '    Min value: 0.0', '    Max value: 1.0',
+        'Parameter name: count', '  Type: integer', '  Description: a count',
+        '  Constraints:', '    Min value: -5', '    Max value: 10', '    Step: 1',
+        'Parameter name: mode', '  Type: string', '  Constraints:', '    Read only: true']
+    assert dump[0] == 0, dump[2]
+    dumped = yaml.safe_load(dump[1])[n]['ros__parameters']
+    assert dumped['gain'] == 0.5 and dumped['mode'] == 'fast'
+    assert dumped['limits']['high'] == 2.0 and set(dumped['limits']) == {'low', 'high'}
+    assert dumped['flags'] == [True, False] and dumped['use_sim_time'] is False
+    names = [line.strip() for line in lst[1].splitlines()]
+    assert {'gain', 'count', 'mode', 'limits.low', 'limits.high', 'flags',
+            'use_sim_time'} <= set(names) and names == sorted(names)
+    assert lst_types[1].splitlines() == ['  limits.high (type: double)',
+                                         '  limits.low (type: double)']
+    # Without a node: every node's names under '/node:'.
+    assert lst_all[0] == 0, lst_all[2]
+    every = lst_all[1].splitlines()
+    assert every[every.index(f'{n}:') + 1:every.index(f'{n}:') + 4] == [
+        '  count', '  flags', '  gain']
+    assert get_nope[0] == 1 and error_lines(get_nope[2]) == [
+        f"ros2 param: node '{n}' has no parameter 'nope'"]
+    assert get_no_node[0] == 1 and error_lines(get_no_node[2]) == [
+        f"ros2 param: Node '{n}_absent' not found"]
+    # Accepted sets change the node's value; refused ones print the reason and exit 1.
+    assert set_count[:2] == (0, 'Set parameter successful\n')
+    assert set_int[:2] == (0, 'Set parameter successful\n')
+    assert graph.node.get_parameter('limits.low').value == -2.0
+    assert set_neg[0] == 1 and error_lines(set_neg[2]) == [
+        'Setting parameter failed: count must be >= 0']
+    assert graph.node.get_parameter('count').value == 7
+    assert set_ro[0] == 1 and 'read-only' in set_ro[2]
+    assert set_range[0] == 1 and error_lines(set_range[2])[0].startswith(
+        'Setting parameter failed: ')
+    assert graph.node.get_parameter('gain').value == 0.5
+    assert graph.node.get_parameter('mode').value == 'fast'
+
+
+def test_verbs_on_the_running_prediction_node(graph, procs, topic):
+    """The real prediction_node (name and topics remapped so that parallel runs do not meet):
+    node info, topic type/info, param get/describe and an integer set on a double."""
+    name = f'pred_{uuid.uuid4().hex[:8]}'
+    state, prediction = f'{topic}/state', f'{topic}/prediction'
+    node = procs('run', 'tt_prediction', 'prediction_node', '--ros-args',
+                 '-r', f'__node:={name}', '-r', f'/ball/state:={state}',
+                 '-r', f'/ball/prediction:={prediction}')
+    graph.spin_until(
+        lambda: (name in graph.node.get_node_names() and graph.node.count_publishers(prediction)
+                 ) or node.proc.poll() is not None, 120, 'the prediction node in the graph')
+    assert node.proc.poll() is None, node.stderr
+    graph.node.create_subscription(BallPrediction, prediction, lambda m: None,
+                                   QoSProfile(depth=1))
+    info, ptype, tinfo, get, describe, set_int = run_all(
+        graph,
+        ('node', 'info', f'/{name}'),
+        ('topic', 'type', prediction),
+        ('topic', 'info', prediction),
+        ('param', 'get', f'/{name}', 'stale_after_s'),
+        ('param', 'describe', f'/{name}', 'stale_after_s'),
+        ('param', 'set', f'/{name}', 'stale_after_s', '0'),
+    )
+    lines = info[1].splitlines()
+    assert info[0] == 0 and lines[0] == f'/{name}'
+    sections = [line for line in lines if line.startswith('  ') and line.endswith(':')
+                and not line.startswith('    ')]
+    assert sections == ['  Subscribers:', '  Publishers:', '  Service Servers:',
+                        '  Service Clients:', '  Action Servers:', '  Action Clients:']
+    subscribers = lines[lines.index('  Subscribers:') + 1:lines.index('  Publishers:')]
+    publishers = lines[lines.index('  Publishers:') + 1:lines.index('  Service Servers:')]
+    assert f'    {state}: tt_msgs/msg/BallState' in subscribers
+    assert f'    {prediction}: tt_msgs/msg/BallPrediction' in publishers
+    assert f'    /{name}/get_parameters: rcl_interfaces/srv/GetParameters' in lines
+    assert ptype == (0, 'tt_msgs/msg/BallPrediction\n', ptype[2])
+    assert tinfo[0] == 0 and tinfo[1].splitlines() == [
+        'Type: tt_msgs/msg/BallPrediction', 'Publisher count: 1', 'Subscription count: 1']
+    assert get == (0, 'Double value is: 0.5\n', get[2])  # the documented default
+    assert describe[0] == 0 and '  Type: double' in describe[1].splitlines()
+    assert set_int[:2] == (0, 'Set parameter successful\n'), set_int[2]
+    node.signal(signal.SIGINT)
+    assert node.wait(timeout=90) == 0 and 'Traceback' not in node.stderr
+
+
+def test_node_info_and_topic_type_of_an_absent_node_or_topic(topic):
+    rc, out, err = ros2('node', 'info', '/tt_no_such_node_' + uuid.uuid4().hex[:6],
+                        '--spin-time', '0.5')
+    assert rc == 1 and out == '' and error_lines(err)[0].startswith(
+        "ros2 node: Unable to find node '/tt_no_such_node_")
+    rc, out, err = ros2('topic', 'type', topic, '--spin-time', '0.5')
+    assert rc == 1 and error_lines(err) == [f"ros2 topic: Unknown topic '{topic}'"]
+
+
+def _installed_msg(type_str):
+    pkg, kind, name = type_str.split('/')
+    with open(os.path.join(package_prefix(pkg), 'share', pkg, kind, f'{name}.{kind}')) as f:
+        return f.read().splitlines()
+
+
+def test_interface_show_prints_the_msg_file_with_nested_definitions():
+    rc, out, err = ros2('interface', 'show', 'tt_msgs/msg/BallState')
+    assert rc == 0, err
+    lines = out.splitlines()
+    top = [line for line in lines if not line.startswith('\t')]
+    assert top == [line.rstrip() for line in _installed_msg('tt_msgs/msg/BallState')]
+    header = lines.index(next(x for x in lines if x.startswith('std_msgs/Header header')))
+    assert lines[header + 1:header + 5] == [
+        '\tbuiltin_interfaces/Time stamp', '\t\tint32 sec', '\t\tuint32 nanosec',
+        '\tstring frame_id']
+    # Without comments: one line per field, in the order of the generated class.
+    rc, out, _ = ros2('interface', 'show', 'tt_msgs/msg/BallState', '--no-comments')
+    fields = [line.split()[1] for line in out.splitlines() if not line.startswith('\t')]
+    assert fields == list(BallState.get_fields_and_field_types())
+    assert '#' not in out
+
+
+def test_interface_show_of_a_service_and_bad_names():
+    rc, out, err = ros2('interface', 'show', 'rcl_interfaces/srv/GetParameters', '--no-comments')
+    assert rc == 0, err
+    top = [line for line in out.splitlines() if not line.startswith('\t')]
+    assert top == ['string[] names', '---', 'ParameterValue[] values']
+    value_fields = list(import_message_type('rcl_interfaces/msg/ParameterValue')
+                        .get_fields_and_field_types())
+    nested = [line.split()[1] for line in out.splitlines() if line.startswith('\t')]
+    assert nested == value_fields
+    rc, out, err = ros2('interface', 'show', 'tt_msgs/msg/NoSuch')
+    assert rc == 1 and out == '' and len(error_lines(err)) == 1
+    assert "Could not find the interface 'tt_msgs/msg/NoSuch'" in err
+    rc, _, err = ros2('interface', 'show', 'BallState')
+    assert rc == 1 and len(error_lines(err)) == 1 and 'invalid interface name' in err
+
+
+def test_pkg_executables():
+    rc, out, err = ros2('pkg', 'executables', 'tt_prediction')
+    assert rc == 0, err
+    # The console scripts tt_prediction's setup.py declares.
+    assert {'tt_prediction prediction_node', 'tt_prediction tt-predict',
+            'tt_prediction tt-identify'} <= set(out.splitlines())
+    assert all(line.startswith('tt_prediction ') for line in out.splitlines())
+    rc, out, _ = ros2('pkg', 'executables')
+    assert rc == 0 and {'tt_tools ros2', 'tt_strike strike_node'} <= set(out.splitlines())
+    rc, out, err = ros2('pkg', 'executables', 'no_such_pkg')
+    assert rc == 1 and error_lines(err) == ["ros2 pkg: Package 'no_such_pkg' not found"]
+
+
+def test_echo_and_hz_say_what_they_wait_for(graph, procs, topic):
+    """Issue 17: `echo` on a misspelled topic waited forever without a word."""
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    misspelled = topic + 'x'
+    echo = procs('topic', 'echo', misspelled)
+    hz = procs('topic', 'hz', misspelled)
+    graph.spin_until(lambda: 'waiting' in echo.stderr and 'waiting' in hz.stderr, 90,
+                     'the waiting lines')
+    for proc in (echo, hz):
+        said = error_lines(proc.stderr)
+        assert len(said) == 1 and said[0].startswith(
+            f'waiting for a publisher on {misspelled} (none yet; known topics: ')
+        assert said[0].endswith(f"did you mean '{topic}'?")
+        assert proc.proc.poll() is None  # still waiting
+        proc.signal(signal.SIGINT)
+        assert proc.wait() == 0 and proc.stdout == ''
+    assert pub.get_subscription_count() == 0
+
+
+def test_pub_once_says_it_waits_for_a_subscription_then_publishes(graph, procs, topic):
+    pub = procs('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{track_id: 4}', '--once')
+    graph.spin_until(lambda: 'waiting' in pub.stderr, 90, 'the waiting line')
+    assert error_lines(pub.stderr) == [
+        f'waiting for 1 matching subscription(s) on {topic} (0 now), until there is one; '
+        '-w 0 publishes without waiting']
+    got = []
+    graph.node.create_subscription(BallState, topic, got.append, QoSProfile(depth=10))
+    graph.spin_until(lambda: got, 60, 'the message published after the wait')
+    assert got[0].track_id == 4
+    assert pub.wait() == 0
+
+
+def test_pub_once_with_a_bounded_wait_and_no_subscription_fails(topic):
+    rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{}', '--once',
+                        '--max-wait-time-secs', '0.5')
+    assert rc == 1 and out == ''
+    assert error_lines(err)[-1] == (
+        f'ros2 topic: no 1 matching subscription(s) on {topic} after 0.5 s: nothing published')
+
+
+def test_echo_into_a_closed_pipe_exits_0(procs, topic):
+    """Issue 17: `ros2 topic echo /ball/state | head -2` exited 120 with a BrokenPipeError."""
+    procs('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{}', '-r', '50')
+    echo = subprocess.Popen([*ROS2, 'topic', 'echo', topic], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                            env=ros_env({'TT_ROS2_NO_HANDOVER': '1'}), start_new_session=True)
+    head = []
+
+    def read_two_lines_and_close():  # what `head -2` does
+        head.extend([echo.stdout.readline(), echo.stdout.readline()])
+        echo.stdout.close()
+
+    reader = threading.Thread(target=read_two_lines_and_close, daemon=True)
+    reader.start()
+    try:
+        rc = echo.wait(timeout=120)
+    finally:
+        if echo.poll() is None:
+            os.killpg(echo.pid, signal.SIGKILL)
+    stderr = echo.stderr.read().decode()
+    assert head == [b'header:\n', b'  stamp:\n']
+    assert rc == 0, stderr
+    assert 'Traceback' not in stderr and 'BrokenPipe' not in stderr
+
+
+@pytest.fixture
+def burners():
+    """Two busy processes (this machine has 2 cores) for the duration of a test (the 'under
+    load' of issue 17)."""
+    started = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+               for _ in range(min(os.cpu_count() or 2, 2))]
+    yield
+    for p in started:
+        p.kill()
+        p.wait()
+
+
+def test_list_and_info_see_every_live_entity_under_load(graph, topic, burners):
+    """Issue 17: `node list` and `topic info` missed live entities in 2 of 6 and 3 of 4 runs.
+    Three participants (one publisher, two subscriptions), then three `node list` and three
+    `topic info` at once on a machine kept busy: each must see all of them."""
+    others = [Graph() for _ in range(2)]
+    try:
+        graph.node.create_publisher(BallState, topic, QoSProfile(depth=1))
+        for g in others:
+            g.node.create_subscription(BallState, topic, lambda m: None, QoSProfile(depth=1))
+        names = {graph.node.get_name(), *(g.node.get_name() for g in others)}
+        graph.spin_until(lambda: names <= set(graph.node.get_node_names())
+                         and graph.node.count_subscribers(topic) == 2, 60, 'the three nodes')
+        results = run_all(graph, *[('node', 'list')] * 3, *[('topic', 'info', topic)] * 3)
+    finally:
+        for g in others:
+            g.close()
+    for rc, out, err in results[:3]:
+        assert rc == 0, err
+        assert {'/' + n for n in names} <= set(out.splitlines())
+    for rc, out, err in results[3:]:
+        assert rc == 0, err
+        assert out.splitlines() == ['Type: tt_msgs/msg/BallState', 'Publisher count: 1',
+                                    'Subscription count: 2']

@@ -1,0 +1,128 @@
+"""``ros2 interface show`` and ``ros2 pkg executables`` (pure: no rclpy, files only).
+
+``interface show pkg/msg/Type`` prints the installed ``.msg`` (``.srv``, ``.action``) file as
+ros2cli does: the file's own comments and blank lines, then, under each field of a message
+type, that type's definition indented by one tab per level (without its comments unless
+``--all-comments``).
+"""
+
+import os
+
+from rosidl_adapter.parser import parse_message_string
+
+from tt_tools.output import write
+from tt_tools.run import RunError, executables, package_prefix
+
+KINDS = ('msg', 'srv', 'action')
+SEPARATOR = '---'
+
+
+def interface_path(type_str, ament_prefix_path=None):
+    """The installed definition file of ``'pkg/msg/Type'`` (or srv, action); ValueError."""
+    parts = type_str.strip().split('/')
+    if len(parts) != 3 or parts[1] not in KINDS or not all(parts):
+        raise ValueError(f"invalid interface name '{type_str}': expected 'package/msg/Type' "
+                         "(or srv, action)")
+    pkg, kind, name = parts
+    prefix = package_prefix(pkg, ament_prefix_path)
+    if prefix is None:
+        raise ValueError(f"Unknown package '{pkg}'")
+    path = os.path.join(prefix, 'share', pkg, kind, f'{name}.{kind}')
+    if not os.path.isfile(path):
+        raise ValueError(f"Could not find the interface '{type_str}' ({path} does not exist)")
+    return path
+
+
+def _parse_line(pkg, name, line):
+    """(text without the trailing comment, nested message type or None) of one line; the
+    text is None for a comment-only line."""
+    stripped = line.strip()
+    if not stripped or stripped == SEPARATOR:
+        return line, None
+    if stripped.startswith('#'):
+        return None, None
+    spec = parse_message_string(pkg, name, line)
+    item = (spec.fields or spec.constants or [None])[0]
+    comment = item.annotations.get('comment') if item is not None else None
+    text = line
+    if comment and comment[0]:
+        text = line[:line.rfind(comment[0])].rstrip().rstrip('#').rstrip()
+    nested = None
+    if spec.fields and not spec.fields[0].type.is_primitive_type():
+        field_type = spec.fields[0].type
+        nested = f'{field_type.pkg_name}/msg/{field_type.type}'
+    return text, nested
+
+
+def show_lines(type_str, comments=True, nested_comments=False, depth=0,
+               ament_prefix_path=None):
+    """The lines ``ros2 interface show`` prints for ``type_str``."""
+    path = interface_path(type_str, ament_prefix_path)
+    pkg, _, name = type_str.strip().split('/')
+    with open(path, encoding='utf-8') as f:
+        raw = f.read().splitlines()
+    lines = []
+    for line in raw:
+        line = line.rstrip()
+        text, nested = _parse_line(pkg, name, line)
+        if comments:
+            lines.append('\t' * depth + line if line else '')
+        elif text is not None and text.strip():
+            lines.append('\t' * depth + text)
+        if nested:
+            lines += show_lines(nested, nested_comments, nested_comments, depth + 1,
+                                ament_prefix_path)
+    return lines
+
+
+def interface_show(args):
+    comments = args.all_comments or not args.no_comments
+    lines = show_lines(args.type, comments, args.all_comments)
+    write(''.join(line + '\n' for line in lines))
+    return 0
+
+
+def packages(ament_prefix_path=None):
+    """Names of the packages in the ament index (every prefix of the search path)."""
+    search = (os.environ.get('AMENT_PREFIX_PATH', '') if ament_prefix_path is None
+              else ament_prefix_path)
+    names = set()
+    for prefix in filter(None, search.split(os.pathsep)):
+        index = os.path.join(prefix, 'share', 'ament_index', 'resource_index', 'packages')
+        if os.path.isdir(index):
+            names.update(os.listdir(index))
+    return sorted(names)
+
+
+def pkg_executables(args):
+    try:
+        names = [args.package] if args.package else packages()
+        lines = [f'{pkg} {exe}' for pkg in names for exe in executables(pkg)]
+    except RunError as exc:
+        raise ValueError(str(exc)) from None
+    write(''.join(line + '\n' for line in lines))
+    return 0
+
+
+def pkg_list(args):
+    write(''.join(name + '\n' for name in packages()))
+    return 0
+
+
+def add_arguments(interface_sub, pkg_sub):
+    """Register ``interface show`` and ``pkg executables | list`` on argparse sub-parsers."""
+    p = interface_sub.add_parser('show', help='print the definition of a msg, srv or action')
+    p.add_argument('type', help="interface name, e.g. 'tt_msgs/msg/BallState'")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument('--all-comments', action='store_true',
+                       help='also the comments of the nested definitions')
+    group.add_argument('--no-comments', action='store_true',
+                       help='no comments and no blank lines')
+    p.set_defaults(func=interface_show)
+
+    p = pkg_sub.add_parser('executables', help="print '<package> <executable>' lines")
+    p.add_argument('package', nargs='?', help='only this package')
+    p.set_defaults(func=pkg_executables)
+
+    p = pkg_sub.add_parser('list', help='print the packages of the ament index')
+    p.set_defaults(func=pkg_list)

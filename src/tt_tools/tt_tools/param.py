@@ -1,0 +1,333 @@
+"""``ros2 param list | get | set | describe | dump``: a node's parameters through its services.
+
+Every rclpy and rclcpp node (unless started without parameter services) serves
+``<node>/list_parameters``, ``get_parameters``, ``set_parameters`` and ``describe_parameters``
+(rcl_interfaces). The output is the real ros2cli's: ``Double value is: 0.5``, ``Set parameter
+successful``, a ``/node: ros__parameters:`` YAML for ``dump``.
+"""
+
+from rcl_interfaces.msg import Parameter, ParameterType
+from rcl_interfaces.srv import (
+    DescribeParameters,
+    GetParameters,
+    ListParameters,
+    SetParameters,
+)
+from rclpy.parameter import get_parameter_value, parameter_value_to_python
+import yaml
+
+from tt_tools.output import say, write
+from tt_tools.rosutil import CliNode, add_spin_time_argument
+
+SERVICES = {
+    ListParameters: 'list_parameters',
+    GetParameters: 'get_parameters',
+    SetParameters: 'set_parameters',
+    DescribeParameters: 'describe_parameters',
+}
+
+TYPE_NAMES = {
+    ParameterType.PARAMETER_NOT_SET: 'not set',
+    ParameterType.PARAMETER_BOOL: 'boolean',
+    ParameterType.PARAMETER_INTEGER: 'integer',
+    ParameterType.PARAMETER_DOUBLE: 'double',
+    ParameterType.PARAMETER_STRING: 'string',
+    ParameterType.PARAMETER_BYTE_ARRAY: 'byte array',
+    ParameterType.PARAMETER_BOOL_ARRAY: 'boolean array',
+    ParameterType.PARAMETER_INTEGER_ARRAY: 'integer array',
+    ParameterType.PARAMETER_DOUBLE_ARRAY: 'double array',
+    ParameterType.PARAMETER_STRING_ARRAY: 'string array',
+}
+
+GET_LABELS = {
+    ParameterType.PARAMETER_BOOL: 'Boolean value is:',
+    ParameterType.PARAMETER_INTEGER: 'Integer value is:',
+    ParameterType.PARAMETER_DOUBLE: 'Double value is:',
+    ParameterType.PARAMETER_STRING: 'String value is:',
+    ParameterType.PARAMETER_BYTE_ARRAY: 'Byte values are:',
+    ParameterType.PARAMETER_BOOL_ARRAY: 'Boolean values are:',
+    ParameterType.PARAMETER_INTEGER_ARRAY: 'Integer values are:',
+    ParameterType.PARAMETER_DOUBLE_ARRAY: 'Double values are:',
+    ParameterType.PARAMETER_STRING_ARRAY: 'String values are:',
+}
+
+
+def absolute_node_name(name):
+    """``'/ns/node'`` of a node name given with or without the leading '/'."""
+    return name if name.startswith('/') else '/' + name
+
+
+def _node_names(cli, hidden=False):
+    return sorted({f'{ns.rstrip("/")}/{name}'
+                   for name, ns in cli.node.get_node_names_and_namespaces()
+                   if hidden or not name.startswith('_')})
+
+
+def _client(cli, node_name, srv_type, args):
+    """A client of ``node_name``'s parameter service of ``srv_type``, ready to be called.
+
+    None on a signal; ValueError (one line) when the node is not in the graph, or has no
+    such service within ``args.timeout`` s.
+    """
+    service = f'{node_name}/{SERVICES[srv_type]}'
+    client = cli.node.create_client(srv_type, service)
+    if cli.settle(args.spin_time, done=client.service_is_ready):
+        return client
+    if cli.stopped:
+        return None
+    if node_name not in _node_names(cli, hidden=True):
+        raise ValueError(f"Node '{node_name}' not found")
+    if cli.spin_until(client.service_is_ready, timeout=args.timeout):
+        return client
+    if cli.stopped:
+        return None
+    raise ValueError(f"node '{node_name}' does not answer on {service} within "
+                     f'{args.timeout:g} s (started without parameter services?)')
+
+
+def _call(cli, client, request, timeout):
+    """The response of one service call; None on a signal, ValueError after ``timeout`` s."""
+    future = client.call_async(request)
+    if not cli.spin_until(future.done, timeout=timeout):
+        if cli.stopped:
+            return None
+        raise ValueError(f'no answer from {client.srv_name} within {timeout:g} s')
+    return future.result()
+
+
+def _describe(cli, node_name, names, args):
+    client = _client(cli, node_name, DescribeParameters, args)
+    if client is None:
+        return None
+    response = _call(cli, client, DescribeParameters.Request(names=names), args.timeout)
+    if response is None:
+        return None
+    if len(response.descriptors) != len(names):  # rclpy answers nothing for undeclared ones
+        raise ValueError(f"node '{node_name}' has no parameter "
+                         + ' or '.join(repr(n) for n in names))
+    return response.descriptors
+
+
+def param_list(args):
+    with CliNode('param_list') as cli:
+        if args.node_name:
+            nodes = [absolute_node_name(args.node_name)]
+            clients = {nodes[0]: _client(cli, nodes[0], ListParameters, args)}
+            if clients[nodes[0]] is None:
+                return 0
+        else:
+            cli.settle(args.spin_time)
+            services = {name for name, _ in cli.node.get_service_names_and_types()}
+            nodes = [n for n in _node_names(cli, args.include_hidden_nodes)
+                     if f'{n}/list_parameters' in services]
+            clients = {n: cli.node.create_client(ListParameters, f'{n}/list_parameters')
+                       for n in nodes}
+            cli.spin_until(lambda: all(c.service_is_ready() for c in clients.values()),
+                           timeout=args.timeout)
+        request = ListParameters.Request(prefixes=args.param_prefixes)
+        futures = {n: c.call_async(request) for n, c in clients.items() if c.service_is_ready()}
+        cli.spin_until(lambda: all(f.done() for f in futures.values()), timeout=args.timeout)
+        for node_name in nodes:
+            future = futures.get(node_name)
+            if future is None or not future.done():
+                say(f"ros2 param: no answer from '{node_name}/list_parameters'")
+                continue
+            names = sorted(future.result().result.names)
+            types = {}
+            if args.param_type and names:
+                descriptors = _describe(cli, node_name, names, args) or []
+                types = {d.name: TYPE_NAMES.get(d.type, str(d.type)) for d in descriptors}
+            lines = [] if args.node_name else [f'{node_name}:']
+            lines += [f'  {n} (type: {types.get(n, "?")})' if args.param_type else f'  {n}'
+                      for n in names]
+            if not write(''.join(line + '\n' for line in lines)):
+                break
+    return 0
+
+
+def _get_values(cli, node_name, names, args):
+    client = _client(cli, node_name, GetParameters, args)
+    if client is None:
+        return None
+    response = _call(cli, client, GetParameters.Request(names=names), args.timeout)
+    if response is None:
+        return None
+    if len(response.values) != len(names):  # rclpy answers nothing for undeclared ones
+        raise ValueError(f"node '{node_name}' has no parameter "
+                         + ' or '.join(repr(n) for n in names))
+    return response.values
+
+
+def format_value(value):
+    """``'Double value is: 0.5'`` for a ParameterValue, as ``ros2 param get`` prints it."""
+    if value.type == ParameterType.PARAMETER_NOT_SET:
+        return 'Parameter not set.'
+    label = GET_LABELS.get(value.type)
+    if label is None:
+        raise ValueError(f'unknown parameter type {value.type}')
+    return f'{label} {parameter_value_to_python(value)}'
+
+
+def param_get(args):
+    node_name = absolute_node_name(args.node_name)
+    with CliNode('param_get') as cli:
+        values = _get_values(cli, node_name, [args.parameter_name], args)
+    if values is None:
+        return 0
+    value = values[0]
+    if args.hide_type and value.type != ParameterType.PARAMETER_NOT_SET:
+        write(f'{parameter_value_to_python(value)}\n')
+    else:
+        write(format_value(value) + '\n')
+    return 0
+
+
+def parse_value(text, declared_type=None):
+    """ParameterValue of a command-line value, typed as YAML types it (``1`` integer, ``1.0``
+    double, ``true`` bool, ``[1, 2]`` integer array, anything else a string), as ros2cli does;
+    an integer (array) given for a ``declared_type`` double (array) becomes a double (array).
+    """
+    value = get_parameter_value(text)
+    if (declared_type == ParameterType.PARAMETER_DOUBLE
+            and value.type == ParameterType.PARAMETER_INTEGER):
+        value.type, value.double_value = declared_type, float(value.integer_value)
+    elif (declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY
+          and value.type == ParameterType.PARAMETER_INTEGER_ARRAY):
+        value.type = declared_type
+        value.double_array_value = [float(v) for v in value.integer_array_value]
+    return value
+
+
+def param_set(args):
+    node_name = absolute_node_name(args.node_name)
+    pairs = args.params_and_values
+    if len(pairs) % 2:
+        raise ValueError('parameters must be given as name value pairs: '
+                         f'got {len(pairs)} argument(s)')
+    names, texts = pairs[::2], pairs[1::2]
+    with CliNode('param_set') as cli:
+        descriptors = _describe(cli, node_name, names, args)
+        if descriptors is None:
+            return 0
+        parameters = [Parameter(name=n, value=parse_value(t, d.type))
+                      for n, t, d in zip(names, texts, descriptors, strict=True)]
+        client = _client(cli, node_name, SetParameters, args)
+        if client is None:
+            return 0
+        response = _call(cli, client, SetParameters.Request(parameters=parameters),
+                         args.timeout)
+    if response is None:
+        return 0
+    failed = False
+    for name, result in zip(names, response.results, strict=True):
+        prefix = f'{name}: ' if len(names) > 1 else ''
+        reason = f': {result.reason}' if result.reason else ''
+        if result.successful:
+            write(f'{prefix}Set parameter successful{reason}\n')
+        else:
+            failed = True
+            say(f'{prefix}Setting parameter failed{reason}')
+    return 1 if failed else 0
+
+
+def format_descriptor(descriptor):
+    """The lines ``ros2 param describe`` prints for one ParameterDescriptor."""
+    lines = [f'Parameter name: {descriptor.name}',
+             f'  Type: {TYPE_NAMES.get(descriptor.type, descriptor.type)}']
+    if descriptor.description:
+        lines.append(f'  Description: {descriptor.description}')
+    lines.append('  Constraints:')
+    if descriptor.read_only:
+        lines.append('    Read only: true')
+    ranges = [*descriptor.floating_point_range, *descriptor.integer_range]
+    if ranges:
+        lines += [f'    Min value: {ranges[0].from_value}',
+                  f'    Max value: {ranges[0].to_value}']
+        if ranges[0].step:
+            lines.append(f'    Step: {ranges[0].step}')
+    if descriptor.additional_constraints:
+        lines.append(f'    Additional constraints: {descriptor.additional_constraints}')
+    return lines
+
+
+def param_describe(args):
+    node_name = absolute_node_name(args.node_name)
+    with CliNode('param_describe') as cli:
+        descriptors = _describe(cli, node_name, args.parameter_names, args)
+    if descriptors is None:
+        return 0
+    write(''.join(line + '\n' for d in descriptors for line in format_descriptor(d)))
+    return 0
+
+
+def nest(names_values):
+    """``{'a.b': 1, 'c': 2}`` -> ``{'a': {'b': 1}, 'c': 2}`` (dots separate the levels of a
+    parameters file)."""
+    out = {}
+    for name, value in names_values:
+        *parents, leaf = name.split('.')
+        level = out
+        for part in parents:
+            level = level.setdefault(part, {})
+        level[leaf] = value
+    return out
+
+
+def param_dump(args):
+    node_name = absolute_node_name(args.node_name)
+    with CliNode('param_dump') as cli:
+        client = _client(cli, node_name, ListParameters, args)
+        if client is None:
+            return 0
+        response = _call(cli, client, ListParameters.Request(), args.timeout)
+        if response is None:
+            return 0
+        names = sorted(response.result.names)
+        values = _get_values(cli, node_name, names, args) if names else []
+    if values is None:
+        return 0
+    params = nest((n, parameter_value_to_python(v)) for n, v in zip(names, values, strict=True))
+    write(yaml.safe_dump({node_name: {'ros__parameters': params}}, default_flow_style=False)
+          + '\n')
+    return 0
+
+
+def add_arguments(sub):
+    """Register the param verbs on an argparse sub-parser."""
+    def common(p, node_required=True):
+        if node_required:
+            p.add_argument('node_name', help="node name, e.g. '/prediction_node'")
+        p.add_argument('--timeout', type=float, default=10.0,
+                       help='seconds to wait for the parameter service and its answer '
+                            '(default 10)')
+        add_spin_time_argument(p)
+
+    p = sub.add_parser('list', help='list the parameters of a node (or of every node)')
+    p.add_argument('node_name', nargs='?', help='node name (default: every node)')
+    p.add_argument('--include-hidden-nodes', action='store_true', help='also hidden nodes')
+    p.add_argument('--param-prefixes', nargs='+', default=[],
+                   help='only parameters with these prefixes')
+    p.add_argument('--param-type', action='store_true', help='print the type of each')
+    common(p, node_required=False)
+    p.set_defaults(func=param_list)
+
+    p = sub.add_parser('get', help='print the value of a parameter')
+    common(p)
+    p.add_argument('parameter_name')
+    p.add_argument('--hide-type', action='store_true', help='print the value only')
+    p.set_defaults(func=param_get)
+
+    p = sub.add_parser('set', help='set parameters (name value [name value ...])')
+    common(p)
+    p.add_argument('params_and_values', nargs='+', metavar='name value',
+                   help="value as YAML: '1' integer, '1.0' double, 'true', '[1, 2]', text")
+    p.set_defaults(func=param_set)
+
+    p = sub.add_parser('describe', help='type, description and constraints of parameters')
+    common(p)
+    p.add_argument('parameter_names', nargs='+')
+    p.set_defaults(func=param_describe)
+
+    p = sub.add_parser('dump', help="print a node's parameters as a parameters YAML file")
+    common(p)
+    p.set_defaults(func=param_dump)
