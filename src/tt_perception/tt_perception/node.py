@@ -43,6 +43,8 @@ from .pipeline import Pipeline, TrackerConfig
 from .sources import V4L2Source, camera_info_topic, file_frames, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
+SUBSCRIBER_POLL_S = 0.05
+"""How often the video reader looks for the subscriptions it waits for, s."""
 
 
 # Read once at start (the rig and the pipeline are built from them): read-only.
@@ -77,6 +79,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
     ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
      -1, 100000),
+    ('wait_for_subscribers', 1, 'video files: start reading once /ball/state has this many '
+     'subscriptions (the first ball is not lost to a consumer still starting); 0: at once', '',
+     0, 100),
     ('publish_clock', False, 'publish the time of the frame being processed on /clock, so '
      "that nodes with use_sim_time run on the recording's time (video files; image topics "
      'replayed without --clock)'),
@@ -271,7 +276,16 @@ class PerceptionNode(Node):
         src.close()
 
     def _read_files(self, ks):
-        """The video-file cameras, frame by frame together, paced at the rig's fps."""
+        """The video-file cameras, frame by frame together, paced at the rig's fps, once
+        ``wait_for_subscribers`` subscriptions listen to the states (a video does not wait
+        for a late consumer as a live camera would not)."""
+        want = self._p('wait_for_subscribers')
+        if self.publisher.get_subscription_count() < want:
+            self.get_logger().info(f'video files: waiting for {want} subscription(s) on '
+                                   f'{STATE_TOPIC}')
+            while (self.publisher.get_subscription_count() < want
+                   and not self._stop.wait(SUBSCRIBER_POLL_S)):
+                pass
         start = time.monotonic()
         try:
             for t, k, frame in file_frames(self.rig, ks):
