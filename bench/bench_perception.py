@@ -18,6 +18,7 @@ import time
 
 import cv2
 import numpy as np
+from tt_perception.detect import DetectorConfig
 from tt_perception.pipeline import Pipeline
 from tt_prediction.identify.blas import blas_threads
 
@@ -63,7 +64,53 @@ def run():
         'wall_p95_ms': round(float(np.percentile(wall_ms, 95)), 3),
         'image_size': [rig.cameras[0].width, rig.cameras[0].height],
         'accuracy': accuracy(estimates, truth[0]),
+        'hall': hall_accuracy(),
     }
+
+
+def hall_accuracy():
+    """Accuracy under the hall's imaging (synth ``imaging='hall'``: overhead light with
+    shading and highlight, contact shadow, vignetting, shot noise, JPEG q30, 2 ms blur), for
+    both balls and both resolutions. Issue 15 asks for position RMS <= 1.5 mm and a mean error
+    within +-0.3 mm on each axis; the numbers are reported as they are."""
+    out = {}
+    state = synth.incoming_ball(speed=8.0, topspin_rps=40.0, sidespin_rps=10.0)
+    for width, height in ((640, 480), (1280, 720)):
+        rig = synth.demo_rig(width, height)
+        for colour in ('white', 'orange'):
+            frames, truth = synth.render_balls(rig, [state], [0.0], colour=colour,
+                                               duration=0.8, lead_in=0.2, imaging='hall',
+                                               exposure=2e-3)
+            pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour))
+            estimates = []
+            for t, k, frame in frames:
+                estimates += pipe.process(t, k, frame)
+            tr = truth[0]
+            idx = [int(np.argmin(np.abs(tr['t'] - e.t))) for e in estimates]
+            err = np.array([e.state[:3] - tr['state'][i, :3]
+                            for e, i in zip(estimates, idx, strict=True)]).reshape(-1, 3)
+            seen = both_cameras_see(rig, tr)
+            out[f'{colour}_{width}x{height}'] = {
+                'states': len(estimates),
+                'tracks': len({e.track_id for e in estimates}),
+                'coverage': round(len(estimates) / max(seen, 1), 3),
+                'position_rms_mm': round(float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+                                         * 1e3, 3) if len(err) else None,
+                'mean_error_mm': [round(float(v) * 1e3, 3) for v in err.mean(axis=0)]
+                if len(err) else None,
+            }
+    return out
+
+
+def both_cameras_see(rig, truth):
+    """Frames of camera 0 in which the true ball lies inside both cameras' images."""
+    p = truth['state'][:, :3]
+    ok = np.ones(len(p), bool)
+    for cam in rig.cameras:
+        uv = cam.project(p)
+        ok &= cam.in_front(p) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) \
+            & (uv[:, 1] < cam.height)
+    return int(ok.sum())
 
 
 def accuracy(estimates, truth):

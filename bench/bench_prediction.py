@@ -21,16 +21,17 @@
   command on one line, and ``cpu_us_per_state``: the process's CPU time (both kernel threads)
   per state, which leaves out the waits for a core on a shared machine; no target.
 - ``node_latency_ms``: prediction_node in its own process on a core of its own (``taskset``),
-  BallStates published at 500 Hz for 8 s from this process (pinned to the other core) and
+  BallStates published at 500 Hz for 5 s from this process (pinned to the other core) and
   stamped with the time of publishing, latency = arrival of the BallPrediction - its stamp
   (= the state's stamp); p50 and p99. The node and the harness run on the nodes' default
   executor (rclpy's SingleThreadedExecutor; no TT_EXECUTOR). ``node_latency_floor_ms``: the
   same harness and pinning against ``echo_node.py``, which answers without predicting: what
   the platform (two Python processes, DDS, this machine) costs in this run. The target
   (issue 13) is on the difference: node p99 - echo p99 <= 0.3 ms. The two are measured in
-  alternation, ROUNDS times each, and the difference is that of the medians of the rounds'
-  p99s. ``node_latency_unpinned_ms``: prediction_node with both processes left to the
-  scheduler, reported without a target (docs/prediction.md).
+  alternation, ROUNDS times each, and each p99 is that of its rounds' latencies pooled (the
+  same share of every phase of the machine's load in both). ``node_latency_unpinned_ms``:
+  prediction_node with both processes left to the scheduler, reported without a target
+  (docs/prediction.md).
 Runs in about two minutes. ``python bench/run_all.py --only prediction`` or this file directly.
 """
 
@@ -57,8 +58,8 @@ N_REFERENCE = 40
 N_BATCH = 10_000
 N_CLI = 20_000
 NODE_RATE_HZ = 500.0
-NODE_SECONDS = 8.0
-ROUNDS = 2
+NODE_SECONDS = 5.0
+ROUNDS = 3
 """Latency runs of prediction_node and of echo_node each, in alternation."""
 EXECUTOR = 'single'
 """The executor in the latency runs: the nodes' default (docs/prediction.md)."""
@@ -162,7 +163,7 @@ ECHO_NODE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'echo_node.
 
 
 def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
-    """(p50, p99, received, sent, node's callback summary) of the latency in ms.
+    """(p50, p99, received, sent, node's callback summary, all latencies) of the latency in ms.
 
     ``params``: node parameters as 'name:=value'. ``cpus``: None, the scheduler places both
     processes; else (node core, harness core): the node runs under ``taskset -c`` on the
@@ -254,7 +255,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
             sent = n
             time.sleep(0.2)                # let the last answers arrive
         lat = np.array(latencies)
-        result = [float(np.median(lat)), float(np.percentile(lat, 99)), len(lat), sent]
+        result = [float(np.median(lat)), float(np.percentile(lat, 99)), len(lat), sent, lat]
     finally:
         sys.setswitchinterval(switch_interval)
         rclpy.try_shutdown(context=context)
@@ -272,7 +273,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
         summary = [line for line in log.read().splitlines() if 'callback median' in line]
         log.close()
     # The node's own summary at shutdown: the time its callback took (no scheduling waits).
-    return (*result, summary[-1].split(']: ')[-1] if summary else 'not logged')
+    return (*result[:4], summary[-1].split(']: ')[-1] if summary else 'not logged', result[4])
 
 
 def node_cores():
@@ -309,10 +310,11 @@ def run():
     for _ in range(ROUNDS):
         runs.append(node_latency(cpus=cores))
         floors.append(node_latency(cpus=cores, node=(ECHO_NODE,)))
-    p50 = float(np.median([r[0] for r in runs]))
-    p99 = float(np.median([r[1] for r in runs]))
-    floor_p50 = float(np.median([r[0] for r in floors]))
-    floor_p99 = float(np.median([r[1] for r in floors]))
+    # The rounds pooled: the same share of each load phase in both.
+    node_lat = np.concatenate([r[5] for r in runs])
+    floor_lat = np.concatenate([r[5] for r in floors])
+    p50, p99 = float(np.median(node_lat)), float(np.percentile(node_lat, 99))
+    floor_p50, floor_p99 = float(np.median(floor_lat)), float(np.percentile(floor_lat, 99))
     received, sent = sum(r[2] for r in runs), sum(r[3] for r in runs)
     floor_received, floor_sent = sum(r[2] for r in floors), sum(r[3] for r in floors)
     free = node_latency()

@@ -2,8 +2,10 @@
 
 - ``samples_per_s``: data/mpi_launcher (every track, every sample) through
   :func:`tt_prediction.replay.replay_samples` (TrackFilter update + predict per sample, what
-  the two nodes do per BallState) on one core, after a warm-up track (numba compiled and
-  cached); target >= 10,000.
+  the two nodes do per BallState) pinned to one core, after a warm-up track (numba compiled
+  and cached): ``cpu`` by the thread's CPU clock (what one core does; the target, >= 10,000)
+  and ``wall`` by the wall clock (on this shared 2-core machine it also counts the time the
+  core was given to other processes).
 - ``per_sample_ms``: p50 and p99 of one sample's filter update + prediction, timed per call
   with the thread's CPU clock (on this shared 2-core machine the wall clock mostly measures
   other processes) and, for reference, with the wall clock; target p99 <= 0.5 ms (CPU clock).
@@ -33,13 +35,14 @@ def run():
     tracks = read_tracks(str(DATA))
     params = ModelParams()
     packed = params.packed()
-    config = FilterConfig(position_noise=0.9e-3)
+    config = FilterConfig(position_noise=0.57e-3, stamp_noise=0.34e-3)   # as estimated
     replay_samples(tracks[0][1], tracks[0][2], params, config, PLANE)        # warm-up
     n = sum(len(t) for _, t, _, _ in tracks)
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.thread_time()
     for _, t, p, _ in tracks:
         replay_samples(t, p, params, config, PLANE)
     wall = time.perf_counter() - start
+    cpu_total = time.thread_time() - start_cpu
     cpu, wall_each = [], []
     for _, t, p, _ in tracks:
         tf = TrackFilter(params, config)
@@ -52,17 +55,17 @@ def run():
             cpu.append(time.thread_time() - c0)
             wall_each.append(time.perf_counter() - w0)
     cpu_ms, wall_ms = np.array(cpu) * 1e3, np.array(wall_each) * 1e3
-    rate = n / wall
+    rate = n / cpu_total
     p99 = float(np.percentile(cpu_ms, 99))
     return {
         'samples': n,
-        'samples_per_s': round(rate),
+        'samples_per_s': {'cpu': round(rate), 'wall': round(n / wall)},
         'per_sample_ms': {'cpu_p50': round(float(np.median(cpu_ms)), 4),
                           'cpu_p99': round(p99, 4),
                           'wall_p50': round(float(np.median(wall_ms)), 4),
                           'wall_p99': round(float(np.percentile(wall_ms, 99)), 4)},
         'load_average_1min': os.getloadavg()[0],
-        'targets': {'samples_per_s': '>= 10000', 'per_sample_cpu_p99_ms': '<= 0.5'},
+        'targets': {'samples_per_s_cpu': '>= 10000', 'per_sample_cpu_p99_ms': '<= 0.5'},
         'passed': bool(rate >= 10000 and p99 <= 0.5),
     }
 

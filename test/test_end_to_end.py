@@ -69,7 +69,11 @@ def _replay(recording):
             rclpy.parameter.Parameter('hit_plane_x', value=HIT_PLANE_X),
             rclpy.parameter.Parameter('stale_after_s', value=0.0)])
         strike = StrikeNode(context=context, cli_args=remap, parameter_overrides=[
-            rclpy.parameter.Parameter('target_zone', value=TARGET_ZONE)])
+            rclpy.parameter.Parameter('target_zone', value=TARGET_ZONE),
+            # The recording's stamps are not on the node clock; the true ball is struck at
+            # the prediction's hitting plane (demo_report).
+            rclpy.parameter.Parameter('check_hit_time', value=False),
+            rclpy.parameter.Parameter('use_hit_plane', value=True)])
         feeder = rclpy.create_node(f'feeder_{uuid.uuid4().hex[:6]}', context=context)
         nodes = [perception, prediction, strike, feeder]
         for node in nodes:

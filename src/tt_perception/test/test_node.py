@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 import uuid
 
 from geometry_msgs.msg import Vector3Stamped
@@ -19,12 +20,12 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
 
 from tt_msgs.msg import BallState
+from tt_perception import node as node_module
 from tt_perception import synth
 
 T0 = 1000.0      # stamp of the scene's time 0, s
@@ -167,38 +168,23 @@ def test_missing_rig_file_publishes_nothing(graph, tmp_path):
     assert node.states_published == 0
 
 
-def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
-    # The watchdog runs on the node clock: simulated time from a /clock this test publishes,
-    # so a camera is lost after camera_timeout of that clock, whatever the test's pace.
+def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path, monkeypatch):
+    # The watchdog's clock (time.monotonic in the node's module) is the test's: it moves only
+    # when the test moves it, so a camera is lost after camera_timeout of that clock, whatever
+    # the test's pace.
     ctx, executor, add = graph
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     frames, _ = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
     frames = list(frames)
-    node = add(PerceptionNode(
-        context=ctx, cli_args=['--ros-args', '-r', f'/clock:={ns}/clock'],
-        parameter_overrides=[Parameter('rig_file', value=rig_path),
-                             Parameter('camera_timeout', value=0.2),
-                             Parameter('use_sim_time', value=True)]))
+    now = [10.0]
+    monkeypatch.setattr(node_module, 'time', types.SimpleNamespace(monotonic=lambda: now[0]))
+    node = add(PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=rig_path), Parameter('camera_timeout', value=0.2)]))
     peer = add(rclpy.create_node('image_player', context=ctx))
     pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
-    clock_pub = peer.create_publisher(
-        Clock, f'{ns}/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs)
-                      and clock_pub.get_subscription_count() > 0)
+    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
     sent = 0
-
-    def set_clock(t):
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = divmod(round(t * 1e9), 1_000_000_000)
-
-        def arrived():
-            if node.get_clock().now().nanoseconds == round(t * 1e9):
-                return True
-            clock_pub.publish(msg)               # best effort, as /clock is: until seen
-            return False
-
-        assert spin_until(executor, arrived)
 
     def send(cameras):
         nonlocal sent
@@ -208,16 +194,15 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
                 sent += 1
                 assert spin_until(executor, lambda n=sent: node.frames_received >= n)
 
-    set_clock(10.0)
     send({0, 1})
-    # 0.15 s later (< camera_timeout) only camera 0 sends; no camera is lost yet.
-    set_clock(10.15)
+    # 0.15 s later (< camera_timeout) only camera 0 sends: no camera is lost yet.
+    now[0] = 10.15
     send({0})
     node._watch_cameras()
     assert not node._lost
     # At 10.3 s camera 1's last frame is 0.3 s old (> 0.2 s), camera 0's 0.15 s: the watchdog
-    # (its timer, 0.25 s of the node clock, due by then) reports camera 1 alone.
-    set_clock(10.3)
+    # (its own timer) reports camera 1 alone.
+    now[0] = 10.3
     assert spin_until(executor, lambda: node._lost)
     assert node._lost == {1}
     send({0, 1})

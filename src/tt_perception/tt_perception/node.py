@@ -5,7 +5,7 @@ ROS glue only (the math is in the pure modules). Each camera of the rig file com
 ``camera_info`` topic, sensor-data QoS), a V4L2 device (a thread per device) or a video file
 (one thread reads the files together, paced at the rig's fps; times are video times, from 0,
 published on /clock with ``publish_clock`` so that nodes with ``use_sim_time`` share them;
-the frame-draining timer runs on the steady clock, the camera watchdog on the node clock).
+the frame-draining timer runs on the steady clock).
 Every
 frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
 tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
@@ -182,7 +182,7 @@ class PerceptionNode(Node):
                                                       daemon=True))
             else:
                 files.append(k)
-            self._last_frame[k] = self._now_s()
+            self._last_frame[k] = time.monotonic()
         if files:
             self._threads.append(threading.Thread(target=self._read_files, args=(files,),
                                                   daemon=True))
@@ -194,7 +194,7 @@ class PerceptionNode(Node):
             # On the steady clock: with use_sim_time a ROS-time timer would wait for /clock
             # (which this node may itself be the source of) to drain the frames.
             self.create_timer(0.002, self._drain, clock=self.steady)
-        self.create_timer(0.25, self._watch_cameras)     # the node clock, as _now_s
+        self.create_timer(0.25, self._watch_cameras)
         for thread in self._threads:
             thread.start()
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
@@ -315,7 +315,7 @@ class PerceptionNode(Node):
         if self.pipeline is None:
             return
         self.frames_received += 1
-        self._last_frame[k] = self._now_s()
+        self._last_frame[k] = time.monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
@@ -341,13 +341,8 @@ class PerceptionNode(Node):
         set_time(self.clock_msg.clock, ns)
         self.clock_pub.publish(self.clock_msg)
 
-    def _now_s(self):
-        """The node clock's time, s: the camera watchdog's time (simulated time under
-        use_sim_time, as its timer's)."""
-        return self.get_clock().now().nanoseconds * 1e-9
-
     def _watch_cameras(self):
-        now = self._now_s()
+        now = time.monotonic()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             if (now - last > timeout and k not in self._lost and k not in self._ended

@@ -186,7 +186,7 @@ class Tracker:
                 d2 = self.filter.innovation(X, R)[2]
                 if best is None or d2 < best[0]:
                     best = (d2, X, R)
-            if best is not None and self.filter.update(best[1], best[2]):
+            if best is not None and self.filter.update(best[1], best[2], rebounce=True):
                 self.updates += 1
                 self.last_update = t
                 if self.updates >= cfg.confirm_updates:

@@ -140,15 +140,23 @@ def _background(cam, rng):
     return img
 
 
-def _draw_ball(frame, centres, radius, colour, gain):
-    """Blend a motion-blurred disc into ``frame``: mean coverage of discs at ``centres``."""
+def _ball_box(frame, centres, radius):
+    """Pixel box (x0, y0, x1, y1) of ``frame`` holding discs of ``radius`` at ``centres``
+    (n, 2), or None when it lies outside the image."""
     h, w = frame.shape[:2]
     lo = np.floor(centres.min(axis=0) - radius - 2).astype(int)
     hi = np.ceil(centres.max(axis=0) + radius + 2).astype(int)
     x0, y0 = max(lo[0], 0), max(lo[1], 0)
     x1, y1 = min(hi[0] + 1, w), min(hi[1] + 1, h)
-    if x1 <= x0 or y1 <= y0:
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+
+def _draw_ball(frame, centres, radius, colour, gain):
+    """Blend a motion-blurred disc into ``frame``: mean coverage of discs at ``centres``."""
+    box = _ball_box(frame, centres, radius)
+    if box is None:
         return
+    x0, y0, x1, y1 = box
     ys, xs = np.mgrid[y0:y1, x0:x1]
     cover = np.zeros(xs.shape)
     for cx, cy in centres:
@@ -173,13 +181,10 @@ def _draw_ball_lit(frame, centres, radius, colour, gain, R, light):
     ``ambient``, ``diffuse``, ``specular`` and ``shininess``. The pixel is the mean over the
     exposure of ball (where covered) and background.
     """
-    h, w = frame.shape[:2]
-    lo = np.floor(centres.min(axis=0) - radius - 2).astype(int)
-    hi = np.ceil(centres.max(axis=0) + radius + 2).astype(int)
-    x0, y0 = max(lo[0], 0), max(lo[1], 0)
-    x1, y1 = min(hi[0] + 1, w), min(hi[1] + 1, h)
-    if x1 <= x0 or y1 <= y0:
+    box = _ball_box(frame, centres, radius)
+    if box is None:
         return
+    x0, y0, x1, y1 = box
     l_cam = R @ np.asarray(light['direction'], float)
     l_cam /= np.linalg.norm(l_cam)
     half = l_cam + np.array([0.0, 0.0, -1.0])       # toward the light and toward the camera

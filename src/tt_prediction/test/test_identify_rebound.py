@@ -99,3 +99,23 @@ def test_heldout_track_is_gated_with_the_folds_fit_not_its_all_track_mask():
     spiked.p[20] += [0.0, 0.0, 0.06]
     held, _ = evaluate.gated_heldout([spiked], g, [states[0]])
     assert not held[0].mask[20] and held[0].mask.sum() == len(tr.t) - 1
+
+
+def test_a_parameter_fitted_at_its_plausible_bound_is_flagged():
+    from tt_prediction.identify.pipeline import _at_bound, _prediction_improves
+    hi = ball_field('e_t_spin_slope').bounds[1]
+    g = fitting.Globals(ModelParams(), ['e_t_spin_slope', 'spin_decay'], [hi, 0.0])
+    # At the upper bound: flagged; 0 on a lower bound of 0 is the effect switched off.
+    assert _at_bound(g, ['e_t_spin_slope', 'spin_decay']) == ['e_t_spin_slope']
+    g = fitting.Globals(ModelParams(), ['e_t_spin_slope'], [0.3 * hi])
+    assert _at_bound(g, ['e_t_spin_slope']) == []
+    # Selection needs both held-out prediction errors to drop.
+    before = {'rms_mm': 38.8, 'hit_err_mm': 26.9}
+    assert _prediction_improves(before, {'rms_mm': 25.7, 'hit_err_mm': 22.9})
+    assert not _prediction_improves(before, {'rms_mm': 27.1, 'hit_err_mm': 28.5})
+    assert not _prediction_improves(before, {'rms_mm': 39.0, 'hit_err_mm': 20.0})
+
+
+def ball_field(name):
+    from tt_prediction.ball import FIELD
+    return FIELD[name]

@@ -42,12 +42,24 @@ def test_ok_ball_bounces_on_the_robots_half_then_crosses_the_plane_exactly():
     assert pred.hit.v[0] < 0.0 and pred.hit.p[2] > R
 
 
+def grazes_the_net(state):
+    """True when the centre crosses x = 0 less than 5 mm above the height NET_HEIGHT + r at
+    which the reference's line net stops it: there the sphere may touch the net's top edge
+    before or after x = 0 (descending at 30 deg it does up to r (1/cos 30 deg - 1) = 3 mm
+    above), which the reference does not model."""
+    events, _ = rollout(state, NOMINAL, plane_x=0.0, stop_at_net=False, max_bounces=1)
+    last = events[-1]
+    return last.kind == 'plane' and 0.0 <= last.state[2] - NET_HEIGHT - R < 5e-3
+
+
 @pytest.mark.parametrize('seed', [0, 1])
 def test_agrees_with_the_scipy_reference_on_events_and_hit_point(seed):
     rng = np.random.default_rng(seed)
     n_ok = 0
     for state in random_incoming(rng, 12):
         fast, ref = predict(state, NOMINAL), reference_predict(state, NOMINAL)
+        if grazes_the_net(state):
+            continue        # the reference takes the net as a line; predict as a body
         assert fast.status == ref.status
         if ref.bounce is not None:
             assert fast.bounce.t == pytest.approx(ref.bounce.t, abs=1e-8)

@@ -17,7 +17,9 @@ Equations (MODEL.md, paper numbering):
 
 Integration: :func:`rk4_step` (one step of eq. 8), :func:`rollout_kernel` (events: bounce,
 net, plane, floor, roll, timeout) and :func:`rollout` (its Python face), and the one landing
-kernel :func:`landing_kernel` (a ball leaving the racket until its first table contact).
+kernel :func:`landing_kernel` (a ball leaving the racket until its first table contact) on
+predict.py's :func:`flight_kernel` / :func:`landing_flight` (one flight leg to its first
+contact, the table as a solid body: :func:`solid_gap`).
 """
 
 from .integrate import (
@@ -87,7 +89,34 @@ from .params import (
     ModelParams,
     load_model,
 )
-from .predict import landing_kernel
+from .predict import (
+    CONTACT_EDGE,
+    CONTACT_FLOOR,
+    CONTACT_KINDS,
+    CONTACT_NET,
+    CONTACT_OFF,
+    CONTACT_PLANE,
+    CONTACT_POST,
+    CONTACT_TIMEOUT,
+    CONTACT_TOP,
+    FL_CROSS_T,
+    FL_CROSS_X,
+    FL_CROSS_Y,
+    FL_KIND,
+    FL_NET_T,
+    FL_NET_Y,
+    FL_NET_Z,
+    FL_S,
+    FL_SAMPLES,
+    FL_T,
+    FLIGHT_N,
+    TOP_THICKNESS,
+    flight_kernel,
+    landing_flight,
+    landing_kernel,
+    packed_params,
+    solid_gap,
+)
 from .table import (
     HALF_LENGTH,
     HALF_WIDTH,
@@ -117,6 +146,12 @@ __all__ = [
     'table_rebound_inplace', 'racket_rebound', 'racket_rebound_inplace',
     # integration
     'rk4_step', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event', 'DEFAULT_STEP',
+    # the one flight kernel with the table as a body (predict.py): its result row and kinds
+    'flight_kernel', 'landing_flight', 'solid_gap', 'packed_params', 'TOP_THICKNESS',
+    'FLIGHT_N', 'FL_KIND', 'FL_T', 'FL_S', 'FL_NET_T', 'FL_NET_Y', 'FL_NET_Z', 'FL_CROSS_T',
+    'FL_CROSS_X', 'FL_CROSS_Y', 'FL_SAMPLES', 'CONTACT_KINDS', 'CONTACT_TOP', 'CONTACT_EDGE',
+    'CONTACT_NET', 'CONTACT_POST', 'CONTACT_FLOOR', 'CONTACT_PLANE', 'CONTACT_TIMEOUT',
+    'CONTACT_OFF',
     'ROLL_SPEED', 'STOP_AT_NET', 'STOP_AT_PLANE', 'EVENT_BOUNCE', 'EVENT_NET', 'EVENT_PLANE',
     'EVENT_FLOOR', 'EVENT_ROLL', 'EVENT_TIMEOUT', 'EVENT_NAMES',
     # table

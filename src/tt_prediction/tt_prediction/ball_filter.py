@@ -6,11 +6,11 @@ measured tracks (``tt_prediction.replay``, 3-D positions) run this same filter.
 
 Flight. The state follows eq. 8 (drag + Magnus, with the effects of model.yaml) by one RK4
 step of the model's own derivative; the covariance by Phi = I + F h + (F h)^2 / 2 with F the
-analytic Jacobian of eq. 8 (:func:`flight_jacobian`) and the process noise of a white
-unmodelled acceleration (``accel_noise``) and a spin random walk (``spin_noise``). The spin
-enters the positions only through the Magnus term k_M w x u, so flight observes the spin
-across the velocity (from the curvature of the path) and not the component along it: that
-component keeps its prior variance, it is not invented.
+analytic Jacobian of eq. 8 (:func:`tt_prediction.ball.flight_jacobian`) and the process
+noise of a white unmodelled acceleration (``accel_noise``) and a spin random walk
+(``spin_noise``). The spin enters the positions only through the Magnus term k_M w x u,
+so flight observes the spin across the velocity (from the curvature of the path) and not
+the component along it: that component keeps its prior variance, it is not invented.
 
 Bounce. When the predicted centre reaches the contact height (z = r, the table surface)
 moving down over the table, the state is taken to the contact, the rebound of eqs. 1-6 is
@@ -38,34 +38,27 @@ import math
 from numba import njit
 import numpy as np
 
-from .integrate import _rk4  # TODO(ball): tt_prediction.ball.rk4_step once it lands
-from .model import flight_derivative, table_rebound_inplace
-from .params import (
-    DRAG_SPEED_REF,
-    I_AREA,
-    I_CD,
-    I_CD_SLOPE,
-    I_CD_SPIN_SLOPE,
-    I_CM,
-    I_CM_SLOPE,
+from .ball import (
+    HALF_LENGTH,
+    HALF_WIDTH,
     I_ET,
     I_ET_SLOPE,
-    I_MASS,
+    I_ET_SPIN_SLOPE,
+    I_ET_TANGENTIAL,
     I_MU,
+    I_MU_SLIP_SLOPE,
     I_MU_SLOPE,
     I_RADIUS,
-    I_RHO,
-    I_SPIN_DECAY,
-    I_WIND_X,
-    I_WIND_Y,
-    I_WIND_Z,
     IMPACT_SPEED_REF,
-    LIFT_SPIN_RATIO_REF,
+    SLIP_SPEED_REF,
     ModelParams,
+    flight_derivative,
+    flight_jacobian,
+    rk4_step,
+    table_rebound_inplace,
 )
-from .table import HALF_LENGTH, HALF_WIDTH
 
-__all__ = ['BallFilter', 'FilterConfig', 'TrackFilter', 'flight_jacobian', 'rebound_jacobian',
+__all__ = ['BallFilter', 'FilterConfig', 'TrackFilter', 'rebound_jacobian',
            'skew', 'estimate_position_noise', 'estimate_measurement_noise']
 
 _NJIT = {'cache': True, 'nogil': True}
@@ -130,97 +123,18 @@ def skew(a):
 
 
 @njit(**_NJIT)
-def flight_jacobian(s, P, F):
-    """Continuous-time Jacobian d(ds/dt)/ds of the flight (eq. 8) at ``s`` into ``F`` (9, 9).
-
-    With u = v - wind, a = -k_D c_D(|u|, rho_s) |u| u + k_M c_M(rho_s) (w x u) - g e_z,
-    k_D = rho A / (2 m), k_M = 4/3 pi rho r^3 / m, spin ratio rho_s = r |w| / |u|:
-        da/du = -k_D (c_D |u| I + u (c_D u/|u| + |u| dc_D/du)^T) + k_M (c_M [w]x
-                + (w x u) (dc_M/du)^T),
-        da/dw = -k_D |u| u (dc_D/dw)^T + k_M (-c_M [u]x + (w x u) (dc_M/dw)^T),
-        dw'/dw = -spin_decay I;
-    the effect slopes of params.py enter through dc_D and dc_M.
-    """
-    for i in range(9):
-        for j in range(9):
-            F[i, j] = 0.0
-    F[0, 3] = 1.0
-    F[1, 4] = 1.0
-    F[2, 5] = 1.0
-    m = P[I_MASS]
-    r = P[I_RADIUS]
-    rho = P[I_RHO]
-    u = np.empty(3)
-    u[0] = s[3] - P[I_WIND_X]
-    u[1] = s[4] - P[I_WIND_Y]
-    u[2] = s[5] - P[I_WIND_Z]
-    w = s[6:9]
-    speed = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    if speed < 1e-9:
-        speed = 1e-9
-    spin = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    kd = 0.5 * rho * P[I_AREA] / m
-    km = 4.0 / 3.0 * math.pi * rho * r * r * r / m
-    c_d = P[I_CD] + P[I_CD_SLOPE] * (speed - DRAG_SPEED_REF)
-    c_m = P[I_CM]
-    dcd_du = np.zeros(3)
-    dcd_dw = np.zeros(3)
-    dcm_du = np.zeros(3)
-    dcm_dw = np.zeros(3)
-    for i in range(3):
-        dcd_du[i] = P[I_CD_SLOPE] * u[i] / speed
-    if P[I_CM_SLOPE] != 0.0 or P[I_CD_SPIN_SLOPE] != 0.0:
-        ratio = r * spin / speed - LIFT_SPIN_RATIO_REF
-        c_m += P[I_CM_SLOPE] * ratio
-        c_d += P[I_CD_SPIN_SLOPE] * ratio
-        for i in range(3):
-            dr_du = -r * spin * u[i] / (speed * speed * speed)
-            dr_dw = r * w[i] / (max(spin, 1e-9) * speed)
-            dcm_du[i] = P[I_CM_SLOPE] * dr_du
-            dcm_dw[i] = P[I_CM_SLOPE] * dr_dw
-            dcd_du[i] += P[I_CD_SPIN_SLOPE] * dr_du
-            dcd_dw[i] += P[I_CD_SPIN_SLOPE] * dr_dw
-    wxu = np.empty(3)
-    wxu[0] = w[1] * u[2] - w[2] * u[1]
-    wxu[1] = w[2] * u[0] - w[0] * u[2]
-    wxu[2] = w[0] * u[1] - w[1] * u[0]
-    for i in range(3):
-        for j in range(3):
-            # drag: d(c_D |u| u_i)/du_j
-            d = c_d * speed * (1.0 if i == j else 0.0) + u[i] * (
-                c_d * u[j] / speed + speed * dcd_du[j])
-            F[3 + i, 3 + j] = -kd * d + km * wxu[i] * dcm_du[j]
-            F[3 + i, 6 + j] = -kd * speed * u[i] * dcd_dw[j] + km * wxu[i] * dcm_dw[j]
-    # Magnus: d(w x u)/du = [w]x, d(w x u)/dw = -[u]x
-    F[3, 4] += km * c_m * -w[2]
-    F[3, 5] += km * c_m * w[1]
-    F[4, 3] += km * c_m * w[2]
-    F[4, 5] += km * c_m * -w[0]
-    F[5, 3] += km * c_m * -w[1]
-    F[5, 4] += km * c_m * w[0]
-    F[3, 7] += -km * c_m * -u[2]
-    F[3, 8] += -km * c_m * u[1]
-    F[4, 6] += -km * c_m * u[2]
-    F[4, 8] += -km * c_m * -u[0]
-    F[5, 6] += -km * c_m * -u[1]
-    F[5, 7] += -km * c_m * u[0]
-    k = P[I_SPIN_DECAY]
-    F[6, 6] = -k
-    F[7, 7] = -k
-    F[8, 8] = -k
-
-
-@njit(**_NJIT)
 def rebound_jacobian(s, P, J):
     """Jacobian (9, 9) of the table rebound (eqs. 1-6) at the pre-contact state ``s`` into J.
 
-    Positions pass unchanged. With v_T = (v_x - r w_y, v_y + r w_x) and sliding
-    alpha = mu (1 + e_t) |v_z| / |v_T| (alpha = 2/5 when rolling, a constant):
+    Positions pass unchanged. With v_T = (v_x - r w_y, v_y + r w_x) and the slip ratio
+    alpha = mu (1 + e_t) |v_z| / |v_T| while it stays below the grip ratio 2/5 (1 + e_x)
+    (that constant otherwise):
         v_x' = (1 - alpha) v_x + alpha r w_y,   w_x' = (1 - 3 alpha/2) w_x - 3 alpha/(2r) v_y,
         v_y' = (1 - alpha) v_y - alpha r w_x,   w_y' = (1 - 3 alpha/2) w_y + 3 alpha/(2r) v_x,
-        v_z' = -e_t(v_z) v_z,                   w_z' = w_z;
-    J holds the explicit partials plus (d out / d alpha) (d alpha / d s)^T, with the
-    impact-speed restitution and spin-dependent friction effects in e_t and mu.
+        v_z' = -e_t v_z,                        w_z' = w_z;
+    J holds the explicit partials plus (d out / d alpha) (d alpha / d s)^T and
+    (d v_z' / d e_t) (d e_t / d s)^T, with the effects in e_t (impact speed, spin) and mu
+    (spin, slip speed) as :func:`tt_prediction.ball.table_rebound_inplace` has them.
     """
     for i in range(9):
         for j in range(9):
@@ -228,48 +142,61 @@ def rebound_jacobian(s, P, J):
     r = P[I_RADIUS]
     vx, vy, vz = s[3], s[4], s[5]
     wx, wy, wz = s[6], s[7], s[8]
-    e_raw = P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
-    e_t = min(max(e_raw, 0.0), 1.0)
-    de_dvz = P[I_ET_SLOPE] * (1.0 if vz > 0.0 else -1.0) if 0.0 < e_raw < 1.0 else 0.0
     spin = math.sqrt(wx * wx + wy * wy + wz * wz)
-    mu_raw = P[I_MU] + P[I_MU_SLOPE] * spin
-    mu = max(mu_raw, 0.0)
-    dmu_dw = np.zeros(3)
-    if P[I_MU_SLOPE] != 0.0 and mu_raw > 0.0 and spin > 1e-9:
-        dmu_dw[0] = P[I_MU_SLOPE] * wx / spin
-        dmu_dw[1] = P[I_MU_SLOPE] * wy / spin
-        dmu_dw[2] = P[I_MU_SLOPE] * wz / spin
     vtx = vx - r * wy
     vty = vy + r * wx
     vt = math.sqrt(vtx * vtx + vty * vty)
-    alpha = 0.4
+    sgn = 1.0 if vz > 0.0 else -1.0
+    # d|w|/dw and d|v_T|/ds (zero where undefined)
+    dspin = np.zeros(9)
+    if spin > 1e-12:
+        dspin[6] = wx / spin
+        dspin[7] = wy / spin
+        dspin[8] = wz / spin
+    dvt = np.zeros(9)
+    if vt > 1e-12:
+        dvt[3] = vtx / vt
+        dvt[4] = vty / vt
+        dvt[6] = r * vty / vt
+        dvt[7] = -r * vtx / vt
+    e_raw = (P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
+             + P[I_ET_SPIN_SLOPE] * r * spin)
+    e_t = min(max(e_raw, 0.0), 1.0)
+    de = np.zeros(9)
+    if 0.0 < e_raw < 1.0:
+        de[5] = P[I_ET_SLOPE] * sgn
+        for j in range(6, 9):
+            de[j] = P[I_ET_SPIN_SLOPE] * r * dspin[j]
+    mu_raw = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
+    mu = max(mu_raw, 0.0)
+    dmu = np.zeros(9)
+    if mu_raw > 0.0:
+        for j in range(9):
+            dmu[j] = P[I_MU_SLOPE] * dspin[j] + P[I_MU_SLIP_SLOPE] * dvt[j]
+    grip = 0.4 * (1.0 + P[I_ET_TANGENTIAL])
+    alpha = grip
     da = np.zeros(9)          # d alpha / d s
     if vt > 1e-12:
         slip = mu * (1.0 + e_t) * abs(vz) / vt
-        if 1.0 - 2.5 * slip > 0.0:
+        if slip < grip:
             alpha = slip
-            sgn = 1.0 if vz > 0.0 else -1.0
-            da[5] = mu * (de_dvz * abs(vz) + (1.0 + e_t) * sgn) / vt
-            # d|v_T|: dvt/dvx = vtx/vt, dvt/dvy = vty/vt, dvt/dwx = r vty/vt, dvt/dwy = -r vtx/vt
-            c = -slip / (vt * vt)
-            da[3] = c * vtx
-            da[4] = c * vty
-            da[6] = c * r * vty
-            da[7] = -c * r * vtx
-            k = (1.0 + e_t) * abs(vz) / vt
-            da[6] += k * dmu_dw[0]
-            da[7] += k * dmu_dw[1]
-            da[8] += k * dmu_dw[2]
-    # Explicit partials (alpha fixed).
+            for j in range(9):
+                da[j] = (dmu[j] * (1.0 + e_t) * abs(vz) / vt
+                         + mu * de[j] * abs(vz) / vt
+                         - slip / vt * dvt[j])
+            da[5] += mu * (1.0 + e_t) * sgn / vt
+    # Explicit partials (alpha and e_t fixed).
     J[3, 3] = 1.0 - alpha
     J[3, 7] = alpha * r
     J[4, 4] = 1.0 - alpha
     J[4, 6] = -alpha * r
-    J[5, 5] = -e_t - vz * de_dvz
+    J[5, 5] = -e_t
     J[6, 6] = 1.0 - 1.5 * alpha
     J[6, 4] = -1.5 * alpha / r
     J[7, 7] = 1.0 - 1.5 * alpha
     J[7, 3] = 1.5 * alpha / r
+    for j in range(9):
+        J[5, j] -= vz * de[j]
     # d out / d alpha
     dout = np.zeros(9)
     dout[3] = -vx + r * wy
@@ -295,7 +222,7 @@ def _propagate(x, C, h, P, q_acc, q_spin):
     k3 = np.empty(9)
     k4 = np.empty(9)
     tmp = np.empty(9)
-    _rk4(x, h, P, out, k1, k2, k3, k4, tmp)
+    rk4_step(x, h, P, out, k1, k2, k3, k4, tmp)
     Cn = Phi @ C @ Phi.T
     a = q_acc * h
     for i in range(3):
@@ -606,6 +533,7 @@ class TrackFilter:
         self.robot_bounced = False
         self.robot_bounce = None
         self._last = None          # the latest valid sample (t, p)
+        self._before = None        # the one before it
         self._seen_bounce = None
         self._g = np.array([0.0, 0.0, -self.params.gravity])
         self._R = np.eye(3) * self.config.position_noise ** 2
@@ -652,7 +580,7 @@ class TrackFilter:
         if not math.isfinite(t) or (f is not None and t <= f.t) or (
                 self._last is not None and t <= self._last[0]):
             return self.SKIPPED
-        if not np.all(np.isfinite(p)):
+        if not math.isfinite(p[0] + p[1] + p[2]):
             if f is not None:
                 self._predict(t)
             return self.COASTED
@@ -663,8 +591,8 @@ class TrackFilter:
             self._predict(t)
             R = self._R
             if cfg.stamp_noise > 0.0:
-                v = f.x[3:6]
-                R = R + cfg.stamp_noise ** 2 * np.outer(v, v)
+                v = f.x[3:6, None] * cfg.stamp_noise
+                R = R + v @ v.T
             if f.update(p, R, rebounce=True):
                 self.updates += 1
                 self.rejects = 0
@@ -673,12 +601,24 @@ class TrackFilter:
                 self._note_bounce()
             else:
                 self.rejects += 1
-        if ((f is None or self.rejects >= cfg.max_rejects) and self._last is not None
-                and t - self._last[0] <= cfg.max_gap):
+        if ((f is None or self.rejects >= cfg.max_rejects) and self._consistent(t, p)):
             self._start(t, p)
             status = self.STARTED
-        self._last = (t, p)
+        self._before, self._last = self._last, (t, p)
         return status
+
+    def _consistent(self, t, p):
+        """True when the last two samples and (t, p) lie on one flight within ``max_gap``:
+        the third within 15 mm of the second's ballistic extrapolation (a start from a spike
+        would follow a wrong velocity)."""
+        if self._last is None or self._before is None:
+            return False
+        (t0, p0), (t1, p1) = self._before, self._last
+        if t - t0 > self.config.max_gap or not (t0 < t1 < t):
+            return False
+        v = (p1 - p0) / (t1 - t0) + 0.5 * self._g * (t1 - t0)
+        dt = t - t1
+        return bool(np.linalg.norm(p1 + v * dt + 0.5 * self._g * dt * dt - p) < 0.015)
 
     def _predict(self, t):
         self.filter.predict(t)

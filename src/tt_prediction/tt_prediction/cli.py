@@ -43,8 +43,33 @@ def parse_object(text, lineno):
     return data
 
 
+_NUMBER = (int, float)        # what JSON numbers decode to (bool, an int subclass, is not one)
+
+
+def _fast_values(data):
+    """The 10 numbers [t, p, v, w] of a well-formed line (exact types, as JSON decodes them),
+    or None for anything else (the full check then names what is wrong)."""
+    try:
+        t, p, v, w = data['t'], data['p'], data['v'], data['w']
+    except KeyError:
+        return None
+    if (type(t) not in _NUMBER or type(p) is not list or type(v) is not list
+            or type(w) is not list or len(p) != 3 or len(v) != 3 or len(w) != 3):
+        return None
+    values = [t, *p, *v, *w]
+    for c in values:
+        if type(c) not in _NUMBER:
+            return None
+    return [float(c) for c in values]
+
+
 def parse_state(data, lineno, radius):
     """(t, state9) of one line's JSON object ``data``; raises InputError naming the line."""
+    fast = _fast_values(data)
+    if fast is not None and math.isfinite(fast[0]):
+        reason = check_state(fast[1:], radius)
+        if not reason:
+            return fast[0], fast[1:]
     values = []
     for key, size in FIELDS:
         if key not in data:
@@ -105,7 +130,8 @@ def main(argv=None):
         return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
-        epilog='Input and output formats: see docs/prediction.md.')
+        epilog='Input and output formats: see docs/prediction.md. Replay of measured tracks: '
+               'tt-predict --tracks DIR --out OUT (tt-predict --tracks DIR -h).')
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')

@@ -17,8 +17,8 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interactive backend)
 
+from .ball import load_model  # noqa: E402
 from .identify.data import DataError  # noqa: E402
-from .params import load_model  # noqa: E402
 from .replay import LEADS_MS, replay_tracks  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
 

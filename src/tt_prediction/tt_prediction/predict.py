@@ -28,23 +28,15 @@ import math
 from numba import njit, prange
 import numpy as np
 
-from .integrate import (
-    EVENT_BOUNCE,
-    EVENT_FLOOR,
-    EVENT_NET,
-    EVENT_PLANE,
-    EVENT_ROLL,
-    EVENT_TIMEOUT,
-    STOP_AT_NET,
-    STOP_AT_PLANE,
-    rollout_kernel,
-)
+from .integrate import ROLL_SPEED, _locate, _rk4, rollout
+from .model import table_rebound_inplace
 from .params import I_RADIUS, ModelParams
-from .table import HALF_LENGTH, HALF_WIDTH, NET_HEIGHT, TABLE_HEIGHT, zone_of
+from .table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT, TABLE_HEIGHT, zone_of
 
 STATUSES = ('ok', 'net', 'no_bounce', 'miss', 'wrong_half', 'double_bounce', 'no_hit',
-            'timeout', 'invalid')
-(OK, NET, NO_BOUNCE, MISS, WRONG_HALF, DOUBLE_BOUNCE, NO_HIT, TIMEOUT, INVALID) = range(9)
+            'timeout', 'invalid', 'table_edge', 'net_post')
+(OK, NET, NO_BOUNCE, MISS, WRONG_HALF, DOUBLE_BOUNCE, NO_HIT, TIMEOUT, INVALID, TABLE_EDGE,
+ NET_POST) = range(11)
 
 DEFAULT_HIT_PLANE_X = -1.5
 """Default hitting plane x = -1.50 m (DESIGN.md, tt-predict), 13 cm behind the end line."""
@@ -65,7 +57,8 @@ BELOW_TOLERANCE = 2e-3
 touching it (measurement noise); further down it is inside or under the table, m."""
 
 # Layout of the compiled kernels' output row.
-_N_OUT = 26
+_N_OUT = 27
+_O_N_PATH = 26      # rows of the post-bounce path written (predict_kernel's samples)
 (_O_STATUS, _O_BOUNCE_OK, _O_BOUNCE_T, _O_BOUNCE_P, _O_BOUNCE_ZONE, _O_BOUNCE_HALF,
  _O_HIT_OK, _O_HIT_T, _O_HIT_P, _O_HIT_V, _O_HIT_W, _O_STOP_KIND, _O_STOP_T, _O_STOP_P,
  _O_NET_OK, _O_NET_Z) = (0, 1, 2, 3, 6, 7, 8, 9, 10, 13, 16, 19, 20, 21, 24, 25)
@@ -118,7 +111,9 @@ class Prediction:
     ball the bounce itself; for a ball leaving the racket its landing) or None;
     ``net_clearance`` the height of the ball's bottom above the net's top where it crosses
     x = 0 (m, NaN when it does not cross; :func:`predict_landing` only); ``path`` (k, 3)
-    ball centres at the requested sample times until the flight stops, or None.
+    ball centres at the requested sample times until the flight stops, or None;
+    ``hit_path`` (k, 10) rows [t, p, v, w] after the bounce on the robot's half (predict with
+    hit_path only).
     """
 
     status: str
@@ -127,6 +122,7 @@ class Prediction:
     landing: Contact = None
     net_clearance: float = math.nan
     path: np.ndarray = None
+    hit_path: np.ndarray = None
     explanation: str = dataclasses.field(default='', repr=False)
     _why: tuple = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -193,6 +189,249 @@ def _valid_mask(states, radius):
 
 
 # ----------------------------------------------------------------------------------------------
+# The flight kernel: one flight leg to its first contact (the one landing kernel)
+
+TOP_THICKNESS = 0.03
+"""Depth of the table top's end and side faces, m (MODEL.md: z from -0.03 to 0)."""
+CONTACT_KINDS = ('none', 'top', 'table_edge', 'net', 'net_post', 'floor', 'plane', 'timeout',
+                 'off_table')
+(CONTACT_NONE, CONTACT_TOP, CONTACT_EDGE, CONTACT_NET, CONTACT_POST, CONTACT_FLOOR,
+ CONTACT_PLANE, CONTACT_TIMEOUT, CONTACT_OFF) = range(9)
+
+# Layout of the flight kernel's result row (FLIGHT_N,).
+FLIGHT_N = 18
+(FL_KIND, FL_T, FL_S, FL_NET_T, FL_NET_Y, FL_NET_Z, FL_CROSS_T, FL_CROSS_X, FL_CROSS_Y,
+ FL_SAMPLES) = (0, 1, 2, 11, 12, 13, 14, 15, 16, 17)
+_SUBSTEPS = 8        # sub-samples per step at which the gap to the solids is checked
+_BISECT = 32         # bisection iterations locating a contact in a step (h / 2^32)
+
+
+@njit(cache=True, nogil=True)
+def solid_gap(x, y, z, r):
+    """Gap between the ball (centre x, y, z, radius r; table frame, m) and the nearest solid:
+    the table top (a slab z in [-TOP_THICKNESS, 0] over the 2.74 x 1.525 m footprint) or the
+    net with its posts (the plane x = 0, |y| <= NET_HALF_WIDTH, z from -TOP_THICKNESS to
+    NET_HEIGHT). MODEL.md, "Frames and the table".
+
+    Returns ``(gap, kind)``: gap in m (<= 0: touching or inside), kind the CONTACT_* of that
+    solid at its nearest point: top (the playing surface, from above), table_edge (an end or
+    side face, an edge, the underside), net (the net over the table) or net_post (the net
+    beyond a side line, or a post).
+    """
+    ax = abs(x)
+    ay = abs(y)
+    dx = ax - HALF_LENGTH if ax > HALF_LENGTH else 0.0
+    dy = ay - HALF_WIDTH if ay > HALF_WIDTH else 0.0
+    if z > 0.0:
+        dz = z
+    elif z < -TOP_THICKNESS:
+        dz = -TOP_THICKNESS - z
+    else:
+        dz = 0.0
+    gap = math.sqrt(dx * dx + dy * dy + dz * dz) - r
+    kind = CONTACT_TOP if (dx == 0.0 and dy == 0.0 and z > 0.0) else CONTACT_EDGE
+    ny = ay - NET_HALF_WIDTH if ay > NET_HALF_WIDTH else 0.0
+    if z > NET_HEIGHT:
+        nz = z - NET_HEIGHT
+    elif z < -TOP_THICKNESS:
+        nz = -TOP_THICKNESS - z
+    else:
+        nz = 0.0
+    gap_net = math.sqrt(ax * ax + ny * ny + nz * nz) - r
+    if gap_net < gap:
+        gap = gap_net
+        kind = CONTACT_NET if ay <= HALF_WIDTH else CONTACT_POST
+    return gap, kind
+
+
+@njit(cache=True, nogil=True)
+def _hermite(s, s1, h, u, i):
+    """Coordinate i of the cubic Hermite position between states s and s1 (step h) at u."""
+    u2 = u * u
+    u3 = u2 * u
+    return ((2.0 * u3 - 3.0 * u2 + 1.0) * s[i] + (u3 - 2.0 * u2 + u) * h * s[3 + i]
+            + (3.0 * u2 - 2.0 * u3) * s1[i] + (u3 - u2) * h * s1[3 + i])
+
+
+@njit(cache=True, nogil=True)
+def _crossing(s, s1, h, axis, level, down, P, work):
+    """Time in (0, h] at which position coordinate ``axis`` crosses ``level`` in the step from
+    s to s1 (only downwards if ``down``), the state there in work[1]; inf when it does not."""
+    g0 = s[axis] - level
+    g1 = s1[axis] - level
+    if down:
+        crosses = g0 >= 0.0 and g1 < 0.0
+    else:
+        crosses = (g0 > 0.0) != (g1 > 0.0) or (g1 == 0.0 and g0 != 0.0)
+    if not crosses:
+        return math.inf
+    return _locate(s, h, g0, g1, axis, level, P, work[1], work[3], work[4], work[5], work[6],
+                   work[2])
+
+
+@njit(cache=True, nogil=True)
+def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
+    """Fly a ball from (t0, s0) to its first contact; the one flight leg of tt (compiled).
+
+    Eq. 8 with classic RK4 at the fixed step STEP (tt_prediction.integrate), events located
+    inside the step. ``body`` True: the table is a solid body (MODEL.md): the flight stops at
+    the first contact with the top (CONTACT_TOP, only from above over the footprint), an end
+    or side face or edge (CONTACT_EDGE), the net over the table (CONTACT_NET), the net beyond
+    a side line or a post (CONTACT_POST) or the floor. ``body`` False (the plane model, used
+    while searching, where the landing must vary smoothly): it stops where the centre first
+    comes down through the contact height z = r, on the footprint (CONTACT_TOP) or beside it
+    (CONTACT_OFF), or at the floor; the net and faces are ignored. Either way it also stops
+    where the centre crosses x = plane_x (CONTACT_PLANE; NaN: no plane) and at t_end.
+
+    Inputs: s0 (9,) p (m), v (m/s), w (rad/s); t0, t_end absolute (s); P packed parameters;
+    samples (k, 10) receives [t, state] after each step while rows remain. Output res
+    (FLIGHT_N,): FL_KIND, FL_T, FL_S..+9 the state at the stop (before any rebound; z = r
+    exactly on a top contact), FL_NET_T/Y/Z where the centre first crosses x = 0 (NaN if it
+    does not before the stop), FL_CROSS_T/X/Y where it first comes down through z = r (NaN if
+    not), FL_SAMPLES the rows of samples written. Returns the kind.
+    """
+    r = P[I_RADIUS]
+    dt = STEP
+    s = s0.copy()
+    work = np.empty((7, 9))       # one allocation: step end, event state, RK4 stages
+    s1, se, tmp = work[0], work[1], work[2]
+    k1, k2, k3, k4 = work[3], work[4], work[5], work[6]
+    for i in range(FLIGHT_N):
+        res[i] = math.nan
+    res[FL_SAMPLES] = 0.0
+    n_samples = 0
+    floor_z = r - TABLE_HEIGHT
+    has_plane = not math.isnan(plane_x)
+    t = t0
+    kind = CONTACT_NONE
+    tau = 0.0
+    g_prev, kind_prev = solid_gap(s[0], s[1], s[2], r)
+    if body and g_prev <= 1e-12:
+        # Starting in contact: a ball on the top coming down bounces now, one leaving it
+        # (just after a rebound) flies on; any other solid is met now.
+        if kind_prev != CONTACT_TOP or s[5] < 0.0:
+            kind = kind_prev
+    while kind == CONTACT_NONE:
+        h = dt
+        if t_end - t < h:
+            h = t_end - t
+        if h <= 0.0:
+            kind = CONTACT_TIMEOUT
+            tau = 0.0
+            break
+        _rk4(s, h, P, s1, k1, k2, k3, k4, tmp)
+        best = math.inf
+        if body:
+            lo_z = min(s[2], s1[2]) - 0.01
+            near = (lo_z < NET_HEIGHT + r
+                    and min(s[0], s1[0]) < HALF_LENGTH + r + 0.01
+                    and max(s[0], s1[0]) > -HALF_LENGTH - r - 0.01
+                    and min(s[1], s1[1]) < NET_HALF_WIDTH + r + 0.01
+                    and max(s[1], s1[1]) > -NET_HALF_WIDTH - r - 0.01
+                    and max(s[2], s1[2]) > -TOP_THICKNESS - r - 0.01)
+            # Above the surface well inside the outline and away from the net, the only solid
+            # within reach is the top from above: its contact is the centre coming down
+            # through z = r.
+            margin = r + 0.005
+            inner = (max(abs(s[0]), abs(s1[0])) <= HALF_LENGTH - margin
+                     and max(abs(s[1]), abs(s1[1])) <= HALF_WIDTH - margin
+                     and min(abs(s[0]), abs(s1[0])) > margin and (s[0] > 0.0) == (s1[0] > 0.0)
+                     and min(s[2], s1[2]) > 0.0)
+            if near and inner:
+                best = _crossing(s, s1, h, 2, r, True, P, work)
+                if best <= h:
+                    kind = CONTACT_TOP
+            elif near:
+                u_prev = 0.0
+                for j in range(1, _SUBSTEPS + 1):
+                    u = j / _SUBSTEPS
+                    if j == _SUBSTEPS:
+                        g, kg = solid_gap(s1[0], s1[1], s1[2], r)
+                    else:
+                        g, kg = solid_gap(_hermite(s, s1, h, u, 0), _hermite(s, s1, h, u, 1),
+                                          _hermite(s, s1, h, u, 2), r)
+                    if g <= 0.0 and (g_prev > 0.0 or j > 1):
+                        lo, hi = u_prev * h, u * h
+                        for _ in range(_BISECT):
+                            mid = 0.5 * (lo + hi)
+                            _rk4(s, mid, P, se, k1, k2, k3, k4, tmp)
+                            gm, km = solid_gap(se[0], se[1], se[2], r)
+                            if gm <= 0.0:
+                                hi = mid
+                            else:
+                                lo = mid
+                        _rk4(s, hi, P, se, k1, k2, k3, k4, tmp)
+                        gm, km = solid_gap(se[0], se[1], se[2], r)
+                        best = hi
+                        kind = km if gm <= 0.0 else kg
+                        break
+                    u_prev = u
+            if s1[2] < floor_z:
+                tf = _crossing(s, s1, h, 2, floor_z, True, P, work)
+                if tf < best:
+                    best, kind = tf, CONTACT_FLOOR
+        elif s1[2] < r:           # (the cheap tests first: most steps cross nothing)
+            best = _crossing(s, s1, h, 2, r, True, P, work)
+            if best <= h:
+                on = abs(se[0]) <= HALF_LENGTH and abs(se[1]) <= HALF_WIDTH
+                kind = CONTACT_TOP if on else CONTACT_OFF
+            elif s1[2] < floor_z:
+                best = _crossing(s, s1, h, 2, floor_z, True, P, work)
+                if best <= h:
+                    kind = CONTACT_FLOOR
+        if has_plane and ((s[0] > plane_x) != (s1[0] > plane_x) or s1[0] == plane_x):
+            tp = _crossing(s, s1, h, 0, plane_x, False, P, work)
+            if tp < best:
+                best, kind = tp, CONTACT_PLANE
+        if (s[0] > 0.0) != (s1[0] > 0.0) and math.isnan(res[FL_NET_T]):
+            tn = _crossing(s, s1, h, 0, 0.0, False, P, work)
+            if tn <= h and tn <= best:
+                res[FL_NET_T] = t + tn
+                res[FL_NET_Y] = se[1]
+                res[FL_NET_Z] = se[2]
+        if s1[2] < r <= s[2] and math.isnan(res[FL_CROSS_T]):
+            tc = _crossing(s, s1, h, 2, r, True, P, work)
+            if tc <= h and tc <= best:
+                res[FL_CROSS_T] = t + tc
+                res[FL_CROSS_X] = se[0]
+                res[FL_CROSS_Y] = se[1]
+        if kind != CONTACT_NONE:
+            tau = best
+            break
+        for i in range(9):
+            s[i] = s1[i]
+        t += h
+        g_prev, kind_prev = solid_gap(s[0], s[1], s[2], r)
+        if n_samples < samples.shape[0]:
+            samples[n_samples, 0] = t
+            for i in range(9):
+                samples[n_samples, 1 + i] = s[i]
+            n_samples += 1
+    if tau > 0.0:
+        _rk4(s, tau, P, se, k1, k2, k3, k4, tmp)
+        for i in range(9):
+            s[i] = se[i]
+        t += tau
+    if kind == CONTACT_TOP:
+        s[2] = r
+    elif kind == CONTACT_PLANE:
+        s[0] = plane_x
+    res[FL_KIND] = kind
+    res[FL_T] = t
+    for i in range(9):
+        res[FL_S + i] = s[i]
+    res[FL_SAMPLES] = n_samples
+    return kind
+
+
+@njit(cache=True, nogil=True)
+def landing_flight(s0, t0, P, body, res):
+    """First contact of a ball leaving the racket: :func:`flight_kernel` without a plane, for
+    T_MAX; the one landing kernel of tt (prediction, strike solver, in-zone ensemble)."""
+    return flight_kernel(s0, t0, P, t0 + T_MAX, math.nan, body, np.empty((0, 10)), res)
+
+
+# ----------------------------------------------------------------------------------------------
 # Compiled kernels
 
 
@@ -207,119 +446,122 @@ def _record_contact(out, t, s):
     out[_O_BOUNCE_HALF] = half
 
 
-@njit(cache=True, nogil=True)
-def predict_kernel(s0, t0, P, plane_x, bounced, sample_t, samples, out):
-    """Predict one incoming ball into ``out`` (_N_OUT,); see the module docstring.
-
-    s0 (9,) state at absolute time t0 (s); P packed parameters; plane_x hitting plane (m);
-    bounced: the ball has already bounced once on the robot's half (so the plane crossing
-    without a further bounce is a hit); sample_t, samples as for rollout_kernel.
-    """
-    for i in range(_N_OUT):
-        out[i] = 0.0
-    out[_O_NET_Z] = math.nan
-    ev_kind = np.zeros(_MAX_EVENTS, dtype=np.int64)
-    ev_t = np.zeros(_MAX_EVENTS)
-    ev_s = np.zeros((_MAX_EVENTS, 9))
-    max_bounces = 1 if bounced else 2
-    n = rollout_kernel(s0, t0, P, t0 + T_MAX, STEP, plane_x,
-                       STOP_AT_PLANE | STOP_AT_NET, max_bounces, sample_t, samples,
-                       ev_kind, ev_t, ev_s)
-    robot_bounces = 1 if bounced else 0
-    contacts = 0
-    status = TIMEOUT
-    last = 0
-    for i in range(n):
-        last = i
-        kind = ev_kind[i]
-        if kind == EVENT_BOUNCE or kind == EVENT_ROLL:
-            if contacts == 0 and not bounced:
-                _record_contact(out, ev_t[i], ev_s[i])
-            contacts += 1
-            if ev_s[i, 0] > 0.0:
-                # First contact on the opponent's half, or back over the net after the bounce.
-                status = NO_HIT if robot_bounces > 0 else WRONG_HALF
-                break
-            robot_bounces += 1
-            if robot_bounces >= 2:
-                status = DOUBLE_BOUNCE
-                break
-            if kind == EVENT_ROLL:
-                status = NO_HIT
-                break
-        elif kind == EVENT_PLANE:
-            if robot_bounces == 1:
-                status = OK
-                out[_O_HIT_OK] = 1.0
-                out[_O_HIT_T] = ev_t[i]
-                for j in range(3):
-                    out[_O_HIT_P + j] = ev_s[i, j]
-                    out[_O_HIT_V + j] = ev_s[i, 3 + j]
-                    out[_O_HIT_W + j] = ev_s[i, 6 + j]
-                out[_O_HIT_P] = plane_x     # located to 1e-12 m: the plane by definition
-            else:
-                status = NO_BOUNCE
-            break
-        elif kind == EVENT_NET:
-            status = NO_HIT if robot_bounces > 0 else NET
-            break
-        elif kind == EVENT_FLOOR:
-            status = NO_HIT if robot_bounces > 0 else MISS
-            break
-        elif kind == EVENT_TIMEOUT:
-            status = TIMEOUT
-            break
-    out[_O_STATUS] = status
-    if n > 0:
-        out[_O_STOP_KIND] = ev_kind[last]
-        out[_O_STOP_T] = ev_t[last]
-        for j in range(3):
-            out[_O_STOP_P + j] = ev_s[last, j]
+_STOP_ROLL = 9     # stop kind (beside the CONTACT_* kinds): the ball rolls after a bounce
 
 
 @njit(cache=True, nogil=True)
-def landing_kernel(s0, t0, P, out):
-    """First table contact of a ball leaving the racket into ``out`` (_N_OUT,).
-
-    Two legs: up to the net plane x = 0 (stopping on the net, recording the clearance), then
-    on to the first contact. ok when that contact is on the opponent's half (x > 0).
-    """
-    for i in range(_N_OUT):
-        out[i] = 0.0
-    out[_O_NET_Z] = math.nan
-    r = P[I_RADIUS]
-    ev_kind = np.zeros(_MAX_EVENTS, dtype=np.int64)
-    ev_t = np.zeros(_MAX_EVENTS)
-    ev_s = np.zeros((_MAX_EVENTS, 9))
-    no_t = np.empty(0)
-    no_s = np.empty((0, 9))
-    t_end = t0 + T_MAX
-    n = rollout_kernel(s0, t0, P, t_end, STEP, 0.0, STOP_AT_PLANE | STOP_AT_NET, 1,
-                       no_t, no_s, ev_kind, ev_t, ev_s)
-    kind = ev_kind[n - 1]
-    t = ev_t[n - 1]
-    if kind == EVENT_PLANE:
-        out[_O_NET_OK] = 1.0
-        out[_O_NET_Z] = ev_s[n - 1, 2] - r - NET_HEIGHT
-        s1 = ev_s[n - 1].copy()
-        n = rollout_kernel(s1, t, P, t_end, STEP, math.nan, STOP_AT_NET, 1,
-                           no_t, no_s, ev_kind, ev_t, ev_s)
-        kind = ev_kind[n - 1]
-        t = ev_t[n - 1]
-    if kind == EVENT_BOUNCE or kind == EVENT_ROLL:
-        _record_contact(out, t, ev_s[n - 1])
-        status = OK if ev_s[n - 1, 0] > 0.0 else WRONG_HALF
-    elif kind == EVENT_NET:
-        status = NET
-    elif kind == EVENT_FLOOR:
-        status = MISS
-    else:
-        status = TIMEOUT
+def _stop(out, status, kind, t, s):
     out[_O_STATUS] = status
     out[_O_STOP_KIND] = kind
     out[_O_STOP_T] = t
     for j in range(3):
-        out[_O_STOP_P + j] = ev_s[n - 1, j]
+        out[_O_STOP_P + j] = s[j]
+
+
+@njit(cache=True, nogil=True)
+def predict_kernel(s0, t0, P, plane_x, bounced, samples, out):
+    """Predict one incoming ball into ``out`` (_N_OUT,); see the module docstring.
+
+    s0 (9,) state at absolute time t0 (s); P packed parameters; plane_x hitting plane (m);
+    bounced: the ball has already bounced once on the robot's half (so the plane crossing
+    without a further bounce is a hit). Flight legs of :func:`flight_kernel` with the table
+    as a body, the rebound of eqs. 1-6 at each top contact. samples (k, 10) receives the
+    path [t, state] of the leg after the bounce on the robot's half every STEP (the hit
+    candidates), out[_O_N_PATH] its rows.
+    """
+    for i in range(_N_OUT):
+        out[i] = 0.0
+    out[_O_NET_Z] = math.nan
+    res = np.empty(FLIGHT_N)
+    no_samples = np.empty((0, 10))
+    s = s0.copy()
+    t = t0
+    t_end = t0 + T_MAX
+    robot_bounces = 1 if bounced else 0
+    contacts = 0
+    while True:
+        after = robot_bounces == 1
+        kind = flight_kernel(s, t, P, t_end, plane_x, True, samples if after else no_samples,
+                             res)
+        if after:
+            out[_O_N_PATH] = res[FL_SAMPLES]
+        t = res[FL_T]
+        for i in range(9):
+            s[i] = res[FL_S + i]
+        if kind == CONTACT_TOP:
+            if contacts == 0 and not bounced:
+                _record_contact(out, t, s)
+            contacts += 1
+            if s[0] > 0.0:
+                # First contact on the opponent's half, or back over the net after the bounce.
+                _stop(out, NO_HIT if robot_bounces > 0 else WRONG_HALF, kind, t, s)
+                return
+            robot_bounces += 1
+            if robot_bounces >= 2:
+                _stop(out, DOUBLE_BOUNCE, kind, t, s)
+                return
+            table_rebound_inplace(s, P)                          # eqs. 1-6
+            if s[5] < ROLL_SPEED:
+                _stop(out, NO_HIT, _STOP_ROLL, t, s)
+                return
+        elif kind == CONTACT_PLANE:
+            if robot_bounces == 1:
+                out[_O_HIT_OK] = 1.0
+                out[_O_HIT_T] = t
+                for j in range(3):
+                    out[_O_HIT_P + j] = s[j]
+                    out[_O_HIT_V + j] = s[3 + j]
+                    out[_O_HIT_W + j] = s[6 + j]
+                out[_O_HIT_P] = plane_x     # located to 1e-12 m: the plane by definition
+                _stop(out, OK, kind, t, s)
+            else:
+                _stop(out, NO_BOUNCE, kind, t, s)
+            return
+        elif kind == CONTACT_NET:
+            _stop(out, NO_HIT if robot_bounces > 0 else NET, kind, t, s)
+            return
+        elif kind == CONTACT_POST:
+            _stop(out, NET_POST, kind, t, s)
+            return
+        elif kind == CONTACT_EDGE:
+            _stop(out, TABLE_EDGE, kind, t, s)
+            return
+        elif kind == CONTACT_FLOOR:
+            _stop(out, NO_HIT if robot_bounces > 0 else MISS, kind, t, s)
+            return
+        else:
+            _stop(out, TIMEOUT, kind, t, s)
+            return
+
+
+@njit(cache=True, nogil=True)
+def landing_kernel(s0, t0, P, out):
+    """First contact of a ball leaving the racket into ``out`` (_N_OUT,): :func:`landing_flight`
+    with the table as a body. ok when it is the top of the opponent's half (x > 0)."""
+    for i in range(_N_OUT):
+        out[i] = 0.0
+    out[_O_NET_Z] = math.nan
+    res = np.empty(FLIGHT_N)
+    kind = landing_flight(s0, t0, P, True, res)
+    if not math.isnan(res[FL_NET_T]):
+        out[_O_NET_OK] = 1.0
+        out[_O_NET_Z] = res[FL_NET_Z] - P[I_RADIUS] - NET_HEIGHT
+    s = res[FL_S:FL_S + 9]
+    t = res[FL_T]
+    if kind == CONTACT_TOP:
+        _record_contact(out, t, s)
+        status = OK if s[0] > 0.0 else WRONG_HALF
+    elif kind == CONTACT_NET:
+        status = NET
+    elif kind == CONTACT_POST:
+        status = NET_POST
+    elif kind == CONTACT_EDGE:
+        status = TABLE_EDGE
+    elif kind == CONTACT_FLOOR:
+        status = MISS
+    else:
+        status = TIMEOUT
+    _stop(out, status, kind, t, s)
 
 
 @njit(cache=True, nogil=True)
@@ -330,8 +572,7 @@ def _batch_row(states, t0, valid, P, plane_x, bounced, outgoing, out, i):
     elif outgoing:
         landing_kernel(states[i], t0[i], P, out[i])
     else:
-        predict_kernel(states[i], t0[i], P, plane_x, bounced, np.empty(0), np.empty((0, 9)),
-                       out[i])
+        predict_kernel(states[i], t0[i], P, plane_x, bounced, np.empty((0, 10)), out[i])
 
 
 # Two functions, not one compiled twice: numba's cache tells them apart by name only.
@@ -356,11 +597,9 @@ PARALLEL_MIN = 256
 
 
 _PACKED_CACHE = [None, None, None]     # params object, its field values, packed array
-_NO_T = np.empty(0)                    # no sample times
-_NO_S = np.empty((0, 9))
 
 
-def _packed(params):
+def packed_params(params):
     """Packed array of ``params`` (ModelParams, packed array or None = nominal), cached for
     the last ModelParams object as long as its field values do not change."""
     if isinstance(params, np.ndarray):
@@ -434,10 +673,16 @@ def _reason(status, row, bounce, plane_x, outgoing):
         return f"bounces a second time on the robot's half at {stop_p} before the plane"
     if status == NO_HIT:
         kind = int(row[_O_STOP_KIND])
-        what = {EVENT_ROLL: 'rolls on the table', EVENT_FLOOR: 'falls beside the table',
-                EVENT_NET: 'goes back into the net',
-                EVENT_BOUNCE: "goes back to the opponent's half"}.get(kind, 'stops')
+        what = {_STOP_ROLL: 'rolls on the table', CONTACT_FLOOR: 'falls beside the table',
+                CONTACT_NET: 'goes back into the net',
+                CONTACT_TOP: "goes back to the opponent's half"}.get(kind, 'stops')
         return f'after the bounce the ball {what} at {stop_p} before the plane'
+    if status == TABLE_EDGE:
+        return (f"meets the table's end or side face (or an edge) at {stop_p}, "
+                f't = {stop_t:.3f} s: out of play')
+    if status == NET_POST:
+        return (f'meets the net beyond the side line (or its post) at {stop_p}, '
+                f't = {stop_t:.3f} s: out of play')
     if status == TIMEOUT:
         return f'no outcome within {T_MAX:.1f} s of flight'
     return 'invalid input'
@@ -452,7 +697,7 @@ def _to_prediction(row, plane_x, outgoing=False, path=None):
 
 
 def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounced=False,
-            path_dt=None):
+            path_dt=None, hit_path=False):
     """Predict the flight of an incoming ball from ``state9`` = [p, v, w] at time ``t0``.
 
     ``state9`` in the table frame (m, m/s, rad/s), ``t0`` absolute time (s, all output times
@@ -460,10 +705,12 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
     ``hit_plane_x`` the hitting plane (m, robot's side). ``bounced``: the ball has already
     bounced on the robot's half (tracking after the bounce), so crossing the plane without
     another bounce is a hit. ``path_dt`` (s): also return ``path``, the ball centres every
-    ``path_dt`` from t0 until the flight stops (rebounds included).
+    ``path_dt`` from t0 until the flight stops (rebounds included). ``hit_path``: also return
+    ``hit_path``, (k, 10) rows [t, p, v, w] every STEP along the flight after the bounce on
+    the robot's half up to its stop (the candidate hit points; empty without that bounce).
     Never raises for bad states: returns status 'invalid' with the reason.
     """
-    P = _packed(params)
+    P = packed_params(params)
     reason = check_state(state9, P[I_RADIUS])
     if reason:
         return Prediction(status='invalid', explanation=reason)
@@ -471,18 +718,21 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
         return Prediction(status='invalid',
                           explanation=f'hit_plane_x is not finite: {hit_plane_x}')
     s0 = _lifted(state9, P[I_RADIUS])
-    if path_dt:
-        sample_t = float(t0) + np.arange(0.0, T_MAX, float(path_dt))
-        samples = np.full((sample_t.shape[0], 9), np.nan)
-    else:
-        sample_t, samples = _NO_T, _NO_S
     out = np.empty(_N_OUT)
-    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), sample_t, samples, out)
+    samples = np.empty((int(T_MAX / STEP) + 2 if hit_path else 0, 10))
+    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), samples, out)
     path = None
     if path_dt:
-        reached = np.isfinite(samples[:, 0])
-        path = samples[reached, :3]
-    return _to_prediction(out, hit_plane_x, path=path)
+        # The path from the integrator's rollout (rebounds included), up to the stop.
+        sample_t = float(t0) + np.arange(0.0, T_MAX, float(path_dt))
+        sample_t = sample_t[sample_t <= out[_O_STOP_T]]
+        _, samples = rollout(s0, P, t0=float(t0), t_max=float(t0) + T_MAX, stop_at_plane=False,
+                             stop_at_net=False, max_bounces=3, sample_times=sample_t, dt=STEP)
+        path = samples[np.isfinite(samples[:, 0]), :3]
+    pred = _to_prediction(out, hit_plane_x, path=path)
+    if hit_path:
+        pred.hit_path = samples[:int(out[_O_N_PATH])].copy()
+    return pred
 
 
 def predict_landing(state9, params=None, t0=0.0):
@@ -493,7 +743,7 @@ def predict_landing(state9, params=None, t0=0.0):
     misses the table, invalid for bad input. ``net_clearance`` is the height of the ball's
     bottom above the net's top where it crosses x = 0 (m).
     """
-    P = _packed(params)
+    P = packed_params(params)
     reason = check_state(state9, P[I_RADIUS])
     if reason:
         return Prediction(status='invalid', explanation=reason)
@@ -562,7 +812,7 @@ def predict_many(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, p
     every row valid with :func:`check_state` (tt-predict does, line by line), so it is not
     checked again.
     """
-    P = _packed(params)
+    P = packed_params(params)
     states = np.asarray(states, dtype=np.float64)
     if not math.isfinite(hit_plane_x):
         return [Prediction(status='invalid',
@@ -587,7 +837,7 @@ def predict_batch(states, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X,
     (for callers that build the states themselves, e.g. sigma points). ``parallel``: None =
     on all cores from PARALLEL_MIN states on. Returns a :class:`BatchPrediction`.
     """
-    out = _batch_rows(states, _packed(params), t0, hit_plane_x, bounced, outgoing, parallel,
+    out = _batch_rows(states, packed_params(params), t0, hit_plane_x, bounced, outgoing, parallel,
                       validate)
     n = out.shape[0]
     has_b = out[:, _O_BOUNCE_OK] > 0.0

@@ -22,9 +22,9 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
+from .ball import rollout
 from .ball_filter import FilterConfig, TrackFilter
 from .identify.segment import drop_outliers, segment
-from .integrate import rollout
 from .predict import DEFAULT_HIT_PLANE_X, predict
 
 COLUMNS = ('t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz', 'bounce_t', 'bounce_x',

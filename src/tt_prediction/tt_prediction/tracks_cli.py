@@ -22,9 +22,9 @@ import tempfile
 import numpy as np
 import yaml
 
+from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
 from .identify.data import DataError, _read_index, read_track_csv
-from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
 
@@ -51,7 +51,7 @@ def read_tracks(folder):
         valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
         if valid.sum() < 2:
             raise DataError(f'{path}: {int(valid.sum())} valid sample(s); a track needs 2')
-        tracks.append((name, t, p, index.get(name, (None, ''))[0]))
+        tracks.append((name, t, p, index.get(name, (None,))[0]))
     return tracks
 
 

@@ -3,10 +3,13 @@ data/deepmind_states/README.md): the issue's table on 100 of the 15,792 states."
 
 import pathlib
 
+from judge_strokes import judge
 import numpy as np
+import pytest
 from tt_prediction.params import ModelParams
-from tt_strike.evaluate_deepmind import evaluate, load_states, main
+from tt_strike.evaluate_deepmind import evaluate, evaluate_reach, load_states, main
 from tt_strike.solver import StrikeSettings
+from tt_strike.workspace import load_workspace
 
 DATA = pathlib.Path(__file__).resolve().parents[3] / 'data' / 'deepmind_states'
 
@@ -27,9 +30,30 @@ def test_every_feasible_solution_lands_in_its_zone():
     assert n_hits + sum(skipped.values()) == len(states)
     assert n_hits >= 70
     for row in rows:
-        assert row['feasible_share'] >= 0.95, row
+        # Some of these balls are struck below the table's surface at x = -1.5, and the
+        # table as a body turns a return through its end face into a miss: 0.95 before.
+        assert row['feasible_share'] >= 0.90, row
         assert row['in_zone_share'] == 1.0, row
         assert row['residual_max_mm'] < 5.0, row
+
+
+@pytest.mark.slow
+def test_hit_points_along_the_path_land_in_the_zone_by_the_independent_reference():
+    states, serve, _ = load_states(DATA / 'states.csv')
+    strokes = []
+    rows = evaluate_reach(states[::3], serve[::3], ModelParams(), StrikeSettings(),
+                          load_workspace(), strokes)
+    for row in rows:
+        assert row['reachable'] >= 20, row
+        assert row['feasible_share'] >= 0.95, row
+        assert row['in_zone_share'] == 1.0, row           # tt's forward model, table as body
+    # Replayed through the scipy reference: every stroke struck below the contact height
+    # z = r (it must clear the table's edge), and zones 1, 5, 9 for the others.
+    low = [s for s in strokes if s['hit'][2] < 0.02]
+    assert low, 'the sample has balls struck below the surface'
+    picked = low + [s for s in strokes if s['hit'][2] >= 0.02 and s['zone'] in (1, 5, 9)]
+    judged = judge(picked)
+    assert judged['share'] >= 0.995, judged['misses']
 
 
 def test_command_writes_the_table(tmp_path, capsys):

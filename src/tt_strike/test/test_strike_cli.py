@@ -11,6 +11,9 @@ from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict_landing
 from tt_prediction.table import zone_bounds, zone_centre
 from tt_strike.cli import main
+from tt_strike.workspace import load_workspace
+
+WORKSPACE = load_workspace()
 
 BALL = {'t': 0.5, 'p': [1.3, 0.1, 0.3], 'v': [-6.0, 0.0, 1.0], 'w': [0.0, 0.0, 0.0]}
 
@@ -30,8 +33,9 @@ def test_zone_and_point_targets(monkeypatch, capsys):
     params = ModelParams()
     for line, target in zip(out, (zone_centre(7, 1), np.array([0.5, -0.3])), strict=True):
         assert line['status'] == 'ok' and line['reason'] == ''
-        assert line['hit']['p'][0] == pytest.approx(-1.5)
-        assert line['hit']['t'] > BALL['t']
+        # chosen along the path, inside the template workspace, 0.15 s or more ahead
+        assert WORKSPACE.contains(line['racket']['position'])
+        assert line['hit']['t'] >= BALL['t'] + WORKSPACE.min_time_before_hit
         racket = line['racket']
         assert np.linalg.norm(racket['normal']) == pytest.approx(1.0)
         assert np.linalg.norm(racket['orientation_xyzw']) == pytest.approx(1.0)
@@ -99,3 +103,28 @@ def test_bad_option(monkeypatch, capsys):
     code, out, err = run([dict(BALL, target_zone=1)], monkeypatch, capsys,
                          ['--net-clearance', 'nan'])
     assert code == 2 and out == [] and '--net-clearance' in err and err.count('\n') == 1
+
+
+def test_hit_plane_x_is_the_old_behaviour(monkeypatch, capsys):
+    code, out, _ = run([dict(BALL, target_zone=5)], monkeypatch, capsys,
+                       ['--hit-plane-x', '-1.5'])
+    assert code == 0 and out[0]['status'] == 'ok'
+    assert out[0]['hit']['p'][0] == pytest.approx(-1.5, abs=1e-9)
+
+
+def test_unreachable_is_a_status(monkeypatch, capsys, tmp_path):
+    ws = tmp_path / 'high.yaml'
+    ws.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1], z: [1.2, 1.6]},'
+                  ' max_racket_speed: 8.0, min_time_before_hit: 0.15}\n')
+    code, out, _ = run([dict(BALL, target_zone=5)], monkeypatch, capsys, ['--workspace', str(ws)])
+    assert code == 0 and out[0]['status'] == 'unreachable' and out[0]['racket'] is None
+
+
+def test_bad_workspace_is_a_one_line_error_naming_the_key(monkeypatch, capsys, tmp_path):
+    ws = tmp_path / 'bad.yaml'
+    ws.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1], z: [0.5, 0.1]},'
+                  ' max_racket_speed: .nan, min_time_before_hit: 0.15}\n')
+    code, out, err = run([dict(BALL, target_zone=5)], monkeypatch, capsys,
+                         ['--workspace', str(ws)])
+    assert code == 2 and out == [] and err.count('\n') == 1
+    assert 'workspace.max_racket_speed' in err and err.startswith('tt-strike: ')

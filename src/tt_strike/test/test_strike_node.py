@@ -8,6 +8,7 @@ import time
 import uuid
 
 import numpy as np
+import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -16,7 +17,9 @@ from tt_prediction.model import racket_rebound
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict, predict_landing
 from tt_prediction.table import zone_centre
+from tt_ros.executor import StartupError
 from tt_strike.node import StrikeNode
+from tt_strike.workspace import load_workspace
 from visualization_msgs.msg import MarkerArray
 import yaml
 
@@ -26,6 +29,7 @@ CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'strike.yaml'
 PARAMS = ModelParams()
 INCOMING = [1.3, 0.1, 0.3, -6.0, 0.0, 1.0, 0.0, 0.0, 0.0]
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+WORKSPACE = load_workspace()
 
 
 class Graph:
@@ -36,7 +40,11 @@ class Graph:
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
         remap = ['--ros-args']
-        for topic in ('/ball/prediction', '/strike/target', '/strike/command', '/tt/markers'):
+        # Simulated time from a /clock of this test's own: 0 until a test sets it, so that
+        # the too-late check does not depend on how fast this machine runs the test.
+        overrides = [Parameter('use_sim_time', value=True), *overrides]
+        for topic in ('/ball/prediction', '/strike/target', '/strike/command', '/tt/markers',
+                      '/clock'):
             remap += ['-r', f'{topic}:={self.prefix}{topic}']
         self.node = StrikeNode(context=self.context, cli_args=remap,
                                parameter_overrides=list(overrides))
@@ -94,13 +102,26 @@ def vec(v):
     return np.array([v.x, v.y, v.z])
 
 
+def seconds(stamp):
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
 def check_command(cmd, prediction, zone):
     """The command's racket sends the predicted ball into zone (independent forward model)."""
     assert cmd.status == 'ok' and cmd.feasible and cmd.reason == ''
     assert cmd.header.stamp == prediction.header.stamp and cmd.track_id == prediction.track_id
-    assert cmd.hit_time == prediction.hit_time
-    hit = np.concatenate([vec(prediction.hit_point), vec(prediction.hit_velocity),
-                          vec(prediction.hit_spin)])
+    # The hit point is on the ball's path after the prediction's hit point, in the reach.
+    at_prediction = np.concatenate([vec(prediction.hit_point), vec(prediction.hit_velocity),
+                                    vec(prediction.hit_spin)])
+    on = predict(at_prediction, PARAMS, t0=seconds(prediction.hit_time), bounced=True,
+                 hit_plane_x=cmd.hit_point.x)
+    assert on.status == 'ok'
+    np.testing.assert_allclose(on.hit.p, vec(cmd.hit_point), atol=1e-6)
+    assert seconds(cmd.hit_time) == pytest.approx(on.hit.t, abs=1e-6)
+    assert WORKSPACE.contains(vec(cmd.racket_position))
+    np.testing.assert_allclose(vec(cmd.racket_position),
+                               on.hit.p - PARAMS.radius * vec(cmd.racket_normal), atol=1e-9)
+    hit = on.hit.state
     v, w = racket_rebound(hit[3:6], hit[6:9], vec(cmd.racket_normal), vec(cmd.racket_velocity),
                           PARAMS)
     np.testing.assert_allclose(vec(cmd.ball_out_velocity), v, atol=1e-9)
@@ -200,3 +221,49 @@ def test_probability_is_reused_within_its_period():
             assert (p1 == p2) == same and p2 <= p1
         finally:
             g.close()
+
+
+def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
+    g = Graph([Parameter('use_hit_plane', value=True)])
+    try:
+        msg = prediction_msg(5)
+        g.pub.publish(msg)
+        g.spin_until(lambda: g.commands, 20.0, 'a command')
+        cmd = g.commands[0]
+        assert cmd.status == 'ok' and cmd.hit_time == msg.hit_time
+        assert cmd.hit_point == msg.hit_point
+        # Simulated clock 0.1 s before the hit (min_time_before_hit 0.15 s): not sent.
+        g.node.get_clock().set_ros_time_override(rclpy.time.Time(seconds=100.5))
+        g.pub.publish(prediction_msg(6))
+        g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
+        assert len(g.commands) == 1 and g.node.n_received == 2
+    finally:
+        g.close()
+    # Along the path: decided 0.149 s before the ball leaves the reach (grown by r).
+    msg = prediction_msg(7)
+    at = np.concatenate([vec(msg.hit_point), vec(msg.hit_velocity), vec(msg.hit_spin)])
+    t_exit = predict(at, PARAMS, t0=seconds(msg.hit_time), bounced=True,
+                     hit_plane_x=WORKSPACE.x[0] - PARAMS.radius).hit.t
+    g = Graph()
+    try:
+        now = t_exit - WORKSPACE.min_time_before_hit + 1e-3
+        g.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(now * 1e9)))
+        g.pub.publish(msg)
+        g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
+        assert g.commands == []
+    finally:
+        g.close()
+
+
+def test_bad_workspace_file_stops_the_node(tmp_path):
+    bad = tmp_path / 'ws.yaml'
+    bad.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1]}, '
+                   'max_racket_speed: 8.0, min_time_before_hit: 0.15}\n')
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(StartupError, match='^workspace_file: .*workspace.box.z'):
+            StrikeNode(context=context,
+                       parameter_overrides=[Parameter('workspace_file', value=str(bad))])
+    finally:
+        rclpy.try_shutdown(context=context)

@@ -3,19 +3,26 @@
 Input (stdin or --input FILE), one incoming ball per line, table frame, SI units:
     {"t": 0.0, "p": [x, y, z], "v": [vx, vy, vz], "w": [wx, wy, wz],
      "target_zone": 1..9 | "target_point": [x, y], "covariance": [81 numbers] (optional)}
-Each ball is first predicted to the hitting plane x = --hit-plane-x (one bounce on the
-robot's half), then the stroke is solved. Output (stdout), one line per input line:
-    {"status": "ok" | "infeasible" | "no_hit_point", "reason": ...,
+Each ball is predicted through its bounce on the robot's half, and the hit point is chosen
+along its path inside the robot's reach (--workspace, default the template
+config/workspace.yaml) where the in-zone probability is best (tt_strike.hitpoint); the
+input's t is the time of the decision, for the workspace's min_time_before_hit. With
+--hit-plane-x X the old behaviour: the hit point is the crossing of the plane x = X.
+Output (stdout), one line per input line:
+    {"status": "ok" | "infeasible" | "no_hit_point" | "unreachable" | "too_late",
+     "reason": ...,
      "hit": {t, p, v, w} | null,
      "racket": {normal, velocity, orientation_xyzw, position} | null,
      "ball_out": {v, w} | null, "landing": {t, p, zone} | null,
      "target": {zone, point}, "net_clearance", "margin", "residual", "in_zone_probability"}
 Every line is checked before anything is written: a bad line (not JSON, a missing or
 malformed field, NaN, a target zone outside 1..9, a target point off the opponent's half)
-stops the command with a one-line reason naming the line, exit status 2.
+stops the command with a one-line reason naming the line, exit status 2; so does a bad
+workspace file (naming the key).
 """
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -24,8 +31,10 @@ import numpy as np
 from tt_prediction.cli import InputError, parse_object, parse_state, read_input
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
+from .hitpoint import choose
 from .incoming import hit_point
 from .solver import StrikeSettings, resolve_target, solve
+from .workspace import load_workspace
 
 
 def parse_strike_line(text, lineno, radius):
@@ -51,14 +60,22 @@ def _vec(a):
     return [float(x) for x in a]
 
 
-def strike_to_dict(pred, sol):
-    """The output line of one ball: its prediction and (when there is a hit point) solution."""
+def strike_to_dict(pred, sol, plan=None):
+    """The output line of one ball: its prediction and (when there is a hit point) solution;
+    or, with ``plan`` (tt_strike.hitpoint.StrikePlan), the chosen hit point's."""
     out = {'status': 'no_hit_point', 'reason': f'{pred.status}: {pred.reason}', 'hit': None,
            'racket': None, 'ball_out': None, 'landing': None}
-    if pred.status != 'ok':
+    if plan is not None:
+        out['status'], out['reason'] = plan.status, plan.reason
+        if plan.solution is None:
+            return out
+        hit, sol = plan.hit, plan.solution
+    elif pred.status != 'ok':
         return out
-    out['hit'] = pred.hit.to_dict()
-    out['status'], out['reason'] = sol.status, sol.reason
+    else:
+        hit = pred.hit
+        out['status'], out['reason'] = sol.status, sol.reason
+    out['hit'] = hit.to_dict()
     out['target'] = {'zone': sol.target_zone, 'point': _vec(sol.target_point)}
     if sol.normal is None:
         return out
@@ -67,7 +84,7 @@ def strike_to_dict(pred, sol):
                      'position': _vec(sol.racket_position)}
     out['ball_out'] = {'v': _vec(sol.ball_out_v), 'w': _vec(sol.ball_out_w)}
     if sol.landing is not None:
-        out['landing'] = {'t': pred.hit.t + sol.flight_time, 'p': _vec(sol.landing),
+        out['landing'] = {'t': hit.t + sol.flight_time, 'p': _vec(sol.landing),
                           'zone': sol.landing_zone}
     for key in ('net_clearance', 'margin', 'residual', 'in_zone_probability'):
         value = float(getattr(sol, key))
@@ -83,32 +100,48 @@ def main(argv=None):
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
-    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X, metavar='X',
-                        help='hitting plane x, m (default: %(default)s)')
+    parser.add_argument('--workspace', metavar='FILE',
+                        help='workspace YAML: reach of the racket centre, racket-speed limit, '
+                        'least time before the hit (default: the template '
+                        'config/workspace.yaml)')
+    parser.add_argument('--hit-plane-x', type=float, default=None, metavar='X',
+                        help='old behaviour: hit where the ball crosses the plane x = X, m '
+                        f'(e.g. {DEFAULT_HIT_PLANE_X}), instead of choosing along the path')
     parser.add_argument('--net-clearance', type=float, default=defaults.net_clearance,
                         metavar='M', help='gap between ball and net top at x = 0, m '
                         '(the free direction; default: %(default)s)')
-    parser.add_argument('--max-racket-speed', type=float, default=defaults.max_racket_speed,
-                        metavar='V', help='racket speed limit, m/s (default: %(default)s)')
+    parser.add_argument('--max-racket-speed', type=float, default=None, metavar='V',
+                        help="racket speed limit, m/s (default: the workspace's; "
+                        f'{defaults.max_racket_speed} with --hit-plane-x)')
     parser.add_argument('--aim-inside-zone', action='store_true',
                         help='aim where the in-zone probability is highest (needs covariance)')
     args = parser.parse_args(argv)
     for name in ('hit_plane_x', 'net_clearance', 'max_racket_speed'):
         value = getattr(args, name)
+        if value is None:
+            continue
         if not math.isfinite(value) or (name != 'hit_plane_x' and value <= 0.0):
             print(f'tt-strike: --{name.replace("_", "-")} must be finite'
                   f'{"" if name == "hit_plane_x" else " and positive"}', file=sys.stderr)
             return 2
     try:
+        workspace = None if args.hit_plane_x is not None else load_workspace(args.workspace)
         params, balls = read_input(args.model, args.input, parse_strike_line)
-    except ValueError as exc:                  # InputError is a ValueError
+    except ValueError as exc:                  # InputError, WorkspaceError are ValueErrors
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
+    if workspace is not None and args.max_racket_speed is not None:
+        workspace = dataclasses.replace(workspace, max_racket_speed=args.max_racket_speed)
     settings = StrikeSettings(net_clearance=args.net_clearance,
-                              max_racket_speed=args.max_racket_speed,
+                              max_racket_speed=args.max_racket_speed or defaults.max_racket_speed,
                               aim_inside_zone=args.aim_inside_zone)
     out = []
     for t, state, zone, point, cov in balls:
+        if workspace is not None:
+            plan = choose(state, params, workspace, t0=t, target_zone=zone, target_point=point,
+                          settings=settings, covariance=cov)
+            out.append(json.dumps(strike_to_dict(plan.prediction, None, plan)))
+            continue
         pred = hit_point(state, params, t0=t, hit_plane_x=args.hit_plane_x)
         sol = None
         if pred.status == 'ok':

@@ -1,18 +1,27 @@
 """strike_node: /ball/prediction (+ /strike/target) -> /strike/command, /tt/markers.
 
-The ROS glue around :mod:`tt_strike.solver`: parameters, QoS, message conversion. Every
-BallPrediction with a valid hit point gives one StrikeCommand stamped with the prediction's
-stamp: feasible, or ``feasible = false`` with the reason (so that a controller knows there is
-no stroke for this ball). Predictions without a hit point or with non-finite numbers are
-dropped with a throttled warning: nothing is published for them.
+The ROS glue around :mod:`tt_strike.hitpoint` and :mod:`tt_strike.solver`: parameters, QoS,
+message conversion. From the prediction's hit point (after the bounce) the ball is flown on
+through the robot's reach (``workspace_file``) and the hit point is chosen along that path
+(``use_hit_plane``: the prediction's hit point itself, the old behaviour). Every BallPrediction
+with a valid hit point gives one StrikeCommand stamped with the prediction's stamp, carrying
+the chosen hit time and point and the racket centre: feasible, or ``feasible = false`` with the
+status (infeasible, unreachable) and reason (so that a controller knows there is no stroke for
+this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
+node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
+no such check, for replays). Predictions without a hit point or with non-finite numbers are
+dropped with a throttled warning: nothing is published for them. A bad workspace file stops the
+node at start with a one-line reason.
 """
 
+import dataclasses
 import math
 
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from tt_prediction.params import load_model
+from tt_prediction.ball import load_model
+from tt_prediction.predict import Hit
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_xyz
@@ -22,8 +31,10 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 
+from .hitpoint import choose
 from .robust import noise_covariance
-from .solver import StrikeSettings, resolve_target, solve
+from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
+from .workspace import WorkspaceError, load_workspace
 
 _D = StrikeSettings()
 PARAMETERS = (
@@ -58,6 +69,14 @@ PARAMETERS = (
     Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
           read_only=True),
     Param('publish_markers', False, 'publish the racket and landing on /tt/markers'),
+    Param('workspace_file', '', 'workspace YAML (reach of the racket centre, racket-speed '
+          'limit, min time before the hit); empty: the template config/workspace.yaml',
+          read_only=True),
+    Param('use_hit_plane', False, "old behaviour: strike at the prediction's hit point (its "
+          'hitting plane) instead of choosing along the path inside the workspace'),
+    Param('check_hit_time', True, 'do not send strikes whose hit time is past or closer than '
+          "the workspace's min_time_before_hit by the node's clock (false: for replays whose "
+          'stamps are not on the node clock, e.g. a bag played without --clock)'),
 )
 
 
@@ -93,10 +112,15 @@ class StrikeNode(Node):
             self.params = load_model(self.p.model_file)
         except ValueError as exc:
             raise StartupError(f'model_file: {exc}') from None
+        try:
+            self.workspace = load_workspace(self.p.workspace_file)
+        except (ValueError, WorkspaceError) as exc:
+            raise StartupError(f'workspace_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
-        self.n_received = self.n_commands = self.n_dropped = 0
+        choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
+        self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
@@ -177,31 +201,68 @@ class StrikeNode(Node):
         if self.p.in_zone_probability and (
                 settings.aim_inside_zone or self._probability_due(key, stamp_ns)):
             cov = self._covariance(msg, state)
-        sol = solve(state, self.params, target_zone=zone or None,
-                    target_point=None if zone else point, settings=settings, covariance=cov)
+        hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if not self.p.check_hit_time:
+            now = -math.inf
+        ws = self.workspace
+        if settings.max_racket_speed < ws.max_racket_speed:
+            ws = dataclasses.replace(ws, max_racket_speed=settings.max_racket_speed)
+        target = {'target_zone': zone or None, 'target_point': None if zone else point}
+        if self.p.use_hit_plane:
+            hit = Hit(hit_t, state[:3], state[3:6], state[6:9])
+            if hit_t - now < ws.min_time_before_hit:
+                self._too_late(f'hit in {hit_t - now:.3f} s, below min_time_before_hit '
+                               f'{ws.min_time_before_hit:.3f} s')
+                return
+            sol = solve(state, self.params, settings=settings, covariance=cov, **target)
+            status, reason = sol.status, sol.reason
+        else:
+            plan = choose(state, self.params, ws, t0=hit_t, now=now, settings=settings,
+                          covariance=cov, bounced=True, **target)
+            if plan.status == 'too_late':
+                self._too_late(plan.reason)
+                return
+            hit, sol = plan.hit, plan.solution
+            status, reason = plan.status, plan.reason
+            if sol is None:
+                sol = StrikeSolution(status, reason)
+                resolved = resolve_target(**target)
+                sol.target_zone, sol.target_point = resolved
         if cov is not None and sol.feasible:
             self.last_probability = (key, stamp_ns, sol.in_zone_probability)
         elif sol.feasible and self.last_probability and self.last_probability[0] == key:
             sol.in_zone_probability = self.last_probability[2]
-        out = self._command(msg, sol)
+        out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
-        if not sol.feasible:
-            self.get_logger().warning(f'no feasible stroke: {sol.reason}',
+        if status != 'ok':
+            self.get_logger().warning(f'no feasible stroke ({status}): {reason}',
                                       throttle_duration_sec=1.0)
         if self.p.publish_markers and sol.normal is not None:
             self.pub_markers.publish(self._markers(msg, sol))
 
-    def _command(self, msg, sol):
+    def _too_late(self, why):
+        """A strike too close to its hit time: not sent, counted and logged."""
+        self.n_too_late += 1
+        self.get_logger().warning(f'strike not sent, too late ({self.n_too_late} so far): '
+                                  f'{why}', throttle_duration_sec=1.0)
+
+    def _command(self, msg, sol, hit, status, reason):
         out = StrikeCommand()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = msg.header.frame_id or 'table'
         out.track_id = msg.track_id
-        out.status = sol.status
-        out.feasible = sol.feasible
-        out.reason = sol.reason
-        out.hit_time = msg.hit_time
-        out.hit_point = msg.hit_point
+        out.status = status
+        out.feasible = status == 'ok'
+        out.reason = reason
+        if hit is None:
+            out.hit_time = msg.hit_time
+            out.hit_point = msg.hit_point
+        else:
+            ns = round(hit.t * 1e9)
+            out.hit_time.sec, out.hit_time.nanosec = divmod(ns, 1_000_000_000)
+            out.hit_point = point_msg(hit.p)
         out.target_zone = sol.target_zone
         if sol.target_point is not None:
             out.target_point = point_msg(sol.target_point)

@@ -22,76 +22,106 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr, ndtri
 from scipy.stats import qmc
-from tt_prediction.integrate import (
-    EVENT_BOUNCE,
-    EVENT_FLOOR,
-    EVENT_PLANE,
-    STOP_AT_NET,
-    STOP_AT_PLANE,
-    rollout_kernel,
+from tt_prediction.ball import (
+    CONTACT_EDGE,
+    CONTACT_FLOOR,
+    CONTACT_OFF,
+    CONTACT_TOP,
+    FL_CROSS_X,
+    FL_CROSS_Y,
+    FL_S,
+    FLIGHT_N,
+    landing_flight,
+    packed_params,
+    racket_rebound,
+    racket_rebound_inplace,
+    zone_bounds,
 )
-from tt_prediction.model import racket_rebound, racket_rebound_inplace
-from tt_prediction.params import I_GRAVITY, I_RADIUS
 from tt_prediction.predict import predict_landing
-from tt_prediction.table import HALF_LENGTH, HALF_WIDTH, zone_bounds
 
 _NJIT = {'cache': True, 'nogil': True}
 ENSEMBLE_SIZE = 1024
 """Incoming states in the ensemble (a power of two for the Sobol sequence)."""
-STEP = 0.01
-"""RK4 step of the ensemble's flights, s (tt_prediction.predict's step: within 1e-8 m)."""
 
 
 @njit(**_NJIT)
 def landings(states, normal, racket_velocity, P, out):
     """Landing (x, y) of each incoming state (n, 9) hit by the given racket, into out (n, 2).
 
-    The landing is the first crossing of the table's height z = r: the table contact, or
-    beyond the table's edge the crossing traced back from the floor event along a drag-free
-    fall (within centimetres; put just beyond the edge if that lands it on the table), which
-    keeps the landing offsets continuous across the edge for :func:`aim_in_zone`. NaN when
-    the ball hits the net or does not come down within 3 s.
+    The first contact of ``tt_prediction.predict.landing_flight`` with the table as a body:
+    on the top, its point; on a face or edge, the contact point (just beside the table); past
+    the table to the floor, where the centre came down through the contact height z = r
+    beside the table. These keep the landing offsets continuous across the edge for
+    :func:`aim_in_zone`; all of them are outside every zone. NaN when the ball meets the net
+    or a post, or does not come down within 3 s.
     """
-    ev_kind = np.zeros(4, dtype=np.int64)
-    ev_t = np.zeros(4)
-    ev_s = np.zeros((4, 9))
-    empty_t = np.empty(0)
-    samples = np.empty((0, 9))
-    r = P[I_RADIUS]
-    g = P[I_GRAVITY]
+    res = np.empty(FLIGHT_N)
     for k in range(states.shape[0]):
         s = states[k].copy()
         racket_rebound_inplace(s, P, normal, racket_velocity)
-        # Two legs, to the net plane and on (a hit point below the table's height behind
-        # its end would otherwise never count as over the table).
-        n = rollout_kernel(s, 0.0, P, 3.0, STEP, 0.0, STOP_AT_PLANE | STOP_AT_NET, 1, empty_t,
-                           samples, ev_kind, ev_t, ev_s)
-        if n > 0 and ev_kind[n - 1] == EVENT_PLANE:
-            s[:] = ev_s[n - 1]
-            n = rollout_kernel(s, ev_t[n - 1], P, 3.0, STEP, math.nan, STOP_AT_NET, 1,
-                               empty_t, samples, ev_kind, ev_t, ev_s)
+        kind = landing_flight(s, 0.0, P, True, res)
         out[k, 0] = math.nan
         out[k, 1] = math.nan
-        if n == 0:
-            continue
-        e = ev_s[n - 1]
-        if ev_kind[n - 1] == EVENT_BOUNCE:
-            out[k, 0] = e[0]
-            out[k, 1] = e[1]
-        elif ev_kind[n - 1] == EVENT_FLOOR:
-            # back from z = r - H to z = r: g/2 t^2 - v_z t + H = 0, the root t < 0 nearest 0
-            drop = r - e[2]
-            t = (e[5] + math.sqrt(max(e[5] * e[5] - 2.0 * g * drop, 0.0))) / g
-            x = e[0] + e[3] * t
-            y = e[1] + e[4] * t
-            dx, dy = HALF_LENGTH - abs(x), HALF_WIDTH - abs(y)
-            if dx >= 0.0 and dy >= 0.0:       # it did pass the edge: put it just beyond
-                if dx < dy:
-                    x = math.copysign(HALF_LENGTH + 1e-6, x)
-                else:
-                    y = math.copysign(HALF_WIDTH + 1e-6, y)
-            out[k, 0] = x
-            out[k, 1] = y
+        if kind == CONTACT_TOP or kind == CONTACT_EDGE:
+            out[k, 0] = res[FL_S]
+            out[k, 1] = res[FL_S + 1]
+        elif kind == CONTACT_FLOOR:
+            out[k, 0] = res[FL_CROSS_X]
+            out[k, 1] = res[FL_CROSS_Y]
+
+
+_JACOBIAN_STEPS = np.array([1e-3, 1e-3, 1e-3, 0.1, 0.1, 0.1])
+"""Finite-difference steps of landing_jacobian for velocity (m/s) and spin (rad/s)."""
+
+
+@njit(**_NJIT)
+def landing_jacobian(hit_state, normal, racket_velocity, P, jac):
+    """Jacobian (2, 9) of the landing (x, y) with respect to the incoming hit state, the
+    racket fixed, into jac. Velocity and spin columns: forward differences of the plane-model
+    landing (smooth across the net and edges; 7 flights). Position columns: a hit point
+    moved by (dx, dy, dz) is taken to land moved by (dx, dy) (the flight is nearly the same
+    from a point millimetres away), which spares 3 flights. Returns False when a perturbed
+    ball does not come down."""
+    res = np.empty(FLIGHT_N)
+    base = np.empty(2)
+    for i in range(2):
+        for j in range(3):
+            jac[i, j] = 1.0 if i == j else 0.0
+    for k in range(7):
+        s = hit_state.copy()
+        if k > 0:
+            s[2 + k] += _JACOBIAN_STEPS[k - 1]
+        racket_rebound_inplace(s, P, normal, racket_velocity)
+        kind = landing_flight(s, 0.0, P, False, res)
+        if kind != CONTACT_TOP and kind != CONTACT_OFF:
+            return False
+        if k == 0:
+            base[0] = res[FL_S]
+            base[1] = res[FL_S + 1]
+        else:
+            jac[0, 2 + k] = (res[FL_S] - base[0]) / _JACOBIAN_STEPS[k - 1]
+            jac[1, 2 + k] = (res[FL_S + 1] - base[1]) / _JACOBIAN_STEPS[k - 1]
+    return True
+
+
+def linear_in_zone_probability(hit_state, covariance, normal, racket_velocity, params,
+                               landing, zone):
+    """In-zone probability of a stroke, linearised: the landing taken as Gaussian about
+    ``landing`` (x, y), m, with covariance J C J^T (J: :func:`landing_jacobian`, C the 9x9
+    incoming covariance), its x and y spreads taken as independent over the zone's cell.
+    A cheap score for ranking hit points (7 flights), 0..1; 0 when it cannot be
+    evaluated."""
+    P = packed_params(params)
+    jac = np.empty((2, 9))
+    if not landing_jacobian(np.asarray(hit_state, dtype=float), np.asarray(normal, float),
+                            np.asarray(racket_velocity, float), P, jac):
+        return 0.0
+    cov = jac @ np.asarray(covariance, dtype=float) @ jac.T
+    sx, sy = math.sqrt(max(cov[0, 0], 1e-12)), math.sqrt(max(cov[1, 1], 1e-12))
+    x0, x1, y0, y1 = zone_bounds(zone, 1)
+    px = ndtr((x1 - landing[0]) / sx) - ndtr((x0 - landing[0]) / sx)
+    py = ndtr((y1 - landing[1]) / sy) - ndtr((y0 - landing[1]) / sy)
+    return float(px * py)
 
 
 def _sqrt_cov(cov):
@@ -108,7 +138,7 @@ def _normal_points(n):
 
 def landing_ensemble(hit_state, covariance, normal, racket_velocity, params, n=ENSEMBLE_SIZE):
     """Landing points (n, 2), m, of the incoming ensemble around hit_state (see module doc)."""
-    P = params if isinstance(params, np.ndarray) else params.packed()
+    P = packed_params(params)
     states = (np.asarray(hit_state, dtype=float)
               + _normal_points(n) @ _sqrt_cov(np.asarray(covariance, dtype=float)).T)
     out = np.empty((n, 2))

@@ -23,25 +23,30 @@ import math
 
 from numba import njit
 import numpy as np
-from tt_prediction.integrate import (
-    DEFAULT_STEP,
-    EVENT_BOUNCE,
-    EVENT_FLOOR,
-    EVENT_PLANE,
-    STOP_AT_PLANE,
-    rollout_kernel,
-)
-from tt_prediction.model import racket_rebound, racket_rebound_inplace
-from tt_prediction.params import I_ER, I_GRAVITY, I_KP, I_MASS, I_RADIUS
-from tt_prediction.predict import predict_landing
-from tt_prediction.table import (
+from tt_prediction.ball import (
+    CONTACT_OFF,
+    CONTACT_TOP,
+    FL_NET_T,
+    FL_NET_Z,
+    FL_S,
+    FLIGHT_N,
     HALF_LENGTH,
     HALF_WIDTH,
+    I_ER,
+    I_GRAVITY,
+    I_KP,
+    I_MASS,
+    I_RADIUS,
     NET_HEIGHT,
+    landing_flight,
+    packed_params,
+    racket_rebound,
+    racket_rebound_inplace,
     zone_centre,
     zone_margin,
     zone_of,
 )
+from tt_prediction.predict import predict_landing
 
 from .robust import ENSEMBLE_SIZE, aim_in_zone, in_zone_probability, landing_ensemble
 
@@ -178,7 +183,7 @@ def racket_for_outgoing(v_in, w_in, v_out, params):
     Velocities in m/s, spin in rad/s, table frame. The racket moves along its normal. Returns
     ``(normal, racket_velocity)``; NaNs when v_out cannot be produced.
     """
-    P = params if isinstance(params, np.ndarray) else params.packed()
+    P = packed_params(params)
     normal = np.empty(3)
     s = _racket_for_outgoing(np.asarray(v_in, float), np.asarray(w_in, float),
                              np.asarray(v_out, float), P, normal)
@@ -198,9 +203,9 @@ SHOT_NO_LANDING = 4     # no table-height crossing within FLIGHT_T_MAX
 def _shoot(s_hit, v_out, P, out):
     """Fly the ball sent with v_out from the hit state s_hit (9,).
 
-    Writes into ``out`` (7,): landing x, y (centre crossing z = r on the table, or the floor
-    crossing beyond it) and net-plane height z at x = 0 (m, when SHOT_OK), normal (3), racket
-    speed (m/s). Returns a SHOT_* code.
+    Writes into ``out`` (7,): landing x, y (where the centre first comes down through z = r,
+    on the table or beside it) and the centre's height z where it crosses x = 0 (m, when
+    SHOT_OK), normal (3), racket speed (m/s). Returns a SHOT_* code.
     """
     normal = np.empty(3)
     speed = _racket_for_outgoing(s_hit[3:6], s_hit[6:9], v_out, P, normal)
@@ -216,32 +221,18 @@ def _shoot(s_hit, v_out, P, out):
     out[6] = speed
     if vn_rel >= 0.0:
         return SHOT_BEHIND
-    ev_kind = np.zeros(4, dtype=np.int64)
-    ev_t = np.zeros(4)
-    ev_s = np.zeros((4, 9))
-    empty_t = np.empty(0)
-    samples = np.empty((0, 9))
-    # Two legs: to the net plane x = 0 (stop there), then on to the first contact. (The
-    # integrator's plane event is not used without stopping: restarted exactly on the plane,
-    # it would find the same crossing again.)
-    n = rollout_kernel(s, 0.0, P, FLIGHT_T_MAX, DEFAULT_STEP, 0.0, STOP_AT_PLANE, 1, empty_t,
-                       samples, ev_kind, ev_t, ev_s)
-    last = ev_kind[n - 1]
-    if last == EVENT_BOUNCE or last == EVENT_FLOOR:
-        return SHOT_NO_NET
-    if last != EVENT_PLANE:
+    # The plane model (body False): the landing varies smoothly with v_out, also through the
+    # net and past the table's edges, as Newton needs; the forward check has the body.
+    res = np.empty(FLIGHT_N)
+    kind = landing_flight(s, 0.0, P, False, res)
+    if kind != CONTACT_TOP and kind != CONTACT_OFF:
         return SHOT_NO_LANDING
-    out[2] = ev_s[n - 1, 2]
-    t_net = ev_t[n - 1]
-    s[:] = ev_s[n - 1]
-    n = rollout_kernel(s, t_net, P, FLIGHT_T_MAX, DEFAULT_STEP, math.nan, 0, 1, empty_t,
-                       samples, ev_kind, ev_t, ev_s)
-    last = ev_kind[n - 1]
-    if last == EVENT_BOUNCE or last == EVENT_FLOOR:
-        out[0] = ev_s[n - 1, 0]
-        out[1] = ev_s[n - 1, 1]
-        return SHOT_OK
-    return SHOT_NO_LANDING
+    if math.isnan(res[FL_NET_T]):
+        return SHOT_NO_NET
+    out[0] = res[FL_S]
+    out[1] = res[FL_S + 1]
+    out[2] = res[FL_NET_Z]
+    return SHOT_OK
 
 
 # --- Newton on v_out ----------------------------------------------------------------------
@@ -269,17 +260,21 @@ def ballistic_guess(p_hit, target, z_net, gravity):
     return np.array([vx, vy, vz])
 
 
-def _newton(s_hit, aim, z_net_goal, P, settings):
+def _newton(s_hit, aim, z_net_goal, P, settings, guess=None):
     """Outgoing velocity that lands at aim (x, y) with the net height z_net_goal.
 
+    ``guess``: an outgoing velocity to start from (warm start, e.g. the solution at a nearby
+    hit point); the drag-free guess when None or when it does not land.
     Returns (out, iterations, reason): out the _shoot row of the solution (None if there is
     none, with the reason)."""
     r = P[I_RADIUS]
+    goal = np.array([aim[0], aim[1], z_net_goal])
+    out = np.zeros(7)
+    if guess is not None and _shoot(s_hit, guess, P, out) == SHOT_OK:
+        return _newton_from(s_hit, np.array(guess, dtype=float), out, goal, P, settings)
     v = ballistic_guess(s_hit[:3], (aim[0], aim[1], r), z_net_goal, P[I_GRAVITY])
     if v is None:
         return None, 0, 'target is not beyond the net from the hit point'
-    goal = np.array([aim[0], aim[1], z_net_goal])
-    out = np.zeros(7)
     # The drag-free guess falls short under drag (and may land right at the net, where the
     # residuals bend sharply): start from the first of a few faster shots along the same
     # line that clears the net top, or else the first that lands at all.
@@ -296,6 +291,11 @@ def _newton(s_hit, aim, z_net_goal, P, settings):
             return None, 0, _SHOT_REASON[code]
         v = v * start
         _shoot(s_hit, v, P, out)
+    return _newton_from(s_hit, v, out, goal, P, settings)
+
+
+def _newton_from(s_hit, v, out, goal, P, settings):
+    """Newton on v_out from v (its _shoot row in out) to the goal (x, y, z_net)."""
     f = out[:3] - goal
     jac = np.empty((3, 3))
     out_h = np.zeros(7)
@@ -347,14 +347,16 @@ _SHOT_REASON = {
 def racket_orientation(normal):
     """Quaternion (x, y, z, w) of the racket frame: z = normal, x = world +z projected on the
     face (world +x when the face is horizontal), y = z cross x."""
-    z = np.asarray(normal, float) / np.linalg.norm(normal)
-    up = np.array([0.0, 0.0, 1.0])
-    x = up - z * (up @ z)
-    if np.linalg.norm(x) < 1e-6:
-        x = np.array([1.0, 0.0, 0.0]) - z * z[0]
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return matrix_to_quaternion(np.column_stack([x, y, z]))
+    nx, ny, nz = (float(c) for c in normal)
+    n = math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx / n, ny / n, nz / n
+    xx, xy, xz = -nz * nx, -nz * ny, 1.0 - nz * nz         # up - z (up . z)
+    if math.sqrt(xx * xx + xy * xy + xz * xz) < 1e-6:
+        xx, xy, xz = 1.0 - nx * nx, -nx * ny, -nx * nz     # +x - z (x . z)
+    k = math.sqrt(xx * xx + xy * xy + xz * xz)
+    xx, xy, xz = xx / k, xy / k, xz / k
+    yx, yy, yz = ny * xz - nz * xy, nz * xx - nx * xz, nx * xy - ny * xx   # z cross x
+    return matrix_to_quaternion(np.array([[xx, yx, nx], [xy, yy, ny], [xz, yz, nz]]))
 
 
 def matrix_to_quaternion(rot):
@@ -404,19 +406,20 @@ def resolve_target(target_zone=None, target_point=None):
 # --- the solver ---------------------------------------------------------------------------
 
 def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
-          covariance=None):
+          covariance=None, guess=None):
     """Racket normal and velocity that send the ball at ``hit_state`` to the target.
 
     hit_state: (9,) ball p (m), v (m/s), w (rad/s) at the hit point, table frame.
     params: tt_prediction ModelParams. Target: ``target_zone`` 1..9 on the opponent's half
     (its centre) or ``target_point`` (x, y) m. ``covariance``: optional 9x9 covariance of
-    hit_state, for the in-zone probability (and ``aim_inside_zone``). Returns a
+    hit_state, for the in-zone probability (and ``aim_inside_zone``). ``guess``: outgoing
+    ball velocity (m/s) to start Newton from (warm start from a nearby hit point). Returns a
     :class:`StrikeSolution`; the landing fields come from the forward check
     (``racket_rebound`` + ``predict_landing``, net included), ``residual`` its distance to
     the aim point.
     """
     settings = settings or StrikeSettings()
-    P = params.packed()
+    P = packed_params(params)
     try:
         zone, point = resolve_target(target_zone, target_point)
     except ValueError as err:
@@ -440,7 +443,7 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
             return sol
     r = P[I_RADIUS]
     z_net_goal = NET_HEIGHT + r + settings.net_clearance
-    out, sol.iterations, reason = _newton(s_hit, point, z_net_goal, P, settings)
+    out, sol.iterations, reason = _newton(s_hit, point, z_net_goal, P, settings, guess)
     if out is None:
         sol.reason = f'cannot reach the target: {reason}'
         return sol

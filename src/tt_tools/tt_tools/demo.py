@@ -61,7 +61,8 @@ def run_graph(recording, session, log_dir, args, collector):
                                    '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}',
                                    '-p', 'stale_after_s:=0.0'])
         group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
-                               '-p', f'target_zone:={args.target_zone}'])
+                               '-p', f'target_zone:={args.target_zone}',
+                               '-p', 'check_hit_time:=false', '-p', 'use_hit_plane:=true'])
         group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
         wait_until(lambda: collector.spin_once() or collector.graph_ready(), 90.0,
                    'the three nodes and the recorder to join the graph (see '

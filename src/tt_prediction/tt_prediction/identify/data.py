@@ -106,7 +106,7 @@ SPIN_SOURCES = ('measured', 'estimated')
 """Values of index.csv's optional ``spin_source`` column ('' = measured where spin is given)."""
 
 
-def _read_index(folder):
+def read_index(folder):
     """index.csv of a trajectory folder: {file: (spin or None, label, spin_source)}; {} when
     absent. Spin given as ``estimated`` is not returned as spin (it is not a measurement)."""
     path = os.path.join(folder, 'index.csv')
@@ -147,13 +147,16 @@ def _read_index(folder):
     return index
 
 
+_read_index = read_index     # the former private name (tracks_cli imports it)
+
+
 def load_folder(folder):
     """All tracks of a trajectory folder (one CSV per track plus optional index.csv)."""
     files = sorted(f for f in os.listdir(folder)
                    if f.endswith('.csv') and f != 'index.csv')
     if not files:
         raise DataError(f'{folder}: no trajectory CSV files in the folder')
-    index = _read_index(folder)
+    index = read_index(folder)
     tracks = []
     for name in files:
         path = os.path.join(folder, name)

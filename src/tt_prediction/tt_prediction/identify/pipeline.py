@@ -117,6 +117,7 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     tested = [{'name': e.name, 'mechanism': e.mechanism, 'tested': False, 'reason': reason,
                'params': {}, 'heldout_gain': 0.0} for e, reason in candidates if reason]
     current, best = [], (None, None, None, g_base, states)
+    stages = []             # (selected names, fit) after each round's selection
     pool = [e for e, reason in candidates if not reason]
     for round_ in range(MAX_EFFECTS):
         # The round's fold fits: the reference, then every effect of the pool.
@@ -137,18 +138,28 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         results.sort(key=lambda r: -r[0])
         best = results[0][2]
         current.append(results[0][1].name)
+        stages.append((list(current), best))
         pool = [r[1] for r in results[1:]]
         if not pool:
             break
-    _, cur_rms, cur_folds, g_final, states = best
-
     before, before_tracks = evaluate.predictive_errors(prepared, fold_of, base_folds,
                                                        hit_plane_x)
-    if current:
-        after, after_tracks = evaluate.predictive_errors(prepared, fold_of, cur_folds,
-                                                         hit_plane_x)
+    # Selected only where the held-out prediction error drops too: the last selected effect
+    # is dropped while it does not (a better fit of whole tracks that predicts worse from
+    # their start is not what a robot needs).
+    after, after_tracks, dropped_effects = before, before_tracks, []
+    best = (None, base_rms, base_folds, g_base, base_states)
+    while stages:
+        names, fit = stages[-1]
+        errors, per_track = evaluate.predictive_errors(prepared, fold_of, fit[2], hit_plane_x)
+        if _prediction_improves(before, errors):
+            current, best, after, after_tracks = names, fit, errors, per_track
+            break
+        dropped_effects.insert(0, names[-1])
+        stages.pop()
     else:
-        after, after_tracks = before, before_tracks
+        current = []
+    _, cur_rms, cur_folds, g_final, states = best
     diag_before = diagnose.flight_residuals(prepared, g_base, base_states)
     diag_after = diagnose.flight_residuals(prepared, g_final, states)
     rebound_before = diagnose.rebound_summary(prepared, g_base, base_states)
@@ -176,11 +187,15 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         'effects_tested': tested,
         'selected_effects': current,
         'selection_note': small,
+        'dropped_for_prediction': dropped_effects,
         'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
                            f'held-out fit RMS ({folds}-fold, by trajectory) exceeds '
-                           f'{PENALTY_PER_PARAM} per added parameter and switching it off '
+                           f'{PENALTY_PER_PARAM} per added parameter, switching it off '
                            f'moves the fitted tracks by more than '
-                           f'{1e3 * MIN_EFFECT_SIZE:.0f} mm RMS'),
+                           f'{1e3 * MIN_EFFECT_SIZE:.0f} mm RMS, its parameters are not '
+                           f'at a bound of their plausible range, and the held-out '
+                           f'prediction errors (along the track and at the hitting plane) '
+                           f'drop with it'),
     }
     result['_model'] = g_final.params()
     result['_plots'] = {'diag_before': diag_before, 'diag_after': diag_after,
@@ -233,6 +248,7 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
     penalty = PENALTY_PER_PARAM * len(effect.params)
     size = effect_size(prepared, g, effect, e_states)
     fold_values = {p: [f[0].values[f[0].names.index(p)] for f in fits] for p in effect.params}
+    at_bound = _at_bound(g, effect.params)
     entry = {
         'name': effect.name, 'mechanism': effect.mechanism, 'tested': True,
         'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in effect.params},
@@ -241,9 +257,36 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
         'heldout_gain': round(gain, 4),
         'penalty': penalty,
         'effect_size_mm': round(1e3 * size, 2),
-        'pays': bool(gain > penalty and size > MIN_EFFECT_SIZE),
+        'at_bound': at_bound,
+        'pays': bool(gain > penalty and size > MIN_EFFECT_SIZE and not at_bound),
     }
     return entry, (effect, rms, fits, g, e_states)
+
+
+def _prediction_improves(before, after):
+    """Whether the held-out prediction errors ``after`` are lower than ``before``: the RMS
+    along the rest of the tracks, and the hit-plane error where tracks cross the plane."""
+    if after['rms_mm'] is None or before['rms_mm'] is None:
+        return False
+    if after['rms_mm'] >= before['rms_mm']:
+        return False
+    if before['hit_err_mm'] is not None and after['hit_err_mm'] is not None:
+        return after['hit_err_mm'] < before['hit_err_mm']
+    return True
+
+
+def _at_bound(globals_, params):
+    """The parameters fitted at (within 0.1 % of the range of) a bound of their declared
+    plausible range: the bound, not the data, set their value."""
+    lo, hi = globals_.bounds()
+    out = []
+    for p in params:
+        i = globals_.names.index(p)
+        tol = 1e-3 * (hi[i] - lo[i])
+        v = globals_.values[i]
+        if (v - lo[i] < tol and lo[i] != 0.0) or hi[i] - v < tol:
+            out.append(p)
+    return out
 
 
 def _strip(summary):

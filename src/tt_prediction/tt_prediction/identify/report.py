@@ -123,6 +123,13 @@ def markdown(r):
             'residual shape is shown below.')
     if r.get('selection_note'):
         none = f"none: {r['selection_note']}."
+    if r.get('dropped_for_prediction'):
+        lines += ['', 'Paid on the fit but dropped because the held-out prediction error did '
+                  'not drop with them: ' + ', '.join(r['dropped_for_prediction']) + '.']
+    at_bound = [e['name'] for e in r['effects_tested'] if e.get('at_bound')]
+    if at_bound:
+        lines += ['', 'Fitted at a bound of the plausible range (not selected): '
+                  + ', '.join(dict.fromkeys(at_bound)) + '.']
     lines += ['', '**Selected:** ' + (', '.join(sel) if sel else none),
               '', '## Held-out errors before and after', '',
               f"{d['folds']}-fold cross-validation by trajectory; prediction from the first "

@@ -1,0 +1,154 @@
+"""The robot's reach: where the racket centre can be at the hit, how fast, how soon.
+
+Pure module (no rclpy). A workspace file (YAML, see config/workspace.yaml for a typical arm)
+gives, in the table frame (MODEL.md), SI units:
+
+    workspace:
+      shape: box                     # or cylinder
+      box: {x: [x_min, x_max], y: [y_min, y_max], z: [z_min, z_max]}         # m
+      cylinder: {centre: [x, y], radius: r, z: [z_min, z_max]}               # m (shape cylinder)
+      max_racket_speed: 8.0          # m/s at impact
+      min_time_before_hit: 0.15      # s: the arm needs at least this long to get there
+
+A bad file (missing key, a size that is not positive, min not below max, NaN, a wrong type)
+raises :class:`WorkspaceError` with one line naming the key.
+"""
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+import yaml
+
+TEMPLATE = pathlib.Path(__file__).resolve().parent.parent / 'config' / 'workspace.yaml'
+"""The template workspace in the source tree (installed to share/tt_strike/config)."""
+
+
+class WorkspaceError(ValueError):
+    """A bad workspace file; the message is one line naming the key."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Workspace:
+    """Reach of the racket centre at the hit, racket-speed limit, least time before the hit."""
+
+    shape: str
+    """'box' or 'cylinder'."""
+    x: tuple = (math.nan, math.nan)
+    """Box: x range of the racket centre, m (table frame)."""
+    y: tuple = (math.nan, math.nan)
+    """Box: y range, m."""
+    z: tuple = (math.nan, math.nan)
+    """Box and cylinder: z range, m."""
+    centre: tuple = (math.nan, math.nan)
+    """Cylinder: axis (x, y), m (vertical axis)."""
+    radius: float = math.nan
+    """Cylinder: radius, m."""
+    max_racket_speed: float = 8.0
+    """Largest racket speed at impact, m/s."""
+    min_time_before_hit: float = 0.15
+    """Least time between the decision and the hit that the arm needs, s."""
+
+    def contains(self, p, margin=0.0):
+        """True where the point(s) p (..., 3), m, are inside (grown by ``margin`` m)."""
+        p = np.asarray(p, dtype=float)
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        inside_z = (z >= self.z[0] - margin) & (z <= self.z[1] + margin)
+        if self.shape == 'box':
+            return (inside_z & (x >= self.x[0] - margin) & (x <= self.x[1] + margin)
+                    & (y >= self.y[0] - margin) & (y <= self.y[1] + margin))
+        d = np.hypot(x - self.centre[0], y - self.centre[1])
+        return inside_z & (d <= self.radius + margin)
+
+    def describe(self):
+        """One line: the reach, for reasons."""
+        if self.shape == 'box':
+            return (f'box x [{self.x[0]:.2f}, {self.x[1]:.2f}], y [{self.y[0]:.2f}, '
+                    f'{self.y[1]:.2f}], z [{self.z[0]:.2f}, {self.z[1]:.2f}] m')
+        return (f'cylinder centre ({self.centre[0]:.2f}, {self.centre[1]:.2f}), radius '
+                f'{self.radius:.2f}, z [{self.z[0]:.2f}, {self.z[1]:.2f}] m')
+
+    def x_range(self):
+        """(x_min, x_max) of the reach, m."""
+        if self.shape == 'box':
+            return self.x
+        return (self.centre[0] - self.radius, self.centre[0] + self.radius)
+
+
+def _get(mapping, key, path):
+    if not isinstance(mapping, dict):
+        raise WorkspaceError(f"key '{path}' must be a mapping")
+    if key not in mapping:
+        raise WorkspaceError(f"missing key '{path}.{key}'" if path else f"missing key '{key}'")
+    return mapping[key]
+
+
+def _number(value, key, positive=False, non_negative=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise WorkspaceError(f"key '{key}' must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise WorkspaceError(f"key '{key}' is not a finite number: {value}")
+    if positive and value <= 0.0:
+        raise WorkspaceError(f"key '{key}' must be positive, got {value}")
+    if non_negative and value < 0.0:
+        raise WorkspaceError(f"key '{key}' must not be negative, got {value}")
+    return value
+
+
+def _pair(value, key, ordered=True):
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise WorkspaceError(f"key '{key}' must be two numbers [min, max], got {value!r}")
+    lo, hi = (_number(v, key) for v in value)
+    if ordered and not lo < hi:
+        raise WorkspaceError(f"key '{key}' must have min below max (a positive size), "
+                             f'got [{lo}, {hi}]')
+    return lo, hi
+
+
+def parse_workspace(data):
+    """A :class:`Workspace` from the parsed YAML (a dict holding 'workspace')."""
+    ws = _get(data, 'workspace', '')
+    shape = _get(ws, 'shape', 'workspace')
+    speed = _number(_get(ws, 'max_racket_speed', 'workspace'), 'workspace.max_racket_speed',
+                    positive=True)
+    min_time = _number(_get(ws, 'min_time_before_hit', 'workspace'),
+                       'workspace.min_time_before_hit', non_negative=True)
+    if shape == 'box':
+        box = _get(ws, 'box', 'workspace')
+        return Workspace(
+            'box', x=_pair(_get(box, 'x', 'workspace.box'), 'workspace.box.x'),
+            y=_pair(_get(box, 'y', 'workspace.box'), 'workspace.box.y'),
+            z=_pair(_get(box, 'z', 'workspace.box'), 'workspace.box.z'),
+            max_racket_speed=speed, min_time_before_hit=min_time)
+    if shape == 'cylinder':
+        cyl = _get(ws, 'cylinder', 'workspace')
+        return Workspace(
+            'cylinder',
+            centre=_pair(_get(cyl, 'centre', 'workspace.cylinder'), 'workspace.cylinder.centre',
+                         ordered=False),
+            radius=_number(_get(cyl, 'radius', 'workspace.cylinder'),
+                           'workspace.cylinder.radius', positive=True),
+            z=_pair(_get(cyl, 'z', 'workspace.cylinder'), 'workspace.cylinder.z'),
+            max_racket_speed=speed, min_time_before_hit=min_time)
+    raise WorkspaceError(f"key 'workspace.shape' must be 'box' or 'cylinder', got {shape!r}")
+
+
+def load_workspace(path=None):
+    """Read a workspace file (None or '': the template). Raises WorkspaceError (one line,
+    naming the file and the key) for a bad one."""
+    path = pathlib.Path(path) if path else TEMPLATE
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise WorkspaceError(f'{path}: cannot read: {exc.strerror}') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else 'bad YAML'
+        raise WorkspaceError(f'{path}: not YAML: {first}') from None
+    try:
+        return parse_workspace(data)
+    except WorkspaceError as exc:
+        raise WorkspaceError(f'{path}: {exc}') from None
