@@ -21,6 +21,7 @@ from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
+from tt_ros.timebase import mismatch_warning, same_time_base
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -35,9 +36,6 @@ BOUNCE_MARGIN_S = 0.02
 to be past that bounce (so the plane crossing ahead is the hit), s."""
 STATE_QUEUE_DEPTH = 100
 """States kept for the callback (best effort): a replay publishes in bursts."""
-TIME_BASE_MISMATCH_S = 3600.0
-"""A state's stamp this far from the node clock (either way) is on another time base (video
-time from 0, a synthetic recording against the wall clock): its age means nothing, s."""
 MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each)."""
 
@@ -167,11 +165,7 @@ class PredictionNode(Node):
     def _time_base_mismatch(self, age):
         if not self.warned_time_base:
             self.warned_time_base = True
-            self.get_logger().warning(
-                f'state stamps are {age:.0f} s from the node clock: another time base (a '
-                'recording without /clock?), so the stale check is off for them; run with '
-                'use_sim_time:=true and a /clock source (ros2 bag play --clock, '
-                'perception_node publish_clock:=true)')
+            self.get_logger().warning(mismatch_warning(age))
 
     def on_state(self, msg):
         start = time.perf_counter()
@@ -199,7 +193,7 @@ class PredictionNode(Node):
         now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
         if now_ns:          # 0: use_sim_time and no /clock yet, nothing to compare with
             age = (now_ns - stamp_ns) * 1e-9
-            if abs(age) > TIME_BASE_MISMATCH_S:
+            if not same_time_base(stamp_ns * 1e-9, now_ns * 1e-9):
                 self._time_base_mismatch(age)
             elif age > stale:
                 self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')

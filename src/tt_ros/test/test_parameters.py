@@ -57,3 +57,14 @@ def test_the_descriptor_carries_the_range_and_the_words():
     z = ZONE.descriptor()
     assert (z.integer_range[0].from_value, z.integer_range[0].to_value) == (0, 9)
     assert not z.floating_point_range
+
+
+def test_time_base():
+    from tt_ros.timebase import TIME_BASE_MISMATCH_S, same_time_base
+
+    now = 1_795_000_000.0                      # the wall clock, 2026
+    assert same_time_base(now - 0.3, now)
+    assert same_time_base(now - TIME_BASE_MISMATCH_S, now)
+    assert not same_time_base(1_700_000_000.0, now)     # a 2023 recording against today
+    assert not same_time_base(0.4, now)                 # video time against the wall clock
+    assert not same_time_base(0.4, 0.0)                 # use_sim_time before any /clock

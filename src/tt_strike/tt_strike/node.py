@@ -9,9 +9,10 @@ the chosen hit time and point and the racket centre: feasible, or ``feasible = f
 status (infeasible, unreachable) and reason (so that a controller knows there is no stroke for
 this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
 node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
-no such check, for replays). Predictions without a hit point or with non-finite numbers are
-dropped with a throttled warning: nothing is published for them. A bad workspace file stops the
-node at start with a one-line reason.
+no such check, for replays; none either, with one warning, for hit times on another time base
+than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point or with
+non-finite numbers are dropped with a throttled warning: nothing is published for them. A bad
+workspace file stops the node at start with a one-line reason.
 """
 
 import dataclasses
@@ -27,6 +28,7 @@ from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_xyz
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
+from tt_ros.timebase import mismatch_warning, same_time_base
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
@@ -121,6 +123,7 @@ class StrikeNode(Node):
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
         self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
+        self.warned_time_base = False
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
@@ -203,6 +206,11 @@ class StrikeNode(Node):
             cov = self._covariance(msg, state)
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         now = self.get_clock().now().nanoseconds * 1e-9
+        if not same_time_base(hit_t, now):
+            if now and not self.warned_time_base:     # 0: use_sim_time, no /clock yet
+                self.warned_time_base = True
+                self.get_logger().warning(mismatch_warning(hit_t - now))
+            now = -math.inf                          # no hit-time check: not comparable
         if not self.p.check_hit_time:
             now = -math.inf
         ws = self.workspace
