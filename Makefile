@@ -39,8 +39,7 @@ report: build
 	@$(ENV) cd $(TOP) && for set in mpi_launcher mpi_pam; do \
 		tt-identify data/$$set --out docs/report/$$set --hit-plane-x -1.2 || exit 1; \
 		python -m tt_prediction.lead_report --data data/$$set --out docs/report/$$set \
-			--model docs/report/$$set/model.yaml --hit-plane-x -1.2 \
-			--filter-config src/tt_prediction/config/filter_mpi.yaml || exit 1; done
+			--model docs/report/$$set/model.yaml --hit-plane-x -1.2 || exit 1; done
 
 clean:
 	rm -rf build install log env.sh

@@ -75,7 +75,9 @@ def test_prediction_node_killed_and_restarted_the_strikes_resume(tmp_path):
     assert expected.status == 'ok'
     try:
         with ProcessGroup(str(tmp_path)) as group:
-            group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', *remap])
+            # use_hit_plane: the strike at the prediction's hit point (the checks below).
+            group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', *remap,
+                                   '-p', 'use_hit_plane:=true'])
             first = group.start('prediction', prediction)
             wait_until(lambda: stream.publish_and_spin() or len(stream.commands) >= 3, 120.0,
                        'strike commands through a fresh prediction_node')

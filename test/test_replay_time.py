@@ -190,7 +190,8 @@ def test_a_rig_of_video_files_gives_a_prediction_per_state_on_video_time(tmp_pat
             group.start('perception', ['ros2', 'run', 'tt_perception', 'perception_node',
                                        '--ros-args', '-p', f'rig_file:={video_rig}',
                                        '-p', 'publish_clock:=true',
-                                       '-p', 'wait_for_subscribers:=2'], env=env)
+                                       '-p', 'wait_for_subscribers:=2',
+                                       '-p', 'video_rate:=0'], env=env)
             log = tmp_path / 'perception.log'
             wait_until(lambda: listener.spin() or 'end of the video files' in log.read_text(),
                        TIMEOUT_S, 'the video files read and processed')

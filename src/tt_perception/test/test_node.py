@@ -258,9 +258,13 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
                              QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT))
     node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
                                                      f'/ball/state:={state_topic}'],
-                              parameter_overrides=[Parameter('rig_file', value=video_rig)]))
-    assert spin_until(executor, lambda: node.frames_received >= n_frames, timeout=20.0), (
-        node.frames_received, n_frames)
+                              parameter_overrides=[Parameter('rig_file', value=video_rig),
+                                                   Parameter('video_rate', value=0.0)]))
+    # video_rate 0: each frame read once processing takes the one before (real-time pacing is
+    # bench_camrate's): every frame is processed, none lost. Both files end (their END item
+    # comes after their last frame).
+    assert spin_until(executor, lambda: node._ended >= {0, 1}, timeout=60.0), node._ended
+    assert node.frames_received == n_frames and node.drops.snapshot() == ([0, 0], 0)
     assert spin_until(executor, lambda: len(got) >= node.states_published > 20), (
         len(got), node.states_published)
     # Video time runs from camera 0's first frame (the scene's -0.1 s).

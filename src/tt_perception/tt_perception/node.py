@@ -2,11 +2,11 @@
 
 ROS glue only (the math is in the pure modules). Each camera of the rig file comes from its
 ``source``: an image topic (sensor_msgs/Image on the source, CameraInfo on the sibling
-``camera_info`` topic, sensor-data QoS), a V4L2 device (a thread per device) or a video file
-(one thread reads the files together, paced at the rig's fps; times are video times, from 0,
-published on /clock with ``publish_clock`` so that nodes with ``use_sim_time`` share them;
-the frame-draining timer runs on the steady clock).
-Every
+``camera_info`` topic, sensor-data QoS), a V4L2 device or a video file paced at the rig's fps
+as a camera (:mod:`tt_perception.camstream`: a reader thread per camera, a bounded queue to
+one processing thread, every lost frame counted; times are video times, or the wall clock
+with ``video_clock: wall``; ``publish_clock`` publishes the frame times on /clock, so that
+nodes with ``use_sim_time`` share them). Every
 frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
 tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
 image header stamp), 9x9 covariance row-major (position, velocity, spin).
@@ -18,10 +18,11 @@ is reported (and a device reopened) while the node keeps running.
 """
 
 import math
-import queue
+import os
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rclpy.clock import Clock, ClockType
@@ -37,14 +38,26 @@ from tt_ros.parameters import Param, Parameters
 from tt_msgs.msg import BallState
 
 from .camera import CalibrationError, load_rig
+from .camstream import (
+    END,
+    CameraReader,
+    DropCounter,
+    FrameQueue,
+    LatencyWindow,
+    MonotonicClock,
+    PacedVideoSource,
+    open_v4l2,
+    warm_up,
+)
 from .detect import DetectorConfig
 from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import V4L2Source, camera_info_topic, file_frames, image_to_bgr, source_kind
+from .sources import camera_info_topic, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
-SUBSCRIBER_POLL_S = 0.05
-"""How often the video reader looks for the subscriptions it waits for, s."""
+DIAGNOSTICS_TOPIC = '/diagnostics'
+CAMERA_BUFFERS = 4
+"""Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE; a paced video file emulates them)."""
 
 
 # Read once at start (the rig and the pipeline are built from them): read-only.
@@ -79,12 +92,19 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
     ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
      -1, 100000),
-    ('wait_for_subscribers', 1, 'video files: start reading once /ball/state has this many '
-     'subscriptions (the first ball is not lost to a consumer still starting); 0: at once', '',
-     0, 100),
-    ('publish_clock', False, 'publish the time of the frame being processed on /clock, so '
-     "that nodes with use_sim_time run on the recording's time (video files; image topics "
-     'replayed without --clock)'),
+    ('video_clock', 'video', "Stamps of video-file frames: 'video' (s from the first frame) or "
+     "'wall' (the wall-clock time the paced frame is exposed, as a live camera's)", '', None,
+     None, ('video', 'wall')),
+    ('frame_queue', 8, 'Frames queued per camera for processing; beyond, the oldest is '
+     'dropped (counted)', '', 2, 1000),
+    ('video_rate', 1.0, 'Playback speed of video files: 1 = real time, as cameras (frames lost '
+     'when processing falls behind, counted); 0 = each frame once the one before is taken, '
+     'none lost (offline, tests)', '', 0.0, 100.0),
+    ('wait_for_subscribers', 0, 'Video files start once /ball/state has this many '
+     'subscriptions', '', 0, 100),
+    ('publish_clock', False, 'publish the time of the frame being processed on /clock (before '
+     "its states), so that nodes with use_sim_time run on the recording's time (video files "
+     "with video_clock 'video'; image topics replayed without --clock)"),
 ))
 
 
@@ -111,7 +131,6 @@ class PerceptionNode(Node):
         super().__init__('perception_node', **kwargs)
         self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
-        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.clock_pub = None
         self.clock_msg = ClockMsg()
         self.last_clock_ns = None
@@ -126,8 +145,16 @@ class PerceptionNode(Node):
         self.rig = None
         self._t_ref = None
         self._stop = threading.Event()
-        self._queue = queue.Queue(maxsize=64)
-        self._threads = []
+        self._lock = threading.Lock()       # the pipeline: processing thread and callbacks
+        self._readers = []
+        self._worker = None
+        self._files = []
+        self._video_start = None            # wall-clock time of video time 0, s
+        self._wall_stamps = False
+        self.frames_queue = None
+        self.drops = None
+        self.latency = LatencyWindow()
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
         self._lost = set()
         self._ended = set()           # cameras whose video files have ended
@@ -167,7 +194,8 @@ class PerceptionNode(Node):
                                 max_reprojection=self._p('max_reprojection'))
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
-        files = []
+        warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame
+        files, devices = [], []
         for k, cam in enumerate(rig.cameras):
             kind = source_kind(cam.source)
             if kind == 'topic':
@@ -178,25 +206,35 @@ class PerceptionNode(Node):
                                          lambda msg, k=k: self._on_info(k, msg),
                                          qos_profile_sensor_data)
             elif kind == 'v4l2':
-                self._threads.append(threading.Thread(target=self._read_device, args=(k,),
-                                                      daemon=True))
+                devices.append(k)
             else:
                 files.append(k)
             self._last_frame[k] = time.monotonic()
-        if files:
-            self._threads.append(threading.Thread(target=self._read_files, args=(files,),
-                                                  daemon=True))
+        self.drops = DropCounter(len(rig.cameras))
+        lossless = self._p('video_rate') == 0.0 and not devices
+        self.frames_queue = FrameQueue(
+            self._p('frame_queue'), self.drops, lossless=lossless, stop=self._stop,
+            offsets=[c.time_offset or 0.0 for c in rig.cameras],
+            max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files,
+            min_gap=0.5 / rig.fps)
+        self._wall_stamps = self._p('video_clock') == 'wall'
+        for k in devices:
+            self._readers.append(self._device_reader(k))
+        self._files = files
         spin_topic = self._p('measured_spin_topic')
         if spin_topic:
             self.create_subscription(Vector3Stamped, spin_topic, self._on_spin,
                                      qos_profile_sensor_data)
-        if self._threads:
-            # On the steady clock: with use_sim_time a ROS-time timer would wait for /clock
-            # (which this node may itself be the source of) to drain the frames.
-            self.create_timer(0.002, self._drain, clock=self.steady)
+        if devices or files:
+            self._worker = threading.Thread(target=self._work, daemon=True, name='perception')
+            self._worker.start()
+            self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+            self.create_timer(1.0, self._publish_diagnostics, clock=self.steady)
+        for reader in self._readers:
+            reader.start()
+        if files:
+            self._file_timer = self.create_timer(0.01, self._start_files, clock=self.steady)
         self.create_timer(0.25, self._watch_cameras)
-        for thread in self._threads:
-            thread.start()
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
         self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
 
@@ -238,82 +276,121 @@ class PerceptionNode(Node):
             self._warn_once('spin', f'measured spin {w} is not finite: ignored')
             return
         var = self._p('measured_spin_sigma') ** 2
-        if self.pipeline.tracker.measure_spin(t, np.array(w), np.eye(3) * var):
+        with self._lock:
+            used = self.pipeline.tracker.measure_spin(t, np.array(w), np.eye(3) * var)
+        if used:
             self.spin_measurements_used += 1
 
-    def _put(self, k, t, frame, wait=False):
-        """Queue a frame for processing; a live camera's frame is dropped when processing
-        falls behind, a file's (``wait``) waits for room."""
-        while not self._stop.is_set():
-            try:
-                self._queue.put((k, t, frame), timeout=0.1)
-                return
-            except queue.Full:
-                if not wait:
-                    self._warn_once(('queue', k), f'camera {self.rig.cameras[k].name}: '
-                                    'processing falls behind, frames dropped')
-                    return
-
-    def _read_device(self, k):
-        """One V4L2 camera: frames into the queue; reopened while it is away."""
+    def _device_reader(self, k):
+        """The reader thread of V4L2 camera ``k`` (opened, and reopened, by the thread)."""
         cam = self.rig.cameras[k]
         exposure = self._p('device_exposure')
-        src = V4L2Source(cam.source, width=self._p('device_width'),
-                         height=self._p('device_height'), fps=self.rig.fps,
-                         fourcc=self._p('device_fourcc'),
-                         exposure=exposure if exposure >= 0 else None,
-                         reopen_interval=self._p('reopen_interval'))
-        status = ''
-        while not self._stop.is_set():
-            t, frame = src.read()          # opens, and reopens a lost device, itself
-            if src.status != status:
-                status = src.status
-                self.get_logger().warning(f'camera {cam.name}: {status}')
-            if frame is None:
-                self._stop.wait(0.01)
-                continue
-            self._put(k, t, frame)
-        src.close()
+        source = open_v4l2(cam.source, width=self._p('device_width'),
+                           height=self._p('device_height'), fps=self.rig.fps,
+                           fourcc=self._p('device_fourcc'),
+                           exposure=exposure if exposure >= 0 else None,
+                           reopen_interval=self._p('reopen_interval'))
+        source.stop = self._stop
+        return CameraReader(k, source, self.frames_queue, self.drops,
+                            on_status=lambda k, text: self.get_logger().warning(
+                                f'camera {self.rig.cameras[k].name}: {text}'),
+                            on_error=self._reader_error)
 
-    def _read_files(self, ks):
-        """The video-file cameras, frame by frame together, paced at the rig's fps, once
-        ``wait_for_subscribers`` subscriptions listen to the states (a video does not wait
-        for a late consumer as a live camera would not)."""
-        want = self._p('wait_for_subscribers')
-        if self.publisher.get_subscription_count() < want:
-            self.get_logger().info(f'video files: waiting for {want} subscription(s) on '
-                                   f'{STATE_TOPIC}')
-            while (self.publisher.get_subscription_count() < want
-                   and not self._stop.wait(SUBSCRIBER_POLL_S)):
-                pass
-        start = time.monotonic()
-        try:
-            for t, k, frame in file_frames(self.rig, ks):
-                if self._stop.wait(max(0.0, start + t - time.monotonic())):
-                    break
-                self._put(k, t, frame, wait=True)
-        except OSError as exc:
-            self.get_logger().error(str(exc))
-        self._ended.update(ks)
-        self._put(None, None, None, wait=True)     # logged once the frames before are done
-
-    def _drain(self):
-        while True:
+    def _start_files(self):
+        """Start the video files together (frame n of each at the same instant), once
+        ``wait_for_subscribers`` subscriptions of /ball/state are there."""
+        if self.count_subscribers(STATE_TOPIC) < self._p('wait_for_subscribers'):
+            return
+        self._file_timer.cancel()
+        base = os.path.dirname(self.rig.path)
+        # Frame 0 of every file 20 ms from now, on the camera threads' clock.
+        start = MonotonicClock.now() + 0.02
+        self._video_start = time.time() + (start - MonotonicClock.now())
+        fps = self.rig.fps
+        readers = []
+        for k in self._files:
+            cam = self.rig.cameras[k]
+            path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
             try:
-                k, t, frame = self._queue.get_nowait()
-            except queue.Empty:
-                return
-            if k is None:
-                self.get_logger().info(f'end of the video files: {self.frames_received} '
-                                       f'frames, {self.states_published} states')
+                source = PacedVideoSource(path, fps, buffers=CAMERA_BUFFERS, stop=self._stop,
+                                          start=start, rate=self._p('video_rate')).open()
+            except OSError as exc:
+                self.get_logger().error(f'camera {cam.name}: {exc}')
                 continue
-            self._process(k, t, frame)
+            t0 = self._video_start if self._wall_stamps else 0.0
+            readers.append(CameraReader(k, source, self.frames_queue, self.drops,
+                                        stamp=lambda n, t0=t0: t0 + n / fps,
+                                        on_error=self._reader_error))
+        self._files = [r.camera for r in readers]
+        self._readers += readers
+        for reader in readers:
+            reader.start()
+        self.get_logger().info(f'video files started: video time 0 at wall time '
+                               f'{self._video_start:.6f} s')
+
+    def _reader_error(self, k, exc):
+        self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')
+
+    def _work(self):
+        """The processing thread: frames of the camera threads, in arrival order."""
+        ended = set()
+        while not self._stop.is_set():
+            frame = self.frames_queue.get(timeout=0.1)
+            if frame is None:
+                continue
+            if frame.kind == END:
+                ended.add(frame.camera)
+                self._ended.add(frame.camera)
+                if self._files and ended >= set(self._files):
+                    self.get_logger().info(
+                        f'end of the video files: {self.frames_received} frames, '
+                        f'{self.states_published} states, {self.drops.pairs} frame pairs '
+                        'dropped')
+                continue
+            # Exposure times on the wall clock: live stamps are; video times start at the
+            # files' start.
+            if frame.camera not in self._files or self._wall_stamps:
+                base = 0.0
+            else:
+                base = self._video_start if self._p('video_rate') == 1.0 else None
+            self._process(frame.camera, frame.t, frame.image, base)
+
+    def _publish_diagnostics(self):
+        """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
+        lost, pairs = self.drops.snapshot()
+        p50, p99 = self.latency.percentiles_ms()
+        status = DiagnosticStatus(name='perception_node: cameras', hardware_id=self.rig.path)
+        status.level = DiagnosticStatus.OK if pairs == 0 else DiagnosticStatus.WARN
+        status.message = f'{pairs} frame pairs dropped'
+        values = {'frame_pairs_dropped': pairs, 'frames_processed': self.frames_received,
+                  'states_published': self.states_published,
+                  'queue_high_water': self.frames_queue.high_water,
+                  'latency_p50_ms': f'{p50:.3f}', 'latency_p99_ms': f'{p99:.3f}',
+                  'latency_count': self.latency.count,
+                  'cameras_ended': len(self._ended),
+                  'video_start_wall_s': ('' if self._video_start is None
+                                         else f'{self._video_start:.6f}')}
+        for reader in self._readers:
+            values[f'{self.rig.cameras[reader.camera].name}_frames_read'] = reader.frames
+        for k, cam in enumerate(self.rig.cameras):
+            values[f'{cam.name}_frames_dropped'] = lost[k]
+        status.values = [KeyValue(key=key, value=str(v)) for key, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics.publish(msg)
 
     # --- processing and output ---------------------------------------------------------
 
-    def _process(self, k, stamp, frame):
+    def _process(self, k, stamp, frame, wall_base=None):
+        """Camera ``k``'s frame stamped ``stamp`` (s) through the pipeline; its states are
+        published. ``wall_base`` (s): the stamp plus it is the wall-clock exposure time, for
+        the exposure -> publication latency (frames of the camera threads)."""
         if self.pipeline is None:
             return
+        with self._lock:
+            self._process_locked(k, stamp, frame, wall_base)
+
+    def _process_locked(self, k, stamp, frame, wall_base):
         self.frames_received += 1
         self._last_frame[k] = time.monotonic()
         if k in self._lost:
@@ -331,6 +408,8 @@ class PerceptionNode(Node):
         for est in estimates:
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
+            if wall_base is not None:
+                self.latency.add(time.time() - (wall_base + self._t_ref + est.t))
 
     def _publish_clock(self, stamp):
         """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""
@@ -359,8 +438,9 @@ class PerceptionNode(Node):
 
     def destroy_node(self):
         self._stop.set()
-        for thread in self._threads:
-            thread.join(timeout=2.0)
+        for thread in [*self._readers, self._worker]:
+            if thread is not None and thread.is_alive():
+                thread.join(timeout=2.0)
         return super().destroy_node()
 
 

@@ -128,7 +128,7 @@ class V4L2Source(FrameSource):
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
         cap.set(cv2.CAP_PROP_FPS, self.fps)
-        cap.set(cv2.CAP_PROP_BUFFERSIZE, 2)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 4)
         if self.exposure is not None:
             cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)            # V4L2 manual mode
             cap.set(cv2.CAP_PROP_EXPOSURE, float(self.exposure))

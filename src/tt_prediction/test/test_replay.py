@@ -3,6 +3,7 @@ samples, and bad input (one-line error naming the file, exit 2, no output)."""
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,3 +148,66 @@ def test_measured_crossing_of_a_sampled_parabola():
     tc, pc = measured_crossing(t, p, [(0.0, -0.5)], -0.5)
     assert tc == pytest.approx(0.125, abs=1e-9)
     assert pc == pytest.approx([-0.5, 0.1625, 0.3 + 0.125 - 4.9 * 0.125 ** 2], abs=1e-9)
+
+
+def test_learned_spin_prior_recovers_the_population_spread():
+    """Method of moments on noisy per-track spin measurements: a population with no spin
+    along v, no side spin and top/back spin of standard deviation 200 rad/s, each measured
+    with its own noise s_i (10-40 rad/s), gives back sqrt(E[w^2]) per axis (the floor where
+    it is 0); axes measured worse than max_sigma are ignored."""
+    from tt_prediction.ball_filter import SpinPriorLearner
+    rng = np.random.default_rng(3)
+    learner = SpinPriorLearner(floor=5.0, max_sigma=60.0)
+    assert list(learner.prior()) == [250.0, 250.0, 250.0]          # nothing seen yet
+    for _ in range(400):
+        s = rng.uniform(10.0, 40.0, 3)
+        w = np.array([rng.normal(0.0, 200.0), 0.0, 0.0])
+        learner.observe(w + rng.normal(0.0, s), s * s)
+        learner.observe(np.array([1e3, 1e3, 1e3]), np.full(3, 100.0 ** 2))   # uninformed
+    top, side, along = learner.prior()
+    # sd of the estimate of tau^2 from 400 samples: ~sqrt(2/400) tau^2 -> ~4 % on tau
+    assert top == pytest.approx(200.0, rel=0.12)
+    assert side < 12.0 and along < 12.0
+    assert learner.counts() == [400, 400, 400]
+
+
+def test_learned_prior_is_causal(data):
+    """A track's prior comes only from the tracks before it: changing the last track's own
+    data (or dropping it) changes no prior, and the first min_tracks use the generic one."""
+    from tt_prediction.ball_filter import FilterConfig
+    from tt_prediction.replay import replay_tracks
+    _, tracks = data
+    cfg = FilterConfig(position_noise=1e-3)
+    rows = [(name, t, p, None) for name, t, p in tracks]
+    _, full = replay_tracks(rows, ModelParams(), cfg, PLANE, textbook=False)
+    name, t, p, _ = rows[-1]
+    changed = rows[:-1] + [(name, t, p + np.random.default_rng(5).normal(0, 3e-3, p.shape),
+                            None)]
+    _, other = replay_tracks(changed, ModelParams(), cfg, PLANE, textbook=False)
+    _, fewer = replay_tracks(rows[:-1], ModelParams(), cfg, PLANE, textbook=False)
+    per = full['spin_prior_learned']['per_track']
+    assert per == other['spin_prior_learned']['per_track']
+    assert {k: v for k, v in per.items() if k != name} == fewer['spin_prior_learned'][
+        'per_track']
+    for k in sorted(per)[:5]:
+        assert per[k] == [250.0, 250.0, 250.0]
+    # The sixth did learn: these balls' spins are all within +-150 rad/s (the fixture's
+    # draw), so every axis of the learned prior is narrower than the generic 250 rad/s.
+    assert max(per[name]) < 200.0
+
+
+LAUNCHER = Path(__file__).resolve().parents[3] / 'data' / 'mpi_launcher'
+
+
+@pytest.mark.skipif(not LAUNCHER.is_dir(), reason='data/mpi_launcher not in this checkout')
+def test_default_command_meets_issue_14_on_mpi_launcher(tmp_path):
+    """Real-data acceptance: issue 14's done-when medians with the default settings (the
+    learned prior, no launcher-specific config) and no missing prediction at any lead."""
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(LAUNCHER), '--out', str(out), '--hit-plane-x', '-1.2',
+                 '--no-textbook']) == 0
+    err = json.loads((out / 'summary.json').read_text())['hit_error']
+    assert err['150']['median_mm'] <= 4.0
+    assert err['200']['median_mm'] <= 6.0
+    assert err['300']['median_mm'] <= 25.0
+    assert all(err[str(lead)]['missing'] == 0 for lead in LEADS_MS)

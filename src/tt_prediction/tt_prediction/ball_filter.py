@@ -58,8 +58,9 @@ from .ball import (
     table_rebound_inplace,
 )
 
-__all__ = ['BallFilter', 'FilterConfig', 'TrackFilter', 'rebound_jacobian',
-           'skew', 'estimate_position_noise', 'estimate_measurement_noise']
+__all__ = ['AccelNoiseLearner', 'BallFilter', 'FilterConfig', 'SpinPriorLearner', 'TrackFilter',
+           'estimate_measurement_noise', 'estimate_position_noise', 'rebound_jacobian',
+           'rebound_map', 'skew', 'spin_likelihood_per_axis', 'velocity_frame']
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -235,10 +236,10 @@ def _propagate(x, C, h, P, q_acc, q_spin):
 
 
 @njit(**_NJIT)
-def _rebound_linear(xc, Cc, P):
-    """Rebound (eqs. 1-6) of the contact state ``xc`` and its covariance by the Jacobian and
-    the saltation term: a state error also moves the contact time, dt_c/ds = -e_z / v_z, so
-    S = J + (f_out - J f_in) (dt_c/ds)^T maps the covariance through the bounce."""
+def rebound_map(xc, P):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` (9,) and its linear map S (9, 9): the
+    Jacobian J plus the saltation term (a state error also moves the contact time,
+    dt_c/ds = -e_z / v_z): S = J + (f_out - J f_in) (dt_c/ds)^T. Returns (x_out, S)."""
     J = np.empty((9, 9))
     rebound_jacobian(xc, P, J)
     f_in = np.empty(9)
@@ -251,7 +252,15 @@ def _rebound_linear(xc, Cc, P):
     vz = min(f_in[2], -1e-3)
     for i in range(9):
         J[i, 2] -= jump[i] / vz
-    return x, J @ Cc @ J.T
+    return x, J
+
+
+@njit(**_NJIT)
+def _rebound_linear(xc, Cc, P):
+    """Rebound (eqs. 1-6) of the contact state ``xc`` and its covariance through
+    :func:`rebound_map`'s S (Jacobian and saltation term)."""
+    x, S = rebound_map(xc, P)
+    return x, S @ Cc @ S.T
 
 
 @njit(**_NJIT)
@@ -367,6 +376,19 @@ def _fuse_position(x, C, z, R, gate, robust):
     return xn, 0.5 * (Cn + Cn.T), d2, True
 
 
+def velocity_frame(velocity):
+    """Rows (3, 3): the unit axes of the spin prior for a ball moving with ``velocity``:
+    top/back spin (horizontal, across v: z x v), side spin (v x (z x v), ~vertical) and along
+    v (table frame). A vertical velocity takes y as the top/back axis."""
+    v = np.asarray(velocity, dtype=float)
+    e1 = v / max(float(np.linalg.norm(v)), 1e-9)
+    e2 = np.array([-e1[1], e1[0], 0.0])            # z x e1
+    n2 = float(np.linalg.norm(e2))
+    e2 = np.array([0.0, 1.0, 0.0]) if n2 < 1e-6 else e2 / n2
+    e3 = np.cross(e1, e2)
+    return np.stack([e2, e3, e1])
+
+
 # ----------------------------------------------------------------------------------------------
 # The filter
 
@@ -420,15 +442,8 @@ class BallFilter:
         along = top if c.spin_prior_along is None else c.spin_prior_along
         if side == top == along:
             return np.eye(3) * top ** 2
-        v = np.asarray(velocity, dtype=float)
-        e1 = v / max(np.linalg.norm(v), 1e-9)
-        e2 = np.cross([0.0, 0.0, 1.0], e1)
-        if np.linalg.norm(e2) < 1e-6:
-            e2 = np.array([0.0, 1.0, 0.0])
-        e2 /= np.linalg.norm(e2)
-        e3 = np.cross(e1, e2)
-        return (along ** 2 * np.outer(e1, e1) + top ** 2 * np.outer(e2, e2)
-                + side ** 2 * np.outer(e3, e3))
+        E = velocity_frame(velocity)
+        return E.T @ np.diag([top ** 2, side ** 2, along ** 2]) @ E
 
     def predict(self, t, contact_z=None):
         """Advance to time ``t`` (s), bouncing on the table (eqs. 1-6) when the ball does;
@@ -463,6 +478,7 @@ class BallFilter:
         R = np.asarray(R, dtype=float)
         cfg = self.config
         x, P, d2, ok = _fuse_position(self.x, self.P, z, R, cfg.gate, cfg.robust)
+        self.last_d2 = d2
         if ok:
             self.x, self.P = x, P
             return True
@@ -532,6 +548,7 @@ class TrackFilter:
         self.last_accept = -math.inf
         self.robot_bounced = False
         self.robot_bounce = None
+        self.nis = []              # squared Mahalanobis distances of the accepted samples
         self._last = None          # the latest valid sample (t, p)
         self._before = None        # the one before it
         self._seen_bounce = None
@@ -594,6 +611,7 @@ class TrackFilter:
                 v = f.x[3:6, None] * cfg.stamp_noise
                 R = R + v @ v.T
             if f.update(p, R, rebounce=True):
+                self.nis.append(f.last_d2)
                 self.updates += 1
                 self.rejects = 0
                 self.last_accept = t
@@ -636,6 +654,118 @@ class TrackFilter:
             self.robot_bounce = f.last_bounce
         if f.last_bounce is not None:
             self._seen_bounce = f.last_bounce
+
+
+def spin_likelihood_per_axis(mean, cov, prior_cov, velocity):
+    """What one track's data say about its spin, per axis of the prior's velocity frame.
+
+    ``mean`` (3,), ``cov`` (3, 3): the posterior of the spin (rad/s) given the track's data
+    under the zero-mean prior ``prior_cov`` (3, 3); ``velocity`` (3,) m/s defines the axes
+    (:func:`velocity_frame`: top/back, side, along v). Dividing the prior out (information
+    form, Lambda = C^-1 - C0^-1, eta = C^-1 m) leaves the likelihood; on each axis e it is
+    read as a measurement y = e.eta / e.Lambda.e with variance s^2 = 1 / e.Lambda.e
+    (correlations between the axes ignored). Returns ``(y (3,), s2 (3,))``; s2 is inf on an
+    axis the data did not inform.
+    """
+    E = velocity_frame(velocity)
+    Ci = np.linalg.inv(0.5 * (cov + cov.T))
+    lam = Ci - np.linalg.inv(0.5 * (prior_cov + prior_cov.T))
+    eta = Ci @ np.asarray(mean, dtype=float)
+    y = np.zeros(3)
+    s2 = np.full(3, np.inf)
+    for k in range(3):
+        info = float(E[k] @ lam @ E[k])
+        if info > 0.0:
+            y[k] = float(E[k] @ eta) / info
+            s2[k] = 1.0 / info
+    return y, s2
+
+
+class SpinPriorLearner:
+    """Empirical-Bayes prior of the spin, per axis of the velocity frame, from finished tracks.
+
+    The filter's spin prior is zero-mean with standard deviations (top/back, side, along v)
+    (:meth:`BallFilter.spin_prior_cov`). Each finished track adds, per axis, a measurement
+    y_i of its spin with variance s_i^2 (:func:`spin_likelihood_per_axis`; in the replay the
+    pre-bounce spin as the flight's curvature and the bounce measured it). With
+    y_i = w_i + e_i, E[y_i^2] = tau^2 + s_i^2, so the population's second moment is
+    estimated by the method of moments, tau^2 = mean(min(y_i^2, cap^2) - s_i^2), over the
+    tracks whose s_i is below ``max_sigma`` (an axis the data did not see says nothing), then
+    floored at ``floor`` and capped at ``cap``. Until ``min_tracks`` tracks informed an axis
+    it keeps the generic prior. Only what was :meth:`observe`-d is used: the caller decides
+    which tracks (in the replay, those before the current one).
+
+    Parameters: ``generic`` (3,) rad/s, the prior before anything is learned; ``min_tracks``;
+    ``floor``, ``cap``, ``max_sigma`` rad/s.
+    """
+
+    def __init__(self, generic=(250.0, 250.0, 250.0), min_tracks=5, floor=5.0, cap=600.0,
+                 max_sigma=60.0):
+        self.generic = np.asarray(generic, dtype=float) * np.ones(3)
+        self.min_tracks = int(min_tracks)
+        self.floor = float(floor)
+        self.cap = float(cap)
+        self.max_sigma = float(max_sigma)
+        self._y2 = [[], [], []]
+        self._s2 = [[], [], []]
+
+    def observe(self, y, s2):
+        """Add one track's per-axis spin measurement ``y`` (3,) rad/s, variances ``s2`` (3,)
+        (rad/s)^2 (inf: not measured), in the order top/back, side, along v."""
+        for k in range(3):
+            if math.isfinite(y[k]) and s2[k] <= self.max_sigma ** 2:
+                self._y2[k].append(min(float(y[k]) ** 2, self.cap ** 2))
+                self._s2[k].append(float(s2[k]))
+
+    def counts(self):
+        """Tracks that informed each axis (top/back, side, along v)."""
+        return [len(a) for a in self._y2]
+
+    def prior(self):
+        """Standard deviations (3,) rad/s: top/back, side, along v."""
+        out = self.generic.copy()
+        for k in range(3):
+            if len(self._y2[k]) >= self.min_tracks:
+                tau2 = float(np.mean(self._y2[k]) - np.mean(self._s2[k]))
+                out[k] = min(max(math.sqrt(max(tau2, 0.0)), self.floor), self.cap)
+        return out
+
+    def config(self, base):
+        """``base`` (FilterConfig) with the learned spin prior."""
+        top, side, along = (float(v) for v in self.prior())
+        return dataclasses.replace(base, spin_prior=top, spin_prior_side=side,
+                                   spin_prior_along=along)
+
+
+class AccelNoiseLearner:
+    """The filter's ``accel_noise`` learned from finished tracks' innovations.
+
+    With the right noise the squared Mahalanobis distances (NIS) of a filter's accepted
+    samples follow chi-square(3), whose median is 2.366; a too small accel_noise makes them
+    larger (the model's error is not covered), a too large one smaller. The median keeps
+    bounces and spikes out. After each track the noise moves by
+    log q <- log q + gain (log median(NIS) - log 2.366), clipped to [``low``, ``high``]
+    (measured on mpi_launcher: d log median / d log q ~ -0.3, so a gain of 1 is a third of
+    a Newton step and averages the per-track medians over a few tracks).
+    """
+
+    CHI2_3_MEDIAN = 2.3660
+
+    def __init__(self, start=0.05, gain=1.0, low=0.01, high=1.0, min_samples=20):
+        self.value = float(start)
+        self.gain = float(gain)
+        self.low, self.high = float(low), float(high)
+        self.min_samples = int(min_samples)
+        self.tracks = 0
+
+    def observe(self, nis):
+        """Add one finished track's NIS values (accepted samples, run with ``value``)."""
+        nis = np.asarray(nis, dtype=float)
+        if len(nis) < self.min_samples:
+            return
+        step = self.gain * math.log(max(float(np.median(nis)), 1e-6) / self.CHI2_3_MEDIAN)
+        self.value = min(max(self.value * math.exp(step), self.low), self.high)
+        self.tracks += 1
 
 
 def estimate_measurement_noise(tracks, window=7):

@@ -57,6 +57,13 @@ def table(result):
     lines.append(f"Hit-point error at x = {final['hit_plane_x']} m, median / p90 in mm over "
                  f"{final['tracks_with_crossing']} tracks with a measured crossing "
                  f"(of {final['tracks']}).")
+    learned = final.get('spin_prior_learned')
+    if learned:
+        lines.append('')
+        lines.append('Spin prior and accel_noise learned causally from the tracks before each '
+                     'one (docs/prediction.md); at the end (final model): top/back, side, '
+                     f"along v {', '.join(f'{v:g}' for v in learned['final'])} rad/s, "
+                     f"accel_noise {learned['accel_noise_final']:g} m/s^2/sqrt(Hz).")
     return '\n'.join(lines)
 
 

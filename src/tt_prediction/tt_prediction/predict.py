@@ -28,7 +28,7 @@ import math
 from numba import njit, prange
 import numpy as np
 
-from .integrate import ROLL_SPEED, _locate, _rk4, rollout
+from .integrate import ROLL_SPEED, _locate, rk4_step, rollout
 from .model import table_rebound_inplace
 from .params import I_RADIUS, ModelParams
 from .table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT, TABLE_HEIGHT, zone_of
@@ -319,7 +319,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
             kind = CONTACT_TIMEOUT
             tau = 0.0
             break
-        _rk4(s, h, P, s1, k1, k2, k3, k4, tmp)
+        rk4_step(s, h, P, s1, k1, k2, k3, k4, tmp)
         best = math.inf
         if body:
             lo_z = min(s[2], s1[2]) - 0.01
@@ -354,13 +354,13 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                         lo, hi = u_prev * h, u * h
                         for _ in range(_BISECT):
                             mid = 0.5 * (lo + hi)
-                            _rk4(s, mid, P, se, k1, k2, k3, k4, tmp)
+                            rk4_step(s, mid, P, se, k1, k2, k3, k4, tmp)
                             gm, km = solid_gap(se[0], se[1], se[2], r)
                             if gm <= 0.0:
                                 hi = mid
                             else:
                                 lo = mid
-                        _rk4(s, hi, P, se, k1, k2, k3, k4, tmp)
+                        rk4_step(s, hi, P, se, k1, k2, k3, k4, tmp)
                         gm, km = solid_gap(se[0], se[1], se[2], r)
                         best = hi
                         kind = km if gm <= 0.0 else kg
@@ -408,7 +408,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                 samples[n_samples, 1 + i] = s[i]
             n_samples += 1
     if tau > 0.0:
-        _rk4(s, tau, P, se, k1, k2, k3, k4, tmp)
+        rk4_step(s, tau, P, se, k1, k2, k3, k4, tmp)
         for i in range(9):
             s[i] = se[i]
         t += tau

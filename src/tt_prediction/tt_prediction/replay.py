@@ -23,7 +23,16 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .ball import rollout
-from .ball_filter import FilterConfig, TrackFilter
+from .ball_filter import (
+    AccelNoiseLearner,
+    BallFilter,
+    FilterConfig,
+    SpinPriorLearner,
+    TrackFilter,
+    _predict_to,
+    rebound_map,
+    spin_likelihood_per_axis,
+)
 from .identify.segment import drop_outliers, segment
 from .predict import DEFAULT_HIT_PLANE_X, predict
 
@@ -53,6 +62,10 @@ class TrackReplay:
     t: np.ndarray
     p: np.ndarray
     bounce_times: list
+    spin_prior: tuple = None
+    """The spin prior the track was replayed with (top/back, side, along v), rad/s."""
+    nis: list = None
+    """Squared Mahalanobis distances of the filter's accepted samples."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
@@ -62,6 +75,11 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
     allowed); rows come in time order (a stable sort of the input; NaN stamps last).
     ``spin``: measured spin at the start (rad/s, (3,)) or None.
     """
+    return _replay_samples(t, p, params, config, hit_plane_x, spin)[0]
+
+
+def _replay_samples(t, p, params, config, hit_plane_x, spin):
+    """:func:`replay_samples`'s rows and the NIS of the filter's accepted samples."""
     t = np.asarray(t, dtype=float)
     p = np.asarray(p, dtype=float)
     order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
@@ -99,7 +117,7 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
         if pred.hit is not None:
             rows[k, 13] = pred.hit.t
             rows[k, 14:17] = pred.hit.p
-    return rows
+    return rows, tf.nis
 
 
 def measured_crossing(t, p, bounce_times, plane_x):
@@ -154,12 +172,86 @@ def _ground_truth(name, t, p, params, plane_x):
 def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
                  spin=None):
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
-    rows = replay_samples(t, p, params, config, hit_plane_x, spin)
+    config = config or FilterConfig()
+    rows, nis = _replay_samples(t, p, params, config, hit_plane_x, spin)
     tt, pp, bounces, crossing = _ground_truth(name, np.asarray(t, float), np.asarray(p, float),
                                               params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
-    return TrackReplay(name, rows, crossing, first, tt, pp, bounces)
+    c = config
+    prior = (c.spin_prior, c.spin_prior if c.spin_prior_side is None else c.spin_prior_side,
+             c.spin_prior if c.spin_prior_along is None else c.spin_prior_along)
+    return TrackReplay(name, rows, crossing, first, tt, pp, bounces, prior, nis)
+
+
+# ----------------------------------------------------------------------------------------------
+# What a finished track says about its spin (for the learned prior)
+
+
+POST_BOUNCE_WINDOW = (0.004, 0.09)
+"""Samples this long after the located bounce (s) give the measured rebound velocity."""
+
+
+def bounce_spin_observation(rp, params, config):
+    """Per-axis measurement of a finished track's pre-bounce spin: ``(y (3,), s2 (3,))`` in
+    the velocity frame (top/back, side, along v; rad/s, (rad/s)^2), or None.
+
+    A filter with ``config``'s prior over the samples before the located robot-half bounce;
+    its state is taken to
+    the model's contact (eq. 8) and through the rebound's linear map S (eqs. 1-6, Jacobian
+    and saltation, :func:`tt_prediction.ball_filter.rebound_map`). The rebound velocity is
+    measured independently of the filter: a quadratic fit in time to the samples 4-90 ms
+    after the located bounce (shortened until it fits them within 4 sigma + 2 mm: a racket
+    hit ends the flight), at the bounce. Conditioning the
+    joint Gaussian of (pre-bounce spin, rebound velocity) on it gives the spin's posterior
+    given the whole track: flight's curvature for the spin across v, eqs. 1-2's change of
+    tangential velocity (r w x n) for the spin along v. The track's prior is divided out
+    (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`).
+    """
+    robot = [tb for tb, xb in rp.bounce_times if xb < 0.0]
+    if not robot:
+        return None
+    tb = robot[0]
+    # The filter over the samples before the bounce, with the config's (generic) prior: what
+    # the data say is then read against that prior, whatever the track was replayed with.
+    tf = TrackFilter(params, config)
+    for ti, pi in zip(rp.t, rp.p, strict=True):
+        if ti >= tb - 0.004:
+            break
+        tf.add(ti, pi)
+    if not tf.running or tf.updates < 5 or tf.filter.x[3] >= 0.0:
+        return None
+    x0, P0, t0 = tf.filter.x, tf.filter.P, tf.filter.t
+    bf = BallFilter(params, config)
+    bf.x, bf.P, bf.t = x0, P0, t0
+    bf.predict(t0 + 0.25)
+    if bf.last_bounce is None or bf.last_bounce[1] >= 0.0 or abs(bf.last_bounce[0] - tb) > 0.03:
+        return None
+    tc = bf.last_bounce[0]
+    sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0])
+                         & (rp.t < tb + POST_BOUNCE_WINDOW[1]))
+    while True:                 # drop the window's end until one flight explains it (racket)
+        if len(sel) < 6:
+            return None
+        dt = rp.t[sel] - tb
+        A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
+        coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
+        if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * config.position_noise + 2e-3:
+            break
+        sel = sel[:-2]
+    v_meas = coef[1]
+    var_fit = config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
+    xc, Cc, _ = _predict_to(x0, P0, t0, tc, bf.P_model, bf._cfg, -1.0, np.zeros(4))
+    xc = xc.copy()
+    xc[2] = params.radius
+    x_out, S = rebound_map(xc, bf.P_model)
+    Sv = S[3:6]
+    Cwv = Cc[6:] @ Sv.T
+    Svv = Sv @ Cc @ Sv.T + np.eye(3) * (config.bounce_velocity_noise ** 2 + var_fit)
+    K = Cwv @ np.linalg.inv(Svv)
+    m = xc[6:] + K @ (v_meas - x_out[3:6])
+    C = Cc[6:, 6:] - K @ Cwv.T
+    return spin_likelihood_per_axis(m, C, bf.spin_prior_cov(xc[3:6]), xc[3:6])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -273,15 +365,38 @@ def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=T
 
 
 def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
-                  leads_ms=LEADS_MS, textbook=True):
+                  leads_ms=LEADS_MS, textbook=True, learn_spin_prior=True):
     """Replay every track and score it.
 
-    ``tracks``: iterable of (name, t (n,), p (n, 3), spin (3,) or None) as measured.
-    Returns ``(replays, summary)``: the :class:`TrackReplay` list and a JSON-ready dict.
+    ``tracks``: iterable of (name, t (n,), p (n, 3), spin (3,) or None) as measured, in the
+    order a robot would have seen them. With ``learn_spin_prior`` each track is replayed
+    with the spin prior a :class:`tt_prediction.ball_filter.SpinPriorLearner` learned from
+    the tracks before it (:func:`bounce_spin_observation`; causal: never its own data), the
+    config's prior until it has seen enough. Returns ``(replays, summary)``: the
+    :class:`TrackReplay` list and a JSON-ready dict.
     """
     config = config or FilterConfig()
-    replays = [replay_track(name, t, p, params, config, hit_plane_x, spin)
-               for name, t, p, spin in tracks]
+    learner = noise = None
+    if learn_spin_prior:
+        noise = AccelNoiseLearner(config.accel_noise)
+        generic = config
+        c = config
+        learner = SpinPriorLearner(generic=(
+            c.spin_prior, c.spin_prior if c.spin_prior_side is None else c.spin_prior_side,
+            c.spin_prior if c.spin_prior_along is None else c.spin_prior_along))
+    replays = []
+    for name, t, p, spin in tracks:
+        cfg = config
+        if learner is not None:
+            cfg = dataclasses.replace(learner.config(config), accel_noise=noise.value)
+            generic = dataclasses.replace(config, accel_noise=noise.value)
+        rp = replay_track(name, t, p, params, cfg, hit_plane_x, spin)
+        replays.append(rp)
+        if learner is not None:
+            noise.observe(rp.nis)
+            obs = bounce_spin_observation(rp, params, generic)
+            if obs is not None:
+                learner.observe(*obs)
     errors = lead_time_errors(replays, params, hit_plane_x, leads_ms, textbook)
     summary = {
         'hit_plane_x': hit_plane_x,
@@ -292,6 +407,16 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
         'filter_config': dataclasses.asdict(config),
         'hit_error': errors['filter'],
     }
+    if learner is not None:
+        summary['spin_prior_learned'] = {
+            'rule': 'causal: each track uses the prior learned from the tracks before it '
+                    '(input order); axes top/back, side, along v; rad/s',
+            'final': [round(float(v), 1) for v in learner.prior()],
+            'accel_noise_final': round(noise.value, 4),
+            'tracks_informing': learner.counts(),
+            'per_track': {rp.name: [round(float(v), 1) for v in rp.spin_prior]
+                          for rp in replays},
+        }
     if textbook:
         summary['textbook_hit_error'] = errors['textbook']
     summary['rows_without_hit'] = rows_without_hit(replays)

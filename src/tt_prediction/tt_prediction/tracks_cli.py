@@ -142,6 +142,9 @@ def main(argv=None):
                              'estimated from the data)')
     parser.add_argument('--no-textbook', action='store_true',
                         help='skip the textbook reference predictor in summary.json')
+    parser.add_argument('--no-learn', action='store_true',
+                        help='keep the configured spin prior and accel_noise (default: learn '
+                             'them from the tracks before each one, docs/prediction.md)')
     args = parser.parse_args(argv)
     if not math.isfinite(args.hit_plane_x):
         print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
@@ -154,7 +157,8 @@ def main(argv=None):
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
-                                     textbook=not args.no_textbook)
+                                     textbook=not args.no_textbook,
+                                     learn_spin_prior=not args.no_learn)
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
     try:

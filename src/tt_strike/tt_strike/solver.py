@@ -8,8 +8,10 @@ three components of the outgoing ball velocity ``v_out``:
 1. For a trial ``v_out``, :func:`racket_for_outgoing` inverts eq. 7 in closed form for the
    racket normal ``n`` and speed ``s`` (racket velocity ``s n``, along the normal: the
    stated free-direction choice of the racket), and eq. 7 forward gives the outgoing spin.
-2. The flight with drag and Magnus (``tt_prediction.integrate``) gives the first table contact
-   and the height at which the ball crosses the net plane x = 0.
+2. The flight with drag and Magnus (``tt_prediction.ball.landing_flight``, the one flight
+   kernel; its plane model while searching) gives where the ball comes down to the table's
+   height and the height at which it crosses the net plane x = 0. The forward check of a
+   solution flies it with the table as a body (``predict_landing``).
 3. Newton's method (finite-difference Jacobian, damped) drives the three residuals
    (landing x, landing y, net clearance - ``net_clearance``) to zero, started from the
    drag-free ballistic solution through the same two points.

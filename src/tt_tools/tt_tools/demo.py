@@ -1,14 +1,19 @@
 """`make demo`: the robot's three nodes on a recording, as separate `ros2 run` processes.
 
-1. Builds (once, cached) the demo recording: a rosbag2 bag of two synthetic cameras
-   (sensor_msgs/Image + CameraInfo) watching several incoming balls, with the truth.
-2. Starts perception, prediction and strike with `ros2 run`, and `ros2 bag record` on their
-   outputs; replays the recording with `ros2 bag play`.
+1. Builds (once, cached) the demo recording: two synthetic 150 fps cameras watching several
+   incoming balls, as MJPG videos and as a rosbag2 bag (sensor_msgs/Image + CameraInfo), with
+   the truth.
+2. Starts prediction, strike and `ros2 bag record` on their outputs with `ros2 run`, then
+   perception: on the robot's configuration (``--source video``, the default) it reads the
+   videos itself as cameras at 1.0x real time (frames paced at 150 fps, stamped with the
+   wall-clock exposure time); with ``--source topics`` it subscribes the image topics and the
+   bag is replayed with `ros2 bag play --rate R` (0.15 by default).
 3. Prints a table per ball (truth vs perceived state, predicted vs true bounce zone and hit
    point, the strike command and where the ball would really land), writes a PNG (top and side
    views) and shows `ros2 bag info` of the session bag.
 
-Usage: python -m tt_tools.demo [--out DIR] [--balls N] [--rate R] [--target-zone Z]
+Usage: python -m tt_tools.demo [--out DIR] [--balls N] [--source video|topics] [--rate R]
+                               [--target-zone Z]
 """
 
 import argparse
@@ -28,9 +33,14 @@ def parse_args(argv):
     parser = argparse.ArgumentParser(prog='tt-demo', description=__doc__.splitlines()[0])
     parser.add_argument('--out', default='out/demo', help='output folder (default out/demo)')
     parser.add_argument('--balls', type=int, default=4, help='incoming balls (default 4)')
-    parser.add_argument('--rate', type=float, default=0.15,
-                        help='replay rate of the recording (default 0.15: two 150 fps '
-                             'cameras through Python nodes on a busy 2-core machine)')
+    parser.add_argument('--source', choices=('video', 'topics'), default='video',
+                        help='video (default): perception reads the cameras (videos) itself '
+                             'at real time, as on the robot; topics: the images go over DDS '
+                             'from ros2 bag play')
+    parser.add_argument('--rate', type=float, default=None,
+                        help='playback rate (default 1.0 with --source video; 0.15 with '
+                             '--source topics: 0.9 MB images through Python nodes on a busy '
+                             '2-core machine)')
     parser.add_argument('--target-zone', type=int, default=5,
                         help='zone 1..9 the strike aims at (default 5)')
     parser.add_argument('--hit-plane-x', type=float, default=-1.5,
@@ -38,6 +48,8 @@ def parse_args(argv):
     args = parser.parse_args(argv)
     if not 1 <= args.target_zone <= 9:
         parser.error(f'--target-zone must be 1..9, got {args.target_zone}')
+    if args.rate is None:
+        args.rate = 1.0 if args.source == 'video' else 0.15
     if args.balls < 1 or args.rate <= 0.0:
         parser.error('--balls must be >= 1 and --rate > 0')
     return args
@@ -49,6 +61,63 @@ STARTED = time.monotonic()
 def say(text):
     """A progress line with the time since the demo started."""
     print(f'tt-demo [{time.monotonic() - STARTED:5.1f} s]: {text}', flush=True)
+
+
+def run_graph_video(rec, session, log_dir, args, collector):
+    """The robot's configuration: prediction, strike and the recorder first, then perception
+    reading the two videos as cameras (paced at their fps times ``--rate``, live wall-clock
+    stamps at 1.0x); collect the outputs. Returns (video start as a wall time, s;
+    perception's last diagnostics)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    diags = {}
+
+    def on_diag(msg):
+        for status in msg.status:
+            if status.name == 'perception_node: cameras':
+                diags.update({kv.key: kv.value for kv in status.values})
+
+    collector.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    live = args.rate == 1.0
+    with ProcessGroup(str(log_dir)) as group:
+        group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
+                                   '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}']
+                    + ([] if live else ['-p', 'stale_after_s:=0.0']))
+        # The report strikes the true ball at the prediction's plane: use_hit_plane.
+        group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
+                               '-p', f'target_zone:={args.target_zone}',
+                               '-p', 'use_hit_plane:=true']
+                    + ([] if live else ['-p', 'check_hit_time:=false']))
+        group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
+        node = collector.node
+        wait_until(lambda: collector.spin_once() or (
+            # prediction and this collector; the recorder subscribes /ball/state once it sees
+            # perception's publisher: perception waits for all three (wait_for_subscribers).
+            node.count_subscribers('/ball/state') >= 2
+            and node.count_subscribers('/ball/prediction') >= 3
+            and node.count_subscribers('/strike/command') >= 2
+            and node.count_publishers('/strike/command') >= 1), 90.0,
+            f'prediction, strike and the recorder to join the graph (see {log_dir}/*.log)')
+        say(f'prediction, strike and recorder up; perception reads {rec.video_rig.parent.name}'
+            f"'s videos as cameras at {args.rate}x real time")
+        group.start('perception', [
+            'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
+            '-p', f'rig_file:={rec.video_rig}', '-p', f'video_rate:={args.rate}',
+            '-p', f'video_clock:={"wall" if live else "video"}',
+            '-p', 'wait_for_subscribers:=3'])
+        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == '2', 600.0,
+                   f'perception to play the videos (see {log_dir}/perception.log)')
+        say('videos done')
+        wait_until(lambda: collector.spin_once() or collector.quiet_for(2.0), 60.0,
+                   'the graph to finish the last ball')
+        say('outputs quiet; stopping the recorder and the nodes')
+        for name in ('record', 'strike', 'prediction', 'perception'):
+            code = group.stop(name)
+            if code not in (0, -2, 130):
+                print(f'tt-demo: warning: {name} exited with {code} (see {log_dir}/{name}.log)',
+                      file=sys.stderr)
+    start = float(diags['video_start_wall_s'])
+    return (start if live else 0.0), diags
 
 
 def run_graph(recording, session, log_dir, args, collector):
@@ -109,9 +178,19 @@ def main(argv=None):
     shutil.rmtree(session, ignore_errors=True)
     log_dir = out / 'logs'
     log_dir.mkdir(exist_ok=True)
-    with Collector(rec.image_topics) as collector:
-        run_graph(rec.path, session, log_dir, args, collector)
-        outputs = demo_report.shift_times(collector.outputs(), recording.STAMP_BASE_S)
+    if args.source == 'video':
+        with Collector() as collector:
+            start, diags = run_graph_video(rec, session, log_dir, args, collector)
+            # Stamps: the wall time at which video time 0 was exposed (1.0x), or video time.
+            outputs = demo_report.shift_times(collector.outputs(), start - rec.video_t0)
+        say(f"perception: {diags.get('frames_processed')} frames, "
+            f"{diags.get('frame_pairs_dropped')} frame pairs dropped, exposure -> /ball/state "
+            f"latency p50 {diags.get('latency_p50_ms')} ms, p99 {diags.get('latency_p99_ms')} "
+            'ms')
+    else:
+        with Collector(rec.image_topics) as collector:
+            run_graph(rec.path, session, log_dir, args, collector)
+            outputs = demo_report.shift_times(collector.outputs(), recording.STAMP_BASE_S)
     results = demo_report.evaluate(rec.truths, outputs, rec.params)
     say('nodes stopped; the balls against the truth:')
     print(demo_report.format_table(results, args.target_zone))

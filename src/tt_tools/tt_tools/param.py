@@ -52,6 +52,10 @@ GET_LABELS = {
 }
 
 
+LATE_NODE_S = 5.0
+"""Seconds a named node not yet discovered once discovery has settled is still waited for."""
+
+
 def absolute_node_name(name):
     """``'/ns/node'`` of a node name given with or without the leading '/'."""
     return name if name.startswith('/') else '/' + name
@@ -72,6 +76,14 @@ def _client(cli, node_name, srv_type, args):
     service = f'{node_name}/{SERVICES[srv_type]}'
     client = cli.node.create_client(srv_type, service)
     if cli.settle(args.spin_time, done=client.service_is_ready):
+        return client
+    if cli.stopped:
+        return None
+    # Discovery can settle before a busy machine has announced every node: a node not seen
+    # yet gets a few more seconds before it is called missing.
+    if cli.spin_until(lambda: client.service_is_ready()
+                      or node_name in _node_names(cli, hidden=True),
+                      timeout=min(args.timeout, LATE_NODE_S)) and client.service_is_ready():
         return client
     if cli.stopped:
         return None

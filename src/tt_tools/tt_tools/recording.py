@@ -8,6 +8,9 @@ Layout of a recording folder::
     bag/             rosbag2 (MCAP): /camN/image_raw (sensor_msgs/Image, bgr8) and
                      /camN/camera_info (sensor_msgs/CameraInfo) per frame, stamped with the
                      middle of the exposure
+    cam0.avi ...     the same frames as MJPG video per camera (what a camera sends)
+    rig_video.yaml   the rig with the videos as sources (perception_node reads them as
+                     cameras); video time 0 is scene time ``video_t0`` of recording.json
 
 It is rendered with tt_perception's scene generator (``tt_perception.synth``) and written
 with the ``rosbags`` library, so it is a plain rosbag2 bag that a full ROS 2 install plays
@@ -25,9 +28,11 @@ from tt_prediction.params import ModelParams
 
 from .scenario import Ball, demo_balls, fly
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 STAMP_BASE_S = 1_700_000_000
 """Recording time zero as a ROS time (s): stamps are this plus the scene time."""
+LEAD_IN_S = 0.2
+"""Scene before the first launch, s."""
 
 
 @dataclass
@@ -36,6 +41,10 @@ class Recording:
     truths: list
     params: ModelParams
     image_topics: tuple
+    video_rig: pathlib.Path = None
+    """Rig of the videos (cameras read in-process)."""
+    video_t0: float = 0.0
+    """Scene time of the videos' first frame, s."""
 
 
 def replay_publishers(node, image_topics, prefix=''):
@@ -108,6 +117,27 @@ def write_bag(bag_dir, rig, frames):
     return count
 
 
+def _tee_videos(frames, folder, rig):
+    """Pass ``frames`` through, writing each camera's frames into ``folder/<camera>.avi``
+    (MJPG at the rig's fps)."""
+    import cv2
+
+    writers = {}
+    try:
+        for t, k, frame in frames:
+            if frame is not None:
+                cam = rig.cameras[k]
+                if k not in writers:
+                    writers[k] = cv2.VideoWriter(str(folder / f'{cam.name}.avi'),
+                                                 cv2.VideoWriter_fourcc(*'MJPG'), rig.fps,
+                                                 (cam.width, cam.height))
+                writers[k].write(frame)
+            yield t, k, frame
+    finally:
+        for writer in writers.values():
+            writer.release()
+
+
 def _request(balls, hit_plane_x, seed):
     return {'format': FORMAT_VERSION, 'balls': balls, 'hit_plane_x': hit_plane_x, 'seed': seed,
             'width': 640, 'height': 480, 'fps': 150.0}
@@ -119,7 +149,7 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
     Truth times are scene times: message stamps minus STAMP_BASE_S. Written to a temporary
     folder and renamed: a half-written recording never stays.
     """
-    from tt_perception.camera import load_rig
+    from tt_perception.camera import load_rig, save_rig
 
     from tt_perception import synth
 
@@ -138,17 +168,23 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
         frames, _ = synth.render_balls(
             rig, [tr.ball.launch_state for tr in truths],
             [tr.ball.launch_time for tr in truths],
-            duration=last.hit_time - last.ball.launch_time + 0.1, params=params, seed=seed)
+            duration=last.hit_time - last.ball.launch_time + 0.1, lead_in=LEAD_IN_S,
+            params=params, seed=seed)
         print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
               f'{path / "bag"} (once; cached)', flush=True)
-        images = write_bag(str(tmp / 'bag'), rig, frames)
+        images = write_bag(str(tmp / 'bag'), rig, _tee_videos(frames, tmp, rig))
+        video_t0 = truths[0].ball.launch_time - LEAD_IN_S
+        for cam in rig.cameras:
+            cam.source = f'{cam.name}.avi'
+            cam.time_offset = 0.0
+        save_rig(str(tmp / 'rig_video.yaml'), rig)
         truth = [{'launch_time': tr.ball.launch_time,
                   'launch_state': tr.ball.launch_state.tolist(),
                   'bounce_time': tr.bounce_time, 'bounce_point': tr.bounce_point.tolist(),
                   'bounce_zone': tr.bounce_zone, 'hit_time': tr.hit_time,
                   'hit_state': tr.hit_state.tolist()} for tr in truths]
         meta = {'request': request, 'images': images, 'stamp_base_s': STAMP_BASE_S,
-                'truth': truth}
+                'video_t0': video_t0, 'truth': truth}
         (tmp / 'recording.json').write_text(json.dumps(meta, indent=1))
         shutil.rmtree(path, ignore_errors=True)
         tmp.rename(path)
@@ -156,4 +192,5 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
     meta = json.loads(meta_file.read_text())
     truths = [fly(Ball(ball['launch_time'], np.array(ball['launch_state'])), params,
                   hit_plane_x) for ball in meta['truth']]
-    return Recording(path, truths, params, tuple(cam.source for cam in rig.cameras))
+    return Recording(path, truths, params, tuple(cam.source for cam in rig.cameras),
+                     path / 'rig_video.yaml', meta['video_t0'])

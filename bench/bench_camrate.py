@@ -1,0 +1,188 @@
+"""Camera rate: perception_node reading two 150 fps 640x480 cameras in-process for 60 s.
+
+The cameras are two MJPG video files played as cameras (``video_rate`` 1: frame n exposed at
+start + n / 150 s, each camera's reader thread grabbing and decoding its frames when they are
+due, dropping what a camera would drop when it is late), on the robot's configuration
+(``video_clock: wall``: states are stamped with the wall-clock exposure time, as V4L2 frames
+are). The scene is rendered once with ``tt_perception.synth`` (hall imaging: overhead light,
+contact shadow, vignetting, sensor noise, JPEG; a ball served every ~1 s, spin up to
+150 rad/s) as a 12 s segment, written five times over into each video (60 s; lighting held
+constant so that the segments join), and cached in ``bench/results/camrate_scene``.
+
+perception_node runs as its own process (``ros2 run``). Measured:
+
+- exposure -> publication latency of /ball/state, p50 / p99 / max (ms): the node's own
+  measure (wall clock at publication minus the frame's exposure time, from its
+  /diagnostics) and, as a check, arrival in this process minus the state's stamp (adds DDS
+  delivery);
+- frame pairs dropped over the 60 s (the node's count on /diagnostics: frames its camera
+  threads found overwritten, or that waited in a full queue), and the accounting check
+  frames processed + frames dropped = frames in the files;
+- balls tracked (states inside each ball's flight) of balls served;
+- the machine's load average before and after, and the node's CPU time per second of video.
+
+Targets (issue 15): 0 frame pairs dropped, p99 <= 8 ms.
+"""
+
+import json
+import os
+import pathlib
+import time
+
+import numpy as np
+
+FPS = 150.0
+SEGMENT_S = 12.0
+REPEATS = 5
+TARGET_P99_MS = 8.0
+LEAD_IN = 0.2
+
+
+def make_scene(folder):
+    """The two videos (60 s) and the rig; cached while the request matches."""
+    import cv2
+    from tt_perception.camera import load_rig, save_camera_info, save_rig
+    from tt_tools.scenario import demo_balls
+
+    from tt_perception import synth
+
+    request = {'version': 1, 'fps': FPS, 'segment_s': SEGMENT_S, 'repeats': REPEATS,
+               'imaging': 'hall', 'size': [640, 480]}
+    meta_file = folder / 'scene.json'
+    if meta_file.exists() and json.loads(meta_file.read_text())['request'] == request:
+        return json.loads(meta_file.read_text())
+    folder.mkdir(parents=True, exist_ok=True)
+    rig_path = synth.make_rig(str(folder / 'calib'), 640, 480, FPS)
+    rig = load_rig(rig_path)
+    truths = demo_balls(40, seed=11)
+    t_begin = truths[0].ball.launch_time - LEAD_IN        # video time 0
+    truths = [tr for tr in truths if tr.hit_time + 0.1 < t_begin + SEGMENT_S]
+    frames, _ = synth.render_balls(
+        rig, [tr.ball.launch_state for tr in truths], [tr.ball.launch_time for tr in truths],
+        duration=t_begin + SEGMENT_S - truths[-1].ball.launch_time, lead_in=LEAD_IN,
+        lighting=0.0, imaging='hall', exposure=2e-3, seed=3)
+    segment = [[], []]
+    for _, k, frame in frames:
+        ok, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        segment[k].append(data)
+    n = min(len(s) for s in segment)
+    for k, cam in enumerate(rig.cameras):
+        writer = cv2.VideoWriter(str(folder / f'{cam.name}.avi'),
+                                 cv2.VideoWriter_fourcc(*'MJPG'), FPS,
+                                 (cam.width, cam.height))
+        for _ in range(REPEATS):
+            for data in segment[k][:n]:
+                writer.write(cv2.imdecode(data, cv2.IMREAD_COLOR))
+        writer.release()
+        cam.source = f'{cam.name}.avi'
+        cam.time_offset = 0.0
+        cam.info_file = f'{cam.name}.yaml'
+        save_camera_info(str(folder / cam.info_file), cam.name, cam.width, cam.height, cam.K,
+                         cam.dist)
+    save_rig(str(folder / 'rig.yaml'), rig)
+    # Ball times in video time (s from the first frame of a segment).
+    meta = {'request': request, 'frames_per_camera': n * REPEATS, 'segment_frames': n,
+            'balls': [{'launch': tr.ball.launch_time - t_begin, 'hit': tr.hit_time - t_begin}
+                      for tr in truths]}
+    meta_file.write_text(json.dumps(meta, indent=1))
+    return meta
+
+
+def cpu_s(pid):
+    """CPU time (user + system) of process ``pid`` and its threads, s."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except OSError:
+        return float('nan')
+
+
+def run():
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from tt_tools.collector import Collector, stamp_s
+    from tt_tools.procs import ProcessGroup, ros_env, wait_until
+
+    from tt_msgs.msg import BallState
+
+    os.environ.update(ros_env())
+    folder = pathlib.Path(__file__).resolve().parent / 'results' / 'camrate_scene'
+    meta = make_scene(folder)
+    load_before = os.getloadavg()
+    states, diags = [], {}
+    logs = folder.parent / 'camrate_logs'
+    logs.mkdir(parents=True, exist_ok=True)
+    with ProcessGroup(str(logs)) as group, \
+            Collector((), name='bench_camrate', topics=()) as collector:
+        node = collector.node
+        node.create_subscription(
+            BallState, '/ball/state',
+            lambda msg: states.append((stamp_s(msg.header.stamp), time.time(), msg.track_id)),
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+        def on_diag(msg):
+            for status in msg.status:
+                if status.name == 'perception_node: cameras':
+                    diags.update({kv.key: kv.value for kv in status.values})
+
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        proc = group.start('perception', [
+            'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
+            '-p', f'rig_file:={folder / "rig.yaml"}', '-p', 'video_clock:=wall',
+            '-p', 'wait_for_subscribers:=1'])
+        duration = meta['frames_per_camera'] / FPS
+        wait_until(lambda: collector.spin_once() or diags.get('video_start_wall_s'), 90.0,
+                   'perception_node to start the videos')
+        cpu_start = cpu_s(proc.pid)
+        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == '2',
+                   duration + 60.0, 'the end of the videos')
+        cpu_used = cpu_s(proc.pid) - cpu_start
+        # Published after both cameras' last frames were processed: the counts are final.
+        final = dict(diags)
+    load_after = os.getloadavg()
+    stamps = np.array([s for s, _, _ in states])
+    arrival_ms = np.array([(a - s) * 1e3 for s, a, _ in states])
+    start = float(final['video_start_wall_s'])
+    video_t = stamps - start
+    # Balls served in the 60 s (the segment repeats) and those with states in their flight.
+    seg = meta['segment_frames'] / FPS
+    served = tracked = 0
+    for r in range(REPEATS):
+        for ball in meta['balls']:
+            served += 1
+            lo = r * seg + ball['launch']
+            hi = r * seg + ball['hit']
+            tracked += bool(np.any((video_t >= lo) & (video_t <= hi)))
+    frames_in_files = 2 * meta['frames_per_camera']
+    dropped_frames = sum(int(v) for key, v in final.items() if key.endswith('_frames_dropped'))
+    pairs = int(final['frame_pairs_dropped'])
+    p50, p99 = float(final['latency_p50_ms']), float(final['latency_p99_ms'])
+    result = {
+        'video_s': round(duration, 2), 'fps': FPS, 'image_size': [640, 480],
+        'frames_in_files': frames_in_files,
+        'frames_processed': int(final['frames_processed']),
+        'frames_dropped': dropped_frames,
+        'frame_pairs_dropped': pairs,
+        'accounted': int(final['frames_processed']) + dropped_frames == frames_in_files,
+        'states': len(states), 'states_published': int(final['states_published']),
+        'latency_exposure_to_publication_ms': {'p50': round(p50, 3), 'p99': round(p99, 3),
+                                               'count': int(final['latency_count'])},
+        'latency_exposure_to_arrival_here_ms': {
+            'p50': round(float(np.percentile(arrival_ms, 50)), 3),
+            'p99': round(float(np.percentile(arrival_ms, 99)), 3),
+            'max': round(float(arrival_ms.max()), 3)} if len(arrival_ms) else {},
+        'balls_served': served, 'balls_tracked': tracked,
+        'node_cpu_s_per_video_s': round(cpu_used / duration, 3),
+        'load_average_before': [round(v, 2) for v in load_before],
+        'load_average_after': [round(v, 2) for v in load_after],
+        'cpus': os.cpu_count(),
+        'target_p99_ms': TARGET_P99_MS, 'target_frame_pairs_dropped': 0,
+    }
+    result['passed'] = bool(pairs == 0 and p99 <= TARGET_P99_MS and result['accounted']
+                            and tracked == served)
+    return result
+
+
+if __name__ == '__main__':
+    print(json.dumps(run(), indent=2))

@@ -1,0 +1,189 @@
+"""Cameras read at their frame rate (tt_perception.camstream): pacing, the driver's buffers,
+the bounded queue and the drop counts, checked by frame indices, times of a simulated clock and
+frame content (each frame's grey level is its index), never by wall-clock timing."""
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+from tt_perception.camstream import (
+    END,
+    CameraReader,
+    DropCounter,
+    Frame,
+    FrameQueue,
+    PacedVideoSource,
+)
+
+FPS = 100.0
+N_FRAMES = 12
+
+
+class SimClock:
+    """A clock that only moves when told: waiting for a deadline jumps to it."""
+
+    def __init__(self, t=0.0):
+        self.t = t
+        self.waits = []
+
+    def now(self):
+        return self.t
+
+    def wait_until(self, deadline, stop):
+        self.waits.append(deadline)
+        self.t = max(self.t, deadline)
+        return stop.is_set()
+
+
+def grey(n):
+    return 10 * n + 20
+
+
+@pytest.fixture(scope='module')
+def video(tmp_path_factory):
+    """An MJPG video whose frame n is uniformly grey(n)."""
+    path = str(tmp_path_factory.mktemp('video') / 'cam.avi')
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*'MJPG'), FPS, (64, 48))
+    for n in range(N_FRAMES):
+        writer.write(np.full((48, 64, 3), grey(n), np.uint8))
+    writer.release()
+    return path
+
+
+def index_of(image):
+    """The frame index encoded in a frame's grey level."""
+    return int(round((float(image.mean()) - 20.0) / 10.0))
+
+
+def test_frames_come_when_due_and_in_order(video):
+    clock = SimClock(3.0)
+    src = PacedVideoSource(video, FPS, clock=clock, start=5.0).open()
+    got = []
+    while (n := src.grab()) is not None:
+        got.append((n, clock.now(), index_of(src.retrieve())))
+    src.close()
+    assert [n for n, _, _ in got] == list(range(N_FRAMES))
+    # Frame n is handed out exactly when it is due, start + n / fps, not before.
+    assert np.allclose([t for _, t, _ in got], 5.0 + np.arange(N_FRAMES) / FPS, atol=1e-12)
+    assert [i for _, _, i in got] == list(range(N_FRAMES))      # its own content
+    assert src.dropped == 0
+
+
+def test_a_late_reader_loses_the_overwritten_frames(video):
+    clock = SimClock()
+    src = PacedVideoSource(video, FPS, clock=clock, buffers=2, start=0.0).open()
+    assert src.grab() == 0 and src.grab() == 1
+    # The reader is held up: 5.5 frame periods pass before it asks again, so frames 2..6
+    # are due; a camera with 2 buffers keeps the newest two (5 and 6) and lost 2, 3, 4.
+    clock.t = 6.5 / FPS
+    n = src.grab()
+    assert n == 5 and index_of(src.retrieve()) == 5
+    assert src.take_dropped() == [2, 3, 4] and src.dropped == 3
+    assert src.grab() == 6 and index_of(src.retrieve()) == 6
+    rest = []
+    while (n := src.grab()) is not None:
+        rest.append(n)
+    assert rest == list(range(7, N_FRAMES))
+    assert 2 + 2 + len(rest) + src.dropped == N_FRAMES        # every frame accounted for
+
+
+def test_full_queue_drops_the_oldest_and_counts_it():
+    drops = DropCounter(1)
+    q = FrameQueue(3, drops)
+    for n in range(5):
+        q.put(Frame(0, n, n / FPS))
+    q.put(Frame(0, -1, float('nan'), kind=END))       # never dropped, drops nothing
+    assert drops.snapshot() == ([2], 2)
+    got = [q.get(timeout=0) for _ in range(4)]
+    assert [(f.index, f.kind) for f in got] == [(2, 'frame'), (3, 'frame'), (4, 'frame'),
+                                                (-1, END)]
+    assert q.get(timeout=0) is None
+    assert q.high_water == 4
+
+
+def test_frames_come_out_in_time_order_across_cameras():
+    # Camera 0's thread ran ahead of camera 1's; camera 1 is half a frame out of step
+    # (offset 5 ms: its frame n is at n / fps + 5 ms on its clock, n / fps on camera 0's).
+    drops = DropCounter(2)
+    q = FrameQueue(8, drops, offsets=[0.0, 0.005], min_gap=0.5 / FPS)
+    for n in range(3):
+        q.put(Frame(0, n, n / FPS + 0.002))
+    assert q.get(timeout=0) is None           # camera 1 may still send an earlier frame
+    for n in range(3):
+        q.put(Frame(1, n, n / FPS + 0.005))
+    order = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    # On camera 0's clock: camera 1's frames at 0, 10, 20 ms, camera 0's at 2, 12, 22 ms.
+    # Camera 1's next frame cannot come before 25 ms (half a period after its last), so
+    # camera 0's last goes at once.
+    assert order == [(1, 0), (0, 0), (1, 1), (0, 1), (1, 2), (0, 2)]
+    q.put(Frame(0, 3, 0.032))                 # camera 1 may still send one at 25..32 ms
+    assert q.get(timeout=0) is None
+    q.put(Frame(1, -1, float('nan'), kind=END))
+    assert [(f.camera, f.kind) for f in iter(lambda: q.get(timeout=0), None)] == [
+        (1, END), (0, 'frame')]               # camera 1 ended: nothing to wait for
+
+
+def test_a_stalled_camera_is_waited_for_at_most_max_lag():
+    drops = DropCounter(2)
+    q = FrameQueue(8, drops, max_lag=2.5 / FPS, min_gap=0.5 / FPS)
+    q.put(Frame(1, 0, 0.0))
+    q.put(Frame(0, 0, 0.0))
+    got = [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    assert got == [(0, 0), (1, 0)]
+    for n in range(1, 6):                     # camera 1 sends nothing more
+        q.put(Frame(0, n, n / FPS))
+        got += [(f.camera, f.index) for f in iter(lambda: q.get(timeout=0), None)]
+    # Camera 0's frame n is handed out without camera 1 once the newest frame is more than
+    # 2.5 periods later, i.e. when frame n + 3 is queued.
+    assert got == [(0, 0), (1, 0), (0, 1), (0, 2)]
+    assert drops.snapshot() == ([0, 0], 0)
+
+
+def test_a_pair_counts_once_whichever_cameras_lost_it():
+    drops = DropCounter(2)
+    drops.drop(0, 7)
+    drops.drop(1, 7)         # the same instant: one pair
+    drops.drop(1, 8)
+    assert drops.snapshot() == ([1, 2], 2)
+
+
+@pytest.mark.parametrize('queue_size, expect_dropped', [(N_FRAMES + 1, 0), (4, N_FRAMES - 4)])
+def test_reader_thread_queues_every_frame_or_counts_it(video, queue_size, expect_dropped):
+    # Nobody takes frames from the queue while the thread runs: beyond its size the oldest
+    # frames are dropped, and the counts say so.
+    drops = DropCounter(1)
+    q = FrameQueue(queue_size, drops)
+    src = PacedVideoSource(video, FPS, clock=SimClock(), stop=threading.Event(),
+                           start=0.0).open()
+    reader = CameraReader(0, src, q, drops, stamp=lambda n: n / FPS)
+    reader.start()
+    reader.join(timeout=30)
+    assert not reader.is_alive()
+    items = [q.get(timeout=0) for _ in range(len(q))]
+    frames = [f for f in items if f.kind != END]
+    assert items[-1].kind == END
+    assert reader.frames == N_FRAMES
+    assert drops.snapshot() == ([expect_dropped], expect_dropped)
+    assert len(frames) + expect_dropped == N_FRAMES
+    # The frames kept are the newest, each with its own stamp and content.
+    kept = list(range(expect_dropped, N_FRAMES))
+    assert [f.index for f in frames] == kept
+    assert [index_of(f.image) for f in frames] == kept
+    assert np.allclose([f.t for f in frames], np.array(kept) / FPS)
+
+
+def test_unpaced_lossless_reading_keeps_every_frame(video):
+    # video_rate 0 (offline): the reader waits for room in a small queue instead of dropping.
+    drops = DropCounter(1)
+    stop = threading.Event()
+    q = FrameQueue(2, drops, lossless=True, stop=stop)
+    src = PacedVideoSource(video, FPS, clock=SimClock(), stop=stop, start=0.0, rate=0.0).open()
+    reader = CameraReader(0, src, q, drops, stamp=lambda n: n / FPS)
+    reader.start()
+    got = []
+    while (item := q.get(timeout=30)) is not None and item.kind != END:
+        got.append(index_of(item.image))
+        assert len(q) <= 2
+    reader.join(timeout=30)
+    assert got == list(range(N_FRAMES)) and drops.snapshot() == ([0], 0)
