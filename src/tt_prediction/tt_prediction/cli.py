@@ -20,7 +20,7 @@ import numpy as np
 
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
-from .units import position_error
+from .units import ROOM_HALF_EXTENT_M, position_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
 BATCH_MIN = 16
@@ -68,7 +68,7 @@ def parse_state(data, lineno, radius):
     fast = _fast_values(data)
     if fast is not None and math.isfinite(fast[0]):
         reason = check_state(fast[1:], radius)
-        if not reason:
+        if not reason and max(map(abs, fast[1:4])) <= ROOM_HALF_EXTENT_M:
             return fast[0], fast[1:]
     values = []
     for key, size in FIELDS:
