@@ -21,7 +21,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
-from tt_tools.bagfile import BagWriter, open_bag
+from tt_ros.bagfile import BagWriter, open_bag
 from tt_tools.procs import ros_env, rss_mb
 
 from tt_msgs.msg import BallState

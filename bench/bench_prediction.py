@@ -172,7 +172,7 @@ def node_latency(params=(), cpus=None, node=('-m', 'tt_prediction.node')):
     """
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
-    from tt_prediction.spin import EXECUTOR_ENV, make_executor
+    from tt_ros.executor import EXECUTOR_ENV, make_executor
 
     from tt_msgs.msg import BallPrediction, BallState
 

@@ -5,7 +5,7 @@ costs before any prediction is made."""
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from tt_prediction.spin import spin_node
+from tt_ros.executor import run_node
 
 from tt_msgs.msg import BallPrediction, BallState
 
@@ -28,4 +28,4 @@ class EchoNode(Node):
 
 
 if __name__ == '__main__':
-    spin_node(EchoNode)
+    run_node(EchoNode)

@@ -107,6 +107,16 @@ for _tt_d in "$top"/install/tt_*/lib/tt_*; do
 done
 unset _tt_d
 export PATH
+# Fast DDS profile for camera images (docs/demo.md): 32 MB shared-memory segments, so that a
+# 0.9 MB image is not fragmented over UDP; only when /dev/shm has 1 GB free and no profile is
+# set already (tt_tools.procs.large_message_profile applies the same rule).
+_tt_p="$top/install/tt_tools/share/tt_tools/config/fastdds_large_messages.xml"
+_tt_shm=\$(df -Pk /dev/shm 2>/dev/null | awk 'NR == 2 {print \$4}')
+if [ -z "\${FASTRTPS_DEFAULT_PROFILES_FILE:-}" ] && [ -f "\$_tt_p" ] \
+    && [ "\${_tt_shm:-0}" -ge 1048576 ]; then
+  export FASTRTPS_DEFAULT_PROFILES_FILE="\$_tt_p"
+fi
+unset _tt_p _tt_shm
 ENV
 
 # 4. colcon build.

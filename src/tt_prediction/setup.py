@@ -13,7 +13,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
-    install_requires=['setuptools'],
+    install_requires=['setuptools', 'tt_ros'],
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',

@@ -13,7 +13,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.xml')),
     ],
-    install_requires=['setuptools'],
+    install_requires=['setuptools', 'tt_perception', 'tt_prediction', 'tt_strike', 'tt_ros'],
     zip_safe=True,
     maintainer='tt developers',
     maintainer_email='tt@example.org',
@@ -25,6 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'ros2 = tt_tools.ros2:main',
+            'bringup = tt_tools.bringup:main',
         ],
     },
 )

@@ -98,7 +98,7 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
     assert_matches_truth(rows, truth, -t0)   # the bag's stamps
     # The same states as BallState in the output bag, stamped with the images' stamps.
     from rosbags.highlevel import AnyReader
-    from tt_tools.bagfile import TypeRegistry
+    from tt_ros.bagfile import TypeRegistry
     registry = TypeRegistry()
     registry.ensure('tt_msgs/msg/BallState')
     with AnyReader([states], default_typestore=registry.store) as reader:

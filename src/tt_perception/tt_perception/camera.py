@@ -13,6 +13,7 @@ import os
 
 import cv2
 import numpy as np
+from tt_prediction.units import translation_error
 import yaml
 
 # OpenCV 5 takes the criteria in undistortPoints; OpenCV 4 has them in undistortPointsIter.
@@ -207,6 +208,8 @@ def load_rig(path, min_cameras=1):
                                    'translation 3') from None
         if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
             raise CalibrationError(f'{where} ({name}): pose has a non-finite number')
+        if translation_error(t):
+            raise CalibrationError(f'{where} ({name}): {translation_error(t)}')
         if (np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1.0) > 1e-4):
             raise CalibrationError(f'{where} ({name}): rotation is not a rotation matrix '
                                    '(R R^T = I, det R = 1)')

@@ -140,7 +140,7 @@ def write_tracks(out, estimates, label):
 def write_bag(path, estimates, frame_id):
     """Write the estimates as tt_msgs/BallState on /ball/state into a new MCAP bag."""
     from rclpy.serialization import serialize_message
-    from tt_tools.bagfile import BagWriter
+    from tt_ros.bagfile import BagWriter
 
     from .node import STATE_TOPIC, ball_state_message
     writer = BagWriter(path)

@@ -5,7 +5,8 @@ ROS glue only (the math is in the pure modules). Each camera of the rig file com
 ``camera_info`` topic, sensor-data QoS), a V4L2 device or a video file paced at the rig's fps
 as a camera (:mod:`tt_perception.camstream`: a reader thread per camera, a bounded queue to
 one processing thread, every lost frame counted; times are video times, or the wall clock
-with ``video_clock: wall``). Every
+with ``video_clock: wall``; ``publish_clock`` publishes the frame times on /clock, so that
+nodes with ``use_sim_time`` share them). Every
 frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
 tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
 image header stamp), 9x9 covariance row-major (position, velocity, spin).
@@ -26,15 +27,16 @@ import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.identify.blas import blas_threads
-from tt_prediction.nodeutil import set_xyz
 from tt_prediction.params import load_model
-from tt_prediction.spin import spin_node
+from tt_ros.executor import run_node
+from tt_ros.messages import set_time, set_xyz
+from tt_ros.parameters import Param, Parameters
 
 from tt_msgs.msg import BallState
 
@@ -62,60 +64,52 @@ CAMERA_BUFFERS = 8
 emulates them): how long a camera thread may stall before frames are lost."""
 
 
-def _floats(lo, hi):
-    return [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-
-
-def _ints(lo, hi):
-    return [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-
-
-# name: (default, description, range)
-PARAMETERS = {
-    'rig_file': ('', 'Rig file (DESIGN.md): camera poses, camera_info files and sources', None),
-    'model_file': ('', 'Ball model YAML written by tt-identify (empty: nominal model)', None),
-    'ball_colour': ('any', 'Ball colour: white, orange or any', None),
-    'diff_threshold': (22.0, 'Grey-level change against the background of a ball pixel',
-                       _floats(2, 200)),
-    'min_area': (4, 'Smallest ball blob, pixels', _ints(1, 10000)),
-    'max_area': (900, 'Largest ball blob (near, motion-blurred), pixels', _ints(4, 1000000)),
-    'max_width': (30.0, 'Largest ball diameter in the image, pixels', _floats(2, 1000)),
-    'roi_half_size': (40, 'Half size of the search window around the predicted ball, pixels',
-                      _ints(8, 2000)),
-    'pixel_sigma': (0.15, 'Standard deviation of a detected centre, pixels', _floats(0.01, 10)),
-    'max_reprojection': (2.5, 'Largest reprojection error of a triangulated ball, pixels',
-                         _floats(0.1, 50)),
-    'accel_noise': (0.05, 'Unmodelled acceleration of the filter, m/s^2/sqrt(Hz)',
-                    _floats(0.0, 100)),
-    'spin_prior': (250.0, 'Prior standard deviation of each spin component, rad/s',
-                   _floats(1, 5000)),
-    'measured_spin_topic': ('', 'geometry_msgs/Vector3Stamped topic of a measured spin (rad/s, '
-                            'table frame, e.g. from a marked ball) fused into the track; '
-                            'empty: none', None),
-    'measured_spin_sigma': (10.0, 'Standard deviation of each measured spin component, rad/s',
-                            _floats(0.01, 1000)),
-    'confirm_updates': (3, 'Filter updates before a track is published', _ints(1, 100)),
-    'max_coast': (0.06, 'Time without a measurement that ends a track, s', _floats(0.001, 5)),
-    'camera_timeout': (1.0, 'Time without frames after which a camera is reported lost, s',
-                       _floats(0.05, 60)),
-    'reopen_interval': (1.0, 'Time between attempts to reopen a lost V4L2 device, s',
-                        _floats(0.05, 60)),
-    'device_width': (640, 'V4L2 frame width, pixels', _ints(16, 8192)),
-    'device_height': (480, 'V4L2 frame height, pixels', _ints(16, 8192)),
-    'device_fourcc': ('MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)', None),
-    'device_exposure': (-1.0, 'V4L2 exposure (driver units; negative: automatic)',
-                        _floats(-1, 100000)),
-    'video_clock': ('video', "Stamps of video-file frames: 'video' (s from the first frame) or "
-                    "'wall' (the wall-clock time the paced frame is exposed, as a live "
-                    "camera's)", None),
-    'frame_queue': (8, 'Frames queued per camera for processing; beyond, the oldest is '
-                    'dropped (counted)', _ints(2, 1000)),
-    'video_rate': (1.0, 'Playback speed of video files: 1 = real time, as cameras (frames lost '
-                   'when processing falls behind, counted); 0 = each frame once the one before '
-                   'is taken, none lost (offline, tests)', _floats(0.0, 100.0)),
-    'wait_for_subscribers': (0, 'Video files start once /ball/state has this many '
-                             'subscriptions', _ints(0, 100)),
-}
+# Read once at start (the rig and the pipeline are built from them): read-only.
+PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
+    ('rig_file', '', 'Rig file (DESIGN.md): camera poses, camera_info files and sources'),
+    ('model_file', '', 'Ball model YAML written by tt-identify (empty: nominal model)'),
+    ('ball_colour', 'any', 'Ball colour', '', None, None, ('white', 'orange', 'any')),
+    ('diff_threshold', 22.0, 'Grey-level change against the background of a ball pixel', '',
+     2, 200),
+    ('min_area', 4, 'Smallest ball blob', 'pixels', 1, 10000),
+    ('max_area', 900, 'Largest ball blob (near, motion-blurred)', 'pixels', 4, 1000000),
+    ('max_width', 30.0, 'Largest ball diameter in the image', 'pixels', 2, 1000),
+    ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
+     'pixels', 8, 2000),
+    ('pixel_sigma', 0.15, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
+    ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
+     0.1, 50),
+    ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
+    ('spin_prior', 250.0, 'Prior standard deviation of each spin component', 'rad/s', 1, 5000),
+    ('measured_spin_topic', '', 'geometry_msgs/Vector3Stamped topic of a measured spin '
+     '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
+    ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
+     'rad/s', 0.01, 1000),
+    ('confirm_updates', 3, 'Filter updates before a track is published', '', 1, 100),
+    ('max_coast', 0.06, 'Time without a measurement that ends a track', 's', 0.001, 5),
+    ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
+     0.05, 60),
+    ('reopen_interval', 1.0, 'Time between attempts to reopen a lost V4L2 device', 's',
+     0.05, 60),
+    ('device_width', 640, 'V4L2 frame width', 'pixels', 16, 8192),
+    ('device_height', 480, 'V4L2 frame height', 'pixels', 16, 8192),
+    ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
+    ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
+     -1, 100000),
+    ('video_clock', 'video', "Stamps of video-file frames: 'video' (s from the first frame) or "
+     "'wall' (the wall-clock time the paced frame is exposed, as a live camera's)", '', None,
+     None, ('video', 'wall')),
+    ('frame_queue', 8, 'Frames queued per camera for processing; beyond, the oldest is '
+     'dropped (counted)', '', 2, 1000),
+    ('video_rate', 1.0, 'Playback speed of video files: 1 = real time, as cameras (frames lost '
+     'when processing falls behind, counted); 0 = each frame once the one before is taken, '
+     'none lost (offline, tests)', '', 0.0, 100.0),
+    ('wait_for_subscribers', 0, 'Video files start once /ball/state has this many '
+     'subscriptions', '', 0, 100),
+    ('publish_clock', False, 'publish the time of the frame being processed on /clock (before '
+     "its states), so that nodes with use_sim_time run on the recording's time (video files "
+     "with video_clock 'video'; image topics replayed without --clock)"),
+))
 
 
 def ball_state_message(est, t_ref, frame_id):
@@ -139,17 +133,15 @@ class PerceptionNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('perception_node', **kwargs)
-        for name, (default, text, ranges) in PARAMETERS.items():
-            # Read once at start (the rig and the pipeline are built from them): read-only.
-            descriptor = ParameterDescriptor(description=text, read_only=True)
-            if ranges and isinstance(default, float):
-                descriptor.floating_point_range = ranges
-            elif ranges:
-                descriptor.integer_range = ranges
-            if isinstance(default, str):
-                descriptor.type = ParameterType.PARAMETER_STRING
-            self.declare_parameter(name, default, descriptor)
+        self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
+        self.clock_pub = None
+        self.clock_msg = ClockMsg()
+        self.last_clock_ns = None
+        if self.p.publish_clock:
+            # Best effort, depth 1: the QoS of the subscription of rclpy's time source.
+            self.clock_pub = self.create_publisher(ClockMsg, '/clock', QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.frames_received = 0
         self.states_published = 0
         self.spin_measurements_used = 0
@@ -176,7 +168,7 @@ class PerceptionNode(Node):
         self._setup()
 
     def _p(self, name):
-        return self.get_parameter(name).value
+        return self.p[name]
 
     def _setup(self):
         rig_file = self._p('rig_file')
@@ -196,9 +188,6 @@ class PerceptionNode(Node):
                                     'will be published')
             return
         colour = self._p('ball_colour')
-        if colour not in ('white', 'orange', 'any'):
-            self.get_logger().warning(f'ball_colour {colour!r} unknown: using any')
-            colour = 'any'
         detector = DetectorConfig(
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
@@ -234,8 +223,6 @@ class PerceptionNode(Node):
             max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files,
             min_gap=0.5 / rig.fps)
         self._wall_stamps = self._p('video_clock') == 'wall'
-        if self._p('video_clock') not in ('video', 'wall'):
-            self.get_logger().warning(f"video_clock {self._p('video_clock')!r} unknown: video")
         if devices:
             self._t_ref = math.floor(time.time())     # V4L2 stamps are wall-clock times
         for k in devices:
@@ -447,6 +434,8 @@ class PerceptionNode(Node):
             frame, detections = None, None
         if self._t_ref is None:
             self._t_ref = math.floor(stamp)   # keeps sub-microsecond resolution in float64
+        if self.clock_pub is not None:
+            self._publish_clock(stamp)
         estimates = self.pipeline.process(stamp - self._t_ref, k, frame, detections)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
@@ -455,6 +444,15 @@ class PerceptionNode(Node):
             self.states_published += 1
             if wall_base is not None:
                 self.latency.add(time.time() - (wall_base + self._t_ref + est.t))
+
+    def _publish_clock(self, stamp):
+        """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""
+        ns = int(round(stamp * 1e9))
+        if self.last_clock_ns is not None and ns <= self.last_clock_ns:
+            return
+        self.last_clock_ns = ns
+        set_time(self.clock_msg.clock, ns)
+        self.clock_pub.publish(self.clock_msg)
 
     def _watch_cameras(self):
         now = time.monotonic()
@@ -481,7 +479,7 @@ class PerceptionNode(Node):
 
 
 def main(args=None):
-    spin_node(PerceptionNode, args)
+    run_node(PerceptionNode, args, name='perception_node')
 
 
 if __name__ == '__main__':

@@ -6,7 +6,6 @@ import pytest
 from scipy.stats import chi2
 from tt_prediction.ball import ModelParams, rollout, table_rebound_inplace
 from tt_prediction.ball_filter import (
-    BallFilter,
     FilterConfig,
     TrackFilter,
     estimate_measurement_noise,
@@ -226,8 +225,3 @@ def test_filter_state_predicts_the_hit_the_model_predicts():
     pred = predict(tf.filter.x, t0=tf.filter.t, hit_plane_x=-1.2, bounced=True)
     assert pred.status == 'ok'
     assert np.linalg.norm(pred.hit.p - ref.hit.p) < 2e-3
-
-
-def test_ball_filter_keeps_perception_names():
-    from tt_perception.estimator import BallFilter as PerceptionFilter
-    assert PerceptionFilter is BallFilter

@@ -25,7 +25,7 @@ from tt_prediction.integrate import rollout
 from tt_prediction.node import PredictionNode
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
-from tt_prediction.spin import EXECUTOR_ENV, make_executor
+from tt_ros.executor import EXECUTOR_ENV, StartupError, make_executor
 import yaml
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -283,7 +283,7 @@ def test_the_config_file_sets_the_parameters():
 def test_a_bad_model_file_stops_the_node_with_a_one_line_reason(tmp_path):
     model = tmp_path / 'model.yaml'
     model.write_text('ball: [1, 2]\n')
-    with pytest.raises(SystemExit, match='model.yaml'):
+    with pytest.raises(StartupError, match='^model_file: .*model.yaml'):
         Graph(overrides=[rclpy.parameter.Parameter('model_file', value=str(model))])
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
+from .units import ROOM_HALF_EXTENT_M, position_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
 BATCH_MIN = 16
@@ -67,7 +68,7 @@ def parse_state(data, lineno, radius):
     fast = _fast_values(data)
     if fast is not None and math.isfinite(fast[0]):
         reason = check_state(fast[1:], radius)
-        if not reason:
+        if not reason and max(map(abs, fast[1:4])) <= ROOM_HALF_EXTENT_M:
             return fast[0], fast[1:]
     values = []
     for key, size in FIELDS:
@@ -83,7 +84,7 @@ def parse_state(data, lineno, radius):
         values.extend(float(c) for c in items)
     if not math.isfinite(values[0]):
         raise InputError(f'line {lineno}: "t" is not finite')
-    reason = check_state(values[1:], radius)
+    reason = position_error(values[1:4], '"p"') or check_state(values[1:], radius)
     if reason:
         raise InputError(f'line {lineno}: {reason}')
     return values[0], values[1:]
@@ -142,7 +143,11 @@ def main(argv=None):
         return 2
     try:
         params, states = read_input(args.model, args.input, parse_line)
-    except ValueError as exc:                  # InputError is a ValueError
+    except InputError as exc:
+        where = f'{args.input}: ' if args.input else ''     # the file, when not stdin
+        print(f'tt-predict: {where}{exc}', file=sys.stderr)
+        return 2
+    except ValueError as exc:                  # the model file's own errors
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     out = [json.dumps(pred.to_dict()) for pred in predictions(states, params, args.hit_plane_x)]

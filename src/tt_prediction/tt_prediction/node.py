@@ -14,32 +14,55 @@ import time
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_ros.executor import StartupError, run_node
+from tt_ros.markers import add_marker
+from tt_ros.messages import point_msg, set_time, set_xyz
+from tt_ros.parameters import Param, Parameters
+from tt_ros.ratelimit import due
+from tt_ros.timebase import mismatch_warning, same_time_base
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
 
-from .markers import add_marker
-from .nodeutil import due, point_msg, set_xyz
 from .params import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
-from .spin import spin_node
 from .uncertainty import predict_uncertainty
+from .units import ROOM_HALF_EXTENT_M, position_error
 
 BOUNCE_MARGIN_S = 0.02
 """A track's state stamped this long after its predicted bounce on the robot's half is taken
 to be past that bounce (so the plane crossing ahead is the hit), s."""
+STATE_QUEUE_DEPTH = 100
+"""States kept for the callback (best effort): a replay publishes in bursts."""
 MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each)."""
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
 
-
-def _set_time(msg, ns):
-    msg.sec, msg.nanosec = int(ns // 1_000_000_000), int(ns % 1_000_000_000)
+PARAMETERS = (
+    Param('hit_plane_x', DEFAULT_HIT_PLANE_X,
+          "x of the hitting plane on the robot's side (table frame)", 'm', -3.0, 0.0),
+    Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
+          read_only=True),
+    Param('max_rate_hz', 0.0, "highest prediction rate per the states' stamps; 0: every "
+          'state', 'Hz', 0.0, 2000.0),
+    Param('uncertainty', True, 'propagate the state covariance: zone probabilities, hit '
+          'covariance'),
+    Param('uncertainty_rate_hz', 50.0, 'rate of the uncertainty propagation per track (19 '
+          'predictions each); in between the last result of the track is reused; 0: every '
+          'state', 'Hz', 0.0, 2000.0),
+    Param('stale_after_s', 0.5, 'drop states whose stamp is older than this against the node '
+          'clock (the clock of the recording with use_sim_time); 0: never drop', 's',
+          0.0, 60.0),
+    Param('path_rate_hz', 10.0, 'highest rate of /ball/predicted_path (and markers); 0: every '
+          'state (built in a worker thread: a busy worker skips states)', 'Hz', 0.0, 2000.0),
+    Param('path_step_s', 0.02, 'time between the poses of the predicted path', 's',
+          0.001, 0.2),
+    Param('publish_markers', False, 'publish visualization markers on /tt/markers'),
+)
 
 
 class _Track:
@@ -97,42 +120,12 @@ class PredictionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('prediction_node', **kwargs)
 
-        def rng(lo, hi):
-            return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-
-        self.declare_parameter('hit_plane_x', DEFAULT_HIT_PLANE_X, ParameterDescriptor(
-            description="x of the hitting plane on the robot's side (table frame), m",
-            floating_point_range=rng(-3.0, 0.0)))
-        self.declare_parameter('model_file', '', ParameterDescriptor(
-            description='model.yaml written by tt-identify; empty: the nominal model',
-            read_only=True))
-        self.declare_parameter('max_rate_hz', 0.0, ParameterDescriptor(
-            description="highest prediction rate per the states' stamps, Hz; 0: every state",
-            floating_point_range=rng(0.0, 2000.0)))
-        self.declare_parameter('uncertainty', True, ParameterDescriptor(
-            description='propagate the state covariance: zone probabilities, hit covariance'))
-        self.declare_parameter('uncertainty_rate_hz', 50.0, ParameterDescriptor(
-            description='rate of the uncertainty propagation per track (19 predictions '
-                        'each), Hz; in between the last result of the track is reused; 0: '
-                        'every state', floating_point_range=rng(0.0, 2000.0)))
-        self.declare_parameter('stale_after_s', 0.5, ParameterDescriptor(
-            description='drop states whose stamp is older than this against the node clock '
-                        '(set use_sim_time for bag replay), s; 0: never drop',
-            floating_point_range=rng(0.0, 60.0)))
-        self.declare_parameter('path_rate_hz', 10.0, ParameterDescriptor(
-            description='highest rate of /ball/predicted_path (and markers), Hz; 0: every '
-                        'state (built in a worker thread: a busy worker skips states)',
-            floating_point_range=rng(0.0, 2000.0)))
-        self.declare_parameter('path_step_s', 0.02, ParameterDescriptor(
-            description='time between the poses of the predicted path, s',
-            floating_point_range=rng(0.001, 0.2)))
-        self.declare_parameter('publish_markers', False, ParameterDescriptor(
-            description='publish visualization markers on /tt/markers'))
+        self.p = Parameters(self, PARAMETERS)
 
         try:
-            self.params = load_model(self.get_parameter('model_file').value)
+            self.params = load_model(self.p.model_file)
         except ValueError as exc:
-            raise SystemExit(f'prediction_node: {exc}') from None
+            raise StartupError(f'model_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([1.6, 0.0, 0.3, -6.0, 0.0, 1.5, 0.0, 0.0, 0.0])
         predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
@@ -150,21 +143,29 @@ class PredictionNode(Node):
         self.work_s = np.zeros(4096)      # the callback's time for the last states, s
         self.n_predicted = 0
         self.n_dropped = 0
+        self.warned_time_base = False
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(BallPrediction, '/ball/prediction', reliable)
         self.pub_path = self.create_publisher(Path, '/ball/predicted_path', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
+        states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
+                                reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = self.create_subscription(BallState, '/ball/state', self.on_state,
-                                            qos_profile_sensor_data)
+                                            states_qos)
         self.get_logger().info(
             f'predicting /ball/state -> /ball/prediction, hitting plane x = '
-            f'{self.get_parameter("hit_plane_x").value:.3f} m, model '
-            f'{self.get_parameter("model_file").value or "nominal"}')
+            f'{self.p.hit_plane_x:.3f} m, model '
+            f'{self.p.model_file or "nominal"}')
 
     def _drop(self, why):
         self.n_dropped += 1
         self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
+
+    def _time_base_mismatch(self, age):
+        if not self.warned_time_base:
+            self.warned_time_base = True
+            self.get_logger().warning(mismatch_warning(age))
 
     def on_state(self, msg):
         start = time.perf_counter()
@@ -183,28 +184,34 @@ class PredictionNode(Node):
 
     def _on_state(self, msg):
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if not due(stamp_ns, self.last_ns, self.get_parameter('max_rate_hz').value):
+        if not due(stamp_ns, self.last_ns, self.p.max_rate_hz):
             return
         if msg.header.frame_id not in ('', 'table'):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
             return
-        stale = self.get_parameter('stale_after_s').value
-        if stale > 0.0:
-            age = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9
-            if age > stale:
+        stale = self.p.stale_after_s
+        now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
+        if now_ns:          # 0: use_sim_time and no /clock yet, nothing to compare with
+            age = (now_ns - stamp_ns) * 1e-9
+            if not same_time_base(stamp_ns * 1e-9, now_ns * 1e-9):
+                self._time_base_mismatch(age)
+            elif age > stale:
                 self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                 return
         p, v, w = msg.position, msg.velocity, msg.spin
+        if max(abs(p.x), abs(p.y), abs(p.z)) > ROOM_HALF_EXTENT_M:
+            self._drop(position_error((p.x, p.y, p.z), 'position'))
+            return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
         track = self.tracks.get(msg.track_id)
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:
                 self.tracks.pop(next(iter(self.tracks)))
             track = self.tracks[msg.track_id] = _Track()
-        plane_x = self.get_parameter('hit_plane_x').value
+        plane_x = self.p.hit_plane_x
         want_path = due(stamp_ns, self.last_path_ns,
-                        self.get_parameter('path_rate_hz').value)
-        step = self.get_parameter('path_step_s').value
+                        self.p.path_rate_hz)
+        step = self.p.path_step_s
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
         bounced = near and stamp_ns > track.bounce_ns + margin_ns
@@ -256,18 +263,18 @@ class PredictionNode(Node):
             bounce, bounce_ns = track.bounce, track.bounce_ns     # the bounce already past
         out.bounce_valid = bounce is not None
         if bounce is not None:
-            _set_time(out.bounce_time, bounce_ns)
+            set_time(out.bounce_time, bounce_ns)
             set_xyz(out.bounce_point, bounce.p)
             out.bounce_zone = bounce.zone
             out.bounce_half = bounce.half
         else:
-            _set_time(out.bounce_time, 0)
+            set_time(out.bounce_time, 0)
             set_xyz(out.bounce_point, _ZERO3)
             out.bounce_zone = 0
             out.bounce_half = 0
         hit = pred.hit
         out.hit_valid = hit is not None
-        _set_time(out.hit_time, stamp_ns + round(hit.t * 1e9) if hit is not None else 0)
+        set_time(out.hit_time, stamp_ns + round(hit.t * 1e9) if hit is not None else 0)
         set_xyz(out.hit_point, hit.p if hit is not None else _ZERO3)
         set_xyz(out.hit_velocity, hit.v if hit is not None else _ZERO3)
         set_xyz(out.hit_spin, hit.w if hit is not None else _ZERO3)
@@ -278,10 +285,10 @@ class PredictionNode(Node):
         returns the request for a new propagation when one is due, else None."""
         unc = None
         request = None
-        if self.get_parameter('uncertainty').value:
+        if self.p.uncertainty:
             unc = track.uncertainty
             if due(stamp_ns, track.uncertainty_ns,
-                   self.get_parameter('uncertainty_rate_hz').value):
+                   self.p.uncertainty_rate_hz):
                 track.uncertainty_ns = stamp_ns
                 request = (track, state, np.array(msg.covariance), plane_x, bounced)
         out.hit_covariance[:] = 0.0
@@ -329,12 +336,12 @@ class PredictionNode(Node):
             pose.pose.orientation.w = 1.0
             poses.append(pose)
         for k, (pose, p) in enumerate(zip(poses, pred.path.tolist(), strict=True)):
-            _set_time(pose.header.stamp, stamp_ns + round(k * step * 1e9))
+            set_time(pose.header.stamp, stamp_ns + round(k * step * 1e9))
             pose.header.frame_id = frame
             position = pose.pose.position
             position.x, position.y, position.z = p
         self.pub_path.publish(path)
-        if self.get_parameter('publish_markers').value:
+        if self.p.publish_markers:
             self.pub_markers.publish(self._markers(msg, pred))
 
     def _markers(self, msg, pred):
@@ -370,8 +377,8 @@ def main(args=None):
     # The workers hold the GIL for their Python parts; a short switch interval
     # (default 5 ms) lets a state's callback take it back within a fraction of a millisecond.
     sys.setswitchinterval(2e-4)
-    spin_node(_started_node, args,
-              on_exit=lambda node: node.get_logger().info(node.work_summary()))
+    run_node(_started_node, args, name='prediction_node',
+             on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 
 if __name__ == '__main__':

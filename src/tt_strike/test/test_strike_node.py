@@ -17,6 +17,7 @@ from tt_prediction.model import racket_rebound
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict, predict_landing
 from tt_prediction.table import zone_centre
+from tt_ros.executor import StartupError
 from tt_strike.node import StrikeNode
 from tt_strike.workspace import load_workspace
 from visualization_msgs.msg import MarkerArray
@@ -261,7 +262,7 @@ def test_bad_workspace_file_stops_the_node(tmp_path):
     context = rclpy.context.Context()
     rclpy.init(context=context)
     try:
-        with pytest.raises(SystemExit, match='workspace.box.z'):
+        with pytest.raises(StartupError, match='^workspace_file: .*workspace.box.z'):
             StrikeNode(context=context,
                        parameter_overrides=[Parameter('workspace_file', value=str(bad))])
     finally:

@@ -9,28 +9,26 @@ the chosen hit time and point and the racket centre: feasible, or ``feasible = f
 status (infeasible, unreachable) and reason (so that a controller knows there is no stroke for
 this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
 node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
-no such check, for replays). Predictions without a hit point or with non-finite numbers are
-dropped with a throttled warning: nothing is published for them. A bad workspace file stops the
-node at start with a one-line reason.
+no such check, for replays; none either, with one warning, for hit times on another time base
+than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point or with
+non-finite numbers are dropped with a throttled warning: nothing is published for them. A bad
+workspace file stops the node at start with a one-line reason.
 """
 
 import dataclasses
 import math
 
 import numpy as np
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
-from tt_prediction.markers import add_marker
-from tt_prediction.nodeutil import due, point_msg, set_xyz
 from tt_prediction.predict import Hit
-from tt_prediction.spin import spin_node
+from tt_ros.executor import StartupError, run_node
+from tt_ros.markers import add_marker
+from tt_ros.messages import point_msg, set_xyz
+from tt_ros.parameters import Param, Parameters
+from tt_ros.ratelimit import due
+from tt_ros.timebase import mismatch_warning, same_time_base
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
@@ -40,81 +38,92 @@ from .robust import noise_covariance
 from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
 from .workspace import WorkspaceError, load_workspace
 
+_D = StrikeSettings()
+PARAMETERS = (
+    Param('target_zone', 5, "target zone on the opponent's half (MODEL.md); 0: target_point",
+          lo=0, hi=9),
+    Param('target_point', [0.7, 0.0], "target landing point [x, y] on the opponent's half "
+          '(when target_zone is 0)', 'm', length=2),
+    Param('net_clearance', _D.net_clearance, 'free direction: gap between the ball and the '
+          'net top where it crosses x = 0', 'm', 0.02, 1.0),
+    Param('max_racket_speed', _D.max_racket_speed, 'racket speed limit at impact', 'm/s',
+          0.1, 30.0),
+    Param('reach_z_min', _D.reach_z[0], 'lowest ball centre the racket reaches', 'm',
+          -0.76, 2.0),
+    Param('reach_z_max', _D.reach_z[1], 'highest ball centre the racket reaches', 'm',
+          -0.76, 3.0),
+    Param('reach_y', _D.reach_y, 'largest |y| of the hit point the racket reaches', 'm',
+          0.0, 3.0),
+    Param('max_normal_tilt_deg', _D.max_normal_tilt_deg, 'largest angle between the racket '
+          'normal and +x', 'deg', 0.0, 90.0),
+    Param('aim_inside_zone', _D.aim_inside_zone, 'aim at the point of the zone with the '
+          'highest in-zone probability instead of its centre'),
+    Param('in_zone_probability', True, 'compute the in-zone probability (1024 more flights, '
+          'about 30 ms)'),
+    Param('probability_rate_hz', 10.0, "rate of the in-zone probability per track and target, "
+          "per the predictions' stamps; in between the last value is reused (always computed "
+          'with aim_inside_zone); 0: every prediction', 'Hz', 0.0, 1000.0),
+    Param('velocity_sigma_fraction', 0.02, 'velocity std at the hit point per component, as a '
+          'fraction of the speed (BallPrediction carries only the position covariance)',
+          lo=0.0, hi=1.0),
+    Param('spin_sigma_fraction', 0.10, 'spin std at the hit point per component, as a '
+          'fraction of the spin magnitude', lo=0.0, hi=2.0),
+    Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
+          read_only=True),
+    Param('publish_markers', False, 'publish the racket and landing on /tt/markers'),
+    Param('workspace_file', '', 'workspace YAML (reach of the racket centre, racket-speed '
+          'limit, min time before the hit); empty: the template config/workspace.yaml',
+          read_only=True),
+    Param('use_hit_plane', False, "old behaviour: strike at the prediction's hit point (its "
+          'hitting plane) instead of choosing along the path inside the workspace'),
+    Param('check_hit_time', True, 'do not send strikes whose hit time is past or closer than '
+          "the workspace's min_time_before_hit by the node's clock (false: for replays whose "
+          'stamps are not on the node clock, e.g. a bag played without --clock)'),
+)
+
+
+def _target_from(zone, point):
+    """(zone, point) from a zone (0: use point) and a point [x, y]; ValueError if bad."""
+    if zone:
+        return resolve_target(target_zone=int(zone))
+    return resolve_target(target_point=list(point))
+
+
+def check_parameters(values):
+    """The strike node's cross-parameter rules on all its ``values``: the one-line reason
+    they are refused, or None."""
+    if values['reach_z_min'] > values['reach_z_max']:
+        return (f"reach_z_min ({values['reach_z_min']:g} m) must not exceed reach_z_max "
+                f"({values['reach_z_max']:g} m)")
+    try:
+        _target_from(values['target_zone'], values['target_point'])
+    except ValueError as exc:
+        return str(exc)
+    return None
+
 
 class StrikeNode(Node):
     """Solves the racket stroke for every predicted hit point."""
 
     def __init__(self, **kwargs):
         super().__init__('strike_node', **kwargs)
-        d = StrikeSettings()
-
-        def rng(lo, hi):
-            return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-
-        def declare(name, value, description, lo=None, hi=None):
-            desc = ParameterDescriptor(description=description)
-            if lo is not None:
-                desc.floating_point_range = rng(lo, hi)
-            self.declare_parameter(name, value, desc)
-
-        self.declare_parameter('target_zone', 5, ParameterDescriptor(
-            description="target zone 1..9 on the opponent's half (MODEL.md); 0: target_point",
-            integer_range=[IntegerRange(from_value=0, to_value=9, step=1)]))
-        declare('target_point', [0.7, 0.0],
-                "target landing point [x, y] on the opponent's half, m (when target_zone is 0)")
-        declare('net_clearance', d.net_clearance, 'free direction: gap between the ball and '
-                'the net top where it crosses x = 0, m', 0.02, 1.0)
-        declare('max_racket_speed', d.max_racket_speed, 'racket speed limit at impact, m/s',
-                0.1, 30.0)
-        declare('reach_z_min', d.reach_z[0], 'lowest ball centre the racket reaches, m',
-                -0.76, 2.0)
-        declare('reach_z_max', d.reach_z[1], 'highest ball centre the racket reaches, m',
-                -0.76, 3.0)
-        declare('reach_y', d.reach_y, 'largest |y| of the hit point the racket reaches, m',
-                0.0, 3.0)
-        declare('max_normal_tilt_deg', d.max_normal_tilt_deg,
-                'largest angle between the racket normal and +x, deg', 0.0, 90.0)
-        declare('aim_inside_zone', d.aim_inside_zone, 'aim at the point of the zone with the '
-                'highest in-zone probability instead of its centre')
-        declare('in_zone_probability', True, 'compute the in-zone probability (1024 more '
-                'flights, about 30 ms)')
-        declare('probability_rate_hz', 10.0, 'rate of the in-zone probability per track and '
-                "target, per the predictions' stamps; in between the last value is reused "
-                '(always computed with aim_inside_zone); 0: every prediction', 0.0, 1000.0)
-        declare('velocity_sigma_fraction', 0.02, 'velocity std at the hit point per component, '
-                'as a fraction of the speed (BallPrediction carries only the position '
-                'covariance)', 0.0, 1.0)
-        declare('spin_sigma_fraction', 0.10, 'spin std at the hit point per component, as a '
-                'fraction of the spin magnitude', 0.0, 2.0)
-        self.declare_parameter('model_file', '', ParameterDescriptor(
-            description='model.yaml written by tt-identify; empty: the nominal model',
-            read_only=True))
-        declare('publish_markers', False, 'publish the racket and landing on /tt/markers')
-        self.declare_parameter('workspace_file', '', ParameterDescriptor(
-            description='workspace YAML (reach of the racket centre, racket-speed limit, min '
-            'time before the hit); empty: the template config/workspace.yaml', read_only=True))
-        declare('use_hit_plane', False, "old behaviour: strike at the prediction's hit point "
-                '(its hitting plane) instead of choosing along the path inside the workspace')
-        declare('check_hit_time', True, 'do not send strikes whose hit time is past or closer '
-                "than the workspace's min_time_before_hit by the node's clock (false: for "
-                'replays whose stamps are not on the node clock, e.g. a bag played without '
-                '--clock)')
-        self.add_on_set_parameters_callback(self._check_parameters)
+        self.target = None
+        self.settings = None
+        self.p = Parameters(self, PARAMETERS, check=check_parameters, apply=self._apply)
         try:
-            self.params = load_model(self.get_parameter('model_file').value)
+            self.params = load_model(self.p.model_file)
         except ValueError as exc:
-            raise SystemExit(f'strike_node: {exc}') from None
+            raise StartupError(f'model_file: {exc}') from None
         try:
-            self.target = self._target_from(self.get_parameter('target_zone').value,
-                                            self.get_parameter('target_point').value)
-            self.workspace = load_workspace(self.get_parameter('workspace_file').value)
+            self.workspace = load_workspace(self.p.workspace_file)
         except (ValueError, WorkspaceError) as exc:
-            raise SystemExit(f'strike_node: {exc}') from None
+            raise StartupError(f'workspace_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
         self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
+        self.warned_time_base = False
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
@@ -126,53 +135,33 @@ class StrikeNode(Node):
         self.get_logger().info(f'striking /ball/prediction -> /strike/command, target '
                                f'{self._target_text()}')
 
-    # --- target -------------------------------------------------------------------------
-
-    @staticmethod
-    def _target_from(zone, point):
-        """(zone, point) from a zone (0: use point) and a point [x, y]; ValueError if bad."""
-        if zone:
-            return resolve_target(target_zone=int(zone))
-        return resolve_target(target_point=list(point))
+    # --- target and parameters ---------------------------------------------------------
 
     def _target_text(self):
         zone, point = self.target
         return f'zone {zone}' if zone else f'point ({point[0]:.3f}, {point[1]:.3f}) m'
 
-    def _check_parameters(self, params):
-        values = {p.name: p.value for p in params}
-        lo = values.get('reach_z_min', self.get_parameter('reach_z_min').value)
-        hi = values.get('reach_z_max', self.get_parameter('reach_z_max').value)
-        if lo > hi:
-            return SetParametersResult(successful=False,
-                                       reason='reach_z_min must not exceed reach_z_max')
-        if 'target_zone' in values or 'target_point' in values:
-            zone = values.get('target_zone', self.get_parameter('target_zone').value)
-            point = values.get('target_point', self.get_parameter('target_point').value)
-            try:
-                self.target = self._target_from(zone, point)
-            except ValueError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-            self.get_logger().info(f'target {self._target_text()}')
-        return SetParametersResult(successful=True)
+    def _apply(self, v, changed):
+        """Parameters set: the solver settings, and the target when it changed."""
+        self.settings = StrikeSettings(
+            net_clearance=v.net_clearance, max_racket_speed=v.max_racket_speed,
+            reach_z=(v.reach_z_min, v.reach_z_max), reach_y=v.reach_y,
+            max_normal_tilt_deg=v.max_normal_tilt_deg, aim_inside_zone=v.aim_inside_zone)
+        if self.target is None or changed & {'target_zone', 'target_point'}:
+            first = self.target is None
+            self.target = _target_from(v.target_zone, v.target_point)
+            if not first:
+                self.get_logger().info(f'target {self._target_text()}')
 
     def on_target(self, msg):
         try:
-            self.target = self._target_from(msg.zone, [msg.point.x, msg.point.y])
+            self.target = _target_from(msg.zone, [msg.point.x, msg.point.y])
         except ValueError as exc:
             self.get_logger().warning(f'/strike/target ignored: {exc}')
             return
         self.get_logger().info(f'target {self._target_text()} (from /strike/target)')
 
     # --- predictions --------------------------------------------------------------------
-
-    def _settings(self):
-        g = self.get_parameter
-        return StrikeSettings(
-            net_clearance=g('net_clearance').value, max_racket_speed=g('max_racket_speed').value,
-            reach_z=(g('reach_z_min').value, g('reach_z_max').value), reach_y=g('reach_y').value,
-            max_normal_tilt_deg=g('max_normal_tilt_deg').value,
-            aim_inside_zone=g('aim_inside_zone').value)
 
     def _drop(self, why):
         self.n_dropped += 1
@@ -181,8 +170,8 @@ class StrikeNode(Node):
     def _covariance(self, msg, state):
         """9x9 covariance at the hit point: the prediction's position block, and velocity and
         spin stds as fractions of their magnitudes (parameters)."""
-        cov = noise_covariance(state, 0.0, self.get_parameter('velocity_sigma_fraction').value,
-                               self.get_parameter('spin_sigma_fraction').value)
+        cov = noise_covariance(state, 0.0, self.p.velocity_sigma_fraction,
+                               self.p.spin_sigma_fraction)
         pos = np.array(msg.hit_covariance, dtype=float).reshape(3, 3)
         if not np.all(np.isfinite(pos)):
             return None
@@ -190,7 +179,7 @@ class StrikeNode(Node):
         return cov
 
     def _probability_due(self, key, stamp_ns):
-        rate = self.get_parameter('probability_rate_hz').value
+        rate = self.p.probability_rate_hz
         last = self.last_probability
         return last is None or last[0] != key or due(stamp_ns, last[1], rate)
 
@@ -208,22 +197,27 @@ class StrikeNode(Node):
             self._drop('hit point, velocity or spin is not finite')
             return
         zone, point = self.target
-        settings = self._settings()
+        settings = self.settings
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         key = (msg.track_id, zone, tuple(point))
         cov = None
-        if self.get_parameter('in_zone_probability').value and (
+        if self.p.in_zone_probability and (
                 settings.aim_inside_zone or self._probability_due(key, stamp_ns)):
             cov = self._covariance(msg, state)
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         now = self.get_clock().now().nanoseconds * 1e-9
-        if not self.get_parameter('check_hit_time').value:
+        if not same_time_base(hit_t, now):
+            if now and not self.warned_time_base:     # 0: use_sim_time, no /clock yet
+                self.warned_time_base = True
+                self.get_logger().warning(mismatch_warning(hit_t - now))
+            now = -math.inf                          # no hit-time check: not comparable
+        if not self.p.check_hit_time:
             now = -math.inf
         ws = self.workspace
         if settings.max_racket_speed < ws.max_racket_speed:
             ws = dataclasses.replace(ws, max_racket_speed=settings.max_racket_speed)
         target = {'target_zone': zone or None, 'target_point': None if zone else point}
-        if self.get_parameter('use_hit_plane').value:
+        if self.p.use_hit_plane:
             hit = Hit(hit_t, state[:3], state[3:6], state[6:9])
             if hit_t - now < ws.min_time_before_hit:
                 self._too_late(f'hit in {hit_t - now:.3f} s, below min_time_before_hit '
@@ -253,7 +247,7 @@ class StrikeNode(Node):
         if status != 'ok':
             self.get_logger().warning(f'no feasible stroke ({status}): {reason}',
                                       throttle_duration_sec=1.0)
-        if self.get_parameter('publish_markers').value and sol.normal is not None:
+        if self.p.publish_markers and sol.normal is not None:
             self.pub_markers.publish(self._markers(msg, sol))
 
     def _too_late(self, why):
@@ -320,7 +314,7 @@ class StrikeNode(Node):
 
 
 def main(args=None):
-    spin_node(StrikeNode, args)
+    run_node(StrikeNode, args, name='strike_node')
 
 
 if __name__ == '__main__':

@@ -18,7 +18,7 @@ from rosbags.interfaces import QosReliability
 from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
-from tt_tools.bagfile import BagError, BagWriter, TypeRegistry, open_bag
+from tt_ros.bagfile import BagError, BagWriter, TypeRegistry, open_bag
 from tt_tools.rosutil import CliNode
 
 from tt_msgs.msg import BallState

@@ -6,8 +6,8 @@ import time
 
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 
-from tt_tools.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 from tt_tools.introspect import import_message_type
 from tt_tools.rosutil import CliNode, full_topic_name, qos_from_bag, qos_matching, qos_to_bag
 

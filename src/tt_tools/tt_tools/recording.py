@@ -81,8 +81,7 @@ def write_bag(bag_dir, rig, frames):
     Returns the number of images written."""
     from rosbags.typesys import Stores, get_typestore
     from tt_perception.sources import camera_info_topic
-
-    from .bagfile import BagWriter
+    from tt_ros.bagfile import BagWriter
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
     Image = typestore.types['sensor_msgs/msg/Image']

@@ -119,7 +119,7 @@ def _main(argv):
     args = build_parser(only_run=only_run).parse_args(argv)
     errors = (RunError, ValueError, OSError)
     if not only_run:  # ``ros2 run`` raises no BagError: it skips importing rosbags (0.15 s)
-        from tt_tools.bagfile import BagError
+        from tt_ros.bagfile import BagError
 
         errors += (BagError,)
     try:

@@ -17,6 +17,8 @@ import pathlib
 
 import numpy as np
 
+from ..units import position_error
+
 
 class DataError(ValueError):
     """Bad input: the message names the file and what is wrong."""
@@ -48,6 +50,8 @@ def clean_samples(name, t, p):
     Returns ``(t, p, notes)`` with the number of rows affected by each step.
     """
     notes = {}
+    if position_error(p, 'x, y, z'):
+        raise DataError(f'{name}: {position_error(p, "x, y, z")}')
     finite = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     if not finite.all():
         notes['non_finite_rows'] = int((~finite).sum())

@@ -1,7 +1,7 @@
 """Message definitions for bags: from rosbags' Jazzy store or from installed .msg files."""
 
 import pytest
-from tt_tools.bagfile import BagError, TypeRegistry
+from tt_ros.bagfile import BagError, TypeRegistry
 
 
 def _install_msgs(prefix, package, msgs):

@@ -1,0 +1,54 @@
+"""Plausibility of lengths given to tt (pure): positions in the table frame are metres, and a
+table-tennis room is at most 20 m across, so a coordinate beyond +-10 m (or a camera 20 m
+away) is almost surely in millimetres (or nonsense). The checks return the one-line reason,
+or '' when the values are plausible; callers add the file and field."""
+
+import numpy as np
+
+ROOM_HALF_EXTENT_M = 10.0
+"""Largest |x|, |y| or |z| of a ball position in the table frame, m."""
+RIG_MAX_TRANSLATION_M = 20.0
+"""Largest distance of a camera centre from the table origin (norm of the rig's translation),
+m."""
+
+
+def position_error(positions, field='p'):
+    """Why ``positions`` ((3,) or (n, 3), table frame) are not ball positions in metres, or ''.
+
+    Parameters
+    ----------
+    positions : array_like
+        One position (x, y, z) or rows of them, m. Non-finite values are not judged here.
+    field : str
+        The field's name in the input, for the message (``"p"``, ``x, y, z``).
+
+    Returns
+    -------
+    str
+        ``'"p" = [1600, 100, 300]: outside the room (|coordinate| > 10 m): positions are in
+        metres, not millimetres'`` or ''.
+    """
+    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    big = np.abs(np.where(np.isfinite(p), p, 0.0)) > ROOM_HALF_EXTENT_M
+    if not big.any():
+        return ''
+    row = p[int(np.flatnonzero(big.any(axis=1))[0])]
+    shown = '[' + ', '.join(f'{v:.6g}' for v in row) + ']'
+    where = '' if p.shape[0] == 1 else f' (row {int(np.flatnonzero(big.any(axis=1))[0]) + 1})'
+    return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
+            f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres')
+
+
+def translation_error(translation, field='translation'):
+    """Why a rig camera's ``translation`` (3,) is not in metres, or ''.
+
+    The rig stores world-to-camera (R, t); the camera centre is -R^T t, at the same distance
+    |t| from the table origin, so |t| alone decides.
+    """
+    t = np.asarray(translation, dtype=float).reshape(3)
+    dist = float(np.linalg.norm(t))
+    if not dist > RIG_MAX_TRANSLATION_M:
+        return ''
+    shown = '[' + ', '.join(f'{v:.6g}' for v in t) + ']'
+    return (f'{field} {shown} puts the camera {dist:.4g} m from the table (more than '
+            f'{RIG_MAX_TRANSLATION_M:g} m): translations are in metres, not millimetres')

@@ -1,0 +1,147 @@
+"""The tt packages declare what they import, in package.xml and setup.py, without a cycle.
+
+Every ``import tt_x`` (at module level or inside a function) in a package's modules must be
+an ``exec_depend`` (or ``depend``) of its package.xml; its tests may also use ``test_depend``.
+The Python packages among them are in setup.py's ``install_requires``, and the declared
+graph has no cycle (colcon builds it in an order, and no package needs itself through
+another).
+"""
+
+import ast
+import pathlib
+import xml.etree.ElementTree as ET
+
+import pytest
+
+SRC = pathlib.Path(__file__).resolve().parents[2]
+
+
+def package_deps(package_xml):
+    """(run-time deps, test deps) named in a package.xml."""
+    root = ET.parse(package_xml).getroot()
+    run = {e.text.strip() for tag in ('depend', 'exec_depend', 'build_depend')
+           for e in root.iter(tag)}
+    test = {e.text.strip() for e in root.iter('test_depend')}
+    return run, test
+
+
+def setup_requires(setup_py):
+    """The strings of ``install_requires`` in a setup.py (read, not run)."""
+    for node in ast.walk(ast.parse(setup_py.read_text())):
+        if isinstance(node, ast.keyword) and node.arg == 'install_requires':
+            return {ast.literal_eval(e) for e in node.value.elts}
+    return set()
+
+
+def imported_packages(paths):
+    """Top-level names imported anywhere in the Python files ``paths``."""
+    names = set()
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names.update(alias.name.split('.')[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split('.')[0])
+    return names
+
+
+def find_cycle(graph):
+    """A dependency cycle of ``graph`` (name -> set of names) as a list, or None."""
+    state = {}
+
+    def visit(name, trail):
+        state[name] = 'open'
+        for dep in sorted(graph.get(name, ())):
+            if state.get(dep) == 'open':
+                return trail[trail.index(dep):] + [dep] if dep in trail else [name, dep]
+            if dep not in state:
+                found = visit(dep, trail + [dep])
+                if found:
+                    return found
+        state[name] = 'done'
+        return None
+
+    for name in sorted(graph):
+        if name not in state:
+            found = visit(name, [name])
+            if found:
+                return found
+    return None
+
+
+def check_workspace(src, prefix='tt_'):
+    """Problems (one line each) of the packages under ``src`` whose names start with
+    ``prefix``: undeclared imports, setup.py out of step with package.xml, a cycle."""
+    packages = {p.parent.name: p.parent for p in sorted(src.glob('*/package.xml'))
+                if p.parent.name.startswith(prefix)}
+    problems, graph = [], {}
+    for name, pkg in packages.items():
+        run, test = package_deps(pkg / 'package.xml')
+        own = {d for d in run if d in packages}
+        graph[name] = own
+        modules = sorted((pkg / name).rglob('*.py')) if (pkg / name).is_dir() else []
+        for dep in sorted(imported_packages(modules) - {name}):
+            if dep in packages and dep not in run:
+                problems.append(f'{name} imports {dep} without declaring it in package.xml')
+        tests = sorted((pkg / 'test').rglob('*.py')) if (pkg / 'test').is_dir() else []
+        for dep in sorted(imported_packages(tests) - {name}):
+            if dep in packages and dep not in run | test:
+                problems.append(f'{name} tests import {dep}, not in package.xml')
+        if (pkg / 'setup.py').exists():
+            python_deps = {d for d in own if (packages[d] / 'setup.py').exists()}
+            required = {r for r in setup_requires(pkg / 'setup.py') if r in packages}
+            if required != python_deps:
+                problems.append(f'{name}: setup.py install_requires {sorted(required)} but '
+                                f'package.xml names {sorted(python_deps)}')
+    cycle = find_cycle(graph)
+    if cycle:
+        problems.append('dependency cycle: ' + ' -> '.join(cycle))
+    return problems
+
+
+def test_the_tt_packages_declare_their_imports_without_a_cycle():
+    assert check_workspace(SRC) == []
+
+
+def _package(src, name, deps=(), imports=(), setup_deps=None):
+    pkg = src / name
+    (pkg / name).mkdir(parents=True)
+    xml = ''.join(f'<exec_depend>{d}</exec_depend>' for d in deps)
+    (pkg / 'package.xml').write_text(f'<package format="3"><name>{name}</name>{xml}</package>')
+    (pkg / name / '__init__.py').write_text(
+        ''.join(f'def f{k}():\n    import {m}.sub\n' for k, m in enumerate(imports)))
+    req = list(deps if setup_deps is None else setup_deps)
+    (pkg / 'setup.py').write_text(f'setup(install_requires={["setuptools", *req]!r})\n')
+
+
+def test_check_finds_an_undeclared_import_inside_a_function(tmp_path):
+    _package(tmp_path, 'tt_a')
+    _package(tmp_path, 'tt_b', imports=['tt_a'])
+    assert check_workspace(tmp_path) == [
+        'tt_b imports tt_a without declaring it in package.xml']
+
+
+def test_check_finds_a_cycle_through_three_packages(tmp_path):
+    _package(tmp_path, 'tt_a', deps=['tt_c'])
+    _package(tmp_path, 'tt_b', deps=['tt_a'])
+    _package(tmp_path, 'tt_c', deps=['tt_b'])
+    problems = check_workspace(tmp_path)
+    assert len(problems) == 1 and problems[0].startswith('dependency cycle: ')
+    names = problems[0].removeprefix('dependency cycle: ').split(' -> ')
+    assert names[0] == names[-1] and set(names) == {'tt_a', 'tt_b', 'tt_c'}
+
+
+def test_check_finds_setup_py_out_of_step_with_package_xml(tmp_path):
+    _package(tmp_path, 'tt_a')
+    _package(tmp_path, 'tt_b', deps=['tt_a'], imports=['tt_a'], setup_deps=[])
+    assert check_workspace(tmp_path) == [
+        "tt_b: setup.py install_requires [] but package.xml names ['tt_a']"]
+
+
+@pytest.mark.parametrize('graph, cycle', [
+    ({'a': {'b'}, 'b': set()}, None),
+    ({'a': {'a'}}, ['a', 'a']),
+    ({'a': {'b', 'c'}, 'b': {'c'}, 'c': set()}, None),
+])
+def test_find_cycle(graph, cycle):
+    assert find_cycle(graph) == cycle

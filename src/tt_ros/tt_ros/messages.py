@@ -1,0 +1,26 @@
+"""Message fields from numbers and arrays, shared by the tt nodes (ROS glue: imports
+geometry_msgs)."""
+
+from geometry_msgs.msg import Point
+
+NS_PER_S = 1_000_000_000
+
+
+def point_msg(p):
+    """geometry_msgs/Point of ``p`` (x, y[, z]), m; z 0 for a point on the table (2 numbers)."""
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]) if len(p) > 2 else 0.0)
+
+
+def set_xyz(msg, v):
+    """Set the x, y, z of a Point or Vector3 ``msg`` (kept, not replaced) from ``v``."""
+    msg.x, msg.y, msg.z = float(v[0]), float(v[1]), float(v[2])
+
+
+def set_time(msg, ns):
+    """Set a builtin_interfaces/Time ``msg`` (sec, nanosec) to ``ns`` nanoseconds (int)."""
+    msg.sec, msg.nanosec = int(ns // NS_PER_S), int(ns % NS_PER_S)
+
+
+def stamp_ns(stamp):
+    """Nanoseconds (int) of a builtin_interfaces/Time ``stamp``."""
+    return stamp.sec * NS_PER_S + stamp.nanosec

@@ -1,0 +1,25 @@
+"""Whether a message's stamp and the node clock are on one time base (pure: no rclpy).
+
+Live stamps and the wall clock agree; a recording replayed with its clock (``ros2 bag play
+--clock``, perception_node ``publish_clock``) and ``use_sim_time`` agree too. A stamp more
+than :data:`TIME_BASE_MISMATCH_S` from the node clock comes from another time base (video
+time from 0 against the wall clock, a synthetic recording stamped in 2023 replayed today):
+checks of age or lead time against the clock mean nothing for it.
+"""
+
+TIME_BASE_MISMATCH_S = 3600.0
+"""A stamp this far from the node clock, either way, is on another time base, s."""
+
+
+def same_time_base(stamp_s, now_s):
+    """Whether ``stamp_s`` and the node clock's ``now_s`` (s, 0: no /clock yet under
+    use_sim_time) can be compared."""
+    return now_s != 0 and abs(now_s - stamp_s) <= TIME_BASE_MISMATCH_S
+
+
+def mismatch_warning(offset_s):
+    """The one-line warning for stamps ``offset_s`` s from the node clock."""
+    return (f'stamps are {offset_s:.0f} s from the node clock: another time base (a recording '
+            'without /clock?), so time checks against the clock are off for them; run with '
+            'use_sim_time:=true and a /clock source (ros2 bag play --clock, perception_node '
+            'publish_clock:=true)')

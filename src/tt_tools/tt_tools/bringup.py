@@ -1,0 +1,364 @@
+"""``ros2 run tt_tools bringup --params-file FILE``: the whole tt graph from one parameters file.
+
+Starts each node the file names (``perception_node``, ``prediction_node``, ``strike_node``; a
+``/**`` section applies to all of them) as its own process with ``--ros-args --params-file
+FILE`` (consumers first: strike, prediction, then perception, each once the one before
+logged that it is ready), in the environment the graph needs (tt's Fast DDS profile for
+camera images when /dev/shm has room, unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` is set
+already). Every line a node prints is shown prefixed with its name.
+
+- SIGINT or SIGTERM stops every node (SIGINT, then SIGTERM after ``--stop-timeout``, then
+  SIGKILL) and exits 0 when they all exited 0.
+- A node that dies is restarted after ``--restart-delay`` seconds, with one line:
+  ``bringup: prediction_node died (signal SIGKILL) after 12.3 s; restart 1``. A node that
+  exits 2 (it cannot start: a bad parameter or file, its one line printed above) is not
+  restarted: bringup stops the others and exits 2. More than ``--max-restarts`` restarts of
+  one node also stop the graph (exit 1).
+- ``--show`` prints one line per ball (track): the prediction and the strike command.
+
+The shipped files (``share/tt_tools/config``): ``robot.yaml`` (live cameras) and
+``replay.yaml`` (video files or bags: video time on /clock, the other nodes on it).
+Bad input (no file, bad YAML, no tt node named) is one line and exit 2.
+"""
+
+import argparse
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import yaml
+
+from .procs import large_message_profile
+from .run import RunError, find_executable
+
+NODES = {
+    'perception_node': 'tt_perception',
+    'prediction_node': 'tt_prediction',
+    'strike_node': 'tt_strike',
+}
+"""The tt nodes bringup knows: node name -> package (the executable has the node's name)."""
+START_ORDER = ('strike_node', 'prediction_node', 'perception_node')
+"""Consumers first: each node starts once the one before logged that it is ready, so that a
+video file's first ball finds the whole graph listening."""
+READY_LINE = re.compile(r'\]: ready$')
+"""A node's 'ready' log line (tt_ros.executor.READY)."""
+STARTUP_EXIT = 2
+"""A node's exit status when it cannot start (tt_ros.executor.STARTUP_EXIT)."""
+POLL_S = 0.2
+"""Longest wait for a node's exit before a signal is looked at, s."""
+
+
+class BringupError(Exception):
+    """Bad input to bringup: one line."""
+
+
+def say(text):
+    print(f'bringup: {text}', flush=True)
+
+
+def nodes_in(params_file):
+    """The tt nodes a ROS parameters file names, in start order (perception first); all of
+    them when it only has a ``/**`` section. BringupError with one line when the file cannot
+    be read or names none."""
+    try:
+        with open(params_file) as f:
+            data = yaml.safe_load(f)
+    except OSError as exc:
+        raise BringupError(f'{params_file}: {exc.strerror or exc}') from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1})' if mark is not None else ''
+        raise BringupError(f'{params_file}: not valid YAML{where}') from None
+    if not isinstance(data, dict):
+        raise BringupError(f'{params_file}: not a ROS parameters file (a mapping of node '
+                           'names to ros__parameters)')
+    names = [str(k).lstrip('/') for k in data]
+    for key, value in data.items():
+        if not isinstance(value, dict) or 'ros__parameters' not in value:
+            raise BringupError(f'{params_file}: {key}: no ros__parameters')
+    found = [n for n in NODES if n in names]
+    if not found and '**' in names:
+        found = list(NODES)
+    if not found:
+        raise BringupError(f'{params_file}: names none of the tt nodes ({", ".join(NODES)})')
+    return found
+
+
+def graph_env(base=None):
+    """The environment of the nodes: ``base`` (os.environ) with unbuffered Python output and
+    tt's Fast DDS profile for images unless one is set."""
+    env = dict(os.environ if base is None else base)
+    env['PYTHONUNBUFFERED'] = '1'
+    if not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
+        profile = large_message_profile()
+        if profile:
+            env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
+    return env
+
+
+def _signal_name(code):
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        return f'signal {-code}'
+
+
+class Child:
+    """One node process, its output prefixed on our stdout, its exit put on ``events``."""
+
+    def __init__(self, name, argv, env, events):
+        self.name, self.argv, self.env, self.events = name, argv, env, events
+        self.proc = None
+        self.started = None
+        self.restarts = 0
+        self.last_line = ''
+        self.ready = False
+
+    def start(self):
+        self.started = time.monotonic()
+        self.ready = False
+        self.proc = subprocess.Popen(self.argv, env=self.env, stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True, errors='replace', start_new_session=True)
+        threading.Thread(target=self._pump, args=(self.proc,), daemon=True).start()
+        say(f'started {self.name} (pid {self.proc.pid})')
+
+    def _pump(self, proc):
+        for line in proc.stdout:
+            line = line.rstrip('\n')
+            if line.strip():
+                self.last_line = line
+            if READY_LINE.search(line):
+                self.ready = True
+                self.events.put(('ready', self, proc))
+            print(f'[{self.name}] {line}', flush=True)
+        proc.wait()
+        self.events.put(('exit', self, proc))
+
+    def signal(self, sig):
+        if self.proc is not None and self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, sig)
+            except ProcessLookupError:
+                pass
+
+
+class Bringup:
+    """The supervisor: start, restart, stop (see the module docstring)."""
+
+    def __init__(self, params_file, nodes, extra_args=None, restart_delay=1.0,
+                 max_restarts=5, stop_timeout=10.0, env=None):
+        self.events = queue.Queue()
+        self.restart_delay = restart_delay
+        self.max_restarts = max_restarts
+        self.stop_timeout = stop_timeout
+        env = graph_env() if env is None else env
+        self.children = []
+        for name in sorted(nodes, key=START_ORDER.index):
+            exe = find_executable(NODES[name], name)
+            extra = (extra_args or {}).get(name, [])
+            self.children.append(Child(name, [exe, '--ros-args', '--params-file',
+                                              os.path.abspath(params_file), *extra],
+                                       env, self.events))
+        self.profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
+        self.pending = {}           # child -> monotonic time of its restart
+        self.stopping = False
+        self.stop_requested = False
+        self.status = 0
+
+    def request_stop(self, signum=None, _frame=None):
+        """Signal handler: only a flag (a queue's lock is not safe in a handler)."""
+        self.stop_requested = True
+
+    def run(self):
+        """Run until a signal or a fatal exit; the exit status."""
+        say(f'starting {", ".join(c.name for c in self.children)} (Fast DDS profile: '
+            f'{self.profile or "default"})')
+        waiting = list(self.children)       # not started yet, in order
+        while not self.stopping:
+            if waiting and all(c.ready for c in self.children if c.proc is not None):
+                waiting.pop(0).start()
+                continue
+            timeout = POLL_S
+            if self.pending:
+                timeout = min(timeout, max(0.0, min(self.pending.values()) - time.monotonic()))
+            try:
+                kind, a, b = self.events.get(timeout=timeout)
+            except queue.Empty:
+                kind = 'due'
+            if self.stop_requested:
+                self.stopping = True
+            elif kind == 'exit':
+                self._exited(a, b)
+            now = time.monotonic()
+            for child, when in list(self.pending.items()):
+                if when <= now and not self.stopping:
+                    del self.pending[child]
+                    child.start()
+        return self._stop_all()
+
+    def _exited(self, child, proc):
+        if proc is not child.proc or self.stopping:
+            return
+        code = proc.returncode
+        lived = time.monotonic() - child.started
+        how = f'signal {_signal_name(code)}' if code < 0 else f'exit {code}'
+        if code == STARTUP_EXIT:
+            say(f'{child.name} cannot start ({how}): {child.last_line}; stopping the graph')
+            self.status, self.stopping = STARTUP_EXIT, True
+            return
+        child.restarts += 1
+        if child.restarts > self.max_restarts:
+            say(f'{child.name} died ({how}) after {lived:.1f} s; more than '
+                f'{self.max_restarts} restarts: stopping the graph')
+            self.status, self.stopping = 1, True
+            return
+        say(f'{child.name} died ({how}) after {lived:.1f} s; restart {child.restarts}')
+        self.pending[child] = time.monotonic() + self.restart_delay
+
+    def _stop_all(self):
+        """SIGINT to every running node, then SIGTERM, then SIGKILL; the exit status."""
+        live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
+        for c in live:
+            c.signal(signal.SIGINT)
+        codes = {}
+        for sig, wait in ((None, self.stop_timeout), (signal.SIGTERM, 5.0),
+                          (signal.SIGKILL, 5.0)):
+            deadline = time.monotonic() + wait
+            for c in live:
+                if c.name in codes:
+                    continue
+                if sig is not None:
+                    c.signal(sig)
+                try:
+                    codes[c.name] = c.proc.wait(max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    pass
+            if len(codes) == len(live):
+                break
+        bad = {n: code for n, code in codes.items() if code != 0}
+        if bad:
+            say('stopped; not clean: ' + ', '.join(
+                f'{n} {_signal_name(c) if c < 0 else f"exit {c}"}' for n, c in bad.items()))
+            return self.status or 1
+        say('stopped')
+        return self.status
+
+
+class Show:
+    """``--show``: one line per ball (track) from /ball/prediction and /strike/command."""
+
+    def __init__(self):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
+        from rclpy.signals import SignalHandlerOptions
+
+        from tt_msgs.msg import BallPrediction, StrikeCommand
+
+        self.rclpy = rclpy
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('bringup_show', context=self.context)
+        self.last_prediction = {}
+        self.shown = set()
+        self.node.create_subscription(BallPrediction, '/ball/prediction', self._prediction,
+                                      QoSProfile(depth=100))
+        self.node.create_subscription(StrikeCommand, '/strike/command', self._command,
+                                      QoSProfile(depth=100))
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except Exception:       # the context shut down under us
+                return
+
+    def _prediction(self, msg):
+        self.last_prediction[msg.track_id] = msg
+
+    def _command(self, msg):
+        if msg.track_id in self.shown:
+            return
+        self.shown.add(msg.track_id)
+        p = self.last_prediction.get(msg.track_id)
+        bounce = (f'bounce zone {p.bounce_zone} at ({p.bounce_point.x:.2f}, '
+                  f'{p.bounce_point.y:.2f}) m, ' if p is not None and p.bounce_valid else '')
+        h = msg.hit_point
+        stroke = (f'racket ({msg.racket_velocity.x:.2f}, {msg.racket_velocity.y:.2f}, '
+                  f'{msg.racket_velocity.z:.2f}) m/s to zone {msg.landing_zone}'
+                  if msg.feasible else f'no stroke: {msg.reason}')
+        say(f'ball {msg.track_id}: {bounce}hit ({h.x:.2f}, {h.y:.2f}, {h.z:.2f}) m; '
+            f'strike {msg.status}: {stroke}')
+
+    def close(self):
+        self.rclpy.try_shutdown(context=self.context)
+        self.thread.join(2.0)
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(prog='bringup', description=__doc__.splitlines()[0])
+    p.add_argument('--params-file', required=True,
+                   help='ROS parameters file naming the nodes to start (e.g. the installed '
+                        'share/tt_tools/config/robot.yaml or replay.yaml)')
+    p.add_argument('--nodes', help='comma-separated subset of the nodes the file names '
+                   '(e.g. prediction_node,strike_node)')
+    p.add_argument('--rig', help='rig file for perception_node (overrides rig_file)')
+    p.add_argument('--show', action='store_true',
+                   help='print one line per ball: prediction and strike command')
+    p.add_argument('--restart-delay', type=float, default=1.0,
+                   help='seconds before a node that died is started again (default 1)')
+    p.add_argument('--max-restarts', type=int, default=5,
+                   help='restarts of one node before the graph stops (default 5)')
+    p.add_argument('--stop-timeout', type=float, default=10.0,
+                   help='seconds a node has to exit after SIGINT (default 10)')
+    args = p.parse_args(argv)
+    if args.restart_delay < 0 or args.max_restarts < 0 or args.stop_timeout <= 0:
+        p.error('--restart-delay and --max-restarts must be >= 0, --stop-timeout > 0')
+    return args
+
+
+def main(argv=None):
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        nodes = nodes_in(args.params_file)
+        if args.nodes:
+            wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
+            unknown = [n for n in wanted if n not in nodes]
+            if unknown or not wanted:
+                raise BringupError(f'--nodes {args.nodes}: not among the nodes of '
+                                   f'{args.params_file} ({", ".join(nodes)})')
+            nodes = [n for n in nodes if n in wanted]
+        extra = {}
+        if args.rig:
+            if 'perception_node' not in nodes:
+                raise BringupError('--rig given but the file starts no perception_node')
+            if not os.path.isfile(args.rig):
+                raise BringupError(f'--rig {args.rig}: no such file')
+            extra['perception_node'] = ['-p', f'rig_file:={os.path.abspath(args.rig)}']
+        bringup = Bringup(args.params_file, nodes, extra, args.restart_delay,
+                          args.max_restarts, args.stop_timeout)
+    except (BringupError, RunError) as exc:
+        print(f'bringup: {exc}', file=sys.stderr)
+        return 2
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, bringup.request_stop)
+    show = Show() if args.show else None
+    try:
+        return bringup.run()
+    finally:
+        if show is not None:
+            show.close()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,236 @@
+"""`ros2 run tt_tools bringup` (issue 17 item 1): the graph from one parameters file, a node
+that dies restarted with one line, SIGINT stops every node cleanly (exit 0, no rosout noise),
+bad input is one line and exit 2; on a rig of video files with the shipped replay.yaml it
+prints a prediction and a strike command for every ball.
+
+Each test runs in a ROS domain of its own and waits on output lines (conditions), never on
+sleeps.
+"""
+
+import os
+import pathlib
+import random
+import re
+import signal
+import subprocess
+import threading
+import time
+import uuid
+
+import pytest
+from tt_tools.procs import ros_env
+
+pytestmark = pytest.mark.graph
+
+TIMEOUT_S = 180.0
+CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'src' / 'tt_tools' / 'config'
+
+
+class Bringup:
+    """A bringup process whose output lines are collected by a thread."""
+
+    def __init__(self, *args):
+        env = ros_env({'ROS_DOMAIN_ID': str(random.Random(uuid.uuid4().int).randint(150, 230))})
+        self.proc = subprocess.Popen(['ros2', 'run', 'tt_tools', 'bringup', *args], env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, text=True,
+                                     start_new_session=True)
+        self.lines = []
+        self.changed = threading.Condition()
+        self.thread = threading.Thread(target=self._pump, daemon=True)
+        self.thread.start()
+
+    def _pump(self):
+        for line in self.proc.stdout:
+            with self.changed:
+                self.lines.append(line.rstrip('\n'))
+                self.changed.notify_all()
+        with self.changed:
+            self.changed.notify_all()
+
+    def wait_for(self, pattern, count=1):
+        """The ``count``-th line matching ``pattern``; TimeoutError naming it."""
+        regex = re.compile(pattern)
+        deadline = time.monotonic() + TIMEOUT_S
+        with self.changed:
+            while True:
+                found = [m for m in map(regex.search, self.lines) if m]
+                if len(found) >= count:
+                    return found[count - 1]
+                if self.proc.poll() is not None and not self.thread.is_alive():
+                    raise AssertionError(f'bringup ended before {pattern!r}:\n' + self.text)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f'no line {pattern!r} in {TIMEOUT_S} s:\n' + self.text)
+                self.changed.wait(left)
+
+    @property
+    def text(self):
+        return '\n'.join(self.lines)
+
+    def stop(self, sig=signal.SIGINT):
+        """Signal bringup (only bringup: the nodes are in sessions of their own); exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(TIMEOUT_S)
+        finally:
+            self.thread.join(10)
+
+    def kill(self):
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+
+def _params(tmp_path, text):
+    path = tmp_path / 'graph.yaml'
+    path.write_text(text)
+    return str(path)
+
+
+GRAPH = """
+prediction_node:
+  ros__parameters:
+    uncertainty: false
+strike_node:
+  ros__parameters:
+    target_zone: 3
+"""
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_a_killed_node_is_restarted_with_one_line_and_a_signal_stops_all(tmp_path, sig):
+    run = Bringup('--params-file', _params(tmp_path, GRAPH), '--restart-delay', '0.2')
+    try:
+        run.wait_for(r'^\[strike_node\] .*\]: ready$')
+        pid = int(run.wait_for(r'^bringup: started prediction_node \(pid (\d+)\)').group(1))
+        run.wait_for(r'^\[prediction_node\] .*\]: ready$')
+        os.kill(pid, signal.SIGKILL)
+        died = run.wait_for(r'^bringup: prediction_node died .*$').group(0)
+        assert re.fullmatch(r'bringup: prediction_node died \(signal SIGKILL\) after '
+                            r'[\d.]+ s; restart 1', died), died
+        new_pid = int(run.wait_for(r'^bringup: started prediction_node \(pid (\d+)\)',
+                                   count=2).group(1))
+        assert new_pid != pid
+        run.wait_for(r'^\[prediction_node\] .*\]: ready$', count=2)
+        code = run.stop(sig)
+    finally:
+        run.kill()
+    assert code == 0, run.text
+    assert run.lines[-1] == 'bringup: stopped'
+    # Each node logged its last lines while its context was valid: no rosout noise, no
+    # traceback, and prediction_node's summary came out.
+    assert 'rosout' not in run.text and 'Traceback' not in run.text
+    assert re.search(r'\[prediction_node\] .*: no state received', run.text)
+    assert len([ln for ln in run.lines if 'died' in ln]) == 1
+
+
+def test_a_node_that_cannot_start_stops_the_graph_with_exit_2(tmp_path):
+    graph = GRAPH.replace('target_zone: 3', 'target_zone: 12')
+    run = Bringup('--params-file', _params(tmp_path, graph))
+    try:
+        code = run.proc.wait(TIMEOUT_S)
+    finally:
+        run.kill()
+        run.thread.join(10)
+    assert code == 2, run.text
+    assert '[strike_node] strike_node: target_zone: 12 is not an integer in [0, 9]' in run.lines
+    assert any(re.fullmatch(r'bringup: strike_node cannot start \(exit 2\): .*target_zone.*'
+                            r'; stopping the graph', ln) for ln in run.lines), run.text
+    assert 'restart' not in run.text and 'Traceback' not in run.text
+
+
+@pytest.mark.parametrize('text, words', [
+    (None, 'No such file'),
+    ('prediction_node: [1, 2\n', 'not valid YAML (line'),
+    ('other_node:\n  ros__parameters: {}\n', 'names none of the tt nodes'),
+    ('prediction_node:\n  use_sim_time: true\n', 'prediction_node: no ros__parameters'),
+])
+def test_bad_parameters_files_are_one_line_and_exit_2(tmp_path, text, words):
+    path = str(tmp_path / 'missing.yaml') if text is None else _params(tmp_path, text)
+    proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file', path],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f'bringup: {path}: ') and words in lines[0]
+
+
+def test_shipped_configs_name_only_declared_parameters():
+    from tt_perception.node import PARAMETERS as PERCEPTION
+    from tt_prediction.node import PARAMETERS as PREDICTION
+    from tt_strike.node import PARAMETERS as STRIKE
+    import yaml
+
+    declared = {'perception_node': PERCEPTION, 'prediction_node': PREDICTION,
+                'strike_node': STRIKE}
+    from tt_ros.parameters import coerce
+    for name in ('robot.yaml', 'replay.yaml'):
+        data = yaml.safe_load((CONFIG / name).read_text())
+        assert set(data) == set(declared)
+        for node, section in data.items():
+            specs = {p.name: p for p in declared[node]}
+            for key, value in section['ros__parameters'].items():
+                if key == 'use_sim_time':
+                    assert value is (name == 'replay.yaml')
+                    continue
+                assert key in specs, f'{name}: {node}.{key} is not a parameter'
+                coerce(specs[key], value)           # raises for a refused value
+    replay = yaml.safe_load((CONFIG / 'replay.yaml').read_text())
+    assert replay['perception_node']['ros__parameters']['publish_clock'] is True
+
+
+@pytest.mark.slow
+def test_replay_config_on_a_rig_of_video_files_strikes_every_ball(tmp_path):
+    from tt_perception.camera import load_rig
+
+    from tt_perception import synth
+
+    rig_path = synth.make_rig(str(tmp_path / 'calib'))
+    balls = [synth.incoming_ball(), synth.incoming_ball(speed=7.0, topspin_rps=20.0)]
+    frames, truth = synth.render_balls(load_rig(rig_path), balls, [0.0, 0.6], duration=1.2,
+                                       lead_in=0.1)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth)
+    with open(video_rig) as f:                 # synchronised cameras: no offset to estimate
+        text = f.read().replace('source: cam1.avi', 'source: cam1.avi\n  time_offset: 0.0')
+    with open(video_rig, 'w') as f:
+        f.write(text)
+    run = Bringup('--params-file', str(CONFIG / 'replay.yaml'), '--rig', video_rig, '--show')
+    try:
+        end = run.wait_for(r'end of the video files: \d+ frames, (\d+) states')
+        n_states = int(end.group(1))
+        shown = [run.wait_for(r'^bringup: ball \d+: bounce zone \d .* hit .* strike (\w+)',
+                              count=k + 1) for k in range(len(balls))]
+        code = run.stop()
+    finally:
+        run.kill()
+    assert code == 0, run.text
+    assert [m.group(1) for m in shown] == ['ok'] * len(balls), run.text
+    summary = re.search(r'\[prediction_node\] .*: (\d+) states, (\d+) predictions, (\d+) '
+                        r'dropped', run.text)
+    assert summary, run.text
+    received, predicted, dropped = (int(v) for v in summary.groups())
+    # Every state that reached prediction_node was predicted, none stale; the last few may
+    # still be on their way when SIGINT comes (the strike lines do not wait for them).
+    assert (predicted, dropped) == (received, 0) and received >= n_states - 3, run.text
+
+
+@pytest.mark.parametrize('preset', ['', '/some/profile.xml'])
+def test_env_sh_sets_the_large_image_profile_unless_one_is_set(preset):
+    import shutil
+
+    top = pathlib.Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if k != 'FASTRTPS_DEFAULT_PROFILES_FILE'}
+    if preset:
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = preset
+    script = 'set +u; . ./env.sh; echo "$FASTRTPS_DEFAULT_PROFILES_FILE"'
+    out = subprocess.run(['bash', '-c', script], cwd=top, env=env, capture_output=True,
+                         text=True, timeout=60)
+    profile = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else ''
+    if preset:
+        assert profile == preset
+    elif shutil.disk_usage('/dev/shm').free >= 1 << 30:
+        assert profile == str(top / 'install/tt_tools/share/tt_tools/config/'
+                                    'fastdds_large_messages.xml')
+    else:
+        assert profile == ''

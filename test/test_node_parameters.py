@@ -1,0 +1,156 @@
+"""Parameters of the live nodes (`ros2 run` processes): an integer where a float is expected is
+taken as that float; a wrong-typed or out-of-range value is refused with one line naming the
+parameter and its range, the node keeping the old value; at start-up the node exits 2 with
+that line and no traceback (issue 17 item 3).
+
+Each node runs in a namespace of its own; the test waits on services and futures, never on
+sleeps.
+"""
+
+import os
+import subprocess
+import uuid
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from tt_tools.procs import ProcessGroup, ros_env
+
+pytestmark = pytest.mark.graph
+
+TIMEOUT_S = 120.0
+
+
+def _tt_lines(stderr):
+    """stderr lines written by tt (not Fast DDS's own log lines)."""
+    return [line for line in stderr.splitlines() if line.strip() and 'RTPS_' not in line]
+
+
+class ParamClient:
+    """A parameter client of one live node, waiting on futures."""
+
+    def __init__(self, node_path):
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(f'ptest_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.client = AsyncParameterClient(self.node, node_path)
+        assert self.client.wait_for_services(timeout_sec=TIMEOUT_S), f'{node_path} not up'
+
+    def _wait(self, future):
+        self.executor.spin_until_future_complete(future, timeout_sec=TIMEOUT_S)
+        assert future.done()
+        return future.result()
+
+    def get(self, name):
+        value = self._wait(self.client.get_parameters([name])).values[0]
+        return value
+
+    def set(self, name, value):
+        return self._wait(self.client.set_parameters([Parameter(name, value=value)])).results[0]
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _node(group, package, executable, ns, *params):
+    args = ['ros2', 'run', package, executable, '--ros-args', '-r', f'__ns:={ns}']
+    for p in params:
+        args += ['-p', p]
+    return group.start(executable, args)
+
+
+def test_prediction_node_integers_for_floats_and_refused_values_keep_the_old(tmp_path):
+    assert os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST'
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    with ProcessGroup(str(tmp_path)) as group:
+        proc = _node(group, 'tt_prediction', 'prediction_node', ns, 'stale_after_s:=0',
+                     'max_rate_hz:=100', 'uncertainty:=false')
+        client = ParamClient(f'{ns}/prediction_node')
+        try:
+            value = client.get('stale_after_s')
+            assert (value.type, value.double_value) == (ParameterType.PARAMETER_DOUBLE, 0.0)
+            assert client.get('max_rate_hz').double_value == 100.0
+            # An integer at run time, as `ros2 param set ... stale_after_s 2` sends it.
+            assert client.set('stale_after_s', 2).successful
+            value = client.get('stale_after_s')
+            assert (value.type, value.double_value) == (ParameterType.PARAMETER_DOUBLE, 2.0)
+            # Out of the declared range [0, 60] s, and a string: refused, 2.0 kept.
+            for bad in (100.0, 'abc', True):
+                result = client.set('stale_after_s', bad)
+                assert not result.successful
+                assert '\n' not in result.reason
+                assert 'stale_after_s' in result.reason
+                assert '0' in result.reason and '60' in result.reason
+                assert client.get('stale_after_s').double_value == 2.0
+            # Read-only: refused with the parameter's name.
+            result = client.set('model_file', 'other.yaml')
+            assert not result.successful and 'model_file' in result.reason
+        finally:
+            client.close()
+        assert proc.poll() is None, 'prediction_node died on a parameter set'
+        assert group.stop('prediction_node') == 0
+
+
+def test_strike_node_refuses_a_bad_zone_and_crossed_reach_at_run_time(tmp_path):
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    with ProcessGroup(str(tmp_path)) as group:
+        proc = _node(group, 'tt_strike', 'strike_node', ns, 'max_racket_speed:=10',
+                     'in_zone_probability:=false')
+        client = ParamClient(f'{ns}/strike_node')
+        try:
+            value = client.get('max_racket_speed')
+            assert (value.type, value.double_value) == (ParameterType.PARAMETER_DOUBLE, 10.0)
+            result = client.set('target_zone', 12)
+            assert not result.successful
+            # rclpy's own range check words it: 'Parameter target_zone out of range. Min: 0,
+            # Max: 9, value: 12'.
+            assert 'target_zone' in result.reason and '9' in result.reason
+            assert '\n' not in result.reason
+            assert client.get('target_zone').integer_value == 5
+            assert client.set('target_zone', 3).successful
+            assert client.get('target_zone').integer_value == 3
+            # reach_z_max default 1.5 m: a minimum above it is refused.
+            result = client.set('reach_z_min', 1.8)
+            assert not result.successful and 'reach_z_min' in result.reason
+            assert client.get('reach_z_min').double_value == pytest.approx(-0.30)
+            # A point on the robot's half is not a target.
+            assert client.set('target_zone', 0).successful
+            result = client.set('target_point', [-0.7, 0.0])
+            assert not result.successful and 'target_point' in result.reason
+            assert list(client.get('target_point').double_array_value) == [0.7, 0.0]
+            # An integer list where floats are expected.
+            assert client.set('target_point', [1, 0]).successful
+            assert list(client.get('target_point').double_array_value) == [1.0, 0.0]
+        finally:
+            client.close()
+        assert proc.poll() is None
+        assert group.stop('strike_node') == 0
+
+
+@pytest.mark.parametrize('package, executable, param, words', [
+    ('tt_prediction', 'prediction_node', 'hit_plane_x:=-1500.0',
+     ['hit_plane_x', '-1500', '[-3, 0] m']),
+    ('tt_prediction', 'prediction_node', 'stale_after_s:=fast', ['stale_after_s', '[0, 60] s']),
+    ('tt_strike', 'strike_node', 'target_zone:=12', ['target_zone', '12', '[0, 9]']),
+    ('tt_strike', 'strike_node', 'reach_z_min:=2.0', ['reach_z_min', 'reach_z_max']),
+    ('tt_perception', 'perception_node', 'ball_colour:=red', ['ball_colour', 'orange']),
+])
+def test_a_bad_value_at_start_up_exits_2_with_one_line(package, executable, param, words):
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    proc = subprocess.run(['ros2', 'run', package, executable, '--ros-args', '-r',
+                           f'__ns:={ns}', '-p', param], capture_output=True, text=True,
+                          env=ros_env(), timeout=TIMEOUT_S, stdin=subprocess.DEVNULL)
+    lines = _tt_lines(proc.stderr)
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f'{executable}: ')
+    for word in words:
+        assert word in lines[0]
+    assert 'Traceback' not in proc.stderr + proc.stdout
