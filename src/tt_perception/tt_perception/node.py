@@ -76,7 +76,7 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('max_width', 30.0, 'Largest ball diameter in the image', 'pixels', 2, 1000),
     ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
      'pixels', 8, 2000),
-    ('pixel_sigma', 0.15, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
+    ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
     ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
