@@ -291,7 +291,14 @@ def test_a_bad_model_file_stops_the_node_with_a_one_line_reason(tmp_path):
 def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     env.pop(EXECUTOR_ENV, None)             # the default executor
-    proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node'], env=env,
+    # Topics of its own: a node on /ball/state would take the states of any other graph on
+    # this machine, and be stopped in the middle of their work (a flake check saw its path
+    # worker publish after the signal had shut the context down).
+    prefix = f'/sig{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    remap = ['--ros-args']
+    for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
+        remap += ['-r', f'{topic}:={prefix}{topic}']
+    proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node', *remap], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         # Started once it logs its topics (after compiling or loading the kernels).
