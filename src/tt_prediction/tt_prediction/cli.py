@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from .params import load_model
+from .ball import load_model
 from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))

@@ -81,9 +81,6 @@ def rk4_step(s, h, P, out, k1, k2, k3, k4, tmp):
         out[i] = s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-_rk4 = rk4_step     # the former name, still used inside this package by predict.py
-
-
 @njit(**_NJIT)
 def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     """Step length tau in (0, h] at which s[axis] (position) crosses level, state into out.
