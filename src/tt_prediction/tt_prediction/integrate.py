@@ -82,6 +82,33 @@ def rk4_step(s, h, P, out, k1, k2, k3, k4, tmp):
 
 
 @njit(**_NJIT)
+def rk4_advance(s, h, P):
+    """One RK4 step of eq. 8 of size ``h`` from ``s``, into a new array.
+
+    :func:`rk4_step` with its scratch arrays allocated here, for callers that take one step
+    at a time (a filter's prediction); loops keep theirs and call :func:`rk4_step`.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)], table frame, at the start of the step.
+    h : float
+        Step length, s.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+
+    Returns
+    -------
+    ndarray (9,)
+        The state after ``h`` s of free flight (no table contact).
+    """
+    out = np.empty(9)
+    work = np.empty((5, 9))
+    rk4_step(s, h, P, out, work[0], work[1], work[2], work[3], work[4])
+    return out
+
+
+@njit(**_NJIT)
 def _locate(s, h, g0, g1, axis, level, P, out, k1, k2, k3, k4, tmp):
     """Step length tau in (0, h] at which s[axis] (position) crosses level, state into out.
 
