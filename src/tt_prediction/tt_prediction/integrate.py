@@ -90,12 +90,9 @@ def rk4_advance(s, h, P):
 
     Parameters
     ----------
-    s : ndarray (9,)
-        State [p (m), v (m/s), w (rad/s)], table frame, at the start of the step.
-    h : float
-        Step length, s.
-    P : ndarray
-        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    s, h, P : ndarray (9,), float, ndarray
+        State [p (m), v (m/s), w (rad/s)] at the start, step length (s) and packed
+        parameters, as for :func:`rk4_step`.
 
     Returns
     -------
