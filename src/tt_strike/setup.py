@@ -1,5 +1,4 @@
-"""Build of the ROS 2 (ament_python) package; its metadata is declared in setup.cfg."""
-
 from setuptools import setup
 
-setup()
+# Metadata in setup.cfg; here what this package needs (the tt ones as in package.xml).
+setup(install_requires=['setuptools'])
