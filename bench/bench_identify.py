@@ -14,10 +14,10 @@ are given besides, as the machine's 2 cores are shared.
 
 import time
 
+from tt_prediction.ball import ModelParams
 from tt_prediction.identify import pipeline
 from tt_prediction.identify.blas import blas_threads
 from tt_prediction.identify.synthetic import make_tracks
-from tt_prediction.params import ModelParams
 
 N_TRACKS = 100
 TARGET_S = 60.0

@@ -46,7 +46,7 @@ import time
 import uuid
 
 import numpy as np
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 from tt_prediction.predict import predict, predict_batch
 from tt_prediction.reference import reference_predict
 from tt_prediction.uncertainty import predict_uncertainty

@@ -19,8 +19,8 @@ import sys
 import time
 
 import numpy as np
+from tt_prediction.ball import ModelParams
 from tt_prediction.ball_filter import FilterConfig, TrackFilter
-from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 from tt_prediction.replay import replay_samples
 from tt_prediction.tracks_cli import read_tracks

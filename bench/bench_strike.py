@@ -21,7 +21,7 @@ import pathlib
 import time
 
 import numpy as np
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 from tt_strike.evaluate_deepmind import hit_states, load_states
 from tt_strike.hitpoint import choose
 from tt_strike.robust import noise_covariance

@@ -19,12 +19,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
 from tt_perception.node import PerceptionNode
 from tt_perception.sources import camera_info_topic
+from tt_prediction.ball import zone_margin
 from tt_prediction.node import PredictionNode
 from tt_strike.node import StrikeNode
 from tt_tools.collector import TOPICS
 from tt_tools.recording import STAMP_BASE_S, ensure_recording, replay_publishers
 
-from tt_prediction import table
 from tt_tools import demo_report
 
 pytestmark = pytest.mark.graph
@@ -149,7 +149,7 @@ def test_predictions_before_the_bounce_name_the_true_bounce_zone(results):
         err = np.linalg.norm(last['bounce_p'][:2] - truth.bounce_point[:2])
         assert err <= 0.03, f'ball {ball.index}: bounce point off by {err * 1e3:.0f} mm'
         x, y = truth.bounce_point[:2]
-        if table.zone_margin(x, y, truth.bounce_zone, -1) > err:
+        if zone_margin(x, y, truth.bounce_zone, -1) > err:
             assert last['bounce_zone'] == truth.bounce_zone
 
 

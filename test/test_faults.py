@@ -14,8 +14,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
-from tt_prediction.integrate import rollout
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, rollout
 from tt_prediction.predict import predict
 from tt_tools.procs import ProcessGroup, wait_until
 

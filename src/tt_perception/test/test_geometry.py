@@ -6,8 +6,7 @@ import pytest
 from tt_perception.camera import CalibrationError, load_rig
 from tt_perception.estimator import BallFilter
 from tt_perception.triangulate import triangulate
-from tt_prediction.integrate import rollout
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, rollout
 import yaml
 
 from tt_perception import calibrate, synth

@@ -20,7 +20,7 @@ import sys
 
 import cv2
 import numpy as np
-from tt_prediction.table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
+from tt_prediction.ball import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
 
 from .camera import CalibrationError, load_rig, save_rig
 

@@ -23,7 +23,7 @@ import pathlib
 import sys
 
 import numpy as np
-from tt_prediction.params import load_model
+from tt_prediction.ball import load_model
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig

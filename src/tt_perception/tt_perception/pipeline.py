@@ -23,7 +23,7 @@ import dataclasses
 import itertools
 
 import numpy as np
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 
 from .detect import BallDetector, DetectorConfig
 from .estimator import BallFilter, FilterConfig

@@ -19,9 +19,14 @@ import os
 
 import cv2
 import numpy as np
-from tt_prediction.integrate import rollout
-from tt_prediction.params import ModelParams
-from tt_prediction.table import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
+from tt_prediction.ball import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    NET_HALF_WIDTH,
+    NET_HEIGHT,
+    ModelParams,
+    rollout,
+)
 
 from .camera import Camera, Rig, load_rig, look_at, save_camera_info, save_rig
 

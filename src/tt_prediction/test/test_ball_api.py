@@ -96,3 +96,17 @@ def test_the_interface_is_documented_with_numpydoc_sections():
             assert 'Attributes' in sections, name
         else:
             assert {'Parameters', 'Returns'} <= sections, name
+
+
+def test_rk4_advance_without_air_is_the_parabola_in_a_new_array():
+    # The allocating step (a filter's prediction): same closed form, input untouched.
+    params = NOMINAL.replace(c_d=0.0, c_m=0.0)
+    s = np.r_[0.5, -0.2, 0.4, -4.0, 1.0, 2.0, 50.0, 0.0, -80.0]
+    before = s.copy()
+    h = 0.01
+    out = ball.rk4_advance(s, h, params.packed())
+    g = params.gravity
+    np.testing.assert_allclose(out[:3], s[:3] + s[3:6] * h - [0, 0, 0.5 * g * h * h],
+                               atol=1e-14)
+    np.testing.assert_allclose(out[3:6], s[3:6] - [0, 0, g * h], atol=1e-14)
+    np.testing.assert_array_equal(s, before)

@@ -271,3 +271,22 @@ def test_blas_threads_are_limited_inside_and_restored_after():
     with blas_threads(1):
         assert [get() for _, get in pairs] == [1] * len(pairs)
     assert [get() for _, get in pairs] == before
+
+
+def test_both_readers_of_a_track_folder_take_the_same_files_and_errors(tmp_path):
+    # tt-identify (load) and the replay tools (read_tracks) list a folder the same way: the
+    # *.csv files but index.csv, sorted; an empty folder or a file is one DataError.
+    from tt_prediction.tracks_cli import read_tracks
+    track = 't,x,y,z\n0,0,0,0.3\n0.01,0.05,0,0.3\n0.02,0.1,0,0.3\n'
+    folder = _folder(tmp_path, {'b.csv': track, 'a.csv': track, 'notes.txt': 'x',
+                                'index.csv': 'file,wx,wy,wz\na.csv,0,0,100\n'})
+    assert [name for name, *_ in read_tracks(str(folder))] == ['a.csv', 'b.csv']
+    assert [tr.name for tr in load([str(folder)])] == ['data/a.csv', 'data/b.csv']
+    np.testing.assert_array_equal(read_tracks(str(folder))[0][3], [0.0, 0.0, 100.0])
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    for reader in (read_tracks, lambda f: load([f])):
+        with pytest.raises(DataError, match='no trajectory CSV files'):
+            reader(str(empty))
+    with pytest.raises(DataError, match='not a folder'):
+        read_tracks(str(folder / 'a.csv'))

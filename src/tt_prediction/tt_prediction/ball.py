@@ -15,11 +15,12 @@ Equations (MODEL.md, paper numbering):
 - :func:`table_rebound` / :func:`table_rebound_inplace`: eqs. 1-6.
 - :func:`racket_rebound` / :func:`racket_rebound_inplace`: eq. 7.
 
-Integration: :func:`rk4_step` (one step of eq. 8), :func:`rollout_kernel` (events: bounce,
-net, plane, floor, roll, timeout) and :func:`rollout` (its Python face), and the one landing
-kernel :func:`landing_kernel` (a ball leaving the racket until its first table contact) on
-predict.py's :func:`flight_kernel` / :func:`landing_flight` (one flight leg to its first
-contact, the table as a solid body: :func:`solid_gap`).
+Integration: :func:`rk4_step` (one step of eq. 8; :func:`rk4_advance` into a new array),
+:func:`rollout_kernel` (events: bounce, net, plane, floor, roll, timeout) and :func:`rollout`
+(its Python face), and the one landing kernel :func:`landing_kernel` (a ball leaving the
+racket until its first table contact) on predict.py's :func:`flight_kernel` /
+:func:`landing_flight` (one flight leg to its first contact, the table as a solid body:
+:func:`solid_gap`).
 """
 
 from .integrate import (
@@ -35,6 +36,7 @@ from .integrate import (
     STOP_AT_NET,
     STOP_AT_PLANE,
     Event,
+    rk4_advance,
     rk4_step,
     rollout,
     rollout_kernel,
@@ -145,7 +147,8 @@ __all__ = [
     'flight_derivative', 'flight_jacobian', 'flight_acceleration', 'table_rebound',
     'table_rebound_inplace', 'racket_rebound', 'racket_rebound_inplace',
     # integration
-    'rk4_step', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event', 'DEFAULT_STEP',
+    'rk4_step', 'rk4_advance', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event',
+    'DEFAULT_STEP',
     # the one flight kernel with the table as a body (predict.py): its result row and kinds
     'flight_kernel', 'landing_flight', 'solid_gap', 'packed_params', 'TOP_THICKNESS',
     'FLIGHT_N', 'FL_KIND', 'FL_T', 'FL_S', 'FL_NET_T', 'FL_NET_Y', 'FL_NET_Z', 'FL_CROSS_T',

@@ -54,7 +54,7 @@ from .ball import (
     ModelParams,
     flight_derivative,
     flight_jacobian,
-    rk4_step,
+    rk4_advance,
     table_rebound_inplace,
 )
 
@@ -217,13 +217,7 @@ def _propagate(x, C, h, P, q_acc, q_spin):
     flight_jacobian(x, P, F)
     Fh = F * h
     Phi = np.eye(9) + Fh + 0.5 * (Fh @ Fh)
-    out = np.empty(9)
-    k1 = np.empty(9)
-    k2 = np.empty(9)
-    k3 = np.empty(9)
-    k4 = np.empty(9)
-    tmp = np.empty(9)
-    rk4_step(x, h, P, out, k1, k2, k3, k4, tmp)
+    out = rk4_advance(x, h, P)
     Cn = Phi @ C @ Phi.T
     a = q_acc * h
     for i in range(3):

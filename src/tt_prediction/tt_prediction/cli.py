@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from .params import load_model
+from .ball import load_model
 from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
 from .units import ROOM_HALF_EXTENT_M, position_error
 

@@ -81,7 +81,28 @@ def rk4_step(s, h, P, out, k1, k2, k3, k4, tmp):
         out[i] = s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-_rk4 = rk4_step     # the former name, still used inside this package by predict.py
+@njit(**_NJIT)
+def rk4_advance(s, h, P):
+    """One RK4 step of eq. 8 of size ``h`` from ``s``, into a new array.
+
+    :func:`rk4_step` with its scratch arrays allocated here, for callers that take one step
+    at a time (a filter's prediction); loops keep theirs and call :func:`rk4_step`.
+
+    Parameters
+    ----------
+    s, h, P : ndarray (9,), float, ndarray
+        State [p (m), v (m/s), w (rad/s)] at the start, step length (s) and packed
+        parameters, as for :func:`rk4_step`.
+
+    Returns
+    -------
+    ndarray (9,)
+        The state after ``h`` s of free flight (no table contact).
+    """
+    out = np.empty(9)
+    work = np.empty((5, 9))
+    rk4_step(s, h, P, out, work[0], work[1], work[2], work[3], work[4])
+    return out
 
 
 @njit(**_NJIT)

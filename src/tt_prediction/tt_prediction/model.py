@@ -120,10 +120,9 @@ def flight_jacobian(s, P, out):
 
     Parameters
     ----------
-    s : ndarray (9,)
-        State [p (m), v (m/s), w (rad/s)], table frame.
-    P : ndarray
-        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+    s, P : ndarray (9,), ndarray
+        State [p (m), v (m/s), w (rad/s)] and packed parameters, as for
+        :func:`flight_derivative`.
     out : ndarray (9, 9)
         Receives d(ds/dt)/ds, rows and columns in the order of ``s``; each entry in the unit
         of its row's derivative over its column's state (e.g. 1/s for dv'/dv, m/(s rad) for

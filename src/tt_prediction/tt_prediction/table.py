@@ -119,10 +119,8 @@ def zone_margin(x, y, zone, half=1):
     ----------
     x, y : float
         Table-frame coordinates, m.
-    zone : int
-        Area 1..9.
-    half : int
-        +1 (opponent) or -1 (robot).
+    zone, half : int
+        Area 1..9 and table half (+1 opponent, -1 robot), as for :func:`zone_bounds`.
 
     Returns
     -------

@@ -24,7 +24,7 @@ import yaml
 
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
-from .identify.data import DataError, _read_index, read_track_csv
+from .identify.data import DataError, folder_tracks, read_track_csv
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
 
@@ -35,15 +35,7 @@ def read_tracks(folder):
     """Every track of ``folder`` as read, uncleaned: [(file name, t, p, spin or None)].
 
     Raises DataError (naming the file) for a folder or file that cannot be read."""
-    if not os.path.isdir(folder):
-        raise DataError(f'{folder}: not a folder of track CSV files')
-    try:
-        files = sorted(f for f in os.listdir(folder) if f.endswith('.csv') and f != 'index.csv')
-    except OSError as exc:
-        raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
-    if not files:
-        raise DataError(f'{folder}: no trajectory CSV files in the folder')
-    index = _read_index(folder)
+    files, index = folder_tracks(folder)
     tracks = []
     for name in files:
         path = os.path.join(folder, name)

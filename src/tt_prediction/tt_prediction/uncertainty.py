@@ -24,8 +24,8 @@ import dataclasses
 
 import numpy as np
 
+from .ball import HALF_LENGTH, HALF_WIDTH, ZONE_LENGTH, ZONE_WIDTH
 from .predict import DEFAULT_HIT_PLANE_X, OK, predict_batch
-from .table import HALF_LENGTH, HALF_WIDTH, ZONE_LENGTH, ZONE_WIDTH
 
 N_STATE = 9
 KAPPA = 1.0

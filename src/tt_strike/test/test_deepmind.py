@@ -6,7 +6,7 @@ import pathlib
 from judge_strokes import judge
 import numpy as np
 import pytest
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 from tt_strike.evaluate_deepmind import evaluate, evaluate_reach, load_states, main
 from tt_strike.solver import StrikeSettings
 from tt_strike.workspace import load_workspace

@@ -26,8 +26,7 @@ C. Racket moving at u = 5 n = (3, 0, 4); ball v = u + (y_r - 4 n) = (0.6, 1, 0.8
 from body_reference import rebound_racket_frame
 import numpy as np
 import pytest
-from tt_prediction.model import racket_rebound
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, racket_rebound
 
 RUBBER = ModelParams(k_p=1.35e-3, e_r=0.8)
 N = np.array([0.6, 0.0, 0.8])

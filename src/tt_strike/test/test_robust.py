@@ -4,8 +4,7 @@ forward model with random draws (issue 4: within 3 percentage points for sigma 2
 
 import numpy as np
 import pytest
-from tt_prediction.params import ModelParams
-from tt_prediction.table import zone_bounds
+from tt_prediction.ball import ModelParams, zone_bounds
 from tt_strike.incoming import hit_point
 from tt_strike.robust import (
     monte_carlo_in_zone,

@@ -9,10 +9,15 @@ import math
 
 import numpy as np
 import pytest
-from tt_prediction.integrate import rollout
-from tt_prediction.model import racket_rebound
-from tt_prediction.params import ModelParams
-from tt_prediction.table import NET_HEIGHT, zone_bounds, zone_centre, zone_of
+from tt_prediction.ball import (
+    NET_HEIGHT,
+    ModelParams,
+    racket_rebound,
+    rollout,
+    zone_bounds,
+    zone_centre,
+    zone_of,
+)
 from tt_strike.incoming import hit_point
 from tt_strike.solver import (
     StrikeSettings,

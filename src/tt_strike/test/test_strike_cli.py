@@ -6,10 +6,8 @@ import json
 import numpy as np
 import pytest
 from scipy.special import ndtr
-from tt_prediction.model import racket_rebound
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, racket_rebound, zone_bounds, zone_centre
 from tt_prediction.predict import predict_landing
-from tt_prediction.table import zone_bounds, zone_centre
 from tt_strike.cli import main
 from tt_strike.workspace import load_workspace
 

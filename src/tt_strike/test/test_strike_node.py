@@ -13,10 +13,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from tt_prediction.model import racket_rebound
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, racket_rebound, zone_centre
 from tt_prediction.predict import predict, predict_landing
-from tt_prediction.table import zone_centre
 from tt_ros.executor import StartupError
 from tt_strike.node import StrikeNode
 from tt_strike.workspace import load_workspace

@@ -6,7 +6,7 @@ import math
 from body_reference import replay_stroke
 import numpy as np
 import pytest
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 from tt_prediction.predict import predict
 from tt_strike.hitpoint import choose
 from tt_strike.workspace import TEMPLATE, Workspace, WorkspaceError, load_workspace

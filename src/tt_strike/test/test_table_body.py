@@ -12,8 +12,8 @@ import math
 from body_reference import first_contact
 import numpy as np
 import pytest
-from tt_prediction.params import ModelParams
-from tt_prediction.predict import predict, predict_landing, solid_gap
+from tt_prediction.ball import ModelParams, solid_gap
+from tt_prediction.predict import predict, predict_landing
 
 NO_AIR = ModelParams(c_d=0.0, c_m=0.0)
 R = 0.02

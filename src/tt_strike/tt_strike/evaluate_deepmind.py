@@ -78,13 +78,29 @@ def hit_states(states, serve, params, hit_plane_x=DEFAULT_HIT_PLANE_X):
     return hits, skipped
 
 
+def _solution_columns(solutions, zone, times):
+    """The table columns both evaluations share: of the feasible ``solutions`` for ``zone``,
+    how many land in it and their residual (mm) and racket speed (m/s); the median of all
+    solve ``times`` (s) in ms."""
+    residuals = [sol.residual for sol in solutions]
+    speeds = [float(np.linalg.norm(sol.racket_velocity)) for sol in solutions]
+    in_zone = sum(sol.landing_zone == zone for sol in solutions)
+    return {
+        'in_zone': in_zone,
+        'in_zone_share': in_zone / len(solutions) if solutions else float('nan'),
+        'residual_median_mm': float(np.median(residuals) * 1e3) if residuals else None,
+        'residual_max_mm': float(np.max(residuals) * 1e3) if residuals else None,
+        'racket_speed_median': float(np.median(speeds)) if speeds else None,
+        'solve_median_ms': float(np.median(times) * 1e3),
+    }
+
+
 def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
     """Per-zone counts: the table's rows and the skipped incoming balls by reason."""
     hits, skipped = hit_states(states, serve, params, hit_plane_x)
     rows = []
     for zone in range(1, 10):
-        feasible = in_zone = 0
-        residuals, speeds, times = [], [], []
+        solutions, times = [], []
         reasons = collections.Counter()
         for h in hits:
             t = time.perf_counter()
@@ -93,19 +109,12 @@ def evaluate(states, serve, params, settings, hit_plane_x=DEFAULT_HIT_PLANE_X):
             if not sol.feasible:
                 reasons[re.sub(r'-?\d+(\.\d+)?', '#', sol.reason)] += 1   # numbers out
                 continue
-            feasible += 1
-            in_zone += sol.landing_zone == zone
-            residuals.append(sol.residual)
-            speeds.append(float(np.linalg.norm(sol.racket_velocity)))
+            solutions.append(sol)
         n = len(hits)
         rows.append({
-            'zone': zone, 'balls': n, 'feasible': feasible,
-            'feasible_share': feasible / n if n else float('nan'),
-            'in_zone': in_zone, 'in_zone_share': in_zone / feasible if feasible else float('nan'),
-            'residual_median_mm': float(np.median(residuals) * 1e3) if residuals else None,
-            'residual_max_mm': float(np.max(residuals) * 1e3) if residuals else None,
-            'racket_speed_median': float(np.median(speeds)) if speeds else None,
-            'solve_median_ms': float(np.median(times) * 1e3),
+            'zone': zone, 'balls': n, 'feasible': len(solutions),
+            'feasible_share': len(solutions) / n if n else float('nan'),
+            **_solution_columns(solutions, zone, times),
             'infeasible_reasons': dict(reasons.most_common()),
         })
     return rows, dict(skipped), len(hits), hits
@@ -123,8 +132,7 @@ def evaluate_reach(states, serve, params, settings, workspace, strokes=None):
     rows = []
     for zone in range(1, 10):
         statuses, reasons = collections.Counter(), collections.Counter()
-        feasible = in_zone = 0
-        residuals, speeds, times, cpu = [], [], [], []
+        solutions, times, cpu = [], [], []
         for k, (s, is_serve) in enumerate(zip(states, serve, strict=True)):
             t, c = time.perf_counter(), time.thread_time()
             plan = choose(s, params, workspace, target_zone=zone, settings=settings,
@@ -137,10 +145,7 @@ def evaluate_reach(states, serve, params, settings, workspace, strokes=None):
                     reasons[re.sub(r'-?\d+(\.\d+)?', '#', plan.reason)] += 1
                 continue
             sol = plan.solution
-            feasible += 1
-            in_zone += sol.landing_zone == zone
-            residuals.append(sol.residual)
-            speeds.append(float(np.linalg.norm(sol.racket_velocity)))
+            solutions.append(sol)
             if strokes is not None:
                 strokes.append({'ball': k, 'zone': zone, 'hit': plan.hit.state.tolist(),
                                 'normal': sol.normal.tolist(),
@@ -149,13 +154,9 @@ def evaluate_reach(states, serve, params, settings, workspace, strokes=None):
         n = len(states)
         reachable = n - sum(statuses[k] for k in UNREACHABLE)
         rows.append({
-            'zone': zone, 'balls': n, 'reachable': reachable, 'feasible': feasible,
-            'feasible_share': feasible / reachable if reachable else float('nan'),
-            'in_zone': in_zone, 'in_zone_share': in_zone / feasible if feasible else float('nan'),
-            'residual_median_mm': float(np.median(residuals) * 1e3) if residuals else None,
-            'residual_max_mm': float(np.max(residuals) * 1e3) if residuals else None,
-            'racket_speed_median': float(np.median(speeds)) if speeds else None,
-            'solve_median_ms': float(np.median(times) * 1e3),
+            'zone': zone, 'balls': n, 'reachable': reachable, 'feasible': len(solutions),
+            'feasible_share': len(solutions) / reachable if reachable else float('nan'),
+            **_solution_columns(solutions, zone, times),
             'solve_cpu_median_ms': float(np.median(cpu) * 1e3),
             'statuses': dict(statuses.most_common()),
             'infeasible_reasons': dict(reasons.most_common()),

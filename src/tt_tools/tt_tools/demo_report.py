@@ -13,8 +13,14 @@ on the latest prediction and strike command stamped before then. Errors:
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from tt_prediction import table
+from tt_prediction.ball import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    NET_HALF_WIDTH,
+    NET_HEIGHT,
+    ZONE_LENGTH,
+    ZONE_WIDTH,
+)
 
 from .scenario import landing_after_stroke
 
@@ -138,15 +144,15 @@ def format_table(results, target_zone):
 def _draw_table(ax_top, ax_side):
     from matplotlib.patches import Rectangle
 
-    hl, hw = table.HALF_LENGTH, table.HALF_WIDTH
+    hl, hw = HALF_LENGTH, HALF_WIDTH
     ax_top.add_patch(Rectangle((-hl, -hw), 2 * hl, 2 * hw, fill=False, color='0.3'))
     for k in range(1, 3):
         for sign in (-1, 1):
-            ax_top.plot([sign * k * table.ZONE_LENGTH] * 2, [-hw, hw], color='0.8', lw=0.8)
-        ax_top.plot([-hl, hl], [hw - k * table.ZONE_WIDTH] * 2, color='0.8', lw=0.8)
-    ax_top.plot([0, 0], [-table.NET_HALF_WIDTH, table.NET_HALF_WIDTH], color='k', lw=2)
+            ax_top.plot([sign * k * ZONE_LENGTH] * 2, [-hw, hw], color='0.8', lw=0.8)
+        ax_top.plot([-hl, hl], [hw - k * ZONE_WIDTH] * 2, color='0.8', lw=0.8)
+    ax_top.plot([0, 0], [-NET_HALF_WIDTH, NET_HALF_WIDTH], color='k', lw=2)
     ax_side.plot([-hl, hl], [0, 0], color='0.3', lw=2)
-    ax_side.plot([0, 0], [0, table.NET_HEIGHT], color='k', lw=2)
+    ax_side.plot([0, 0], [0, NET_HEIGHT], color='k', lw=2)
 
 
 def plot(results, params, path):

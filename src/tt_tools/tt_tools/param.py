@@ -107,17 +107,24 @@ def _call(cli, client, request, timeout):
     return future.result()
 
 
-def _describe(cli, node_name, names, args):
-    client = _client(cli, node_name, DescribeParameters, args)
+def _per_name(cli, node_name, srv_type, field, names, args):
+    """The answer of ``srv_type`` (Describe/GetParameters) for ``names``: its ``field``, one
+    entry a name; None when the service gave no answer (said already)."""
+    client = _client(cli, node_name, srv_type, args)
     if client is None:
         return None
-    response = _call(cli, client, DescribeParameters.Request(names=names), args.timeout)
+    response = _call(cli, client, srv_type.Request(names=names), args.timeout)
     if response is None:
         return None
-    if len(response.descriptors) != len(names):  # rclpy answers nothing for undeclared ones
+    entries = getattr(response, field)
+    if len(entries) != len(names):  # rclpy answers nothing for undeclared ones
         raise ValueError(f"node '{node_name}' has no parameter "
                          + ' or '.join(repr(n) for n in names))
-    return response.descriptors
+    return entries
+
+
+def _describe(cli, node_name, names, args):
+    return _per_name(cli, node_name, DescribeParameters, 'descriptors', names, args)
 
 
 def param_list(args):
@@ -158,16 +165,7 @@ def param_list(args):
 
 
 def _get_values(cli, node_name, names, args):
-    client = _client(cli, node_name, GetParameters, args)
-    if client is None:
-        return None
-    response = _call(cli, client, GetParameters.Request(names=names), args.timeout)
-    if response is None:
-        return None
-    if len(response.values) != len(names):  # rclpy answers nothing for undeclared ones
-        raise ValueError(f"node '{node_name}' has no parameter "
-                         + ' or '.join(repr(n) for n in names))
-    return response.values
+    return _per_name(cli, node_name, GetParameters, 'values', names, args)
 
 
 def format_value(value):

@@ -24,7 +24,7 @@ import pathlib
 import shutil
 
 import numpy as np
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams
 
 from .scenario import Ball, demo_balls, fly
 

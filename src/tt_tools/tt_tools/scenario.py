@@ -7,12 +7,9 @@ rad/s, MODEL.md); times are seconds from the start of the recording.
 from dataclasses import dataclass
 
 import numpy as np
-from tt_prediction.integrate import rollout
-from tt_prediction.params import ModelParams
+from tt_prediction.ball import ModelParams, rollout, zone_of
 from tt_prediction.predict import predict
 from tt_strike.solver import forward
-
-from tt_prediction import table
 
 
 @dataclass
@@ -100,7 +97,7 @@ def landing_after_stroke(hit_state, hit_time, racket_normal, racket_velocity, pa
     point = stroke['landing']
     if point is None:
         return None, 0, 0, np.empty((0, 3))
-    zone, half = table.zone_of(point[0], point[1])
+    zone, half = zone_of(point[0], point[1])
     path = np.empty((0, 3))
     if path_points:
         state = np.concatenate([hit_state[:3], stroke['v_out'], stroke['w_out']])

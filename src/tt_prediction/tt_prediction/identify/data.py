@@ -147,16 +147,39 @@ def read_index(folder):
     return index
 
 
-_read_index = read_index     # the former private name (tracks_cli imports it)
+def folder_tracks(folder):
+    """The track CSV files of a trajectory folder, sorted, and its index.csv.
+
+    Parameters
+    ----------
+    folder : str
+        A folder of one CSV per track (t (s), x, y, z (m), table frame) and an optional
+        index.csv.
+
+    Returns
+    -------
+    files : list of str
+        The CSV file names (index.csv excluded).
+    index : dict
+        :func:`read_index` of the folder.
+
+    Raises DataError (naming the folder) for one that is not a folder, cannot be listed or
+    holds no track file.
+    """
+    if not os.path.isdir(folder):
+        raise DataError(f'{folder}: not a folder of track CSV files')
+    try:
+        files = sorted(f for f in os.listdir(folder) if f.endswith('.csv') and f != 'index.csv')
+    except OSError as exc:
+        raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
+    if not files:
+        raise DataError(f'{folder}: no trajectory CSV files in the folder')
+    return files, read_index(folder)
 
 
 def load_folder(folder):
     """All tracks of a trajectory folder (one CSV per track plus optional index.csv)."""
-    files = sorted(f for f in os.listdir(folder)
-                   if f.endswith('.csv') and f != 'index.csv')
-    if not files:
-        raise DataError(f'{folder}: no trajectory CSV files in the folder')
-    index = read_index(folder)
+    files, index = folder_tracks(folder)
     tracks = []
     for name in files:
         path = os.path.join(folder, name)
