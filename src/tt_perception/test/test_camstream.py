@@ -213,3 +213,13 @@ def test_detection_in_the_camera_thread_gives_the_same_states():
     bad = split.detect(1.0, 0, np.zeros((4, 4, 3), np.uint8))
     assert isinstance(bad, ValueError)
     assert split.process(1.0, 0, None, bad) == [] and 'frame size' in split.last_error
+
+
+def test_absent_device_is_retried_and_loses_nothing():
+    # A V4L2 camera that is not there: grab says so (-1) and why, and no frame counts as lost.
+    from tt_perception.camstream import open_v4l2
+
+    cam = open_v4l2('/dev/video_tt_absent', reopen_interval=0.0)
+    assert cam.grab() == -1 and cam.grab() == -1
+    assert 'cannot be opened' in cam.source.status
+    assert cam.retrieve() is None and cam.dropped == 0 and cam.take_dropped() == []

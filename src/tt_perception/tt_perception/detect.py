@@ -92,12 +92,7 @@ def _width_from_moments(cxx, cyy, cxy):
     return 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)
 
 
-def _width(cover, dx, dy):
-    """:func:`_width_from_moments` of a coverage image ``cover`` with offsets dx, dy from its
-    centroid."""
-    total = cover.sum()
-    return _width_from_moments((cover * dx * dx).sum() / total, (cover * dy * dy).sum() / total,
-                               (cover * dx * dy).sum() / total)
+_KERNEL3 = np.ones((3, 3), np.uint8)
 
 
 def _shadow(image, background):
@@ -233,32 +228,36 @@ class BallDetector:
         img = frame[ay:by, ax:bx].astype(np.float32)
         bg = self._bg_colour[ay:by, ax:bx]
         change = img - bg
-        strong = np.max(np.abs(change), axis=2) > self.config.silhouette_threshold
-        sil = (strong & ~_shadow(img, bg)).astype(np.uint8)
+        size = np.abs(change).max(axis=2)
+        sil = ((size > self.config.silhouette_threshold)
+               & (change.max(axis=2) >= 0.0)).astype(np.uint8)    # not darker in all three
         seed = np.zeros_like(sil)
         seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
         sil |= seed
         n, labels = cv2.connectedComponents(sil, connectivity=8)
         keep = np.unique(labels[(seed > 0) & (labels > 0)])
-        region = np.isin(labels, keep)
+        region = (labels == keep[0]) if len(keep) == 1 else np.isin(labels, keep)
         # Coverage: full inside the silhouette, the shaded side included; on its outline
         # (anti-aliased, blurred) the pixel's change over that of the ball's pixels next to it
         # (a mixed pixel changes in proportion to the part the ball covers, lit or shaded).
-        size = np.max(np.abs(change), axis=2)
         region = region.astype(np.uint8)
-        interior = cv2.erode(region, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        interior = cv2.erode(region, _KERNEL3, borderType=cv2.BORDER_REPLICATE)
         inner = interior.astype(np.float32)
         near_sum = cv2.boxFilter(size * inner, -1, (5, 5), normalize=False)
         near_n = cv2.boxFilter(inner, -1, (5, 5), normalize=False)
-        fallback = float(np.median(size[seed > 0]))
-        local = np.where(near_n > 0, near_sum / np.maximum(near_n, 1e-6), fallback)
-        cover = np.where(interior > 0, 1.0,
-                         np.where(region > 0, np.clip(size / np.maximum(local, 1e-6), 0.0, 1.0),
-                                  0.0))
-        ys, xs = np.mgrid[0:cover.shape[0], 0:cover.shape[1]]
-        total = cover.sum()
-        cu, cv = float((xs * cover).sum() / total), float((ys * cover).sum() / total)
-        return ax + cu, ay + cv, _width(cover, xs - cu, ys - cv)
+        outline = (region > 0) & (interior == 0)
+        cover = inner
+        if outline.any():
+            local = near_sum[outline]
+            n_near = near_n[outline]
+            fallback = float(np.median(size[seed > 0]))
+            local = np.where(n_near > 0, local / np.maximum(n_near, 1e-6), fallback)
+            cover[outline] = np.clip(size[outline] / np.maximum(local, 1e-6), 0.0, 1.0)
+        mom = cv2.moments(cover)
+        total = mom['m00']
+        cu, cv = mom['m10'] / total, mom['m01'] / total
+        return (ax + cu, ay + cv,
+                _width_from_moments(mom['mu20'] / total, mom['mu02'] / total, mom['mu11'] / total))
 
     def _hidden(self, frame, sub, x0, y0):
         """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
