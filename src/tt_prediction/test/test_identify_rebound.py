@@ -119,3 +119,28 @@ def test_a_parameter_fitted_at_its_plausible_bound_is_flagged():
 def ball_field(name):
     from tt_prediction.ball import FIELD
     return FIELD[name]
+
+
+def test_lift_coefficient_is_tested_only_where_bounces_separate_it_from_spin():
+    from tt_prediction.identify.effects import LIBRARY, applicable
+    (lift,) = [e for e in LIBRARY if e.name == 'lift_from_bounces']
+    assert lift.params == ('c_m',)
+    assert applicable(lift, n_bounces=20, n_spin=0) == ''
+    assert 'not separately identifiable' in applicable(lift, n_bounces=0, n_spin=0)
+    assert 'at least' in applicable(lift, n_bounces=3, n_spin=0)
+    # With measured spin the baseline fits C_M already (eq. 9).
+    assert 'baseline' in applicable(lift, n_bounces=20, n_spin=20)
+
+
+def test_planted_lift_coefficient_without_measured_spin_is_identified_through_the_bounce():
+    # Spin not measured: the flight sees only C_M w (eq. 8), the rebound sees w (eqs. 1-2),
+    # so tracks with a bounce separate them. The held-out fit must pay for C_M and move it
+    # from the nominal value at least half way to the planted one. (Whether it is selected
+    # also depends on prediction from the first 100 ms, which rests on the spin prior.)
+    true, nominal = 0.12, ModelParams().c_m
+    tracks = make_tracks(N_TRACKS, ModelParams(c_m=true), seed=1, spin_known=False)
+    result = identify(tracks, folds=FOLDS)
+    (entry,) = [e for e in result['effects_tested']
+                if e['name'] == 'lift_from_bounces' and e.get('round') == 1]
+    assert entry['pays']
+    assert abs(entry['params']['c_m'] - true) <= 0.5 * abs(true - nominal)

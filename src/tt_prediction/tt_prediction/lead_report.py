@@ -5,6 +5,8 @@
 model (the baseline) and with FILE (the model.yaml tt-identify selected), and writes into
 FOLDER: ``lead_time.png`` (median and p90 hit-point error against lead time, both models and
 the textbook refit), ``lead_time.md`` (the same numbers as a table) and ``lead_time.json``.
+When FOLDER holds tt-identify's ``report.md``, its "Hit-point error against lead time" section
+(the table and the plot) is written into it, replacing that section from an earlier run.
 """
 
 import argparse
@@ -91,15 +93,50 @@ def plot(result, path):
     plt.close(fig)
 
 
+SECTION_BEGIN = '<!-- lead_time: written by tt_prediction.lead_report -->'
+SECTION_END = '<!-- /lead_time -->'
+
+
+def _atomic_write(path, text):
+    tmp = path + '.tmp'
+    with open(tmp, 'w') as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def report_section(result):
+    """The markdown section for report.md: table, plot and a link to lead_time.md."""
+    return (f'{SECTION_BEGIN}\n## Hit-point error against lead time\n\n'
+            'Every track replayed through the live ball filter and predictor '
+            '(`tt-predict --tracks`), baseline (nominal) model against the final model.yaml; '
+            'also in [lead_time.md](lead_time.md) and lead_time.json.\n\n'
+            f'{table(result)}\n\n![lead time](lead_time.png)\n{SECTION_END}\n')
+
+
+def embed_in_report(report_path, section):
+    """Replace (or append) the lead-time section of tt-identify's report.md."""
+    with open(report_path) as f:
+        text = f.read()
+    begin, end = text.find(SECTION_BEGIN), text.find(SECTION_END)
+    if begin >= 0 and end > begin:
+        text = text[:begin] + section + text[end + len(SECTION_END):].lstrip('\n')
+    else:
+        text = text.rstrip('\n') + '\n\n' + section
+    _atomic_write(report_path, text)
+
+
 def write(result, folder):
-    """lead_time.png, lead_time.md and lead_time.json into ``folder``."""
+    """lead_time.png, lead_time.md and lead_time.json into ``folder``, and the section into
+    ``folder``/report.md when tt-identify wrote one there."""
     os.makedirs(folder, exist_ok=True)
     plot(result, os.path.join(folder, 'lead_time.png'))
-    with open(os.path.join(folder, 'lead_time.md'), 'w') as f:
-        f.write('# Hit-point error against lead time\n\n' + table(result)
-                + '\n\n![lead time](lead_time.png)\n')
-    with open(os.path.join(folder, 'lead_time.json'), 'w') as f:
-        json.dump(result, f, indent=2)
+    _atomic_write(os.path.join(folder, 'lead_time.md'),
+                  '# Hit-point error against lead time\n\n' + table(result)
+                  + '\n\n![lead time](lead_time.png)\n')
+    _atomic_write(os.path.join(folder, 'lead_time.json'), json.dumps(result, indent=2))
+    report = os.path.join(folder, 'report.md')
+    if os.path.isfile(report):
+        embed_in_report(report, report_section(result))
 
 
 def main(argv=None):

@@ -23,7 +23,9 @@ class Effect:
     params: tuple
     mechanism: str
     needs: str = ''
-    """'bounces' (table effects), 'spin' (measured spin), or '' (any flight data)."""
+    """'bounces' (table effects), 'spin' (measured spin), 'bounces_no_spin' (bounces and no
+    measured spin: C_M, which the baseline fits where spin is measured), or '' (any flight
+    data)."""
 
 
 MODEL_EFFECTS = tuple(Effect(e.name, e.slots, e.mechanism, e.needs) for e in EFFECTS)
@@ -35,6 +37,11 @@ LIBRARY = MODEL_EFFECTS + (
            needs='spin'),
     Effect('time_offset', (),
            'measurement time stamps lag the model clock by a constant'),
+    Effect('lift_from_bounces', ('c_m',),
+           'Magnus coefficient C_M differs from the nominal value; with spin not measured it '
+           "is told apart from each track's spin only by the table rebound, which turns the "
+           'spin itself (eqs. 1-2, r w) into velocity while the flight sees C_M w (eq. 8)',
+           needs='bounces_no_spin'),
     Effect('gravity_or_scale', ('gravity',),
            'gravity, or equivalently a position-scale error of the calibration '
            '(g_apparent = s g), differs from 9.8 m/s^2'),
@@ -74,6 +81,16 @@ def applicable(effect, n_bounces, n_spin):
     if effect.needs == 'bounces' and n_bounces < MIN_BOUNCES:
         return (f'{n_bounces} table bounces in the data, at least {MIN_BOUNCES} needed'
                 if n_bounces else 'no table bounce in the data')
+    if effect.needs == 'bounces_no_spin':
+        if n_spin:
+            return (f'measured spin on {n_spin} tracks: C_M is fitted in the baseline '
+                    '(eq. 9)')
+        if n_bounces < MIN_BOUNCES:
+            return (f'{n_bounces} table bounces in the data, at least {MIN_BOUNCES} needed: '
+                    'without measured spin only bounces separate C_M from spin'
+                    if n_bounces else 'no table bounce and no measured spin: C_M and spin '
+                                      'are not separately identifiable')
+        return ''
     if effect.needs == 'spin' and n_spin < MIN_SPIN_TRACKS:
         return (f'measured spin on {n_spin} tracks, at least {MIN_SPIN_TRACKS} needed'
                 if n_spin else 'no measured spin in the data (index.csv; estimated spin '

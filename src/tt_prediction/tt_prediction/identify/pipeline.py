@@ -84,7 +84,8 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
         paper['c_m'] = {'fixed': base.c_m, 'note': (
             'spin not measured: C_M and spin are not separately identifiable from a flight '
             '(the Magnus force is their product); C_M is fixed at the nominal value and each '
-            "track's spin is estimated jointly with its state")}
+            "track's spin is estimated jointly with its state; where the data bounce, the "
+            'rebound separates them and C_M is tested as the effect lift_from_bounces')}
         paper['spin_abs_rad_s'] = _mean_std(spins)
     return g_base, states, paper
 
