@@ -32,8 +32,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
+from tt_prediction.ball import load_model
 from tt_prediction.identify.blas import blas_threads
-from tt_prediction.params import load_model
 from tt_ros.executor import run_node
 from tt_ros.messages import set_time, set_xyz
 from tt_ros.parameters import Param, Parameters

@@ -26,7 +26,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
 
-from .params import load_model
+from .ball import load_model
 from .predict import DEFAULT_HIT_PLANE_X, predict
 from .uncertainty import predict_uncertainty
 from .units import ROOM_HALF_EXTENT_M, position_error
