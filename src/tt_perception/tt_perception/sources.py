@@ -22,6 +22,9 @@ import time
 import cv2
 import numpy as np
 
+SOURCE_KINDS = ('v4l2', 'file', 'topic')
+"""What :func:`source_kind` tells apart (docs/DEVELOPING.md: adding a camera source)."""
+
 VIDEO_EXTENSIONS = ('.avi', '.mp4', '.mkv', '.mov', '.webm', '.png', '.jpg', '.jpeg', '.bmp')
 
 
