@@ -28,7 +28,7 @@ from tt_tools.output import say
 
 SETTLE_MIN_S = 2.0
 SETTLE_QUIET_S = 1.0
-SETTLE_ALONE_S = 4.0
+SETTLE_ALONE_S = 8.0
 SETTLE_MAX_S = 15.0
 DISCOVERY_TOPIC = 'ros_discovery_info'
 """The DDS topic on which every ROS participant announces its nodes and their endpoints."""
