@@ -246,7 +246,7 @@ def test_echo_and_hz_say_what_they_wait_for(graph, procs, topic):
             f'waiting for a publisher on {misspelled} (none yet; known topics: ')
         # The suggestion needs discovery to have found the test's own publisher by then,
         # which a loaded machine may not have done: when there is one, it is the right topic.
-        assert "did you mean" not in said[0] or said[0].endswith(f"did you mean '{topic}'?")
+        assert 'did you mean' not in said[0] or said[0].endswith(f"did you mean '{topic}'?")
         assert proc.proc.poll() is None  # still waiting
         proc.signal(signal.SIGINT)
         assert proc.wait() == 0 and proc.stdout == ''
