@@ -141,15 +141,16 @@ def test_verbs_on_the_running_prediction_node(graph, procs, topic):
     assert node.proc.poll() is None, node.stderr
     graph.node.create_subscription(BallPrediction, prediction, lambda m: None,
                                    QoSProfile(depth=1))
-    info, ptype, tinfo, get, describe, set_int = run_all(
+    info, ptype, tinfo, get, describe = run_all(
         graph,
         ('node', 'info', f'/{name}'),
         ('topic', 'type', prediction),
         ('topic', 'info', prediction),
         ('param', 'get', f'/{name}', 'stale_after_s'),
         ('param', 'describe', f'/{name}', 'stale_after_s'),
-        ('param', 'set', f'/{name}', 'stale_after_s', '0'),
     )
+    # After the get (run side by side, a set could land before it).
+    (set_int,) = run_all(graph, ('param', 'set', f'/{name}', 'stale_after_s', '0'))
     lines = info[1].splitlines()
     assert info[0] == 0 and lines[0] == f'/{name}'
     sections = [line for line in lines if line.startswith('  ') and line.endswith(':')
