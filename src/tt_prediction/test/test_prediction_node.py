@@ -26,9 +26,11 @@ from tt_prediction.node import PredictionNode
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 from tt_ros.executor import EXECUTOR_ENV, StartupError, make_executor
+from tt_ros.testing import unique_prefix
 import yaml
 
 from tt_msgs.msg import BallPrediction, BallState
+from tt_ros import testing
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'prediction.yaml'
 GOOD = [1.6, 0.1, 0.3, -6.0, 0.0, 1.5, 0.0, 100.0, 0.0]
@@ -37,22 +39,21 @@ T0 = 1_000_000_000_000
 """The simulated time the test's /clock gives the node, ns."""
 
 
-class Graph:
+class Graph(testing.Graph):
     """A prediction node and a test node in one fresh context and executor."""
 
     def __init__(self, overrides=(), args=None):
-        self.prefix = f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context, args=args)
+        super().__init__(args=args)
+        self.prefix = unique_prefix()
         remap = ['--ros-args']
         for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers',
                       '/clock'):
             remap += ['-r', f'{topic}:={self.prefix}{topic}']
-        self.node = PredictionNode(
+        self.node = self.add(PredictionNode(
             context=self.context, cli_args=remap,
             parameter_overrides=[rclpy.parameter.Parameter('use_sim_time', value=True),
-                                 *overrides])
-        self.test = rclpy.create_node(f'test_{uuid.uuid4().hex[:6]}', context=self.context)
+                                 *overrides]))
+        self.test = self.create_node()
         self.clock_pub = self.test.create_publisher(
             Clock, f'{self.prefix}/clock',
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
@@ -63,9 +64,6 @@ class Graph:
                                       self.paths.append, 50)
         self.pub = self.test.create_publisher(BallState, f'{self.prefix}/ball/state',
                                               qos_profile_sensor_data)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.test)
         self.spin_until(lambda: self.pub.get_subscription_count() > 0
                         and self.clock_pub.get_subscription_count() > 0
                         and self.test.count_publishers(f'{self.prefix}/ball/prediction') > 0,
@@ -85,13 +83,6 @@ class Graph:
 
         self.spin_until(arrived, 10.0, f'the node clock at {t_ns} ns')
 
-    def spin_until(self, condition, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.02)
-
     def state(self, values, stamp_ns=T0, track_id=1, cov=COV):
         msg = BallState()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -101,12 +92,6 @@ class Graph:
         msg.covariance = np.asarray(cov, dtype=float).ravel().tolist()
         msg.track_id = track_id
         return msg
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.test.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 @pytest.fixture

@@ -2,26 +2,24 @@
 (no sleeps), topics remapped to names no other test on this machine uses."""
 
 import math
-import os
 import pathlib
-import time
-import uuid
 
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import ModelParams, racket_rebound, zone_centre
 from tt_prediction.predict import predict, predict_landing
 from tt_ros.executor import StartupError
+from tt_ros.testing import unique_prefix
 from tt_strike.node import StrikeNode
 from tt_strike.workspace import load_workspace
 from visualization_msgs.msg import MarkerArray
 import yaml
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
+from tt_ros import testing
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'strike.yaml'
 PARAMS = ModelParams()
@@ -30,13 +28,12 @@ RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 WORKSPACE = load_workspace()
 
 
-class Graph:
+class Graph(testing.Graph):
     """A strike node and a test node in one fresh context and executor."""
 
     def __init__(self, overrides=()):
-        self.prefix = f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context)
+        super().__init__()
+        self.prefix = unique_prefix()
         remap = ['--ros-args']
         # Simulated time from a /clock of this test's own: 0 until a test sets it, so that
         # the too-late check does not depend on how fast this machine runs the test.
@@ -44,9 +41,9 @@ class Graph:
         for topic in ('/ball/prediction', '/strike/target', '/strike/command', '/tt/markers',
                       '/clock'):
             remap += ['-r', f'{topic}:={self.prefix}{topic}']
-        self.node = StrikeNode(context=self.context, cli_args=remap,
-                               parameter_overrides=list(overrides))
-        self.test = rclpy.create_node(f'test_{uuid.uuid4().hex[:6]}', context=self.context)
+        self.node = self.add(StrikeNode(context=self.context, cli_args=remap,
+                                        parameter_overrides=list(overrides)))
+        self.test = self.create_node()
         self.commands, self.markers = [], []
         self.test.create_subscription(StrikeCommand, f'{self.prefix}/strike/command',
                                       self.commands.append, RELIABLE)
@@ -56,26 +53,10 @@ class Graph:
                                               RELIABLE)
         self.pub_target = self.test.create_publisher(StrikeTarget,
                                                      f'{self.prefix}/strike/target', RELIABLE)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.test)
         self.spin_until(lambda: self.pub.get_subscription_count() > 0
                         and self.pub_target.get_subscription_count() > 0
                         and self.test.count_publishers(f'{self.prefix}/strike/command') > 0,
                         10.0, 'discovery')
-
-    def spin_until(self, condition, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.02)
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.test.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def prediction_msg(track_id, state=INCOMING, hit_valid=True):

@@ -5,13 +5,12 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 import uuid
 
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from tt_tools.procs import ros_env
+
+from tt_ros import testing
 
 ROS2 = [sys.executable, '-m', 'tt_tools.ros2']
 
@@ -80,35 +79,18 @@ def ros2(*args, timeout=60, env=None):
     return rc, proc.stdout, proc.stderr
 
 
-class Graph:
+class Graph(testing.Graph):
     """A node in a fresh rclpy Context, spun by the test itself."""
 
     def __init__(self, domain_id=None):
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node(f'tt_tools_test_{uuid.uuid4().hex[:8]}',
-                                      context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, condition, timeout, what):
-        """Spin until ``condition()``; TimeoutError naming ``what`` after ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.02)
+        super().__init__(domain_id=domain_id)
+        self.node = self.create_node('tt_tools_test')
 
     def node_running(self, proc):
         """True when the ros2 subprocess ``proc`` has its node in the graph."""
         suffix = f'_{proc.proc.pid}'
         return any(name.startswith('_ros2cli_') and name.endswith(suffix)
                    for name in self.node.get_node_names())
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 @pytest.fixture

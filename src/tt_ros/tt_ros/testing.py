@@ -1,0 +1,58 @@
+"""A ROS graph inside a test process, for the tests of every tt package.
+
+:class:`Graph` gives a test its own rclpy Context and executor, and spins them until a
+condition holds: tests wait on what they check (a count, a message), never on a sleep. It
+never imports pytest; each package's tests wrap it in their own fixtures.
+"""
+
+import os
+import time
+import uuid
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+
+
+def unique_prefix():
+    """A topic prefix (``/t<pid>_<random>``) no other test on this machine uses."""
+    return f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
+
+
+class Graph:
+    """Nodes in one fresh rclpy Context, spun by the test itself.
+
+    ``args`` and ``domain_id`` go to ``rclpy.init``. Nodes given to :meth:`add` are spun by
+    :meth:`spin_until` and destroyed by :meth:`close`.
+    """
+
+    def __init__(self, args=None, domain_id=None):
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, args=args, domain_id=domain_id)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes = []
+
+    def add(self, node):
+        """Spin ``node`` with the others; returns it."""
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def create_node(self, prefix='test'):
+        """A plain node with a unique name (``<prefix>_<random>``), added to the graph."""
+        return self.add(rclpy.create_node(f'{prefix}_{uuid.uuid4().hex[:8]}',
+                                          context=self.context))
+
+    def spin_until(self, condition, timeout, what):
+        """Spin until ``condition()``; TimeoutError naming ``what`` after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def close(self):
+        """Destroy the nodes and shut the context down."""
+        self.executor.shutdown()
+        for node in self.nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
