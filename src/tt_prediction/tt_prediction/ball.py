@@ -23,6 +23,7 @@ racket until its first table contact) on predict.py's :func:`flight_kernel` /
 :func:`solid_gap`).
 """
 
+from . import params as _params
 from .integrate import (
     DEFAULT_STEP,
     EVENT_BOUNCE,
@@ -56,31 +57,9 @@ from .params import (
     EFFECTS,
     FIELD,
     FIELDS,
-    I_AREA,
-    I_CD,
-    I_CD_SLOPE,
-    I_CD_SPIN_SLOPE,
-    I_CM,
-    I_CM_SLOPE,
-    I_ER,
-    I_ET,
-    I_ET_SLOPE,
-    I_ET_SPIN_SLOPE,
-    I_ET_TANGENTIAL,
-    I_GRAVITY,
-    I_KP,
-    I_MASS,
-    I_MU,
-    I_MU_SLIP_SLOPE,
-    I_MU_SLOPE,
-    I_RADIUS,
-    I_RHO,
-    I_SPIN_DECAY,
-    I_WIND_X,
-    I_WIND_Y,
-    I_WIND_Z,
     IMPACT_SPEED_REF,
     INDEX,
+    INDEX_NAMES,
     LIFT_SPIN_RATIO_REF,
     N_PACKED,
     PACKED_FIELDS,
@@ -134,15 +113,15 @@ from .table import (
     zone_of,
 )
 
+# The index constants I_MASS, I_RADIUS, ... of params.py, exported under the same names.
+globals().update({name: getattr(_params, name) for name in INDEX_NAMES})
+
 __all__ = [
     # parameters: the declaration, the typed structure, the packed layout
     'FIELDS', 'EFFECTS', 'FIELD', 'Field', 'Effect', 'ModelParams', 'load_model',
-    'PACKED_FIELDS', 'INDEX', 'N_PACKED', 'SLOT_BOUNDS', 'EFFECT_FIELDS',
+    'PACKED_FIELDS', 'INDEX', 'INDEX_NAMES', 'N_PACKED', 'SLOT_BOUNDS', 'EFFECT_FIELDS',
     'DRAG_SPEED_REF', 'LIFT_SPIN_RATIO_REF', 'IMPACT_SPEED_REF', 'SLIP_SPEED_REF',
-    'I_AREA', 'I_CD', 'I_CD_SLOPE', 'I_CD_SPIN_SLOPE', 'I_CM', 'I_CM_SLOPE', 'I_ER', 'I_ET',
-    'I_ET_SLOPE', 'I_ET_SPIN_SLOPE', 'I_ET_TANGENTIAL', 'I_GRAVITY', 'I_KP', 'I_MASS', 'I_MU',
-    'I_MU_SLIP_SLOPE', 'I_MU_SLOPE', 'I_RADIUS', 'I_RHO', 'I_SPIN_DECAY', 'I_WIND_X',
-    'I_WIND_Y', 'I_WIND_Z',
+    *INDEX_NAMES,   # I_MASS, I_RADIUS, ...: slots of the packed array (params.py)
     # equations
     'flight_derivative', 'flight_jacobian', 'flight_acceleration', 'table_rebound',
     'table_rebound_inplace', 'racket_rebound', 'racket_rebound_inplace',

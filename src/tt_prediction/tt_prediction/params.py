@@ -256,6 +256,8 @@ I_CD_SPIN_SLOPE = INDEX['c_d_spin_ratio_slope']
 I_ET_TANGENTIAL = INDEX['e_t_tangential']
 I_ET_SPIN_SLOPE = INDEX['e_t_spin_slope']
 I_MU_SLIP_SLOPE = INDEX['mu_slip_slope']
+INDEX_NAMES = tuple(name for name in dir() if name.startswith('I_'))
+"""The names of the index constants above (tt_prediction.ball exports them)."""
 
 
 def _check_declaration():
