@@ -15,9 +15,7 @@ import dataclasses
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 
 import numpy as np
 import yaml
@@ -27,6 +25,7 @@ from .ball_filter import FilterConfig, estimate_measurement_noise
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
+from .staged import staged_folder
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
 
@@ -98,24 +97,11 @@ def write_rows(path, rows):
 
 def write_output(out_dir, replays, summary):
     """Write the rows and summary.json into a temporary folder, then move them into place."""
-    out_dir = os.path.abspath(out_dir)
-    parent = os.path.dirname(out_dir)
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix='.tt-predict-', dir=parent)
-    try:
+    with staged_folder(out_dir, 'tt-predict', replace_folder=False) as tmp:
         for rp in replays:
             write_rows(os.path.join(tmp, rp.name), rp.rows)
         with open(os.path.join(tmp, 'summary.json'), 'w') as f:
             json.dump(summary, f, indent=2)
-        if not os.path.exists(out_dir):
-            os.rename(tmp, out_dir)
-            return
-        for name in os.listdir(tmp):
-            os.replace(os.path.join(tmp, name), os.path.join(out_dir, name))
-        os.rmdir(tmp)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def main(argv=None):

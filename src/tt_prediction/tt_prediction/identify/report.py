@@ -6,12 +6,11 @@ end, so an interrupted or failed run never leaves a half-written report that loo
 
 import json
 import os
-import shutil
-import tempfile
 
 import matplotlib
 import numpy as np
 
+from ..staged import staged_folder
 from .diagnose import binned
 
 matplotlib.use('Agg')
@@ -23,11 +22,7 @@ PLOTS = ('residual_vs_time.png', 'residual_acceleration.png', 'landing_errors.pn
 
 def write_outputs(result, out_dir, sources):
     """Write the report of ``result`` (pipeline.identify) atomically into ``out_dir``."""
-    out_dir = os.path.abspath(out_dir)
-    parent = os.path.dirname(out_dir)
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix='.tt-identify-', dir=parent)
-    try:
+    with staged_folder(out_dir, 'tt-identify', replace_folder=True) as tmp:
         public = {k: v for k, v in result.items() if not k.startswith('_')}
         public['sources'] = list(sources)
         with open(os.path.join(tmp, 'report.json'), 'w') as f:
@@ -38,16 +33,6 @@ def write_outputs(result, out_dir, sources):
         plot_all(result, tmp)
         with open(os.path.join(tmp, 'report.md'), 'w') as f:
             f.write(markdown(public))
-        old = None
-        if os.path.exists(out_dir):
-            old = tempfile.mkdtemp(prefix='.tt-identify-old-', dir=parent)
-            os.rename(out_dir, os.path.join(old, 'report'))
-        os.rename(tmp, out_dir)
-        if old:
-            shutil.rmtree(old)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def _fmt(value, nd=3):
