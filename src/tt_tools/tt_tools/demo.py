@@ -63,6 +63,19 @@ def say(text):
     print(f'tt-demo [{time.monotonic() - STARTED:5.1f} s]: {text}', flush=True)
 
 
+def finish(group, collector, log_dir):
+    """Wait until the outputs go quiet (the last frames are still in the pipeline when the
+    input ends), then stop the recorder and the nodes; a bad exit is a warning."""
+    wait_until(lambda: collector.spin_once() or collector.quiet_for(2.0), 60.0,
+               'the graph to finish the last ball')
+    say('outputs quiet; stopping the recorder and the nodes')
+    for name in ('record', 'strike', 'prediction', 'perception'):
+        code = group.stop(name)
+        if code not in (0, -2, 130):
+            print(f'tt-demo: warning: {name} exited with {code} (see {log_dir}/{name}.log)',
+                  file=sys.stderr)
+
+
 def run_graph_video(rec, session, log_dir, args, collector):
     """The robot's configuration: prediction, strike and the recorder first, then perception
     reading the two videos as cameras (paced at their fps times ``--rate``, live wall-clock
@@ -108,14 +121,7 @@ def run_graph_video(rec, session, log_dir, args, collector):
         wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == '2', 600.0,
                    f'perception to play the videos (see {log_dir}/perception.log)')
         say('videos done')
-        wait_until(lambda: collector.spin_once() or collector.quiet_for(2.0), 60.0,
-                   'the graph to finish the last ball')
-        say('outputs quiet; stopping the recorder and the nodes')
-        for name in ('record', 'strike', 'prediction', 'perception'):
-            code = group.stop(name)
-            if code not in (0, -2, 130):
-                print(f'tt-demo: warning: {name} exited with {code} (see {log_dir}/{name}.log)',
-                      file=sys.stderr)
+        finish(group, collector, log_dir)
     start = float(diags['video_start_wall_s'])
     return (start if live else 0.0), diags
 
@@ -145,15 +151,7 @@ def run_graph(recording, session, log_dir, args, collector):
             raise RuntimeError(f'ros2 bag play failed (exit {player.returncode}), see '
                                f'{log_dir}/play.log')
         say('replay done')
-        # The last frames are still in the pipeline: wait until the outputs go quiet.
-        wait_until(lambda: collector.spin_once() or collector.quiet_for(2.0), 60.0,
-                   'the graph to finish the last ball')
-        say('outputs quiet; stopping the recorder and the nodes')
-        for name in ('record', 'strike', 'prediction', 'perception'):
-            code = group.stop(name)
-            if code not in (0, -2, 130):
-                print(f'tt-demo: warning: {name} exited with {code} (see {log_dir}/{name}.log)',
-                      file=sys.stderr)
+        finish(group, collector, log_dir)
 
 
 def show_bag_info(session):
