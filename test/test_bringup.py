@@ -190,11 +190,8 @@ def test_replay_config_on_a_rig_of_video_files_strikes_every_ball(tmp_path):
     balls = [synth.incoming_ball(), synth.incoming_ball(speed=7.0, topspin_rps=20.0)]
     frames, truth = synth.render_balls(load_rig(rig_path), balls, [0.0, 0.6], duration=1.2,
                                        lead_in=0.1)
-    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth)
-    with open(video_rig) as f:                 # synchronised cameras: no offset to estimate
-        text = f.read().replace('source: cam1.avi', 'source: cam1.avi\n  time_offset: 0.0')
-    with open(video_rig, 'w') as f:
-        f.write(text)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
+                                  time_offset=0.0)   # synchronised: no offset to estimate
     run = Bringup('--params-file', str(CONFIG / 'replay.yaml'), '--rig', video_rig, '--show')
     try:
         end = run.wait_for(r'end of the video files: \d+ frames, (\d+) states')

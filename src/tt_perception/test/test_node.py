@@ -16,8 +16,6 @@ from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 import pytest
 import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
@@ -27,6 +25,7 @@ from tt_perception.node import PerceptionNode
 from tt_msgs.msg import BallState
 from tt_perception import node as node_module
 from tt_perception import synth
+from tt_ros import testing
 
 T0 = 1000.0      # stamp of the scene's time 0, s
 
@@ -39,22 +38,9 @@ def unique_topics():
 
 @pytest.fixture
 def graph():
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(uuid.uuid4().int % 100) + 1)
-    executor = SingleThreadedExecutor(context=ctx)
-    nodes = []
-
-    def add(node):
-        nodes.append(node)
-        executor.add_node(node)
-        return node
-
-    yield ctx, executor, add
-    for node in nodes:
-        executor.remove_node(node)
-        node.destroy_node()
-    executor.shutdown()
-    rclpy.shutdown(context=ctx)
+    g = testing.Graph(domain_id=int(uuid.uuid4().int % 100) + 1)
+    yield g.context, g.executor, g.add
+    g.close()
 
 
 def spin_until(executor, condition, timeout=5.0):
@@ -244,11 +230,8 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
     rig_path = synth.make_rig(str(tmp_path / 'calib'))
     frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
                                        duration=0.4, lead_in=0.1)
-    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth)
-    with open(video_rig) as f:                 # synchronised cameras: no offset to estimate
-        text = f.read().replace('source: cam1.avi', 'source: cam1.avi\n  time_offset: 0.0')
-    with open(video_rig, 'w') as f:
-        f.write(text)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
+                                  time_offset=0.0)   # synchronised: no offset to estimate
     n_frames = sum(1 for _ in synth.render_balls(load_rig(rig_path), [], [], duration=0.4,
                                                  lead_in=0.1)[0])
     got = []

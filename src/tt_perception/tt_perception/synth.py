@@ -393,14 +393,17 @@ def _sensor(frame, noise, rng):
     return cv2.imdecode(data, cv2.IMREAD_COLOR)
 
 
-def write_scene(directory, rig_path, frames, truth, fmt='avi'):
+def write_scene(directory, rig_path, frames, truth, fmt='avi', time_offset=None):
     """Write rendered frames to one video (``fmt='avi'``, MJPG) or PNG sequence per camera.
 
     The rig file at ``rig_path`` is rewritten with each camera's source pointing at its file
     (relative), and ``truth.csv`` (columns ``ball,t,x,y,z,vx,vy,vz,wx,wy,wz``) is written next
-    to it. Returns the rig path.
+    to it. ``time_offset`` (s), when given, is written as the second camera's known offset
+    (0.0: synchronised cameras, nothing to estimate). Returns the rig path.
     """
     rig = load_rig(rig_path)
+    if time_offset is not None:
+        rig.cameras[1].time_offset = float(time_offset)
     os.makedirs(directory, exist_ok=True)
     writers = {}
     counters = {}
