@@ -207,3 +207,14 @@ def test_predict_many_is_predict_row_by_row_with_the_reasons(parallel):
     assert many[3].reason == check_state(states[3]) and 'at rest' in many[3].reason
     assert many[7].status == 'invalid' and 'below the table' in many[7].reason
     assert sum(p.status == 'ok' for p in many) >= 20
+
+
+def test_hit_path_rows_are_the_flight_after_the_bounce_also_when_a_path_is_asked_for():
+    # hit_path: rows [t, p, v, w] after the bounce on the robot's half (10 columns); asking for
+    # the drawn path (path_dt) as well must not change them into path samples.
+    both = predict(GOOD, hit_path=True, path_dt=0.02)
+    alone = predict(GOOD, hit_path=True)
+    assert both.status == 'ok' and both.hit_path.shape[1] == 10 and len(both.hit_path) > 10
+    np.testing.assert_array_equal(both.hit_path, alone.hit_path)
+    assert both.hit_path[0, 0] >= both.bounce.t         # after the bounce
+    assert np.all(np.diff(both.hit_path[:, 0]) > 0.0) and both.path.shape[1] == 3

@@ -719,19 +719,20 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
                           explanation=f'hit_plane_x is not finite: {hit_plane_x}')
     s0 = _lifted(state9, P[I_RADIUS])
     out = np.empty(_N_OUT)
-    samples = np.empty((int(T_MAX / STEP) + 2 if hit_path else 0, 10))
-    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), samples, out)
+    hit_rows = np.empty((int(T_MAX / STEP) + 2 if hit_path else 0, 10))
+    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), hit_rows, out)
     path = None
     if path_dt:
         # The path from the integrator's rollout (rebounds included), up to the stop.
         sample_t = float(t0) + np.arange(0.0, T_MAX, float(path_dt))
         sample_t = sample_t[sample_t <= out[_O_STOP_T]]
-        _, samples = rollout(s0, P, t0=float(t0), t_max=float(t0) + T_MAX, stop_at_plane=False,
-                             stop_at_net=False, max_bounces=3, sample_times=sample_t, dt=STEP)
-        path = samples[np.isfinite(samples[:, 0]), :3]
+        _, path_rows = rollout(s0, P, t0=float(t0), t_max=float(t0) + T_MAX,
+                               stop_at_plane=False, stop_at_net=False, max_bounces=3,
+                               sample_times=sample_t, dt=STEP)
+        path = path_rows[np.isfinite(path_rows[:, 0]), :3]
     pred = _to_prediction(out, hit_plane_x, path=path)
     if hit_path:
-        pred.hit_path = samples[:int(out[_O_N_PATH])].copy()
+        pred.hit_path = hit_rows[:int(out[_O_N_PATH])].copy()
     return pred
 
 
