@@ -67,6 +67,18 @@ def test_tt_identify_refuses_a_track_in_millimetres(tmp_path):
     assert not (tmp_path / 'out').exists() or not any((tmp_path / 'out').iterdir())
 
 
+def test_tt_predict_tracks_refuses_a_track_in_millimetres(tmp_path):
+    data = tmp_path / 'tracks'
+    data.mkdir()
+    t = np.arange(10) / 100.0
+    rows = ['t,x,y,z'] + [f'{ti},{1600 - 6000 * ti},{100},{300 + 1000 * ti}' for ti in t]
+    (data / 'track1.csv').write_text('\n'.join(rows) + '\n')
+    code, _, err = _run(['tt-predict', '--tracks', str(data), '--out', str(tmp_path / 'out')])
+    assert code == 2 and len(err) == 1, err
+    assert f'{data / "track1.csv"}: x, y, z = [1600, 100, 300]' in err[0]
+    assert not (tmp_path / 'out').exists()
+
+
 def _rig_in_mm(tmp_path):
     from tt_perception import synth
 

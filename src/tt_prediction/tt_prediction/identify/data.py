@@ -50,8 +50,9 @@ def clean_samples(name, t, p):
     Returns ``(t, p, notes)`` with the number of rows affected by each step.
     """
     notes = {}
-    if position_error(p, 'x, y, z'):
-        raise DataError(f'{name}: {position_error(p, "x, y, z")}')
+    reason = position_error(p, 'x, y, z')
+    if reason:
+        raise DataError(f'{name}: {reason}')
     finite = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     if not finite.all():
         notes['non_finite_rows'] = int((~finite).sum())
@@ -99,6 +100,9 @@ def read_track_csv(path):
             except ValueError:
                 raise DataError(f"{path}: line {i + 2}, column '{header[j]}': "
                                 f"'{row[j]}' is not a number") from None
+    reason = position_error(values[:, 1:4], 'x, y, z')      # e.g. millimetres, not metres
+    if reason:
+        raise DataError(f'{path}: {reason}')
     return values[:, 0], values[:, 1:4]
 
 
