@@ -224,6 +224,25 @@ def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
             proc.kill()
 
 
+def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, tmp_path):
+    # Lossless reading (video_rate 0) waits for every camera's next frame to keep time order;
+    # a camera whose file is missing has ended before its first frame and is not waited for:
+    # every frame of the other file is processed and the node says the files have ended.
+    ctx, executor, add = graph
+    rig_path = synth.make_rig(str(tmp_path / 'calib'))
+    frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
+                                       duration=0.4, lead_in=0.1)
+    frames = list(frames)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
+                                  time_offset=0.0)
+    os.remove(tmp_path / 'video' / 'cam1.avi')
+    node = add(PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=video_rig), Parameter('video_rate', value=0.0),
+        Parameter('frame_queue', value=2)]))
+    assert spin_until(executor, lambda: node._ended >= {0, 1}, timeout=60.0), node._ended
+    assert node.frames_received == sum(1 for _, k, _ in frames if k == 0)
+
+
 def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
     ctx, executor, add = graph
     _, _, state_topic = unique_topics()

@@ -45,6 +45,7 @@ from .camstream import (
     END,
     CameraReader,
     DropCounter,
+    Frame,
     FrameQueue,
     LatencyWindow,
     MonotonicClock,
@@ -335,6 +336,8 @@ class PerceptionNode(Node):
                                           start=start, rate=self._p('video_rate')).open()
             except OSError as exc:
                 self.get_logger().error(f'camera {cam.name}: {exc}')
+                # Ended before its first frame: the other cameras are not held back for it.
+                self.frames_queue.put(Frame(k, -1, float('nan'), None, kind=END))
                 continue
             t0 = self._video_start if self._wall_stamps else 0.0
             if self._t_ref is None:
