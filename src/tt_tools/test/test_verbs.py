@@ -163,12 +163,16 @@ def test_verbs_on_the_running_prediction_node(graph, procs, topic):
     assert f'    {prediction}: tt_msgs/msg/BallPrediction' in publishers
     assert f'    /{name}/get_parameters: rcl_interfaces/srv/GetParameters' in lines
     assert ptype == (0, 'tt_msgs/msg/BallPrediction\n', ptype[2])
-    for _ in range(3):  # a new process can settle before it has seen this test's own reader
-        if tinfo[1].splitlines()[2:] == ['Subscription count: 1']:
+    # Five new processes discovering the graph side by side on a loaded machine: a lost
+    # discovery announcement is repaired only at a later DDS heartbeat (seconds), after the
+    # verb may have settled. Asked again (at most 3 times) when an endpoint is missing.
+    expected = ['Type: tt_msgs/msg/BallPrediction', 'Publisher count: 1',
+                'Subscription count: 1']
+    for _ in range(3):
+        if tinfo[1].splitlines() == expected:
             break
         (tinfo,) = run_all(graph, ('topic', 'info', prediction))
-    assert tinfo[0] == 0 and tinfo[1].splitlines() == [
-        'Type: tt_msgs/msg/BallPrediction', 'Publisher count: 1', 'Subscription count: 1']
+    assert tinfo[0] == 0 and tinfo[1].splitlines() == expected
     assert get == (0, 'Double value is: 0.5\n', get[2])  # the documented default
     assert describe[0] == 0 and '  Type: double' in describe[1].splitlines()
     assert set_int[:2] == (0, 'Set parameter successful\n'), set_int[2]
