@@ -355,8 +355,6 @@ class PerceptionNode(Node):
     def _detect(self, k, stamp, image):
         """Camera ``k``'s ball detection, in its own thread (the search window from the
         track as the processing thread last left it)."""
-        if image is None:
-            return ValueError('no frame')
         return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot)
 
     def _reader_error(self, k, exc):

@@ -29,6 +29,9 @@ from .detect import BallDetector, DetectorConfig
 from .estimator import BallFilter, FilterConfig
 from .triangulate import refine, triangulate
 
+LIVE = object()
+"""``snapshot`` default: read the running filter (only the processing thread may)."""
+
 
 @dataclasses.dataclass
 class BallEstimate:
@@ -157,10 +160,11 @@ class Tracker:
     def active(self):
         return self.filter is not None
 
-    def predicted_position(self, t, snapshot=None):
+    def predicted_position(self, t, snapshot=LIVE):
         """Where the tracked ball should be at ``t`` (ballistic guess), or None; from
-        ``snapshot`` (see :meth:`snapshot`) instead of the running filter when given."""
-        snap = snapshot if snapshot is not None else self.snapshot()
+        ``snapshot`` (see :meth:`snapshot`; None: no track) instead of the running filter
+        when given."""
+        snap = self.snapshot() if snapshot is LIVE else snapshot
         if snap is None:
             return None
         t_filter, x = snap
@@ -248,13 +252,15 @@ class Pipeline:
         self.offsets = [c.time_offset or 0.0 for c in self.cameras]
         self.last_error = None
 
-    def detect(self, t, k, frame, snapshot=None):
+    def detect(self, t, k, frame, snapshot=LIVE):
         """Detections in camera ``k``'s frame stamped ``t`` (s, its own clock), for
-        :meth:`process` (``detections=``): a list, or the ValueError of a corrupt frame. The
-        search window comes from ``snapshot`` (:meth:`Tracker.snapshot`, taken by the caller
-        from the processing thread) rather than the running filter, so that each camera's
-        thread can detect in its own frames (only that camera's detector is used) while
-        another thread processes."""
+        :meth:`process` (``detections=``): a list, or the ValueError of a missing or corrupt
+        frame. The search window comes from ``snapshot`` (:meth:`Tracker.snapshot`, taken by
+        the caller from the processing thread; None: no track) rather than the running
+        filter, so that each camera's thread can detect in its own frames (only that camera's
+        detector is used) while another thread processes."""
+        if frame is None:
+            return ValueError('no frame')
         t = float(t) - self.offsets[k]
         try:
             return self._detect(t, k, frame, snapshot)
@@ -266,16 +272,10 @@ class Pipeline:
         :class:`BallEstimate` it completes. A missing or corrupt frame (None, wrong size, not
         8-bit) is skipped: ``last_error`` says why, nothing is estimated from it.
         ``detections``: the result of :meth:`detect` on this frame, when done already."""
+        if detections is None:
+            detections = self.detect(t, k, frame)
         t = float(t) - self.offsets[k]
         self.last_error = None
-        if detections is None:
-            if frame is None:
-                detections = ValueError('no frame')
-            else:
-                try:
-                    detections = self._detect(t, k, frame)
-                except ValueError as exc:
-                    detections = exc
         if isinstance(detections, ValueError):
             self.last_error = f'camera {self.cameras[k].name}: {detections}'
             detections = []
@@ -287,7 +287,7 @@ class Pipeline:
                 out.append(est)
         return out
 
-    def _detect(self, t, k, frame, snapshot=None):
+    def _detect(self, t, k, frame, snapshot):
         cam = self.cameras[k]
         roi = None
         predicted = self.tracker.predicted_position(t, snapshot)
