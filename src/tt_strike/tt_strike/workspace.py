@@ -19,10 +19,22 @@ import math
 import pathlib
 
 import numpy as np
+from tt_ros.index import package_prefix
 import yaml
 
-TEMPLATE = pathlib.Path(__file__).resolve().parent.parent / 'config' / 'workspace.yaml'
-"""The template workspace in the source tree (installed to share/tt_strike/config)."""
+
+def _template():
+    """share/tt_strike/config/workspace.yaml of the installed package; the source tree's copy
+    when the package is not in the ament index (tests run from the sources)."""
+    prefix = package_prefix('tt_strike')
+    installed = prefix and pathlib.Path(prefix, 'share', 'tt_strike', 'config', 'workspace.yaml')
+    if installed and installed.is_file():
+        return installed
+    return pathlib.Path(__file__).resolve().parent.parent / 'config' / 'workspace.yaml'
+
+
+TEMPLATE = _template()
+"""The template workspace (the default of ``workspace_file``)."""
 
 
 class WorkspaceError(ValueError):
