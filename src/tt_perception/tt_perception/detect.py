@@ -95,12 +95,6 @@ def _width_from_moments(cxx, cyy, cxy):
 _KERNEL3 = np.ones((3, 3), np.uint8)
 
 
-def _shadow(image, background):
-    """Pixels of ``image`` (BGR) darker than the colour ``background`` in all three channels:
-    a shadow dims the light without changing its colour, a ball changes the colour."""
-    return np.all(image.astype(np.float32) < background, axis=2)
-
-
 def _grey(image):
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 

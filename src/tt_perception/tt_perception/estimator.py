@@ -6,6 +6,6 @@ measured tracks through, here fed triangulated positions with their covariance. 
 keeps perception's names.
 """
 
-from tt_prediction.ball_filter import BallFilter, FilterConfig, skew
+from tt_prediction.ball_filter import BallFilter, FilterConfig
 
-__all__ = ['BallFilter', 'FilterConfig', 'skew']
+__all__ = ['BallFilter', 'FilterConfig']

@@ -223,7 +223,7 @@ HALL_LIGHT = {'direction': (0.15, 0.1, 1.0), 'ambient': 0.4, 'diffuse': 0.7,
 full light), a glossy highlight."""
 
 
-def _shadow(frame, cam, ball, radius, gain):
+def _shadow(frame, cam, ball, radius):
     """Darken ``frame`` under a ball at ``ball`` (3,): a soft contact shadow on the table top,
     darker and tighter the closer the ball is to the surface (overhead light)."""
     height = ball[2] - radius
@@ -372,7 +372,7 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
                 depth = cam.to_camera(p[n_sub // 2:n_sub // 2 + 1])[0, 2]
                 radius = cam.focal * params.radius / depth
                 if hall:
-                    _shadow(frame, cam, p[n_sub // 2], params.radius, gain)
+                    _shadow(frame, cam, p[n_sub // 2], params.radius)
                     _draw_ball_lit(frame, centres, radius, colour_bgr, gain, cam.R, HALL_LIGHT)
                 else:
                     _draw_ball(frame, centres, radius, colour_bgr, gain)

@@ -9,7 +9,6 @@ from tt_prediction.ball_filter import (
     FilterConfig,
     TrackFilter,
     estimate_measurement_noise,
-    estimate_position_noise,
     rebound_jacobian,
 )
 from tt_prediction.predict import predict
@@ -189,7 +188,7 @@ def test_position_noise_estimate_recovers_the_noise():
     rng = np.random.default_rng(2)
     times = np.arange(0.0, 0.4, 1.0 / 180.0)
     tracks = [_measured(INCOMING, times, 1.5e-3, rng)[1] for _ in range(10)]
-    est = estimate_position_noise((times, p) for p in tracks)
+    est, _ = estimate_measurement_noise((times, p) for p in tracks)
     assert est == pytest.approx(1.5e-3, rel=0.15)
 
 

@@ -59,8 +59,8 @@ from .ball import (
 )
 
 __all__ = ['AccelNoiseLearner', 'BallFilter', 'FilterConfig', 'SpinPriorLearner', 'TrackFilter',
-           'estimate_measurement_noise', 'estimate_position_noise', 'rebound_jacobian',
-           'rebound_map', 'skew', 'spin_likelihood_per_axis', 'velocity_frame']
+           'estimate_measurement_noise', 'rebound_jacobian',
+           'rebound_map', 'spin_likelihood_per_axis', 'velocity_frame']
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -109,14 +109,6 @@ class FilterConfig:
     saltation term) or 'unscented' (sigma points through eqs. 1-6)."""
     rebounce_range: float = 0.015
     """Contact heights tried around z = r when a sample near a bounce fails the gate, +-m."""
-
-
-_EYE3 = np.eye(3)
-
-
-def skew(a):
-    """Cross-product matrix [a]x (3, 3), so that [a]x b = a x b."""
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -796,27 +788,3 @@ def estimate_measurement_noise(tracks, window=7):
     var_p = float(np.median(across)) / median_ratio(2 * (window - 3))
     extra = (np.array(along) / median_ratio(window - 3) - var_p) / np.array(speed2)
     return math.sqrt(var_p), math.sqrt(max(float(np.median(extra)), 0.0))
-
-
-def estimate_position_noise(tracks, window=7):
-    """Isotropic measurement noise per axis (m) of measured tracks, from local fits.
-
-    Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis;
-    the residual variance, corrected for the fitted parameters, is the noise variance; the
-    median over windows (scaled to the mean of a chi-square with its dof) keeps windows with a
-    bounce or a spike out. ``tracks``: iterable of (t (n,), p (n, 3)). Returns m.
-    """
-    variances = []
-    for t, p in tracks:
-        n = len(t)
-        for a in range(0, n - window + 1, window):
-            tt = t[a:a + window] - t[a]
-            A = np.stack([np.ones(window), tt, tt * tt], axis=1)
-            coef, *_ = np.linalg.lstsq(A, p[a:a + window], rcond=None)
-            res = p[a:a + window] - A @ coef
-            variances.append(float(np.sum(res * res)) / (3 * (window - 3)))
-    if not variances:
-        return math.nan
-    dof = 3 * (window - 3)
-    med_ratio = (1.0 - 2.0 / (9.0 * dof)) ** 3
-    return math.sqrt(float(np.median(variances)) / med_ratio)

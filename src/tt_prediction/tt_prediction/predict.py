@@ -62,7 +62,6 @@ _O_N_PATH = 26      # rows of the post-bounce path written (predict_kernel's sam
 (_O_STATUS, _O_BOUNCE_OK, _O_BOUNCE_T, _O_BOUNCE_P, _O_BOUNCE_ZONE, _O_BOUNCE_HALF,
  _O_HIT_OK, _O_HIT_T, _O_HIT_P, _O_HIT_V, _O_HIT_W, _O_STOP_KIND, _O_STOP_T, _O_STOP_P,
  _O_NET_OK, _O_NET_Z) = (0, 1, 2, 3, 6, 7, 8, 9, 10, 13, 16, 19, 20, 21, 24, 25)
-_MAX_EVENTS = 8
 
 _zone_nb = njit(cache=True, nogil=True)(zone_of)
 _NOMINAL = ModelParams()
@@ -401,7 +400,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
         for i in range(9):
             s[i] = s1[i]
         t += h
-        g_prev, kind_prev = solid_gap(s[0], s[1], s[2], r)
+        g_prev, _ = solid_gap(s[0], s[1], s[2], r)
         if n_samples < samples.shape[0]:
             samples[n_samples, 0] = t
             for i in range(9):

@@ -32,8 +32,6 @@ from rclpy.parameter import Parameter
 
 from .executor import StartupError
 
-KINDS = ('bool', 'int', 'float', 'str', 'floats')
-
 
 class ParameterError(StartupError):
     """A parameter value that is refused: one line naming the parameter and what it accepts."""
