@@ -9,8 +9,9 @@ import argparse
 import importlib
 import importlib.util
 import os
-import signal
 import sys
+
+from tt_tools import stop
 
 HANDOVER_ENV = 'TT_ROS2_NO_HANDOVER'
 
@@ -70,28 +71,23 @@ def _run(args):
     return 1
 
 
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv=None):
     """Entry point of the ``ros2`` console script; returns the exit code.
 
-    Ctrl-C or SIGTERM before a verb has started (while importing) ends quietly with exit 0;
-    once a verb runs, its node handles both signals itself (see ``rosutil.CliNode``).
+    Ctrl-C or SIGTERM is noted from the start (``stop``): one that comes before the verb has
+    started (while importing) ends it quietly with exit 0 as soon as it starts; once a verb
+    runs, its node handles both signals itself (see ``rosutil.CliNode``).
     """
     real = real_ros2cli_main()
     if real is not None:
         return real()
-    signal.signal(signal.SIGTERM, _interrupt)
+    stop.install()
     if argv is None:
         argv = sys.argv[1:]
         if argv[:1] != ['run']:
             _keep_stdout_for_output()
     try:
         return _main(argv)
-    except KeyboardInterrupt:
-        return 0
     except BrokenPipeError:  # the reader of our output has gone (``| head``): stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
@@ -117,6 +113,8 @@ def _main(argv):
 
     only_run = argv[:1] == ['run']
     args = build_parser(only_run=only_run).parse_args(argv)
+    if stop.requested:  # before ``run`` execs the executable (its handlers start afresh)
+        return 0
     errors = (RunError, ValueError, OSError)
     if not only_run:  # ``ros2 run`` raises no BagError: it skips importing rosbags (0.15 s)
         from tt_ros.bagfile import BagError

@@ -24,12 +24,15 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from tt_tools import stop
 from tt_tools.output import say
 
 SETTLE_MIN_S = 2.0
 SETTLE_QUIET_S = 1.0
 SETTLE_ALONE_S = 8.0
 SETTLE_MAX_S = 15.0
+LATE_NODE_S = 5.0
+"""Seconds a named node not yet discovered once discovery has settled is still waited for."""
 DISCOVERY_TOPIC = 'ros_discovery_info'
 """The DDS topic on which every ROS participant announces its nodes and their endpoints."""
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
@@ -51,7 +54,10 @@ class CliNode:
     """
 
     def __init__(self, name):
-        self.stopped = False
+        # The handlers first: a signal from here on (the node is in the graph as soon as it
+        # exists) stops the verb; one that came while it was importing (stop.requested) too.
+        self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        self.stopped = stop.requested
         self._participants = 0
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
@@ -59,7 +65,6 @@ class CliNode:
                                       start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
     def _on_signal(self, signum, frame):
         self.stopped = True
