@@ -33,7 +33,7 @@ import time
 
 import yaml
 
-from .procs import large_message_profile
+from .procs import ros_env
 from .run import RunError, find_executable
 
 NODES = {
@@ -62,8 +62,8 @@ def say(text):
 
 
 def nodes_in(params_file):
-    """The tt nodes a ROS parameters file names, in start order (perception first); all of
-    them when it only has a ``/**`` section. BringupError with one line when the file cannot
+    """The tt nodes a ROS parameters file names (in the order of ``NODES``); all of them
+    when it only has a ``/**`` section. BringupError with one line when the file cannot
     be read or names none."""
     try:
         with open(params_file) as f:
@@ -87,18 +87,6 @@ def nodes_in(params_file):
     if not found:
         raise BringupError(f'{params_file}: names none of the tt nodes ({", ".join(NODES)})')
     return found
-
-
-def graph_env(base=None):
-    """The environment of the nodes: ``base`` (os.environ) with unbuffered Python output and
-    tt's Fast DDS profile for images unless one is set."""
-    env = dict(os.environ if base is None else base)
-    env['PYTHONUNBUFFERED'] = '1'
-    if not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
-        profile = large_message_profile()
-        if profile:
-            env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
-    return env
 
 
 def _signal_name(code):
@@ -157,7 +145,8 @@ class Bringup:
         self.restart_delay = restart_delay
         self.max_restarts = max_restarts
         self.stop_timeout = stop_timeout
-        env = graph_env() if env is None else env
+        # The robot's discovery range as the caller set it (not only this machine).
+        env = ros_env(large_messages=True, localhost=False) if env is None else env
         self.children = []
         for name in sorted(nodes, key=START_ORDER.index):
             exe = find_executable(NODES[name], name)

@@ -17,7 +17,7 @@ from rclpy.parameter import get_parameter_value, parameter_value_to_python
 import yaml
 
 from tt_tools.output import say, write
-from tt_tools.rosutil import CliNode, add_spin_time_argument
+from tt_tools.rosutil import LATE_NODE_S, CliNode, add_spin_time_argument
 
 SERVICES = {
     ListParameters: 'list_parameters',
@@ -50,10 +50,6 @@ GET_LABELS = {
     ParameterType.PARAMETER_DOUBLE_ARRAY: 'Double values are:',
     ParameterType.PARAMETER_STRING_ARRAY: 'String values are:',
 }
-
-
-LATE_NODE_S = 5.0
-"""Seconds a named node not yet discovered once discovery has settled is still waited for."""
 
 
 def absolute_node_name(name):

@@ -23,12 +23,14 @@ def large_message_profile():
     return path if shm.free >= SHM_NEEDED and os.path.exists(path) else None
 
 
-def ros_env(extra=None, large_messages=False):
-    """The current environment with discovery kept on this machine; with ``large_messages``
-    also the Fast DDS profile for images (unless the caller's environment sets one)."""
+def ros_env(extra=None, large_messages=False, localhost=True):
+    """The current environment with unbuffered Python output and, with ``localhost``,
+    discovery kept on this machine (tests, demo); with ``large_messages`` also the Fast DDS
+    profile for images (unless the caller's environment sets one)."""
     env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    if large_messages and 'FASTRTPS_DEFAULT_PROFILES_FILE' not in env:
+    if localhost:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if large_messages and not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
         profile = large_message_profile()
         if profile:
             env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile

@@ -23,6 +23,7 @@ from tt_tools.output import say, write
 from tt_tools.rate import format_stats, rate_stats
 from tt_tools.rosutil import (
     DURABILITY,
+    LATE_NODE_S,
     RELIABILITY,
     CliNode,
     add_spin_time_argument,
@@ -135,8 +136,16 @@ def node_info(args):
     name, ns = split_node_name(args.node_name)
     full = f'{ns.rstrip("/")}/{name}'
     with CliNode('node_info') as cli:
+        def found():
+            return (name, ns) in cli.node.get_node_names_and_namespaces()
+
         cli.settle(args.spin_time)
-        if (name, ns) not in cli.node.get_node_names_and_namespaces():
+        # Discovery can settle before a busy machine has announced every node: a node not seen
+        # yet gets a few more seconds, and then its endpoints the time to settle.
+        if (args.spin_time is None and not found()
+                and cli.spin_until(found, timeout=LATE_NODE_S)):
+            cli.settle()
+        if not found():
             raise ValueError(f"Unable to find node '{full}'")
         graph = cli.node
         sections = [
