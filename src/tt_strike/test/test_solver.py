@@ -179,6 +179,22 @@ def test_unreachable_hit_points_and_targets():
     assert tilt.status == 'infeasible' and 'deg from +x' in tilt.reason
 
 
+def test_forward_end_says_how_the_forward_check_ended():
+    # A ball struck just below the surface 5 cm behind the end line: at the default net
+    # clearance the stroke meets the table's end face; 0.4 m over the net it rises steeply
+    # enough to clear the edge (tt_strike.hitpoint retries such strokes higher).
+    hit = np.array([-1.42, 0.0, -0.01, -3.0, 0.0, 0.5, 0.0, 0.0, 0.0])
+    anywhere = {'reach_z': (-math.inf, math.inf), 'reach_y': math.inf}
+    edge = solve(hit, PARAMS, target_zone=5, settings=StrikeSettings(**anywhere))
+    assert (edge.status, edge.forward_end) == ('infeasible', 'table_edge'), edge.reason
+    higher = solve(hit, PARAMS, target_zone=5,
+                   settings=StrikeSettings(net_clearance=0.4, **anywhere))
+    assert (higher.status, higher.forward_end) == ('ok', 'ok'), higher.reason
+    low = HITS[0].copy()
+    low[2] = -0.5
+    assert solve(low, PARAMS, target_zone=5).forward_end == ''     # no forward check
+
+
 @pytest.mark.parametrize('zone', [0, 10, -1, 2.5, True, '3'])
 def test_bad_target_zone(zone):
     sol = solve(HITS[0], PARAMS, target_zone=zone)

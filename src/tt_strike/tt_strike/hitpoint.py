@@ -24,12 +24,11 @@ import dataclasses
 import math
 
 import numpy as np
-from tt_prediction.ball import zone_of
 from tt_prediction.predict import Hit, predict
 
 from .incoming import hit_point
 from .robust import linear_in_zone_probability, noise_covariance
-from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
+from .solver import StrikeSettings, StrikeSolution, resolve_target, scored_zone, solve
 
 MAX_CANDIDATES = 4
 """Most hit points solved per ball."""
@@ -116,7 +115,7 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
         sol = solve(s_hit, params, target_zone=target_zone, target_point=target_point,
                     settings=settings, guess=guess)
         for extra in EDGE_RETRY_CLEARANCE:
-            if sol.feasible or 'table_edge' not in sol.reason:
+            if sol.feasible or sol.forward_end != 'table_edge':
                 break
             # Into the table's end face or edge (a ball struck below the surface): a higher
             # arc over the net rises more steeply and may clear the edge.
@@ -131,7 +130,7 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
             outside += 1
             continue
         cov = covariance if covariance is not None else noise_covariance(s_hit)
-        zone = sol.target_zone or zone_of(sol.target_point[0], sol.target_point[1])[0]
+        zone = scored_zone(sol)
         score = linear_in_zone_probability(s_hit, cov, sol.normal, sol.racket_velocity,
                                            params, sol.landing, zone)
         key = (round(score, 3), -float(np.linalg.norm(sol.racket_velocity)))

@@ -115,6 +115,9 @@ class StrikeSolution:
     """First table contact of the forward check (x, y, z), m."""
     landing_zone: int = 0
     """Zone of the landing point (1..9 on the opponent's half, 0 elsewhere)."""
+    forward_end: str = ''
+    """How the forward check ended (``predict_landing``'s status: 'ok', 'table_edge', 'net',
+    ...); '' when there was none."""
     flight_time: float = math.nan
     """Time from the hit to the landing, s."""
     net_clearance: float = math.nan
@@ -452,7 +455,7 @@ def solve(hit_state, params, target_zone=None, target_point=None, settings=None,
     _fill(sol, s_hit, out[3:6].copy(), out[6], params, settings)
     if covariance is None or sol.status != 'ok':
         return sol
-    zone_p = _scored_zone(sol)
+    zone_p = scored_zone(sol)
     points = landing_ensemble(s_hit, covariance, sol.normal, sol.racket_velocity, P,
                               settings.probability_samples)
     sol.in_zone_probability = in_zone_probability(points, zone_p)
@@ -483,6 +486,7 @@ def _fill(sol, s_hit, normal, speed, params, settings):
     sol.net_clearance = fwd['net_clearance']
     sol.landing = fwd['landing']
     sol.flight_time = fwd['flight_time']
+    sol.forward_end = fwd['end']
     if fwd['end'] != 'ok':
         sol.status, sol.reason = 'infeasible', f'forward check: {fwd["end"]}'
         return
@@ -490,7 +494,7 @@ def _fill(sol, s_hit, normal, speed, params, settings):
     zone, half = zone_of(x, y)
     sol.landing_zone = zone if half == 1 else 0
     sol.residual = float(np.hypot(x - sol.aim_point[0], y - sol.aim_point[1]))
-    sol.margin = zone_margin(x, y, _scored_zone(sol), 1)
+    sol.margin = zone_margin(x, y, scored_zone(sol), 1)
     if sol.residual > FORWARD_TOLERANCE:
         sol.status = 'infeasible'
         sol.reason = f'forward check lands {sol.residual * 1e3:.1f} mm from the aim point'
@@ -499,7 +503,7 @@ def _fill(sol, s_hit, normal, speed, params, settings):
     _check_limits(sol, settings)
 
 
-def _scored_zone(sol):
+def scored_zone(sol):
     """The zone a solution is scored against: the target zone, or the one holding the point."""
     return sol.target_zone or zone_of(sol.target_point[0], sol.target_point[1])[0]
 
