@@ -19,6 +19,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
+from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
 from tt_ros.timebase import mismatch_warning, same_time_base
@@ -183,7 +184,7 @@ class PredictionNode(Node):
                 f'{np.percentile(times, 99) * 1e3:.3f} ms (last {len(times)})')
 
     def _on_state(self, msg):
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = to_ns(msg.header.stamp)
         if not due(stamp_ns, self.last_ns, self.p.max_rate_hz):
             return
         if msg.header.frame_id not in ('', 'table'):

@@ -25,7 +25,8 @@ from tt_prediction.ball import load_model
 from tt_prediction.predict import Hit
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import point_msg, set_xyz
+from tt_ros.messages import point_msg, set_time, set_xyz
+from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
 from tt_ros.timebase import mismatch_warning, same_time_base
@@ -198,7 +199,7 @@ class StrikeNode(Node):
             return
         zone, point = self.target
         settings = self.settings
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = to_ns(msg.header.stamp)
         key = (msg.track_id, zone, tuple(point))
         cov = None
         if self.p.in_zone_probability and (
@@ -268,8 +269,7 @@ class StrikeNode(Node):
             out.hit_time = msg.hit_time
             out.hit_point = msg.hit_point
         else:
-            ns = round(hit.t * 1e9)
-            out.hit_time.sec, out.hit_time.nanosec = divmod(ns, 1_000_000_000)
+            set_time(out.hit_time, round(hit.t * 1e9))
             out.hit_point = point_msg(hit.p)
         out.target_zone = sol.target_zone
         if sol.target_point is not None:
