@@ -22,7 +22,7 @@ from tt_ros.messages import point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
-from tt_ros.timebase import mismatch_warning, same_time_base
+from tt_ros.timebase import TimeBaseCheck
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -144,7 +144,7 @@ class PredictionNode(Node):
         self.work_s = np.zeros(4096)      # the callback's time for the last states, s
         self.n_predicted = 0
         self.n_dropped = 0
-        self.warned_time_base = False
+        self.time_base = TimeBaseCheck(self.get_logger().warning)
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(BallPrediction, '/ball/prediction', reliable)
@@ -162,11 +162,6 @@ class PredictionNode(Node):
     def _drop(self, why):
         self.n_dropped += 1
         self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
-
-    def _time_base_mismatch(self, age):
-        if not self.warned_time_base:
-            self.warned_time_base = True
-            self.get_logger().warning(mismatch_warning(age))
 
     def on_state(self, msg):
         start = time.perf_counter()
@@ -194,9 +189,7 @@ class PredictionNode(Node):
         now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
         if now_ns:          # 0: use_sim_time and no /clock yet, nothing to compare with
             age = (now_ns - stamp_ns) * 1e-9
-            if not same_time_base(stamp_ns * 1e-9, now_ns * 1e-9):
-                self._time_base_mismatch(age)
-            elif age > stale:
+            if self.time_base(stamp_ns * 1e-9, now_ns * 1e-9) and age > stale:
                 self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                 return
         p, v, w = msg.position, msg.velocity, msg.spin

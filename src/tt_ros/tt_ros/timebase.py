@@ -23,3 +23,23 @@ def mismatch_warning(offset_s):
             'without /clock?), so time checks against the clock are off for them; run with '
             'use_sim_time:=true and a /clock source (ros2 bag play --clock, perception_node '
             'publish_clock:=true)')
+
+
+class TimeBaseCheck:
+    """:func:`same_time_base` for a node's stamps, warning once: the first stamp on another
+    time base than a running clock is reported through ``warn`` (a logger's warning) with
+    :func:`mismatch_warning`, the later ones are not."""
+
+    def __init__(self, warn):
+        self._warn = warn
+        self.warned = False
+
+    def __call__(self, stamp_s, now_s):
+        """Whether ``stamp_s`` can be compared with the node clock's ``now_s`` (s, 0: no
+        /clock yet under use_sim_time, which is not warned about)."""
+        if same_time_base(stamp_s, now_s):
+            return True
+        if now_s and not self.warned:
+            self.warned = True
+            self._warn(mismatch_warning(stamp_s - now_s))
+        return False

@@ -29,7 +29,7 @@ from tt_ros.messages import point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
-from tt_ros.timebase import mismatch_warning, same_time_base
+from tt_ros.timebase import TimeBaseCheck
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
@@ -124,7 +124,7 @@ class StrikeNode(Node):
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
         self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
-        self.warned_time_base = False
+        self.time_base = TimeBaseCheck(self.get_logger().warning)
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
@@ -207,10 +207,7 @@ class StrikeNode(Node):
             cov = self._covariance(msg, state)
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         now = self.get_clock().now().nanoseconds * 1e-9
-        if not same_time_base(hit_t, now):
-            if now and not self.warned_time_base:     # 0: use_sim_time, no /clock yet
-                self.warned_time_base = True
-                self.get_logger().warning(mismatch_warning(hit_t - now))
+        if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
             now = -math.inf                          # no hit-time check: not comparable
         if not self.p.check_hit_time:
             now = -math.inf
