@@ -110,6 +110,14 @@ class FilterConfig:
     rebounce_range: float = 0.015
     """Contact heights tried around z = r when a sample near a bounce fails the gate, +-m."""
 
+    def spin_prior_axes(self):
+        """Prior standard deviations of the spin (top/back, side, along v), rad/s: the
+        ``spin_prior*`` fields with their defaults filled in."""
+        top = self.spin_prior
+        side = top if self.spin_prior_side is None else self.spin_prior_side
+        along = top if self.spin_prior_along is None else self.spin_prior_along
+        return top, side, along
+
 
 # ----------------------------------------------------------------------------------------------
 # Compiled kernels
@@ -422,10 +430,7 @@ class BallFilter:
         """Prior covariance (3, 3) of the spin, (rad/s)^2, for a ball moving with
         ``velocity``: ``spin_prior`` about the horizontal axis across it (top/back spin),
         ``spin_prior_side`` about the third axis and ``spin_prior_along`` along it."""
-        c = self.config
-        top = c.spin_prior
-        side = top if c.spin_prior_side is None else c.spin_prior_side
-        along = top if c.spin_prior_along is None else c.spin_prior_along
+        top, side, along = self.config.spin_prior_axes()
         if side == top == along:
             return np.eye(3) * top ** 2
         E = velocity_frame(velocity)

@@ -178,10 +178,8 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
                                               params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
-    c = config
-    prior = (c.spin_prior, c.spin_prior if c.spin_prior_side is None else c.spin_prior_side,
-             c.spin_prior if c.spin_prior_along is None else c.spin_prior_along)
-    return TrackReplay(name, rows, crossing, first, tt, pp, bounces, prior, nis)
+    return TrackReplay(name, rows, crossing, first, tt, pp, bounces, config.spin_prior_axes(),
+                       nis)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -380,10 +378,7 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     if learn_spin_prior:
         noise = AccelNoiseLearner(config.accel_noise)
         generic = config
-        c = config
-        learner = SpinPriorLearner(generic=(
-            c.spin_prior, c.spin_prior if c.spin_prior_side is None else c.spin_prior_side,
-            c.spin_prior if c.spin_prior_along is None else c.spin_prior_along))
+        learner = SpinPriorLearner(generic=config.spin_prior_axes())
     replays = []
     for name, t, p, spin in tracks:
         cfg = config
