@@ -29,10 +29,10 @@ from .ball_filter import (
     FilterConfig,
     SpinPriorLearner,
     TrackFilter,
-    _predict_to,
     rebound_map,
     spin_likelihood_per_axis,
 )
+from .identify.data import Track, clean_samples
 from .identify.segment import drop_outliers, segment
 from .predict import DEFAULT_HIT_PLANE_X, predict
 
@@ -157,7 +157,6 @@ def measured_crossing(t, p, bounce_times, plane_x):
 
 def _ground_truth(name, t, p, params, plane_x):
     """Cleaned samples, located bounces [(t, x)] and measured crossing of one track."""
-    from .identify.data import Track, clean_samples
     tc, pc, notes = clean_samples(name, t, p)
     if len(tc) < 3:
         return tc, pc, [], None
@@ -239,8 +238,9 @@ def bounce_spin_observation(rp, params, config):
         sel = sel[:-2]
     v_meas = coef[1]
     var_fit = config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
-    xc, Cc, _ = _predict_to(x0, P0, t0, tc, bf.P_model, bf._cfg, -1.0, np.zeros(4))
-    xc = xc.copy()
+    bf.x, bf.P, bf.t = x0, P0, t0
+    bf.predict(tc, contact_z=-math.inf)         # the same flight, up to the contact only
+    xc, Cc = bf.x.copy(), bf.P
     xc[2] = params.radius
     x_out, S = rebound_map(xc, bf.P_model)
     Sv = S[3:6]
