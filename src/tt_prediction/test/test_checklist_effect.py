@@ -57,7 +57,7 @@ def test_effect_field_is_declared_completely(field):
     # In identify's library with the same slots, each with its fit range.
     (effect,) = [e for e in ball.EFFECTS if e.name == field.effect]
     (entry,) = [e for e in LIBRARY if e.name == effect.name]
-    assert tuple(entry.params) == tuple(effect.slots)
+    assert tuple(entry.slots) == tuple(effect.slots)
     assert set(effect.slots) <= set(field.slots)
     # An I_* constant for each slot, exported by tt_prediction.ball.
     for slot in field.slots:

@@ -124,7 +124,7 @@ def ball_field(name):
 def test_lift_coefficient_is_tested_only_where_bounces_separate_it_from_spin():
     from tt_prediction.identify.effects import LIBRARY, applicable
     (lift,) = [e for e in LIBRARY if e.name == 'lift_from_bounces']
-    assert lift.params == ('c_m',)
+    assert lift.slots == ('c_m',)
     assert applicable(lift, n_bounces=20, n_spin=0) == ''
     assert 'not separately identifiable' in applicable(lift, n_bounces=0, n_spin=0)
     assert 'at least' in applicable(lift, n_bounces=3, n_spin=0)

@@ -127,11 +127,14 @@ class Effect:
     name : str
         Effect name (as reported by tt-identify and in model.yaml's selected_effects).
     slots : tuple of str
-        Packed slots identification frees to fit the effect.
+        Packed slots identification frees to fit the effect (in identification's library
+        also a global of the measurement model: spin_scale).
     mechanism : str
         The equation of the mechanism, in words.
     needs : str
-        Data it needs to be tested: 'bounces' (a table effect) or '' (any flight).
+        Data it needs to be tested: 'bounces' (a table effect) or '' (any flight); in
+        identification's library (tt_prediction.identify.effects) also 'spin' (measured
+        spin) and 'bounces_no_spin' (bounces and no measured spin).
     """
 
     name: str

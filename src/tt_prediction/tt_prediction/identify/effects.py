@@ -10,25 +10,9 @@ measurement clock and the model only shifts each track's fitted initial state, s
 alone cannot identify it and it is reported as not identifiable rather than fitted.
 """
 
-import dataclasses
+from ..ball import EFFECTS, Effect
 
-from ..ball import EFFECTS
-
-
-@dataclasses.dataclass(frozen=True)
-class Effect:
-    """One candidate effect: its name, the globals it frees, and what it means."""
-
-    name: str
-    params: tuple
-    mechanism: str
-    needs: str = ''
-    """'bounces' (table effects), 'spin' (measured spin), 'bounces_no_spin' (bounces and no
-    measured spin: C_M, which the baseline fits where spin is measured), or '' (any flight
-    data)."""
-
-
-MODEL_EFFECTS = tuple(Effect(e.name, e.slots, e.mechanism, e.needs) for e in EFFECTS)
+MODEL_EFFECTS = EFFECTS
 """The model's effects, as declared in tt_prediction.params.EFFECTS (model.yaml)."""
 
 LIBRARY = MODEL_EFFECTS + (

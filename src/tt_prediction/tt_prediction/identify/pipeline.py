@@ -106,7 +106,6 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         why = f'; {first[0]}: {first[1]}' if first else ''
         raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
                         f'({len(tracks)} loaded{why}); identification needs at least 2')
-    has_spin = any(tr.spin is not None for tr in prepared)
     folds = int(min(folds, len(prepared)))
     g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
     fold_of = evaluate.fold_ids(len(prepared), folds)
@@ -170,8 +169,8 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
             'tracks_loaded': len(tracks), 'tracks_used': len(prepared),
             'tracks_dropped': dropped, 'samples_dropped': notes,
             'samples_used': int(sum(tr.mask.sum() for tr in prepared)),
-            'bounces': int(sum(tr.n_bounces for tr in prepared)),
-            'spin_measured': has_spin, 'tracks_spin_measured': int(n_spin),
+            'bounces': n_bounces,
+            'spin_measured': n_spin > 0, 'tracks_spin_measured': int(n_spin),
             'tracks_spin_estimated': sum(tr.spin_source == 'estimated' for tr in tracks),
             'folds': folds, 'hit_plane_x': hit_plane_x,
             'predict_window_s': evaluate.PREDICT_WINDOW,
@@ -219,7 +218,7 @@ def effect_size(prepared, globals_, effect, states):
     back off (to the base model's values), m. A held-out gain without a change of the tracks
     is not the effect's (it is the optimiser's path), so it cannot select the effect."""
     off = globals_.with_values(globals_.values.copy())
-    for p in effect.params:
+    for p in effect.slots:
         off.values[off.names.index(p)] = off.default(p)
     P_on, P_off, k = globals_.packed(), off.packed(), globals_.spin_scale
     sq, n = 0.0, 0
@@ -241,18 +240,18 @@ def _test_effect(prepared, effect, current, fold_of, max_nfev, tick):
     Returns the report entry and the new fit in the form of ``current``.
     """
     _, cur_rms, _, cur_globals, states = current
-    g = fitting.Globals(cur_globals.params(), cur_globals.names + list(effect.params))
+    g = fitting.Globals(cur_globals.params(), cur_globals.names + list(effect.slots))
     g.values[:len(cur_globals.names)] = cur_globals.values
     g, e_states = fitting.fit_pooled_restarted(prepared, g, states, 2 * max_nfev)
     rms, fits = evaluate.cross_validate(prepared, g, e_states, fold_of, max_nfev, tick)
     gain = 1.0 - rms / cur_rms
-    penalty = PENALTY_PER_PARAM * len(effect.params)
+    penalty = PENALTY_PER_PARAM * len(effect.slots)
     size = effect_size(prepared, g, effect, e_states)
-    fold_values = {p: [f[0].values[f[0].names.index(p)] for f in fits] for p in effect.params}
-    at_bound = _at_bound(g, effect.params)
+    fold_values = {p: [f[0].values[f[0].names.index(p)] for f in fits] for p in effect.slots}
+    at_bound = _at_bound(g, effect.slots)
     entry = {
         'name': effect.name, 'mechanism': effect.mechanism, 'tested': True,
-        'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in effect.params},
+        'params': {p: round(float(g.values[g.names.index(p)]), 5) for p in effect.slots},
         'params_fold_std': {p: round(float(np.std(v)), 5) for p, v in fold_values.items()},
         'heldout_rms_mm': round(1e3 * rms, 3),
         'heldout_gain': round(gain, 4),
