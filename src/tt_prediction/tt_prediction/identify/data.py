@@ -198,23 +198,15 @@ def load_folder(folder):
 
 
 def _bag_typestore():
-    """A rosbags typestore for Jazzy with tt_msgs registered from the package's .msg files."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-    store = get_typestore(Stores.ROS2_JAZZY)
-    msg_dir = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'tt_msgs', 'msg')
+    """A rosbags typestore for Jazzy with tt_msgs' BallState registered from its installed .msg
+    file (tt_ros.bagfile.TypeRegistry; without it, bags of PointStamped still load)."""
+    from tt_ros.bagfile import BagError, TypeRegistry
+    registry = TypeRegistry()
     try:
-        from ament_index_python.packages import get_package_share_directory
-        msg_dir = os.path.join(get_package_share_directory('tt_msgs'), 'msg')
-    except Exception:   # ament_index absent or tt_msgs not installed: use the source tree
+        registry.ensure('tt_msgs/msg/BallState')
+    except BagError:        # tt_msgs not installed
         pass
-    types = {}
-    if os.path.isdir(msg_dir):
-        for f in sorted(os.listdir(msg_dir)):
-            if f.endswith('.msg'):
-                with open(os.path.join(msg_dir, f)) as fh:
-                    types.update(get_types_from_msg(fh.read(), f'tt_msgs/msg/{f[:-4]}'))
-    store.register(types)
-    return store
+    return registry.store
 
 
 BAG_TYPES = ('tt_msgs/msg/BallState', 'geometry_msgs/msg/PointStamped')
