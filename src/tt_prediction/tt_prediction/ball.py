@@ -17,10 +17,11 @@ Equations (MODEL.md, paper numbering):
 
 Integration: :func:`rk4_step` (one step of eq. 8; :func:`rk4_advance` into a new array),
 :func:`rollout_kernel` (events: bounce, net, plane, floor, roll, timeout) and :func:`rollout`
-(its Python face), and the one landing kernel :func:`landing_kernel` (a ball leaving the
-racket until its first table contact) on predict.py's :func:`flight_kernel` /
-:func:`landing_flight` (one flight leg to its first contact, the table as a solid body:
-:func:`solid_gap`).
+(its Python face); predict.py's :func:`flight_kernel` (one flight leg to its first contact,
+the table as a solid body: :func:`solid_gap`), :func:`landing_flight` on it (the one landing
+flight of tt, a ball leaving the racket until its first contact: prediction, strike solver,
+in-zone ensemble) and :func:`landing_kernel` (that flight classified into a status, as
+``predict_landing`` reports it).
 """
 
 from . import params as _params

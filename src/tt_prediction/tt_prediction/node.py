@@ -1,9 +1,10 @@
 """prediction_node: /ball/state -> /ball/prediction, /ball/predicted_path, /tt/markers.
 
 The ROS glue around :mod:`tt_prediction.predict` and :mod:`tt_prediction.uncertainty`:
-parameters, QoS, message conversion. Each BallState (sensor-data QoS) gives one
-BallPrediction stamped with the state's stamp; the path and markers follow at a lower rate.
-Invalid or stale states are dropped with a throttled warning (nothing is published for them).
+parameters, QoS, message conversion. Each BallState (subscribed best effort, a queue of
+STATE_QUEUE_DEPTH) gives one BallPrediction stamped with the state's stamp; the path and
+markers follow at a lower rate. Invalid or stale states are dropped with a throttled warning
+(nothing is published for them).
 """
 
 import gc

@@ -2,24 +2,32 @@
 
 The robot stands at the x < 0 end of the table (MODEL.md); an incoming ball travels along -x,
 should bounce once on the robot's half and then crosses the hitting plane x = hit_plane_x.
-:func:`predict` integrates flight and rebounds with the compiled event-driven integrator
-(:func:`tt_prediction.integrate.rollout_kernel`) and classifies the events into a status:
+:func:`predict` flies the ball leg by leg with this module's compiled flight kernel
+(:func:`flight_kernel`: eq. 8 to the first contact, the table and net as solid bodies; the
+rebound of eqs. 1-6 at each contact with the top, :func:`predict_kernel`) and classifies where
+it stops into a status:
 
     ok             one bounce on the robot's half, then the hitting plane is crossed
-    net            the ball hits the net before any bounce
+    net            the ball hits the net (over the table) before any bounce
     no_bounce      the hitting plane is crossed before any bounce
     miss           the ball falls past the table (floor) without touching it
     wrong_half     the first table contact is on the opponent's half (x > 0)
     double_bounce  a second bounce on the robot's half before the hitting plane
     no_hit         after the bounce the ball never reaches the plane (rolls, falls beside the
                    table, goes back over or into the net)
+    table_edge     the ball meets an end or side face of the table top, an edge or its
+                   underside (out of play)
+    net_post       the ball meets the net beyond a side line or a post (out of play)
     timeout        nothing of the above within T_MAX seconds
     invalid        bad input (NaN or infinite, below the table, at rest, absurd speed or spin)
 
+The optional path (``path_dt``) is sampled with :func:`tt_prediction.integrate.rollout`.
+
 :func:`predict_landing` does the same for a ball leaving the racket (first table contact,
-expected on the opponent's half, with the net checked). :func:`predict_batch` runs many
-states in one compiled call (numba ``prange``). The classification is compiled too, so the
-single and batch paths share one implementation.
+expected on the opponent's half, with the net checked: :func:`landing_kernel` on
+:func:`landing_flight`). :func:`predict_batch` runs many states in one compiled call (numba
+``prange``). The classification is compiled too, so the single and batch paths share one
+implementation.
 """
 
 import dataclasses
@@ -188,7 +196,8 @@ def _valid_mask(states, radius):
 
 
 # ----------------------------------------------------------------------------------------------
-# The flight kernel: one flight leg to its first contact (the one landing kernel)
+# The flight kernel: one flight leg to its first contact (every flight of tt's prediction and
+# strike)
 
 TOP_THICKNESS = 0.03
 """Depth of the table top's end and side faces, m (MODEL.md: z from -0.03 to 0)."""
@@ -272,15 +281,16 @@ def _crossing(s, s1, h, axis, level, down, P, work):
 def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
     """Fly a ball from (t0, s0) to its first contact; the one flight leg of tt (compiled).
 
-    Eq. 8 with classic RK4 at the fixed step STEP (tt_prediction.integrate), events located
-    inside the step. ``body`` True: the table is a solid body (MODEL.md): the flight stops at
-    the first contact with the top (CONTACT_TOP, only from above over the footprint), an end
-    or side face or edge (CONTACT_EDGE), the net over the table (CONTACT_NET), the net beyond
-    a side line or a post (CONTACT_POST) or the floor. ``body`` False (the plane model, used
-    while searching, where the landing must vary smoothly): it stops where the centre first
-    comes down through the contact height z = r, on the footprint (CONTACT_TOP) or beside it
-    (CONTACT_OFF), or at the floor; the net and faces are ignored. Either way it also stops
-    where the centre crosses x = plane_x (CONTACT_PLANE; NaN: no plane) and at t_end.
+    Eq. 8 with classic RK4 (tt_prediction.integrate.rk4_step) at this module's fixed step
+    STEP, events located inside the step. ``body`` True: the table is a solid body
+    (MODEL.md): the flight stops at the first contact with the top (CONTACT_TOP, only from
+    above over the footprint), an end or side face or edge (CONTACT_EDGE), the net over the
+    table (CONTACT_NET), the net beyond a side line or a post (CONTACT_POST) or the floor.
+    ``body`` False (the plane model, used while searching, where the landing must vary
+    smoothly): it stops where the centre first comes down through the contact height z = r,
+    on the footprint (CONTACT_TOP) or beside it (CONTACT_OFF), or at the floor; the net and
+    faces are ignored. Either way it also stops where the centre crosses x = plane_x
+    (CONTACT_PLANE; NaN: no plane) and at t_end.
 
     Inputs: s0 (9,) p (m), v (m/s), w (rad/s); t0, t_end absolute (s); P packed parameters;
     samples (k, 10) receives [t, state] after each step while rows remain. Output res
@@ -426,7 +436,8 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
 @njit(cache=True, nogil=True)
 def landing_flight(s0, t0, P, body, res):
     """First contact of a ball leaving the racket: :func:`flight_kernel` without a plane, for
-    T_MAX; the one landing kernel of tt (prediction, strike solver, in-zone ensemble)."""
+    T_MAX; the one landing flight of tt (:func:`landing_kernel`, the strike solver, the
+    in-zone ensemble)."""
     return flight_kernel(s0, t0, P, t0 + T_MAX, math.nan, body, np.empty((0, 10)), res)
 
 
@@ -740,8 +751,9 @@ def predict_landing(state9, params=None, t0=0.0):
 
     Status ok when it lands on the opponent's half (``landing`` its contact, zone and half),
     net when it hits the net, wrong_half when it lands on the robot's half, miss when it
-    misses the table, invalid for bad input. ``net_clearance`` is the height of the ball's
-    bottom above the net's top where it crosses x = 0 (m).
+    misses the table, table_edge or net_post when it meets the table's face or edge or the
+    net beyond a side line or a post, timeout, invalid for bad input. ``net_clearance`` is
+    the height of the ball's bottom above the net's top where it crosses x = 0 (m).
     """
     P = packed_params(params)
     reason = check_state(state9, P[I_RADIUS])
