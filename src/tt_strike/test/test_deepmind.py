@@ -68,3 +68,14 @@ def test_missing_data_is_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'no states.csv' in err and err.count('\n') == 1
 
+
+
+@pytest.mark.parametrize('args', [['--hit-plane-x', '-1.5', '--strokes', 'x.jsonl'],
+                                  ['--hit-plane-x', '-1.5', '--workspace', 'w.yaml'],
+                                  ['--monte-carlo', '3']])
+def test_options_of_the_other_mode_are_refused(tmp_path, capsys, args):
+    # They used to be ignored without a word.
+    with pytest.raises(SystemExit) as exit_:
+        main(['--data', str(tmp_path), *args])
+    assert exit_.value.code == 2
+    assert 'error:' in capsys.readouterr().err

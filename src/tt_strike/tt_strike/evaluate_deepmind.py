@@ -1,7 +1,9 @@
 """Strike solver over the DeepMind measured ball states, per target zone.
 
     python -m tt_strike.evaluate_deepmind [--data DIR] [--json FILE] [--limit N]
-        [--workspace FILE | --hit-plane-x X] [--strokes FILE]
+        [--workspace FILE] [--strokes FILE]      (hit point along the path, the default)
+    python -m tt_strike.evaluate_deepmind [--data DIR] [--json FILE] [--limit N]
+        --hit-plane-x X [--monte-carlo K]        (the old fixed plane)
 
 The 15,792 states of ``data/deepmind_states/states_all.csv.gz`` (D'Ambrosio et al., ICRA 2025;
 CC BY 4.0, see that folder's README; ``states.csv`` there is a 100-state sample) are real ball
@@ -17,11 +19,12 @@ chosen along the path inside the workspace (tt_strike.hitpoint, the template wor
 ``--workspace``): a ball is *reachable* for a zone unless its status is no_hit_point,
 unreachable or too_late, and the table gives the share of reachable balls that are feasible.
 With ``--hit-plane-x`` the old fixed plane. Prints a Markdown table; ``--json`` writes the
-numbers; ``--strokes`` writes every feasible stroke (hit state, normal, racket velocity, zone)
-as JSON Lines, for an independent replay (src/tt_strike/test/judge_strokes.py). ``--monte-carlo
-K`` also compares, for K of the balls and every zone, the solver's in-zone probability under
+numbers; ``--strokes`` (workspace only) writes every feasible stroke (hit state, normal,
+racket velocity, zone) as JSON Lines, for an independent replay
+(src/tt_strike/test/judge_strokes.py). ``--monte-carlo K`` (with ``--hit-plane-x`` only)
+also compares, for K of the balls and every zone, the solver's in-zone probability under
 sigma 2 mm position, 2 % velocity, 10 % spin with a Monte-Carlo run of 2000 random draws
-through racket_rebound + predict_landing. """
+through racket_rebound + predict_landing. Options of the other mode are refused. """
 
 import argparse
 import collections
@@ -228,6 +231,12 @@ def main(argv=None):
     parser.add_argument('--monte-carlo', type=int, default=0, metavar='K',
                         help='check the in-zone probability on K balls (every zone)')
     args = parser.parse_args(argv)
+    plane = args.hit_plane_x is not None
+    if plane and (args.workspace or args.strokes):
+        parser.error('--workspace and --strokes choose the hit point in the workspace: not '
+                     'with --hit-plane-x')
+    if not plane and args.monte_carlo:
+        parser.error('--monte-carlo checks the strokes at the plane: it needs --hit-plane-x')
     folder = pathlib.Path(args.data)
     path = folder / FULL_SET if (folder / FULL_SET).is_file() else folder / 'states.csv'
     if not path.is_file():
