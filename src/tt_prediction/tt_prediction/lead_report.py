@@ -20,7 +20,6 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interactive backend)
 
 from .ball import load_model  # noqa: E402
-from .identify.data import DataError  # noqa: E402
 from .replay import LEADS_MS, replay_tracks  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
 
@@ -150,7 +149,7 @@ def main(argv=None):
     try:
         result = lead_time_errors_for(args.data, args.model, args.hit_plane_x,
                                       args.filter_config)
-    except (DataError, ValueError) as exc:
+    except ValueError as exc:           # DataError is one
         print(f'lead_report: {exc}', file=sys.stderr)
         return 2
     write(result, args.out)

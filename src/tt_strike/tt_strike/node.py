@@ -37,7 +37,7 @@ from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 from .hitpoint import choose
 from .robust import noise_covariance
 from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
-from .workspace import WorkspaceError, load_workspace
+from .workspace import load_workspace
 
 _D = StrikeSettings()
 PARAMETERS = (
@@ -117,7 +117,7 @@ class StrikeNode(Node):
             raise StartupError(f'model_file: {exc}') from None
         try:
             self.workspace = load_workspace(self.p.workspace_file)
-        except (ValueError, WorkspaceError) as exc:
+        except ValueError as exc:           # WorkspaceError is one
             raise StartupError(f'workspace_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
@@ -232,9 +232,7 @@ class StrikeNode(Node):
             hit, sol = plan.hit, plan.solution
             status, reason = plan.status, plan.reason
             if sol is None:
-                sol = StrikeSolution(status, reason)
-                resolved = resolve_target(**target)
-                sol.target_zone, sol.target_point = resolved
+                sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if cov is not None and sol.feasible:
             self.last_probability = (key, stamp_ns, sol.in_zone_probability)
         elif sol.feasible and self.last_probability and self.last_probability[0] == key:
