@@ -293,7 +293,6 @@ class V4L2Camera:
         self.dropped = 0
         self.dropped_indices = []
         self._t0 = None
-        self._reopened = False
         self._grabbed = False
 
     def open(self):
@@ -302,32 +301,13 @@ class V4L2Camera:
     def grab(self):
         """Index of the next frame once the driver has it; -1 while the device is away (it
         is reopened every ``reopen_interval``, ``source.status`` says what happened)."""
-        src = self.source
         self._grabbed = False
-        if src.capture is None:
-            now = time.monotonic()
-            if now < src._next_try:
-                return -1
-            src._next_try = now + src.reopen_interval
-            try:
-                src.open()
-            except OSError as exc:
-                src.status = str(exc)
-                return -1
-            if self._t0 is not None:
-                src.status = f'{src.device}: reopened'
-                self._reopened = True
-        if not src.capture.grab():
-            src.status = f'{src.device}: camera stopped delivering frames, reopening'
-            src.close()
-            src._next_try = time.monotonic() + src.reopen_interval
+        t = self.source.grab()
+        if t is None:
             return -1
-        stamp_ms = src.capture.get(cv2.CAP_PROP_POS_MSEC)
-        t = stamp_ms * 1e-3 + src._clock_offset if stamp_ms > 0 else time.time()
-        if self._t0 is None or self._reopened:
+        if self._t0 is None or self.source.reopened:
             # Frames while the device was away are not drops of this node: count on.
             self._t0 = t - (self.index + 1) / self.fps
-            self._reopened = False
         index = max(int(round((t - self._t0) * self.fps)), self.index + 1)
         for lost in range(self.index + 1, index):
             self.dropped += 1
@@ -340,10 +320,7 @@ class V4L2Camera:
         return out
 
     def retrieve(self):
-        if not self._grabbed:
-            return None
-        ok, frame = self.source.capture.retrieve()
-        return frame if ok else None
+        return self.source.retrieve() if self._grabbed else None
 
     def close(self):
         self.source.close()
