@@ -34,8 +34,8 @@ import time
 
 import cv2
 import numpy as np
+from tt_prediction.ball_filter import BallFilter
 
-from .estimator import BallFilter
 from .sources import V4L2Source, VideoFileSource
 
 END = 'end'

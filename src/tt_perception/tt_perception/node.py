@@ -33,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
+from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.executor import run_node
 from tt_ros.messages import set_time, set_xyz
@@ -54,7 +55,6 @@ from .camstream import (
     warm_up,
 )
 from .detect import DetectorConfig
-from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import camera_info_topic, image_to_bgr, source_kind
 
