@@ -108,28 +108,21 @@ def cpu_s(pid):
     return total / os.sysconf('SC_CLK_TCK')
 
 
-def spin_until(collector, condition, timeout, what):
-    """Take messages as they come (no sleeps between) until ``condition()``."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f'timed out after {timeout:.0f} s waiting for {what}')
-        collector.executor.spin_once(timeout_sec=0.01)
-
-
 def run():
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from tt_perception.camera import load_rig
+    from tt_perception.node import CAMERAS_DIAGNOSTIC
     from tt_tools.collector import Collector, stamp_s
-    from tt_tools.procs import ProcessGroup, ros_env
+    from tt_tools.procs import ProcessGroup, ros_env, wait_until
 
     from tt_msgs.msg import BallState
 
     os.environ.update(ros_env())
     folder = pathlib.Path(__file__).resolve().parent / 'results' / 'camrate_scene'
     meta = make_scene(folder)
+    cameras = len(load_rig(str(folder / 'rig.yaml')).cameras)
     load_before = os.getloadavg()
-    states, diags = [], {}
+    states = []
     logs = folder.parent / 'camrate_logs'
     logs.mkdir(parents=True, exist_ok=True)
     with ProcessGroup(str(logs)) as group, \
@@ -139,25 +132,20 @@ def run():
             BallState, '/ball/state',
             lambda msg: states.append((stamp_s(msg.header.stamp), time.time(), msg.track_id)),
             QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
-
-        def on_diag(msg):
-            for status in msg.status:
-                if status.name == 'perception_node: cameras':
-                    diags.update({kv.key: kv.value for kv in status.values})
-
-        node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        diags = collector.watch_diagnostics(CAMERAS_DIAGNOSTIC)
         proc = group.start('perception', [
             'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
             '-p', f'rig_file:={folder / "rig.yaml"}', '-p', 'video_clock:=wall',
             '-p', 'wait_for_subscribers:=1'])
         duration = meta['frames_per_camera'] / FPS
-        spin_until(collector, lambda: diags.get('video_start_wall_s'), 90.0,
-                   'perception_node to start the videos')
+        # Messages taken as they come (no sleep between polls): their arrival times count.
+        wait_until(lambda: collector.spin_once() or diags.get('video_start_wall_s'), 90.0,
+                   'perception_node to start the videos', poll=0.0)
         cpu_start = cpu_s(proc.pid)
-        spin_until(collector, lambda: diags.get('cameras_ended') == '2', duration + 60.0,
-                   'the end of the videos')
+        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == str(cameras),
+                   duration + 60.0, 'the end of the videos', poll=0.0)
         cpu_used = cpu_s(proc.pid) - cpu_start
-        # Published after both cameras' last frames were processed: the counts are final.
+        # Published after every camera's last frame was processed: the counts are final.
         final = dict(diags)
     load_after = os.getloadavg()
     stamps = np.array([s for s, _, _ in states])
@@ -173,7 +161,7 @@ def run():
             lo = r * seg + ball['launch']
             hi = r * seg + ball['hit']
             tracked += bool(np.any((video_t >= lo) & (video_t <= hi)))
-    frames_in_files = 2 * meta['frames_per_camera']
+    frames_in_files = cameras * meta['frames_per_camera']
     dropped_frames = sum(int(v) for key, v in final.items() if key.endswith('_frames_dropped'))
     pairs = int(final['frame_pairs_dropped'])
     p50, p99 = float(final['latency_p50_ms']), float(final['latency_p99_ms'])

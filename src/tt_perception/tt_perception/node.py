@@ -60,6 +60,9 @@ from .sources import camera_info_topic, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+CAMERAS_DIAGNOSTIC = 'perception_node: cameras'
+"""Name of the status on /diagnostics with the counts of the in-process cameras (frames read,
+dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
 CAMERA_BUFFERS = 8
 """Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
 emulates them): how long a camera thread may stall before frames are lost."""
@@ -393,7 +396,7 @@ class PerceptionNode(Node):
         """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
         lost, pairs = self.drops.snapshot()
         p50, p99 = self.latency.percentiles_ms()
-        status = DiagnosticStatus(name='perception_node: cameras', hardware_id=self.rig.path)
+        status = DiagnosticStatus(name=CAMERAS_DIAGNOSTIC, hardware_id=self.rig.path)
         status.level = DiagnosticStatus.OK if pairs == 0 else DiagnosticStatus.WARN
         status.message = f'{pairs} frame pairs dropped'
         values = {'frame_pairs_dropped': pairs, 'frames_processed': self.frames_received,
