@@ -41,7 +41,7 @@ LEAD_IN = 0.2
 def make_scene(folder):
     """The two videos (60 s) and the rig; cached while the request matches."""
     import cv2
-    from tt_perception.camera import load_rig, save_camera_info, save_rig
+    from tt_perception.camera import load_rig
     from tt_tools.scenario import demo_balls
 
     from tt_perception import synth
@@ -61,25 +61,16 @@ def make_scene(folder):
         rig, [tr.ball.launch_state for tr in truths], [tr.ball.launch_time for tr in truths],
         duration=t_begin + SEGMENT_S - truths[-1].ball.launch_time, lead_in=LEAD_IN,
         lighting=0.0, imaging='hall', exposure=2e-3, seed=3)
-    segment = [[], []]
+    segment = [[] for _ in rig.cameras]
     for _, k, frame in frames:
         ok, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
         segment[k].append(data)
     n = min(len(s) for s in segment)
-    for k, cam in enumerate(rig.cameras):
-        writer = cv2.VideoWriter(str(folder / f'{cam.name}.avi'),
-                                 cv2.VideoWriter_fourcc(*'MJPG'), FPS,
-                                 (cam.width, cam.height))
-        for _ in range(REPEATS):
-            for data in segment[k][:n]:
-                writer.write(cv2.imdecode(data, cv2.IMREAD_COLOR))
-        writer.release()
-        cam.source = f'{cam.name}.avi'
-        cam.time_offset = 0.0
-        cam.info_file = f'{cam.name}.yaml'
-        save_camera_info(str(folder / cam.info_file), cam.name, cam.width, cam.height, cam.K,
-                         cam.dist)
-    save_rig(str(folder / 'rig.yaml'), rig)
+    repeated = ((None, k, cv2.imdecode(data, cv2.IMREAD_COLOR))
+                for k in range(len(rig.cameras)) for _ in range(REPEATS)
+                for data in segment[k][:n])
+    # The videos and folder/rig.yaml with them as sources (synchronised cameras).
+    synth.write_scene(str(folder), rig_path, repeated, None, time_offset=0.0)
     # Ball times in video time (s from the first frame of a segment).
     meta = {'request': request, 'frames_per_camera': n * REPEATS, 'segment_frames': n,
             'balls': [{'launch': tr.ball.launch_time - t_begin, 'hit': tr.hit_time - t_begin}
