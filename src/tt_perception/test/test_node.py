@@ -3,6 +3,7 @@
 Launch-free, a fresh rclpy Context per test; the test spins the executor until each published
 image has reached the node (no sleeps)."""
 
+import contextlib
 import os
 import select
 import signal
@@ -196,6 +197,27 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path, monkeypatc
     # The clock stands still: however long the test takes, nothing is lost.
     node._watch_cameras()
     assert not node._lost
+
+
+def test_blas_threads_are_restored_when_the_node_is_destroyed(graph, tmp_path, monkeypatch):
+    # The node keeps OpenBLAS to one thread while it reads cameras in-process; destroying it
+    # gives the process its thread count back.
+    events = []
+
+    @contextlib.contextmanager
+    def blas_threads(n):
+        events.append(('limit', n))
+        yield
+        events.append('restore')
+
+    monkeypatch.setattr(node_module, 'blas_threads', blas_threads)
+    ctx, _, _ = graph
+    rig_path = synth.make_rig(str(tmp_path), sources=['cam0.avi', 'cam1.avi'])
+    node = PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=rig_path)])
+    assert events == [('limit', 1)]
+    node.destroy_node()
+    assert events == [('limit', 1), 'restore']
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])

@@ -17,6 +17,7 @@ frame of the wrong size or encoding is dropped with a warning; a camera that sto
 is reported (and a device reopened) while the node keeps running.
 """
 
+import contextlib
 import gc
 import math
 import os
@@ -169,6 +170,7 @@ class PerceptionNode(Node):
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
         self._warned = set()
+        self._exit = contextlib.ExitStack()     # undone in destroy_node
         self._setup()
 
     def _p(self, name):
@@ -255,8 +257,7 @@ class PerceptionNode(Node):
             # the other core, and a call split over two threads waits for the slower one,
             # which on a busy machine may not be running at all.
             cv2.setNumThreads(1)
-            self._blas = blas_threads(1)
-            self._blas.__enter__()
+            self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
         self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
@@ -479,6 +480,7 @@ class PerceptionNode(Node):
         for thread in [*self._readers, self._worker]:
             if thread is not None and thread.is_alive():
                 thread.join(timeout=2.0)
+        self._exit.close()
         return super().destroy_node()
 
 
