@@ -63,7 +63,7 @@ def make_scene(folder):
         lighting=0.0, imaging='hall', exposure=2e-3, seed=3)
     segment = [[] for _ in rig.cameras]
     for _, k, frame in frames:
-        ok, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        _, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
         segment[k].append(data)
     n = min(len(s) for s in segment)
     repeated = ((None, k, cv2.imdecode(data, cv2.IMREAD_COLOR))

@@ -20,10 +20,12 @@ files as if they were cameras (paced at the rig's fps). Pure module (no rclpy).
   least one camera's frame.
 - :class:`CameraReader`: the thread of one camera (grab, stamp, retrieve, detect, queue).
 
-Times: a frame's ``t`` (s) is its exposure time on the source's time base: video time
-(``n / fps``) or, with ``wall_start`` set, the wall-clock time at which the paced frame is
-exposed (``wall_start + n / fps``), as a live camera's stamps are. ``index`` is the frame
-number since the source opened (the instant a pair is made of).
+Times: a frame's ``t`` (s) is its exposure time. A V4L2 camera's is the driver's buffer
+timestamp on the wall clock; a paced file's is ``stamp(index)`` of its :class:`CameraReader`,
+which perception_node makes video time (``n / fps``) or, with ``video_clock: wall``, the
+wall-clock time at which the paced frame is exposed (video start + ``n / fps``), as a live
+camera's stamps are. ``index`` is the frame number since the source opened (the instant a
+pair is made of).
 """
 
 import collections

@@ -366,15 +366,13 @@ class PerceptionNode(Node):
 
     def _work(self):
         """The processing thread: frames of the camera threads, in arrival order."""
-        ended = set()
         while not self._stop.is_set():
             frame = self.frames_queue.get(timeout=0.1)
             if frame is None:
                 continue
             if frame.kind == END:
-                ended.add(frame.camera)
                 self._ended.add(frame.camera)
-                if self._files and ended >= set(self._files):
+                if self._files and self._ended >= set(self._files):
                     self.get_logger().info(
                         f'end of the video files: {self.frames_received} frames, '
                         f'{self.states_published} states, {self.drops.pairs} frame pairs '

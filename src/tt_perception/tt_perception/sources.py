@@ -200,16 +200,15 @@ class V4L2Source(FrameSource):
             self.capture = None
 
 
-def file_frames(rig, cameras=None):
-    """(t, camera_index, frame) of the rig's video files (``cameras``: indices, default all),
-    one frame of each camera in turn at each frame index, ``t`` = index / fps on each camera's
-    own clock. Raises OSError naming the camera when a source is not a file or cannot be read.
+def file_frames(rig):
+    """(t, camera_index, frame) of the rig's video files, one frame of each camera in turn at
+    each frame index, ``t`` = index / fps on each camera's own clock. Raises OSError naming
+    the camera when a source is not a file or cannot be read.
     """
     base = os.path.dirname(rig.path)
     sources = {}
     try:
-        for k in (range(len(rig.cameras)) if cameras is None else cameras):
-            cam = rig.cameras[k]
+        for k, cam in enumerate(rig.cameras):
             if source_kind(cam.source) != 'file':
                 raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file')
             path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)

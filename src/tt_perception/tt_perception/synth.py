@@ -390,7 +390,7 @@ def _sensor(frame, noise, rng):
     signal = frame.astype(np.float32)
     sigma = noise * np.sqrt(0.5 + signal / 256.0)
     noisy = np.clip(signal + sigma * rng.standard_normal(frame.shape, dtype=np.float32), 0, 255)
-    ok, data = cv2.imencode('.jpg', noisy.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 30])
+    _, data = cv2.imencode('.jpg', noisy.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 30])
     return cv2.imdecode(data, cv2.IMREAD_COLOR)
 
 
