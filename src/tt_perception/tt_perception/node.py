@@ -134,10 +134,12 @@ def ball_state_message(est, t_ref, frame_id):
 
 
 class PerceptionNode(Node):
-    """Cameras in, /ball/state out (see the module docstring)."""
+    """Cameras in, /ball/state out (see the module docstring). ``monotonic``: the clock (s)
+    of the camera watchdog, which reports a camera without frames for ``camera_timeout``."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, *, monotonic=time.monotonic, **kwargs):
         super().__init__('perception_node', **kwargs)
+        self._monotonic = monotonic
         self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
         self.clock_pub = None
@@ -220,7 +222,7 @@ class PerceptionNode(Node):
                 devices.append(k)
             else:
                 files.append(k)
-            self._last_frame[k] = time.monotonic()
+            self._last_frame[k] = self._monotonic()
         self.drops = DropCounter(len(rig.cameras))
         lossless = self._p('video_rate') == 0.0 and not devices
         self.frames_queue = FrameQueue(
@@ -429,7 +431,7 @@ class PerceptionNode(Node):
 
     def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
-        self._last_frame[k] = time.monotonic()
+        self._last_frame[k] = self._monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
@@ -458,7 +460,7 @@ class PerceptionNode(Node):
         self.clock_pub.publish(self.clock_msg)
 
     def _watch_cameras(self):
-        now = time.monotonic()
+        now = self._monotonic()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             if (now - last > timeout and k not in self._lost and k not in self._ended
