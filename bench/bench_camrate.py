@@ -41,7 +41,7 @@ LEAD_IN = 0.2
 def make_scene(folder):
     """The two videos (60 s) and the rig; cached while the request matches."""
     import cv2
-    from tt_perception.camera import load_rig, save_camera_info, save_rig
+    from tt_perception.camera import load_rig
     from tt_tools.scenario import demo_balls
 
     from tt_perception import synth
@@ -61,25 +61,16 @@ def make_scene(folder):
         rig, [tr.ball.launch_state for tr in truths], [tr.ball.launch_time for tr in truths],
         duration=t_begin + SEGMENT_S - truths[-1].ball.launch_time, lead_in=LEAD_IN,
         lighting=0.0, imaging='hall', exposure=2e-3, seed=3)
-    segment = [[], []]
+    segment = [[] for _ in rig.cameras]
     for _, k, frame in frames:
-        ok, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        _, data = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, 90])
         segment[k].append(data)
     n = min(len(s) for s in segment)
-    for k, cam in enumerate(rig.cameras):
-        writer = cv2.VideoWriter(str(folder / f'{cam.name}.avi'),
-                                 cv2.VideoWriter_fourcc(*'MJPG'), FPS,
-                                 (cam.width, cam.height))
-        for _ in range(REPEATS):
-            for data in segment[k][:n]:
-                writer.write(cv2.imdecode(data, cv2.IMREAD_COLOR))
-        writer.release()
-        cam.source = f'{cam.name}.avi'
-        cam.time_offset = 0.0
-        cam.info_file = f'{cam.name}.yaml'
-        save_camera_info(str(folder / cam.info_file), cam.name, cam.width, cam.height, cam.K,
-                         cam.dist)
-    save_rig(str(folder / 'rig.yaml'), rig)
+    repeated = ((None, k, cv2.imdecode(data, cv2.IMREAD_COLOR))
+                for k in range(len(rig.cameras)) for _ in range(REPEATS)
+                for data in segment[k][:n])
+    # The videos and folder/rig.yaml with them as sources (synchronised cameras).
+    synth.write_scene(str(folder), rig_path, repeated, None, time_offset=0.0)
     # Ball times in video time (s from the first frame of a segment).
     meta = {'request': request, 'frames_per_camera': n * REPEATS, 'segment_frames': n,
             'balls': [{'launch': tr.ball.launch_time - t_begin, 'hit': tr.hit_time - t_begin}
@@ -108,28 +99,21 @@ def cpu_s(pid):
     return total / os.sysconf('SC_CLK_TCK')
 
 
-def spin_until(collector, condition, timeout, what):
-    """Take messages as they come (no sleeps between) until ``condition()``."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f'timed out after {timeout:.0f} s waiting for {what}')
-        collector.executor.spin_once(timeout_sec=0.01)
-
-
 def run():
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from tt_perception.camera import load_rig
+    from tt_perception.node import CAMERAS_DIAGNOSTIC
     from tt_tools.collector import Collector, stamp_s
-    from tt_tools.procs import ProcessGroup, ros_env
+    from tt_tools.procs import ProcessGroup, ros_env, wait_until
 
     from tt_msgs.msg import BallState
 
     os.environ.update(ros_env())
     folder = pathlib.Path(__file__).resolve().parent / 'results' / 'camrate_scene'
     meta = make_scene(folder)
+    cameras = len(load_rig(str(folder / 'rig.yaml')).cameras)
     load_before = os.getloadavg()
-    states, diags = [], {}
+    states = []
     logs = folder.parent / 'camrate_logs'
     logs.mkdir(parents=True, exist_ok=True)
     with ProcessGroup(str(logs)) as group, \
@@ -139,25 +123,20 @@ def run():
             BallState, '/ball/state',
             lambda msg: states.append((stamp_s(msg.header.stamp), time.time(), msg.track_id)),
             QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
-
-        def on_diag(msg):
-            for status in msg.status:
-                if status.name == 'perception_node: cameras':
-                    diags.update({kv.key: kv.value for kv in status.values})
-
-        node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        diags = collector.watch_diagnostics(CAMERAS_DIAGNOSTIC)
         proc = group.start('perception', [
             'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
             '-p', f'rig_file:={folder / "rig.yaml"}', '-p', 'video_clock:=wall',
             '-p', 'wait_for_subscribers:=1'])
         duration = meta['frames_per_camera'] / FPS
-        spin_until(collector, lambda: diags.get('video_start_wall_s'), 90.0,
-                   'perception_node to start the videos')
+        # Messages taken as they come (no sleep between polls): their arrival times count.
+        wait_until(lambda: collector.spin_once() or diags.get('video_start_wall_s'), 90.0,
+                   'perception_node to start the videos', poll=0.0)
         cpu_start = cpu_s(proc.pid)
-        spin_until(collector, lambda: diags.get('cameras_ended') == '2', duration + 60.0,
-                   'the end of the videos')
+        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == str(cameras),
+                   duration + 60.0, 'the end of the videos', poll=0.0)
         cpu_used = cpu_s(proc.pid) - cpu_start
-        # Published after both cameras' last frames were processed: the counts are final.
+        # Published after every camera's last frame was processed: the counts are final.
         final = dict(diags)
     load_after = os.getloadavg()
     stamps = np.array([s for s, _, _ in states])
@@ -173,7 +152,7 @@ def run():
             lo = r * seg + ball['launch']
             hi = r * seg + ball['hit']
             tracked += bool(np.any((video_t >= lo) & (video_t <= hi)))
-    frames_in_files = 2 * meta['frames_per_camera']
+    frames_in_files = cameras * meta['frames_per_camera']
     dropped_frames = sum(int(v) for key, v in final.items() if key.endswith('_frames_dropped'))
     pairs = int(final['frame_pairs_dropped'])
     p50, p99 = float(final['latency_p50_ms']), float(final['latency_p99_ms'])

@@ -223,3 +223,65 @@ def test_absent_device_is_retried_and_loses_nothing():
     assert cam.grab() == -1 and cam.grab() == -1
     assert 'cannot be opened' in cam.source.status
     assert cam.retrieve() is None and cam.dropped == 0 and cam.take_dropped() == []
+
+
+class FakeCapture:
+    """A V4L2 device's OpenCV capture: each grab takes the next buffer timestamp (ms) of a
+    script shared by every opening; None: the device stops delivering."""
+
+    def __init__(self, stamps):
+        self.stamps = stamps
+        self.stamp = 0.0
+
+    def grab(self):
+        stamp = self.stamps.pop(0) if self.stamps else None
+        if stamp is None:
+            return False
+        self.stamp = stamp
+        return True
+
+    def get(self, prop):
+        assert prop == cv2.CAP_PROP_POS_MSEC
+        return self.stamp
+
+    def retrieve(self):
+        return True, np.full((2, 2, 3), int(self.stamp) % 256, np.uint8)
+
+    def release(self):
+        pass
+
+
+def test_device_frames_lost_by_the_driver_are_counted_and_a_reopening_is_not():
+    # Stamps 10 ms apart at 100 fps: 30 ms missing is frame 2 lost; the device then stops,
+    # comes back 1 s later and numbering goes on from the next index without counting the
+    # second it was away.
+    from tt_perception.camstream import V4L2Camera
+    from tt_perception.sources import V4L2Source
+
+    stamps = [10.0, 20.0, 40.0, None, 1000.0, 1010.0]
+
+    class FakeDevice(V4L2Source):
+        def open(self):
+            self.capture = FakeCapture(stamps)
+            self.status = f'{self.device}: opened'
+            return self
+
+    src = FakeDevice('/dev/video_tt_fake', fps=FPS, reopen_interval=0.0)
+    cam = V4L2Camera(src)
+    got = []
+    for _ in range(6):
+        index = cam.grab()
+        image = cam.retrieve()
+        got.append((index, None if image is None else int(image[0, 0, 0]), src.status))
+    assert got == [(0, 10, '/dev/video_tt_fake: opened'), (1, 20, '/dev/video_tt_fake: opened'),
+                   (3, 40, '/dev/video_tt_fake: opened'),
+                   (-1, None, '/dev/video_tt_fake: camera stopped delivering frames, reopening'),
+                   (4, 1000 % 256, '/dev/video_tt_fake: reopened'),
+                   (5, 1010 % 256, '/dev/video_tt_fake: reopened')]
+    assert cam.dropped == 1 and cam.take_dropped() == [2]
+    assert cam.t == pytest.approx(1.010 + src._clock_offset)
+    # read() is grab and retrieve: the frame and the same wall-clock stamp.
+    stamps[:] = [1020.0]
+    t, frame = src.read()
+    assert t == pytest.approx(1.020 + src._clock_offset) and int(frame[0, 0, 0]) == 1020 % 256
+    assert src.read() == (None, None) and 'stopped delivering' in src.status

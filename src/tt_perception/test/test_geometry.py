@@ -4,9 +4,9 @@ geometry or tt_prediction's integrator."""
 import numpy as np
 import pytest
 from tt_perception.camera import CalibrationError, load_rig
-from tt_perception.estimator import BallFilter
 from tt_perception.triangulate import triangulate
 from tt_prediction.ball import ModelParams, rollout
+from tt_prediction.ball_filter import BallFilter
 import yaml
 
 from tt_perception import calibrate, synth

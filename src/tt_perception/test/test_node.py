@@ -3,13 +3,13 @@
 Launch-free, a fresh rclpy Context per test; the test spins the executor until each published
 image has reached the node (no sleeps)."""
 
+import contextlib
 import os
 import select
 import signal
 import subprocess
 import sys
 import time
-import types
 import uuid
 
 from geometry_msgs.msg import Vector3Stamped
@@ -154,18 +154,16 @@ def test_missing_rig_file_publishes_nothing(graph, tmp_path):
     assert node.states_published == 0
 
 
-def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path, monkeypatch):
-    # The watchdog's clock (time.monotonic in the node's module) is the test's: it moves only
-    # when the test moves it, so a camera is lost after camera_timeout of that clock, whatever
-    # the test's pace.
+def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
+    # The watchdog's clock is the test's: it moves only when the test moves it, so a camera is
+    # lost after camera_timeout of that clock, whatever the test's pace.
     ctx, executor, add = graph
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     frames, _ = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
     frames = list(frames)
     now = [10.0]
-    monkeypatch.setattr(node_module, 'time', types.SimpleNamespace(monotonic=lambda: now[0]))
-    node = add(PerceptionNode(context=ctx, parameter_overrides=[
+    node = add(PerceptionNode(context=ctx, monotonic=lambda: now[0], parameter_overrides=[
         Parameter('rig_file', value=rig_path), Parameter('camera_timeout', value=0.2)]))
     peer = add(rclpy.create_node('image_player', context=ctx))
     pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
@@ -196,6 +194,27 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path, monkeypatc
     # The clock stands still: however long the test takes, nothing is lost.
     node._watch_cameras()
     assert not node._lost
+
+
+def test_blas_threads_are_restored_when_the_node_is_destroyed(graph, tmp_path, monkeypatch):
+    # The node keeps OpenBLAS to one thread while it reads cameras in-process; destroying it
+    # gives the process its thread count back.
+    events = []
+
+    @contextlib.contextmanager
+    def blas_threads(n):
+        events.append(('limit', n))
+        yield
+        events.append('restore')
+
+    monkeypatch.setattr(node_module, 'blas_threads', blas_threads)
+    ctx, _, _ = graph
+    rig_path = synth.make_rig(str(tmp_path), sources=['cam0.avi', 'cam1.avi'])
+    node = PerceptionNode(context=ctx, parameter_overrides=[
+        Parameter('rig_file', value=rig_path)])
+    assert events == [('limit', 1)]
+    node.destroy_node()
+    assert events == [('limit', 1), 'restore']
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])

@@ -4,12 +4,16 @@ device that is absent or vanishes (reported and retried, never raised from read)
 import cv2
 import numpy as np
 import pytest
+from tt_perception.camera import load_rig
 from tt_perception.sources import (
     V4L2Source,
     VideoFileSource,
+    file_frames,
     image_to_bgr,
     source_kind,
 )
+
+from tt_perception import synth
 
 
 @pytest.mark.parametrize('source, kind', [
@@ -47,6 +51,22 @@ def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):
     assert got[3] == (None, None)
     with pytest.raises(OSError, match='no such video file'):
         VideoFileSource(str(tmp_path / 'absent.avi'), 100.0).open()
+
+
+def test_scene_videos_are_read_back_camera_by_camera(tmp_path):
+    # write_scene's videos (synth.CameraVideos, MJPG) through file_frames: each camera's
+    # frames in turn at each index, at index / fps; no truth given, no truth.csv.
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 40 * n + 20 * k, np.uint8))
+              for n in range(3) for k in range(2)]
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None)
+    assert not (tmp_path / 'video' / 'truth.csv').exists()
+    rig = load_rig(video_rig)
+    assert [cam.source for cam in rig.cameras] == ['cam0.avi', 'cam1.avi']
+    got = [(t, k, int(round(frame.mean()))) for t, k, frame in file_frames(rig)]
+    assert [(t, k) for t, k, _ in got] == [(0.0, 0), (0.0, 1), (0.01, 0), (0.01, 1),
+                                           (0.02, 0), (0.02, 1)]
+    assert all(abs(grey - (40 * (i // 2) + 20 * k)) <= 2 for i, (_, k, grey) in enumerate(got))
 
 
 def test_absent_v4l2_device_is_reported_and_retried():

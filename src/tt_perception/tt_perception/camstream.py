@@ -20,10 +20,12 @@ files as if they were cameras (paced at the rig's fps). Pure module (no rclpy).
   least one camera's frame.
 - :class:`CameraReader`: the thread of one camera (grab, stamp, retrieve, detect, queue).
 
-Times: a frame's ``t`` (s) is its exposure time on the source's time base: video time
-(``n / fps``) or, with ``wall_start`` set, the wall-clock time at which the paced frame is
-exposed (``wall_start + n / fps``), as a live camera's stamps are. ``index`` is the frame
-number since the source opened (the instant a pair is made of).
+Times: a frame's ``t`` (s) is its exposure time. A V4L2 camera's is the driver's buffer
+timestamp on the wall clock; a paced file's is ``stamp(index)`` of its :class:`CameraReader`,
+which perception_node makes video time (``n / fps``) or, with ``video_clock: wall``, the
+wall-clock time at which the paced frame is exposed (video start + ``n / fps``), as a live
+camera's stamps are. ``index`` is the frame number since the source opened (the instant a
+pair is made of).
 """
 
 import collections
@@ -34,8 +36,8 @@ import time
 
 import cv2
 import numpy as np
+from tt_prediction.ball_filter import BallFilter
 
-from .estimator import BallFilter
 from .sources import V4L2Source, VideoFileSource
 
 END = 'end'
@@ -293,7 +295,6 @@ class V4L2Camera:
         self.dropped = 0
         self.dropped_indices = []
         self._t0 = None
-        self._reopened = False
         self._grabbed = False
 
     def open(self):
@@ -302,32 +303,13 @@ class V4L2Camera:
     def grab(self):
         """Index of the next frame once the driver has it; -1 while the device is away (it
         is reopened every ``reopen_interval``, ``source.status`` says what happened)."""
-        src = self.source
         self._grabbed = False
-        if src.capture is None:
-            now = time.monotonic()
-            if now < src._next_try:
-                return -1
-            src._next_try = now + src.reopen_interval
-            try:
-                src.open()
-            except OSError as exc:
-                src.status = str(exc)
-                return -1
-            if self._t0 is not None:
-                src.status = f'{src.device}: reopened'
-                self._reopened = True
-        if not src.capture.grab():
-            src.status = f'{src.device}: camera stopped delivering frames, reopening'
-            src.close()
-            src._next_try = time.monotonic() + src.reopen_interval
+        t = self.source.grab()
+        if t is None:
             return -1
-        stamp_ms = src.capture.get(cv2.CAP_PROP_POS_MSEC)
-        t = stamp_ms * 1e-3 + src._clock_offset if stamp_ms > 0 else time.time()
-        if self._t0 is None or self._reopened:
+        if self._t0 is None or self.source.reopened:
             # Frames while the device was away are not drops of this node: count on.
             self._t0 = t - (self.index + 1) / self.fps
-            self._reopened = False
         index = max(int(round((t - self._t0) * self.fps)), self.index + 1)
         for lost in range(self.index + 1, index):
             self.dropped += 1
@@ -340,10 +322,7 @@ class V4L2Camera:
         return out
 
     def retrieve(self):
-        if not self._grabbed:
-            return None
-        ok, frame = self.source.capture.retrieve()
-        return frame if ok else None
+        return self.source.retrieve() if self._grabbed else None
 
     def close(self):
         self.source.close()

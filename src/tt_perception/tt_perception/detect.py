@@ -228,7 +228,7 @@ class BallDetector:
         seed = np.zeros_like(sil)
         seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
         sil |= seed
-        n, labels = cv2.connectedComponents(sil, connectivity=8)
+        _, labels = cv2.connectedComponents(sil, connectivity=8)
         keep = np.unique(labels[(seed > 0) & (labels > 0)])
         region = (labels == keep[0]) if len(keep) == 1 else np.isin(labels, keep)
         # Coverage: full inside the silhouette, the shaded side included; on its outline

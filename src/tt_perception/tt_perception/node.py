@@ -17,6 +17,7 @@ frame of the wrong size or encoding is dropped with a warning; a camera that sto
 is reported (and a device reopened) while the node keeps running.
 """
 
+import contextlib
 import gc
 import math
 import os
@@ -33,6 +34,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
+from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.executor import run_node
 from tt_ros.messages import set_time, set_xyz
@@ -54,12 +56,14 @@ from .camstream import (
     warm_up,
 )
 from .detect import DetectorConfig
-from .estimator import FilterConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import camera_info_topic, image_to_bgr, source_kind
 
 STATE_TOPIC = '/ball/state'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+CAMERAS_DIAGNOSTIC = 'perception_node: cameras'
+"""Name of the status on /diagnostics with the counts of the in-process cameras (frames read,
+dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
 CAMERA_BUFFERS = 8
 """Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
 emulates them): how long a camera thread may stall before frames are lost."""
@@ -130,10 +134,12 @@ def ball_state_message(est, t_ref, frame_id):
 
 
 class PerceptionNode(Node):
-    """Cameras in, /ball/state out (see the module docstring)."""
+    """Cameras in, /ball/state out (see the module docstring). ``monotonic``: the clock (s)
+    of the camera watchdog, which reports a camera without frames for ``camera_timeout``."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, *, monotonic=time.monotonic, **kwargs):
         super().__init__('perception_node', **kwargs)
+        self._monotonic = monotonic
         self.p = Parameters(self, PARAMETERS)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
         self.clock_pub = None
@@ -166,6 +172,7 @@ class PerceptionNode(Node):
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
         self._warned = set()
+        self._exit = contextlib.ExitStack()     # undone in destroy_node
         self._setup()
 
     def _p(self, name):
@@ -215,7 +222,7 @@ class PerceptionNode(Node):
                 devices.append(k)
             else:
                 files.append(k)
-            self._last_frame[k] = time.monotonic()
+            self._last_frame[k] = self._monotonic()
         self.drops = DropCounter(len(rig.cameras))
         lossless = self._p('video_rate') == 0.0 and not devices
         self.frames_queue = FrameQueue(
@@ -252,8 +259,7 @@ class PerceptionNode(Node):
             # the other core, and a call split over two threads waits for the slower one,
             # which on a busy machine may not be running at all.
             cv2.setNumThreads(1)
-            self._blas = blas_threads(1)
-            self._blas.__enter__()
+            self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
         self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
@@ -362,15 +368,13 @@ class PerceptionNode(Node):
 
     def _work(self):
         """The processing thread: frames of the camera threads, in arrival order."""
-        ended = set()
         while not self._stop.is_set():
             frame = self.frames_queue.get(timeout=0.1)
             if frame is None:
                 continue
             if frame.kind == END:
-                ended.add(frame.camera)
                 self._ended.add(frame.camera)
-                if self._files and ended >= set(self._files):
+                if self._files and self._ended >= set(self._files):
                     self.get_logger().info(
                         f'end of the video files: {self.frames_received} frames, '
                         f'{self.states_published} states, {self.drops.pairs} frame pairs '
@@ -393,7 +397,7 @@ class PerceptionNode(Node):
         """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
         lost, pairs = self.drops.snapshot()
         p50, p99 = self.latency.percentiles_ms()
-        status = DiagnosticStatus(name='perception_node: cameras', hardware_id=self.rig.path)
+        status = DiagnosticStatus(name=CAMERAS_DIAGNOSTIC, hardware_id=self.rig.path)
         status.level = DiagnosticStatus.OK if pairs == 0 else DiagnosticStatus.WARN
         status.message = f'{pairs} frame pairs dropped'
         values = {'frame_pairs_dropped': pairs, 'frames_processed': self.frames_received,
@@ -427,7 +431,7 @@ class PerceptionNode(Node):
 
     def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
-        self._last_frame[k] = time.monotonic()
+        self._last_frame[k] = self._monotonic()
         if k in self._lost:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
@@ -456,7 +460,7 @@ class PerceptionNode(Node):
         self.clock_pub.publish(self.clock_msg)
 
     def _watch_cameras(self):
-        now = time.monotonic()
+        now = self._monotonic()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             if (now - last > timeout and k not in self._lost and k not in self._ended
@@ -476,6 +480,7 @@ class PerceptionNode(Node):
         for thread in [*self._readers, self._worker]:
             if thread is not None and thread.is_alive():
                 thread.join(timeout=2.0)
+        self._exit.close()
         return super().destroy_node()
 
 

@@ -13,7 +13,7 @@
    reprojection error and on the blob width against the ball's diameter at that depth (a
    narrower blob, part of the ball lost against a same-coloured background, is down-weighted);
 4. a :class:`Tracker`: track start from two points at a plausible speed, EKF
-   (:mod:`tt_perception.estimator`) with Mahalanobis gating, confirmation after
+   (:mod:`tt_prediction.ball_filter`) with Mahalanobis gating, confirmation after
    ``confirm_updates`` updates, end after ``max_coast`` s without a measurement or when the
    ball leaves the volume above the floor.
 """
@@ -24,9 +24,9 @@ import itertools
 
 import numpy as np
 from tt_prediction.ball import ModelParams
+from tt_prediction.ball_filter import BallFilter, FilterConfig
 
 from .detect import BallDetector, DetectorConfig
-from .estimator import BallFilter, FilterConfig
 from .triangulate import refine, triangulate
 
 LIVE = object()

@@ -13,7 +13,9 @@ A rig camera's ``source`` string is classified by :func:`source_kind`:
 driver's buffer timestamp, CLOCK_MONOTONIC, moved to the wall clock; files: frame index over
 the frame rate) and ``frame`` a BGR uint8 image, or ``None`` when no frame came. A device that
 stops delivering is released and reopened every ``reopen_interval`` s; ``status`` says what
-happened last, for the caller to report.
+happened last, for the caller to report. A :class:`V4L2Source` also reads in two steps,
+``grab()`` (reopen when away, take the frame and its time ``t`` or None) and ``retrieve()``
+(decode it), for a reader that decodes only the frames it keeps.
 """
 
 import os
@@ -118,7 +120,9 @@ class V4L2Source(FrameSource):
         self.reopen_interval = reopen_interval
         self.buffers = int(buffers)
         self.capture = None
+        self.reopened = False
         self._next_try = 0.0
+        self._delivered = False        # a frame came since the source was made
         # V4L2 buffer timestamps are CLOCK_MONOTONIC; this moves them to the wall clock.
         self._clock_offset = time.time() - time.monotonic()
 
@@ -140,28 +144,55 @@ class V4L2Source(FrameSource):
         self.status = f'{self.device}: opened'
         return self
 
-    def read(self):
-        """Next frame ``(t, frame)``, or ``(None, None)`` while the device is away."""
+    def grab(self):
+        """Take the next frame from the driver; its time ``t`` (s, wall clock: the driver's
+        buffer timestamp), or None while the device is away. A device that is not open is
+        (re)opened, at most every ``reopen_interval`` s; ``reopened`` says whether this grab
+        brought back a device that had delivered frames before."""
+        self.reopened = False
         if self.capture is None:
             now = time.monotonic()
             if now < self._next_try:
-                return None, None
+                return None
             self._next_try = now + self.reopen_interval
             try:
                 self.open()
-                self.status = f'{self.device}: reopened'
             except OSError as exc:
                 self.status = str(exc)
-                return None, None
-        ok, frame = self.capture.read()
-        if not ok or frame is None:
-            self.status = f'{self.device}: camera stopped delivering frames, reopening'
-            self.close()
-            self._next_try = time.monotonic() + self.reopen_interval
-            return None, None
+                return None
+            if self._delivered:
+                self.status = f'{self.device}: reopened'
+                self.reopened = True
+        if not self.capture.grab():
+            self._lost()
+            return None
+        self._delivered = True
         stamp_ms = self.capture.get(cv2.CAP_PROP_POS_MSEC)
-        t = stamp_ms * 1e-3 + self._clock_offset if stamp_ms > 0 else time.time()
+        return stamp_ms * 1e-3 + self._clock_offset if stamp_ms > 0 else time.time()
+
+    def retrieve(self):
+        """The grabbed frame (BGR uint8), or None when it cannot be decoded."""
+        if self.capture is None:
+            return None
+        ok, frame = self.capture.retrieve()
+        return frame if ok else None
+
+    def read(self):
+        """Next frame ``(t, frame)``, or ``(None, None)`` while the device is away."""
+        t = self.grab()
+        if t is None:
+            return None, None
+        frame = self.retrieve()
+        if frame is None:
+            self._lost()
+            return None, None
         return t, frame
+
+    def _lost(self):
+        """The device stopped delivering: released, reopened after ``reopen_interval`` s."""
+        self.status = f'{self.device}: camera stopped delivering frames, reopening'
+        self.close()
+        self._next_try = time.monotonic() + self.reopen_interval
 
     def close(self):
         if self.capture is not None:
@@ -169,16 +200,15 @@ class V4L2Source(FrameSource):
             self.capture = None
 
 
-def file_frames(rig, cameras=None):
-    """(t, camera_index, frame) of the rig's video files (``cameras``: indices, default all),
-    one frame of each camera in turn at each frame index, ``t`` = index / fps on each camera's
-    own clock. Raises OSError naming the camera when a source is not a file or cannot be read.
+def file_frames(rig):
+    """(t, camera_index, frame) of the rig's video files, one frame of each camera in turn at
+    each frame index, ``t`` = index / fps on each camera's own clock. Raises OSError naming
+    the camera when a source is not a file or cannot be read.
     """
     base = os.path.dirname(rig.path)
     sources = {}
     try:
-        for k in (range(len(rig.cameras)) if cameras is None else cameras):
-            cam = rig.cameras[k]
+        for k, cam in enumerate(rig.cameras):
             if source_kind(cam.source) != 'file':
                 raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file')
             path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)

@@ -11,7 +11,8 @@ Public API (used by the tests and ``make demo``):
 
 - :func:`make_rig` writes a 2-camera rig (rig.yaml + one camera_info YAML per camera).
 - :func:`render_balls` yields ``(t, camera_index, frame)`` in time order and returns the truth.
-- :func:`write_scene` writes the frames as video files (or PNG sequences) plus ``truth.csv``.
+- :func:`write_scene` writes the frames as video files (or PNG sequences) plus ``truth.csv``;
+  :class:`CameraVideos` is its video writer (one MJPG file per camera).
 """
 
 import csv
@@ -389,8 +390,48 @@ def _sensor(frame, noise, rng):
     signal = frame.astype(np.float32)
     sigma = noise * np.sqrt(0.5 + signal / 256.0)
     noisy = np.clip(signal + sigma * rng.standard_normal(frame.shape, dtype=np.float32), 0, 255)
-    ok, data = cv2.imencode('.jpg', noisy.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 30])
+    _, data = cv2.imencode('.jpg', noisy.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 30])
     return cv2.imdecode(data, cv2.IMREAD_COLOR)
+
+
+class CameraVideos:
+    """Each camera's frames as a video in ``directory``: ``<camera name>.avi``, MJPG (what a
+    USB camera sends) at the rig's fps and the camera's size, created at the camera's first
+    frame. ``write(k, frame)`` returns the file's name; ``tee(frames)`` passes ``(t, k,
+    frame)`` through, writing every frame that is not None. Close it (or use ``with``) to
+    finish the files."""
+
+    def __init__(self, directory, rig):
+        self.directory = str(directory)
+        self.rig = rig
+        self._writers = {}
+
+    def write(self, k, frame):
+        cam = self.rig.cameras[k]
+        name = f'{cam.name}.avi'
+        if k not in self._writers:
+            self._writers[k] = cv2.VideoWriter(os.path.join(self.directory, name),
+                                               cv2.VideoWriter_fourcc(*'MJPG'), self.rig.fps,
+                                               (cam.width, cam.height))
+        self._writers[k].write(frame)
+        return name
+
+    def tee(self, frames):
+        for t, k, frame in frames:
+            if frame is not None:
+                self.write(k, frame)
+            yield t, k, frame
+
+    def close(self):
+        for writer in self._writers.values():
+            writer.release()
+        self._writers.clear()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 def write_scene(directory, rig_path, frames, truth, fmt='avi', time_offset=None):
@@ -398,42 +439,37 @@ def write_scene(directory, rig_path, frames, truth, fmt='avi', time_offset=None)
 
     The rig file at ``rig_path`` is rewritten with each camera's source pointing at its file
     (relative), and ``truth.csv`` (columns ``ball,t,x,y,z,vx,vy,vz,wx,wy,wz``) is written next
-    to it. ``time_offset`` (s), when given, is written as the second camera's known offset
-    (0.0: synchronised cameras, nothing to estimate). Returns the rig path.
+    to it (``truth`` None: no truth.csv). ``time_offset`` (s), when given, is written as the
+    second camera's known offset (0.0: synchronised cameras, nothing to estimate). Returns
+    the rig path.
     """
     rig = load_rig(rig_path)
     if time_offset is not None:
         rig.cameras[1].time_offset = float(time_offset)
     os.makedirs(directory, exist_ok=True)
-    writers = {}
     counters = {}
-    for _, k, frame in frames:
-        if frame is None:
-            continue
-        cam = rig.cameras[k]
-        if fmt == 'avi':
-            if k not in writers:
-                name = f'{cam.name}.avi'
-                writers[k] = cv2.VideoWriter(os.path.join(directory, name),
-                                             cv2.VideoWriter_fourcc(*'MJPG'), rig.fps,
-                                             (cam.width, cam.height))
-                cam.source = name
-            writers[k].write(frame)
-        else:
-            folder = os.path.join(directory, cam.name)
-            os.makedirs(folder, exist_ok=True)
-            n = counters.get(k, 0)
-            cv2.imwrite(os.path.join(folder, f'{n:06d}.png'), frame)
-            counters[k] = n + 1
-            cam.source = f'{cam.name}/%06d.png'
-    for w in writers.values():
-        w.release()
+    with CameraVideos(directory, rig) as videos:
+        for _, k, frame in frames:
+            if frame is None:
+                continue
+            cam = rig.cameras[k]
+            if fmt == 'avi':
+                cam.source = videos.write(k, frame)
+            else:
+                folder = os.path.join(directory, cam.name)
+                os.makedirs(folder, exist_ok=True)
+                n = counters.get(k, 0)
+                cv2.imwrite(os.path.join(folder, f'{n:06d}.png'), frame)
+                counters[k] = n + 1
+                cam.source = f'{cam.name}/%06d.png'
     out_rig = os.path.join(directory, 'rig.yaml')
     for cam in rig.cameras:
         cam.info_file = f'{cam.name}.yaml'
         save_camera_info(os.path.join(directory, cam.info_file), cam.name, cam.width,
                          cam.height, cam.K, cam.dist)
     save_rig(out_rig, rig)
+    if truth is None:
+        return out_rig
     with open(os.path.join(directory, 'truth.csv'), 'w', newline='', encoding='utf-8') as f:
         w = csv.writer(f)
         w.writerow(['ball', 't', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])

@@ -1,7 +1,7 @@
 """Extended Kalman filter of one ball, s = [p, v, w] (9,), through flight and table bounces.
 
 Frames and units: ``table`` frame (MODEL.md), p in m, v in m/s, w (spin) in rad/s, t in s.
-No rclpy: perception_node (triangulated points, ``tt_perception.estimator``) and the replay of
+No rclpy: perception_node (triangulated points, ``tt_perception.pipeline``) and the replay of
 measured tracks (``tt_prediction.replay``, 3-D positions) run this same filter.
 
 Flight. The state follows eq. 8 (drag + Magnus, with the effects of model.yaml) by one RK4

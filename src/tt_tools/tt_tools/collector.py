@@ -95,15 +95,32 @@ class Collector:
             self.executor.spin_once(timeout_sec=0.0)
         return False
 
-    def graph_ready(self):
+    def graph_ready(self, state_subscribers=3):
         """True once perception listens to every camera topic, prediction and strike listen to
-        their inputs, and the recorder listens to the outputs."""
+        their inputs, and the recorder listens to the outputs. ``state_subscribers``: the
+        subscriptions of /ball/state there must be (prediction, the recorder, this collector;
+        2 before perception starts: the recorder subscribes once it sees a publisher)."""
         node = self.node
         return (all(node.count_subscribers(t) >= 1 for t in self.image_topics)
-                and node.count_subscribers('/ball/state') >= 3
+                and node.count_subscribers('/ball/state') >= state_subscribers
                 and node.count_subscribers('/ball/prediction') >= 3
                 and node.count_subscribers('/strike/command') >= 2
                 and node.count_publishers('/strike/command') >= 1)
+
+    def watch_diagnostics(self, name, topic='/diagnostics'):
+        """A dict of the key/values of the statuses called ``name`` on ``topic``
+        (diagnostic_msgs/DiagnosticArray), updated as they arrive (newest values win)."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        values = {}
+
+        def on_diagnostics(msg):
+            for status in msg.status:
+                if status.name == name:
+                    values.update({kv.key: kv.value for kv in status.values})
+
+        self.node.create_subscription(DiagnosticArray, topic, on_diagnostics, 10)
+        return values
 
     def quiet_for(self, seconds):
         return time.monotonic() - self.last_arrival > seconds

@@ -76,41 +76,39 @@ def finish(group, collector, log_dir):
                   file=sys.stderr)
 
 
+def start_outputs(group, session, args, wall_stamps):
+    """Start prediction, strike and `ros2 bag record` of their outputs. ``wall_stamps``:
+    the states are stamped with the wall-clock exposure time, as on the robot; otherwise
+    (video time, or the recording's stamps replayed at ``--rate``) prediction has no
+    ``stale_after_s`` and strike no ``check_hit_time``."""
+    group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
+                               '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}']
+                + ([] if wall_stamps else ['-p', 'stale_after_s:=0.0']))
+    # The report strikes the true ball at the prediction's plane: use_hit_plane.
+    group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
+                           '-p', f'target_zone:={args.target_zone}', '-p', 'use_hit_plane:=true']
+                + ([] if wall_stamps else ['-p', 'check_hit_time:=false']))
+    group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
+
+
 def run_graph_video(rec, session, log_dir, args, collector):
     """The robot's configuration: prediction, strike and the recorder first, then perception
-    reading the two videos as cameras (paced at their fps times ``--rate``, live wall-clock
-    stamps at 1.0x); collect the outputs. Returns (video start as a wall time, s;
+    reading the recording's videos as cameras (paced at their fps times ``--rate``, live
+    wall-clock stamps at 1.0x); collect the outputs. Returns (video start as a wall time, s;
     perception's last diagnostics)."""
-    from diagnostic_msgs.msg import DiagnosticArray
+    from tt_perception.camera import load_rig
+    from tt_perception.node import CAMERAS_DIAGNOSTIC
 
-    diags = {}
-
-    def on_diag(msg):
-        for status in msg.status:
-            if status.name == 'perception_node: cameras':
-                diags.update({kv.key: kv.value for kv in status.values})
-
-    collector.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    cameras = str(len(load_rig(str(rec.video_rig)).cameras))
+    diags = collector.watch_diagnostics(CAMERAS_DIAGNOSTIC)
     live = args.rate == 1.0
     with ProcessGroup(str(log_dir)) as group:
-        group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
-                                   '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}']
-                    + ([] if live else ['-p', 'stale_after_s:=0.0']))
-        # The report strikes the true ball at the prediction's plane: use_hit_plane.
-        group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
-                               '-p', f'target_zone:={args.target_zone}',
-                               '-p', 'use_hit_plane:=true']
-                    + ([] if live else ['-p', 'check_hit_time:=false']))
-        group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
-        node = collector.node
-        wait_until(lambda: collector.spin_once() or (
-            # prediction and this collector; the recorder subscribes /ball/state once it sees
-            # perception's publisher: perception waits for all three (wait_for_subscribers).
-            node.count_subscribers('/ball/state') >= 2
-            and node.count_subscribers('/ball/prediction') >= 3
-            and node.count_subscribers('/strike/command') >= 2
-            and node.count_publishers('/strike/command') >= 1), 90.0,
-            f'prediction, strike and the recorder to join the graph (see {log_dir}/*.log)')
+        start_outputs(group, session, args, wall_stamps=live)
+        # /ball/state: prediction and this collector; the recorder subscribes once it sees
+        # perception's publisher: perception waits for all three (wait_for_subscribers).
+        wait_until(lambda: collector.spin_once() or collector.graph_ready(state_subscribers=2),
+                   90.0, f'prediction, strike and the recorder to join the graph (see '
+                   f'{log_dir}/*.log)')
         say(f'prediction, strike and recorder up; perception reads {rec.video_rig.parent.name}'
             f"'s videos as cameras at {args.rate}x real time")
         group.start('perception', [
@@ -118,8 +116,8 @@ def run_graph_video(rec, session, log_dir, args, collector):
             '-p', f'rig_file:={rec.video_rig}', '-p', f'video_rate:={args.rate}',
             '-p', f'video_clock:={"wall" if live else "video"}',
             '-p', 'wait_for_subscribers:=3'])
-        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == '2', 600.0,
-                   f'perception to play the videos (see {log_dir}/perception.log)')
+        wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == cameras,
+                   600.0, f'perception to play the videos (see {log_dir}/perception.log)')
         say('videos done')
         finish(group, collector, log_dir)
     start = float(diags['video_start_wall_s'])
@@ -132,13 +130,7 @@ def run_graph(recording, session, log_dir, args, collector):
     with ProcessGroup(str(log_dir), large_messages=True) as group:
         group.start('perception', ['ros2', 'run', 'tt_perception', 'perception_node',
                                    '--ros-args', '-p', f'rig_file:={rig}'])
-        group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
-                                   '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}',
-                                   '-p', 'stale_after_s:=0.0'])
-        group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
-                               '-p', f'target_zone:={args.target_zone}',
-                               '-p', 'check_hit_time:=false', '-p', 'use_hit_plane:=true'])
-        group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
+        start_outputs(group, session, args, wall_stamps=False)   # the recording's stamps
         wait_until(lambda: collector.spin_once() or collector.graph_ready(), 90.0,
                    'the three nodes and the recorder to join the graph (see '
                    f'{log_dir}/*.log)')

@@ -117,27 +117,6 @@ def write_bag(bag_dir, rig, frames):
     return count
 
 
-def _tee_videos(frames, folder, rig):
-    """Pass ``frames`` through, writing each camera's frames into ``folder/<camera>.avi``
-    (MJPG at the rig's fps)."""
-    import cv2
-
-    writers = {}
-    try:
-        for t, k, frame in frames:
-            if frame is not None:
-                cam = rig.cameras[k]
-                if k not in writers:
-                    writers[k] = cv2.VideoWriter(str(folder / f'{cam.name}.avi'),
-                                                 cv2.VideoWriter_fourcc(*'MJPG'), rig.fps,
-                                                 (cam.width, cam.height))
-                writers[k].write(frame)
-            yield t, k, frame
-    finally:
-        for writer in writers.values():
-            writer.release()
-
-
 def _request(balls, hit_plane_x, seed):
     return {'format': FORMAT_VERSION, 'balls': balls, 'hit_plane_x': hit_plane_x, 'seed': seed,
             'width': 640, 'height': 480, 'fps': 150.0}
@@ -172,7 +151,8 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
             params=params, seed=seed)
         print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
               f'{path / "bag"} (once; cached)', flush=True)
-        images = write_bag(str(tmp / 'bag'), rig, _tee_videos(frames, tmp, rig))
+        with synth.CameraVideos(tmp, rig) as videos:      # the same frames as MJPG videos
+            images = write_bag(str(tmp / 'bag'), rig, videos.tee(frames))
         video_t0 = truths[0].ball.launch_time - LEAD_IN_S
         for cam in rig.cameras:
             cam.source = f'{cam.name}.avi'
