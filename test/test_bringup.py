@@ -9,15 +9,14 @@ sleeps.
 
 import os
 import pathlib
-import random
 import re
 import signal
 import subprocess
 import threading
 import time
-import uuid
 
 import pytest
+from tt_ros.testing import unique_domain
 from tt_tools.procs import ros_env
 
 pytestmark = pytest.mark.graph
@@ -30,7 +29,7 @@ class Bringup:
     """A bringup process whose output lines are collected by a thread."""
 
     def __init__(self, *args):
-        env = ros_env({'ROS_DOMAIN_ID': str(random.Random(uuid.uuid4().int).randint(150, 230))})
+        env = ros_env({'ROS_DOMAIN_ID': str(unique_domain())})
         self.proc = subprocess.Popen(['ros2', 'run', 'tt_tools', 'bringup', *args], env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, text=True,

@@ -13,10 +13,9 @@ import uuid
 
 import pytest
 from rcl_interfaces.msg import ParameterType
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from tt_ros.testing import Graph
 from tt_tools.procs import ProcessGroup, ros_env
 
 pytestmark = pytest.mark.graph
@@ -29,15 +28,12 @@ def _tt_lines(stderr):
     return [line for line in stderr.splitlines() if line.strip() and 'RTPS_' not in line]
 
 
-class ParamClient:
+class ParamClient(Graph):
     """A parameter client of one live node, waiting on futures."""
 
     def __init__(self, node_path):
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node(f'ptest_{uuid.uuid4().hex[:6]}', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__()
+        self.node = self.create_node('ptest')
         self.client = AsyncParameterClient(self.node, node_path)
         assert self.client.wait_for_services(timeout_sec=TIMEOUT_S), f'{node_path} not up'
 
@@ -52,11 +48,6 @@ class ParamClient:
 
     def set(self, name, value):
         return self._wait(self.client.set_parameters([Parameter(name, value=value)])).results[0]
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _node(group, package, executable, ns, *params):

@@ -8,14 +8,13 @@ sleeps.
 
 import os
 import pathlib
-import random
 import re
 import signal
 import subprocess
 import textwrap
-import uuid
 
 import pytest
+from tt_ros.testing import unique_domain
 from tt_tools.procs import ros_env
 
 pytestmark = pytest.mark.graph
@@ -43,8 +42,7 @@ def test_the_block_is_found_and_ends_with_the_strike_command():
 
 def test_the_readme_quick_start_shows_a_strike_command():
     block = quick_start_block((TOP / 'README.md').read_text())
-    domain = str(random.Random(uuid.uuid4().int).randint(150, 230))
-    env = ros_env({'ROS_DOMAIN_ID': domain})
+    env = ros_env({'ROS_DOMAIN_ID': str(unique_domain())})
     proc = subprocess.Popen(['bash', '-c', block], cwd=TOP, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             stdin=subprocess.DEVNULL, start_new_session=True)

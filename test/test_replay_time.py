@@ -14,19 +14,16 @@ Each test runs in a ROS domain of its own (the /clock topic is global); it waits
 conditions (messages counted, a process ended), never on sleeps.
 """
 
-import os
-import random
 import re
 import time
-import uuid
 
 import numpy as np
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from tt_ros.bagfile import BagWriter
+from tt_ros.messages import set_time, stamp_ns
+from tt_ros.testing import Graph, unique_domain
 from tt_tools.procs import ProcessGroup, wait_until
 
 from tt_msgs.msg import BallPrediction, BallState, StrikeCommand
@@ -40,17 +37,12 @@ MAX_LOST = 6
 """States of the 120 of a replay the node may not receive (best effort, see below)."""
 
 
-def _domain():
-    return str(random.Random(f'{os.getpid()}{uuid.uuid4()}').randint(150, 230))
-
-
-class Listener:
+class Listener(Graph):
     """Counts /ball/state and /ball/prediction in the test's domain."""
 
     def __init__(self, domain, states=True):
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context, domain_id=int(domain))
-        self.node = rclpy.create_node(f'listen_{uuid.uuid4().hex[:6]}', context=self.context)
+        super().__init__(domain_id=domain)
+        self.node = self.create_node('listen')
         deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.states, self.predictions, self.commands = [], [], []
         if states:
@@ -59,26 +51,17 @@ class Listener:
                                       self.predictions.append, QoSProfile(depth=1000))
         self.node.create_subscription(StrikeCommand, '/strike/command',
                                       self.commands.append, QoSProfile(depth=1000))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
 
     def spin(self):
+        """Spin once (up to 0.05 s); False, so that ``wait_until(lambda: listener.spin() or
+        condition)`` spins while it waits."""
         self.executor.spin_once(timeout_sec=0.05)
         return False
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-def _stamp_ns(msg):
-    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
 def _state(t_ns, x, track):
     msg = BallState()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 10**9)
+    set_time(msg.header.stamp, t_ns)
     msg.header.frame_id = 'table'
     msg.track_id = track
     # An incoming ball (towards -x) at 6 m/s, rising, with topspin: a valid state.
@@ -110,12 +93,12 @@ def _write_session(path, receive_base_ns, n=120):
 def test_a_session_bag_played_with_clock_gives_a_prediction_per_state(tmp_path, recorded_on):
     base = STAMP_BASE_NS if recorded_on == 'own time' else time.time_ns()
     stamps = _write_session(tmp_path / 'session', base)
-    domain = _domain()
+    domain = unique_domain()
     # No /ball/state subscription here: --wait-for-subscribers then waits for prediction_node.
     listener = Listener(domain, states=False)
     try:
         with ProcessGroup(str(tmp_path)) as group:
-            env = {'ROS_DOMAIN_ID': domain}
+            env = {'ROS_DOMAIN_ID': str(domain)}
             group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
                                    '-p', 'use_sim_time:=true'], env=env)
             wait_until(lambda: listener.spin() or 'ready' in (tmp_path / 'strike.log')
@@ -136,7 +119,7 @@ def test_a_session_bag_played_with_clock_gives_a_prediction_per_state(tmp_path, 
             # The listener (a reliable reader of a depth-5 publisher, on a loaded machine) may
             # miss some predictions: the node's own counts are the measure.
             wait_until(lambda: listener.spin() or any(
-                _stamp_ns(p) == stamps[-1] for p in listener.predictions), TIMEOUT_S,
+                stamp_ns(p.header.stamp) == stamps[-1] for p in listener.predictions), TIMEOUT_S,
                 "the last state's prediction")
             # strike_node, on the same clock, strikes the balls (its hit-time check compares
             # like with like, or is off for stamps on another time base).
@@ -149,7 +132,7 @@ def test_a_session_bag_played_with_clock_gives_a_prediction_per_state(tmp_path, 
     received, predicted, dropped = _summary(tmp_path)
     assert received >= len(stamps) - MAX_LOST
     assert (predicted, dropped) == (received, 0)        # none stale, none lost in the node
-    assert {_stamp_ns(p) for p in listener.predictions} <= set(stamps)
+    assert {stamp_ns(p.header.stamp) for p in listener.predictions} <= set(stamps)
     log = (tmp_path / 'prediction.log').read_text()
     if recorded_on == 'wall clock':
         assert 'another time base' in log
@@ -158,10 +141,12 @@ def test_a_session_bag_played_with_clock_gives_a_prediction_per_state(tmp_path, 
 
 
 def _summary(tmp_path):
-    """(states, predictions, dropped) of prediction_node's last log line, or None."""
-    found = re.search(r'(\d+) states, (\d+) predictions, (\d+) dropped',
-                      (tmp_path / 'prediction.log').read_text())
-    return tuple(int(v) for v in found.groups()) if found else None
+    """(states, predictions, dropped) of the summary prediction_node logs on exit; the test
+    fails when its log has none."""
+    log = (tmp_path / 'prediction.log').read_text()
+    found = re.search(r'(\d+) states, (\d+) predictions, (\d+) dropped', log)
+    assert found, f'no summary line in prediction.log:\n{log}'
+    return tuple(int(v) for v in found.groups())
 
 
 def test_a_rig_of_video_files_gives_a_prediction_per_state_on_video_time(tmp_path):
@@ -174,11 +159,11 @@ def test_a_rig_of_video_files_gives_a_prediction_per_state_on_video_time(tmp_pat
                                        duration=0.4, lead_in=0.1)
     video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
                                   time_offset=0.0)   # synchronised: no offset to estimate
-    domain = _domain()
+    domain = unique_domain()
     listener = Listener(domain)
     try:
         with ProcessGroup(str(tmp_path)) as group:
-            env = {'ROS_DOMAIN_ID': domain}
+            env = {'ROS_DOMAIN_ID': str(domain)}
             group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
                                        '--ros-args', '-p', 'use_sim_time:=true',
                                        '-p', 'uncertainty:=false'], env=env)
@@ -204,7 +189,8 @@ def test_a_rig_of_video_files_gives_a_prediction_per_state_on_video_time(tmp_pat
         listener.close()
     # One prediction per state, stamped with the state's video time (from camera 0's first
     # frame, not the wall clock).
-    predicted = sorted(_stamp_ns(p) for p in listener.predictions)
+    predicted = sorted(stamp_ns(p.header.stamp) for p in listener.predictions)
     assert len(predicted) == n_states and predicted[-1] < 10 * 10**9
-    assert listener.states and {_stamp_ns(s) for s in listener.states} <= set(predicted)
+    assert listener.states and (
+        {stamp_ns(s.header.stamp) for s in listener.states} <= set(predicted))
     assert 'stale' not in (tmp_path / 'prediction.log').read_text()

@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 
 from nav_msgs.msg import Path
 import numpy as np
@@ -26,7 +25,7 @@ from tt_prediction.node import PredictionNode
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 from tt_ros.executor import EXECUTOR_ENV, StartupError, make_executor
-from tt_ros.testing import unique_prefix
+from tt_ros.testing import remap_args, unique_prefix
 import yaml
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -45,10 +44,8 @@ class Graph(testing.Graph):
     def __init__(self, overrides=(), args=None):
         super().__init__(args=args)
         self.prefix = unique_prefix()
-        remap = ['--ros-args']
-        for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers',
-                      '/clock'):
-            remap += ['-r', f'{topic}:={self.prefix}{topic}']
+        remap = remap_args(self.prefix, ('/ball/state', '/ball/prediction',
+                                         '/ball/predicted_path', '/tt/markers', '/clock'))
         self.node = self.add(PredictionNode(
             context=self.context, cli_args=remap,
             parameter_overrides=[rclpy.parameter.Parameter('use_sim_time', value=True),
@@ -283,10 +280,8 @@ def test_the_node_process_shuts_down_cleanly_on_a_signal(sig):
     # Topics of its own: a node on /ball/state would take the states of any other graph on
     # this machine, and be stopped in the middle of their work (a flake check saw its path
     # worker publish after the signal had shut the context down).
-    prefix = f'/sig{os.getpid()}_{uuid.uuid4().hex[:6]}'
-    remap = ['--ros-args']
-    for topic in ('/ball/state', '/ball/prediction', '/ball/predicted_path', '/tt/markers'):
-        remap += ['-r', f'{topic}:={prefix}{topic}']
+    remap = remap_args(unique_prefix(), ('/ball/state', '/ball/prediction',
+                                         '/ball/predicted_path', '/tt/markers'))
     proc = subprocess.Popen([sys.executable, '-m', 'tt_prediction.node', *remap], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

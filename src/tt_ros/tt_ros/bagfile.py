@@ -14,7 +14,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import yaml
 
-from tt_ros.index import package_prefix
+from tt_ros.index import interface_file
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
@@ -25,9 +25,8 @@ class BagError(Exception):
 
 def _msg_file(msgtype, ament_prefix_path=None):
     """The installed ``.msg`` file of ``pkg/msg/Type``, or None."""
-    pkg, sub, name = msgtype.split('/')
-    prefix = package_prefix(pkg, ament_prefix_path)
-    path = prefix and os.path.join(prefix, 'share', pkg, sub, name + '.msg')
+    pkg, _, name = msgtype.split('/')
+    path = interface_file(pkg, 'msg', name, ament_prefix_path)
     return path if path and os.path.isfile(path) else None
 
 

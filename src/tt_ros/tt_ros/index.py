@@ -3,17 +3,49 @@
 import os
 
 
-def package_prefix(package, ament_prefix_path=None):
-    """The install prefix holding ``package`` in the ament index, or None when unknown.
+def prefixes(ament_prefix_path=None):
+    """The install prefixes of the search path, in order.
 
     ``ament_prefix_path``: the search path (default: ``$AMENT_PREFIX_PATH``), ``os.pathsep``
-    separated; the first prefix registering the package wins, as in ament_index_python.
+    separated; empty entries are left out.
     """
     search = os.environ.get('AMENT_PREFIX_PATH', '') if ament_prefix_path is None else (
         ament_prefix_path)
-    for prefix in filter(None, search.split(os.pathsep)):
-        marker = os.path.join(prefix, 'share', 'ament_index', 'resource_index', 'packages',
-                              package)
-        if os.path.isfile(marker):
+    return [prefix for prefix in search.split(os.pathsep) if prefix]
+
+
+def _package_index(prefix):
+    """The directory of ``prefix`` holding one marker file per package it installs."""
+    return os.path.join(prefix, 'share', 'ament_index', 'resource_index', 'packages')
+
+
+def package_prefix(package, ament_prefix_path=None):
+    """The install prefix holding ``package`` in the ament index, or None when unknown.
+
+    The first prefix (:func:`prefixes`) registering the package wins, as in
+    ament_index_python.
+    """
+    for prefix in prefixes(ament_prefix_path):
+        if os.path.isfile(os.path.join(_package_index(prefix), package)):
             return prefix
     return None
+
+
+def packages(ament_prefix_path=None):
+    """Sorted names of the packages in the ament index (every prefix of the search path)."""
+    names = set()
+    for prefix in prefixes(ament_prefix_path):
+        index = _package_index(prefix)
+        if os.path.isdir(index):
+            names.update(os.listdir(index))
+    return sorted(names)
+
+
+def interface_file(pkg, kind, name, ament_prefix_path=None):
+    """Where ``pkg`` installs the definition of ``pkg/kind/name`` (kind 'msg', 'srv' or
+    'action'): ``<prefix>/share/<pkg>/<kind>/<name>.<kind>``, which may not exist; None when
+    ``pkg`` is not in the index."""
+    prefix = package_prefix(pkg, ament_prefix_path)
+    if prefix is None:
+        return None
+    return os.path.join(prefix, 'share', pkg, kind, f'{name}.{kind}')

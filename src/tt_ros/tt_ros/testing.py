@@ -6,6 +6,7 @@ never imports pytest; each package's tests wrap it in their own fixtures.
 """
 
 import os
+import random
 import time
 import uuid
 
@@ -16,6 +17,21 @@ from rclpy.executors import SingleThreadedExecutor
 def unique_prefix():
     """A topic prefix (``/t<pid>_<random>``) no other test on this machine uses."""
     return f'/t{os.getpid()}_{uuid.uuid4().hex[:6]}'
+
+
+def remap_args(prefix, topics):
+    """ROS arguments (``--ros-args -r /topic:=<prefix>/topic ...``) that move each of
+    ``topics`` under ``prefix`` (e.g. :func:`unique_prefix`)."""
+    args = ['--ros-args']
+    for topic in topics:
+        args += ['-r', f'{topic}:={prefix}{topic}']
+    return args
+
+
+def unique_domain():
+    """A random ROS domain id (150..230) for a test whose graph must be its own (a global
+    topic such as /clock): another test on this machine picks the same one rarely."""
+    return random.Random(uuid.uuid4().int).randint(150, 230)
 
 
 class Graph:

@@ -12,7 +12,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import ModelParams, racket_rebound, zone_centre
 from tt_prediction.predict import predict, predict_landing
 from tt_ros.executor import StartupError
-from tt_ros.testing import unique_prefix
+from tt_ros.testing import remap_args, unique_prefix
 from tt_strike.node import StrikeNode
 from tt_strike.workspace import load_workspace
 from visualization_msgs.msg import MarkerArray
@@ -34,13 +34,11 @@ class Graph(testing.Graph):
     def __init__(self, overrides=()):
         super().__init__()
         self.prefix = unique_prefix()
-        remap = ['--ros-args']
         # Simulated time from a /clock of this test's own: 0 until a test sets it, so that
         # the too-late check does not depend on how fast this machine runs the test.
         overrides = [Parameter('use_sim_time', value=True), *overrides]
-        for topic in ('/ball/prediction', '/strike/target', '/strike/command', '/tt/markers',
-                      '/clock'):
-            remap += ['-r', f'{topic}:={self.prefix}{topic}']
+        remap = remap_args(self.prefix, ('/ball/prediction', '/strike/target',
+                                         '/strike/command', '/tt/markers', '/clock'))
         self.node = self.add(StrikeNode(context=self.context, cli_args=remap,
                                         parameter_overrides=list(overrides)))
         self.test = self.create_node()

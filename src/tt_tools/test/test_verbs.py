@@ -17,9 +17,9 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.qos import QoSProfile
+from tt_ros.index import interface_file
 from tt_tools.introspect import import_message_type
 from tt_tools.procs import ros_env
-from tt_tools.run import package_prefix
 import yaml
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -190,8 +190,7 @@ def test_node_info_and_topic_type_of_an_absent_node_or_topic(topic):
 
 
 def _installed_msg(type_str):
-    pkg, kind, name = type_str.split('/')
-    with open(os.path.join(package_prefix(pkg), 'share', pkg, kind, f'{name}.{kind}')) as f:
+    with open(interface_file(*type_str.split('/'))) as f:
         return f.read().splitlines()
 
 

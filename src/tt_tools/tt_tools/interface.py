@@ -9,9 +9,10 @@ type, that type's definition indented by one tab per level (without its comments
 import os
 
 from rosidl_adapter.parser import parse_message_string
+from tt_ros.index import interface_file, packages
 
 from tt_tools.output import write
-from tt_tools.run import RunError, executables, package_prefix
+from tt_tools.run import RunError, executables
 
 KINDS = ('msg', 'srv', 'action')
 SEPARATOR = '---'
@@ -24,10 +25,9 @@ def interface_path(type_str, ament_prefix_path=None):
         raise ValueError(f"invalid interface name '{type_str}': expected 'package/msg/Type' "
                          "(or srv, action)")
     pkg, kind, name = parts
-    prefix = package_prefix(pkg, ament_prefix_path)
-    if prefix is None:
+    path = interface_file(pkg, kind, name, ament_prefix_path)
+    if path is None:
         raise ValueError(f"Unknown package '{pkg}'")
-    path = os.path.join(prefix, 'share', pkg, kind, f'{name}.{kind}')
     if not os.path.isfile(path):
         raise ValueError(f"Could not find the interface '{type_str}' ({path} does not exist)")
     return path
@@ -80,18 +80,6 @@ def interface_show(args):
     lines = show_lines(args.type, comments, args.all_comments)
     write(''.join(line + '\n' for line in lines))
     return 0
-
-
-def packages(ament_prefix_path=None):
-    """Names of the packages in the ament index (every prefix of the search path)."""
-    search = (os.environ.get('AMENT_PREFIX_PATH', '') if ament_prefix_path is None
-              else ament_prefix_path)
-    names = set()
-    for prefix in filter(None, search.split(os.pathsep)):
-        index = os.path.join(prefix, 'share', 'ament_index', 'resource_index', 'packages')
-        if os.path.isdir(index):
-            names.update(os.listdir(index))
-    return sorted(names)
 
 
 def pkg_executables(args):

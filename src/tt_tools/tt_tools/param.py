@@ -17,7 +17,13 @@ from rclpy.parameter import get_parameter_value, parameter_value_to_python
 import yaml
 
 from tt_tools.output import say, write
-from tt_tools.rosutil import LATE_NODE_S, CliNode, add_spin_time_argument
+from tt_tools.rosutil import (
+    LATE_NODE_S,
+    CliNode,
+    absolute_name,
+    add_spin_time_argument,
+    node_names,
+)
 
 SERVICES = {
     ListParameters: 'list_parameters',
@@ -52,17 +58,6 @@ GET_LABELS = {
 }
 
 
-def absolute_node_name(name):
-    """``'/ns/node'`` of a node name given with or without the leading '/'."""
-    return name if name.startswith('/') else '/' + name
-
-
-def _node_names(cli, hidden=False):
-    return sorted({f'{ns.rstrip("/")}/{name}'
-                   for name, ns in cli.node.get_node_names_and_namespaces()
-                   if hidden or not name.startswith('_')})
-
-
 def _client(cli, node_name, srv_type, args):
     """A client of ``node_name``'s parameter service of ``srv_type``, ready to be called.
 
@@ -78,12 +73,12 @@ def _client(cli, node_name, srv_type, args):
     # Discovery can settle before a busy machine has announced every node: a node not seen
     # yet gets a few more seconds before it is called missing.
     if cli.spin_until(lambda: client.service_is_ready()
-                      or node_name in _node_names(cli, hidden=True),
+                      or node_name in node_names(cli, hidden=True),
                       timeout=min(args.timeout, LATE_NODE_S)) and client.service_is_ready():
         return client
     if cli.stopped:
         return None
-    if node_name not in _node_names(cli, hidden=True):
+    if node_name not in node_names(cli, hidden=True):
         raise ValueError(f"Node '{node_name}' not found")
     if cli.spin_until(client.service_is_ready, timeout=args.timeout):
         return client
@@ -126,14 +121,14 @@ def _describe(cli, node_name, names, args):
 def param_list(args):
     with CliNode('param_list') as cli:
         if args.node_name:
-            nodes = [absolute_node_name(args.node_name)]
+            nodes = [absolute_name(args.node_name)]
             clients = {nodes[0]: _client(cli, nodes[0], ListParameters, args)}
             if clients[nodes[0]] is None:
                 return 0
         else:
             cli.settle(args.spin_time)
             services = {name for name, _ in cli.node.get_service_names_and_types()}
-            nodes = [n for n in _node_names(cli, args.include_hidden_nodes)
+            nodes = [n for n in node_names(cli, args.include_hidden_nodes)
                      if f'{n}/list_parameters' in services]
             clients = {n: cli.node.create_client(ListParameters, f'{n}/list_parameters')
                        for n in nodes}
@@ -175,7 +170,7 @@ def format_value(value):
 
 
 def param_get(args):
-    node_name = absolute_node_name(args.node_name)
+    node_name = absolute_name(args.node_name)
     with CliNode('param_get') as cli:
         values = _get_values(cli, node_name, [args.parameter_name], args)
     if values is None:
@@ -205,7 +200,7 @@ def parse_value(text, declared_type=None):
 
 
 def param_set(args):
-    node_name = absolute_node_name(args.node_name)
+    node_name = absolute_name(args.node_name)
     pairs = args.params_and_values
     if len(pairs) % 2:
         raise ValueError('parameters must be given as name value pairs: '
@@ -257,7 +252,7 @@ def format_descriptor(descriptor):
 
 
 def param_describe(args):
-    node_name = absolute_node_name(args.node_name)
+    node_name = absolute_name(args.node_name)
     with CliNode('param_describe') as cli:
         descriptors = _describe(cli, node_name, args.parameter_names, args)
     if descriptors is None:
@@ -280,7 +275,7 @@ def nest(names_values):
 
 
 def param_dump(args):
-    node_name = absolute_node_name(args.node_name)
+    node_name = absolute_name(args.node_name)
     with CliNode('param_dump') as cli:
         client = _client(cli, node_name, ListParameters, args)
         if client is None:

@@ -204,9 +204,27 @@ def add_spin_time_argument(parser):
              f'{SETTLE_MAX_S:g} s)')
 
 
-def full_topic_name(topic):
-    """``topic`` with a leading '/' (names on the command line may be given without one)."""
-    return topic if topic.startswith('/') else '/' + topic
+def absolute_name(name):
+    """A topic or node ``name`` with a leading '/' (names on the command line may be given
+    without one)."""
+    return name if name.startswith('/') else '/' + name
+
+
+full_topic_name = absolute_name
+""":func:`absolute_name` under the name bag.py imports."""
+
+
+def node_full_name(name, ns):
+    """``'/ns/name'`` of a node ``name`` in namespace ``ns`` (``'/name'`` in ``'/'``)."""
+    return f'{ns.rstrip("/")}/{name}'
+
+
+def node_names(cli, hidden=False):
+    """Sorted full names of the nodes ``cli`` (a :class:`CliNode`) has discovered; nodes
+    whose name starts with '_' only with ``hidden``."""
+    return sorted({node_full_name(name, ns)
+                   for name, ns in cli.node.get_node_names_and_namespaces()
+                   if hidden or not name.startswith('_')})
 
 
 def topic_type(node, topic):

@@ -26,8 +26,10 @@ from tt_tools.rosutil import (
     LATE_NODE_S,
     RELIABILITY,
     CliNode,
+    absolute_name,
     add_spin_time_argument,
-    full_topic_name,
+    node_full_name,
+    node_names,
     qos_matching,
     topic_type,
 )
@@ -78,18 +80,14 @@ def topic_list(args):
 def node_list(args):
     with CliNode('node_list') as cli:
         cli.settle(args.spin_time)
-        names = []
-        for name, ns in cli.node.get_node_names_and_namespaces():
-            if name.startswith('_') and not args.all:
-                continue
-            names.append(f'{ns.rstrip("/")}/{name}')
-    for name in sorted(set(names)):
+        names = node_names(cli, hidden=args.all)
+    for name in names:
         write(name + '\n')
     return 0
 
 
 def topic_info(args):
-    topic = full_topic_name(args.topic)
+    topic = absolute_name(args.topic)
     with CliNode('topic_info') as cli:
         cli.settle(args.spin_time)
         type_str = topic_type(cli.node, topic)
@@ -108,7 +106,7 @@ def topic_info(args):
 
 
 def topic_type_verb(args):
-    topic = full_topic_name(args.topic)
+    topic = absolute_name(args.topic)
     with CliNode('topic_type') as cli:
         def types():
             return dict(cli.node.get_topic_names_and_types()).get(topic)
@@ -123,8 +121,7 @@ def topic_type_verb(args):
 
 def split_node_name(full_name):
     """``'/ns/node'`` -> ``('node', '/ns')``; ``'node'`` or ``'/node'`` -> ``('node', '/')``."""
-    full_name = full_name if full_name.startswith('/') else '/' + full_name
-    ns, _, name = full_name.rpartition('/')
+    ns, _, name = absolute_name(full_name).rpartition('/')
     return name, ns or '/'
 
 
@@ -134,7 +131,7 @@ def _hidden(name):
 
 def node_info(args):
     name, ns = split_node_name(args.node_name)
-    full = f'{ns.rstrip("/")}/{name}'
+    full = node_full_name(name, ns)
     with CliNode('node_info') as cli:
         def found():
             return (name, ns) in cli.node.get_node_names_and_namespaces()
@@ -167,7 +164,7 @@ def node_info(args):
 
 
 def topic_echo(args):
-    topic = full_topic_name(args.topic)
+    topic = absolute_name(args.topic)
     if args.type:
         import_message_type(args.type)  # a bad type fails before any waiting
     with CliNode('echo') as cli:
@@ -196,7 +193,7 @@ def topic_echo(args):
 
 
 def topic_hz(args):
-    topic = full_topic_name(args.topic)
+    topic = absolute_name(args.topic)
     with CliNode('hz') as cli:
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None:
@@ -249,7 +246,7 @@ def _wait_for_subscriptions(cli, pub, topic, count, max_wait):
 
 
 def topic_pub(args):
-    topic = full_topic_name(args.topic)
+    topic = absolute_name(args.topic)
     cls = import_message_type(args.type)
     values = parse_yaml_values(args.values)
     times = 1 if args.once else args.times
