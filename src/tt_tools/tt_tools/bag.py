@@ -9,7 +9,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 
 from tt_tools.introspect import import_message_type
-from tt_tools.rosutil import CliNode, full_topic_name, qos_from_bag, qos_matching, qos_to_bag
+from tt_tools.rosutil import CliNode, absolute_name, qos_from_bag, qos_matching, qos_to_bag
 
 
 def _say(text):
@@ -28,7 +28,7 @@ def bag_info(args):
 def bag_record(args):
     if not args.all and not args.topics:
         raise BagError('give the topics to record, or -a for all')
-    wanted = {full_topic_name(t) for t in args.topics}
+    wanted = {absolute_name(t) for t in args.topics}
     out = args.output or default_bag_name()
     if os.path.exists(out):
         raise BagError(f"output '{out}' already exists")
@@ -102,7 +102,7 @@ def bag_play(args):
         raise BagError(f'--rate must be positive, got {args.rate}')
     if args.clock is not None and args.clock <= 0:
         raise BagError(f'--clock must be a positive rate in Hz, got {args.clock}')
-    topics = {full_topic_name(t) for t in args.topics or []}
+    topics = {absolute_name(t) for t in args.topics or []}
     reader = open_bag(args.bag)
     try:
         conns, classes = _playable(reader, topics)

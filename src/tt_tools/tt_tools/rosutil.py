@@ -210,9 +210,6 @@ def absolute_name(name):
     return name if name.startswith('/') else '/' + name
 
 
-full_topic_name = absolute_name
-""":func:`absolute_name` under the name bag.py imports."""
-
 
 def node_full_name(name, ns):
     """``'/ns/name'`` of a node ``name`` in namespace ``ns`` (``'/name'`` in ``'/'``)."""
