@@ -4,8 +4,11 @@
   plane, status and Python result objects included) over varied incoming balls; targets
   <= 50 and <= 200 us.
 - ``reference``: the same balls by :func:`reference_predict` (solve_ivp DOP853, rtol 1e-9,
-  terminal events) in the same run: speed-up of the medians (>= 30x) and the largest
-  hit-point disagreement (<= 0.1 mm).
+  terminal events) in the same run: speed-up of the medians (>= 30x), the largest
+  hit-point disagreement (<= 0.1 mm) and the same status for every ball; a ball whose
+  statuses differ where its flight passes within a radius of the net is left out and
+  counted (``left_out_net_body``, at most a tenth): predict meets the net as a body (issue
+  16), the reference as a line at x = 0.
 - ``batch_10k_s``: 10,000 states in one :func:`predict_batch` call (<= 0.5 s).
 - ``uncertainty_ms``: one :func:`predict_uncertainty` (19 sigma points), no target.
 - ``cold_start_s``: import + first prediction in a fresh process with an empty numba cache
@@ -46,7 +49,7 @@ import time
 import uuid
 
 import numpy as np
-from tt_prediction.ball import ModelParams
+from tt_prediction.ball import NET_HALF_WIDTH, NET_HEIGHT, ModelParams, rollout
 from tt_prediction.predict import predict, predict_batch
 from tt_prediction.reference import reference_predict
 from tt_prediction.uncertainty import predict_uncertainty
@@ -89,17 +92,35 @@ def time_single(states, params, clock=time.perf_counter_ns):
     return times * 1e-3
 
 
+def near_the_net(state, params, margin=5e-3):
+    """Whether the flight (until the robot's side's plane, no net stop) comes within a ball
+    radius (+ ``margin``, m) of the net's top edge or of its face below it: there predict
+    meets the net as a body and the reference (the net as a line at x = 0) does not."""
+    r = params.radius
+    _, samples = rollout(state, params, stop_at_net=False, max_bounces=2,
+                         sample_times=np.arange(0.0, 1.5, 5e-4))
+    p = samples[np.isfinite(samples[:, 0]), :3]
+    near = (np.abs(p[:, 0]) < r + margin) & (np.abs(p[:, 1]) <= NET_HALF_WIDTH + r) & (
+        p[:, 2] < NET_HEIGHT + r + margin)
+    return bool(near.any())
+
+
 def time_reference(states, params):
-    times, diffs, agree = [], [], 0
+    """Reference timings, hit-point differences, and (status agreements, states compared,
+    states left out as touching the net's body)."""
+    times, diffs, agree, compared = [], [], 0, 0
     for s in states:
         start = time.perf_counter_ns()
         ref = reference_predict(s, params)
         times.append((time.perf_counter_ns() - start) * 1e-3)
         fast = predict(s, params)
+        if fast.status != ref.status and near_the_net(s, params):
+            continue        # the net as a body (predict) against a line (the reference)
+        compared += 1
         agree += fast.status == ref.status
         if ref.hit is not None and fast.hit is not None:
             diffs.append(float(np.abs(fast.hit.p - ref.hit.p).max()) * 1e3)
-    return np.array(times), diffs, agree
+    return np.array(times), diffs, (agree, compared, len(states) - compared)
 
 
 def json_lines(states, t0=0.0, dt=0.002):
@@ -291,7 +312,8 @@ def run():
     load = os.getloadavg()[0]
     single = time_single(states, params)
     single_cpu = time_single(states, params, time.thread_time_ns)
-    ref_times, diffs, agree = time_reference(states[:N_REFERENCE], params)
+    ref_times, diffs, (agree, compared, net_body) = time_reference(states[:N_REFERENCE],
+                                                                    params)
     fast_ref = time_single(states[:N_REFERENCE], params)
     batch_states = incoming(rng, N_BATCH)
     start = time.perf_counter()
@@ -332,7 +354,8 @@ def run():
                       'fast_median_us_same_states': round(float(np.median(fast_ref)), 1),
                       'speedup': round(float(np.median(ref_times) / np.median(fast_ref)), 1),
                       'max_hit_diff_mm': float(f'{max(diffs):.3g}'),
-                      'n': N_REFERENCE, 'n_hits': len(diffs), 'status_agree': agree},
+                      'n': N_REFERENCE, 'n_hits': len(diffs), 'status_agree': agree,
+                      'status_compared': compared, 'left_out_net_body': net_body},
         'batch_10k_s': round(batch_s, 3),
         'cli_20k': {'us_per_state': round(cli_us, 1), 'cpu_us_per_state': round(cli_cpu_us, 1),
                     'n': N_CLI,
@@ -361,7 +384,7 @@ def run():
         and result['single_us']['p99'] <= TARGETS['single_p99_us']
         and result['reference']['speedup'] >= TARGETS['speedup']
         and result['reference']['max_hit_diff_mm'] <= TARGETS['max_hit_diff_mm']
-        and agree == N_REFERENCE
+        and agree == compared and net_body <= N_REFERENCE // 10
         and batch_s <= TARGETS['batch_10k_s']
         and cli_us <= TARGETS['cli_us_per_state'] and cli_speedup >= TARGETS['cli_speedup']
         and p99 - floor_p99 <= TARGETS['node_p99_minus_echo_p99_ms']
