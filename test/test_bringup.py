@@ -195,13 +195,15 @@ def test_replay_config_on_a_rig_of_video_files_strikes_every_ball(tmp_path):
     try:
         end = run.wait_for(r'end of the video files: \d+ frames, (\d+) states')
         n_states = int(end.group(1))
-        shown = [run.wait_for(r'^bringup: ball \d+: bounce zone \d .* hit .* strike (\w+)',
+        # A ball's line names its bounce when its first shown prediction came before it (on a
+        # loaded machine the first one shown can come from after the bounce: no bounce left).
+        shown = [run.wait_for(r'^bringup: ball \d+: (bounce zone \d .* )?hit .* strike (\w+)',
                               count=k + 1) for k in range(len(balls))]
         code = run.stop()
     finally:
         run.kill()
     assert code == 0, run.text
-    assert [m.group(1) for m in shown] == ['ok'] * len(balls), run.text
+    assert [m.group(2) for m in shown] == ['ok'] * len(balls), run.text
     summary = re.search(r'\[prediction_node\] .*: (\d+) states, (\d+) predictions, (\d+) '
                         r'dropped', run.text)
     assert summary, run.text
