@@ -38,7 +38,7 @@ def unique_topics():
 
 @pytest.fixture
 def graph():
-    g = testing.Graph(domain_id=int(uuid.uuid4().int % 100) + 1)
+    g = testing.Graph(domain_id=testing.unique_domain())
     yield g.context, g.executor, g.add
     g.close()
 
