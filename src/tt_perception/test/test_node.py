@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
@@ -32,22 +31,15 @@ T0 = 1000.0      # stamp of the scene's time 0, s
 
 def unique_topics():
     """Topic names of this test alone (other graphs may run on the same machine)."""
-    ns = f'/tt_perception_test_{os.getpid()}_{uuid.uuid4().hex[:8]}'
+    ns = testing.unique_prefix()
     return ns, [f'{ns}/cam{k}/image_raw' for k in range(2)], f'{ns}/ball/state'
 
 
 @pytest.fixture
 def graph():
     g = testing.Graph(domain_id=testing.unique_domain())
-    yield g.context, g.executor, g.add
+    yield g
     g.close()
-
-
-def spin_until(executor, condition, timeout=5.0):
-    end = time.monotonic() + timeout
-    while not condition() and time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.01)
-    return condition()
 
 
 def image_msg(t, frame):
@@ -63,7 +55,7 @@ def image_msg(t, frame):
 
 
 def test_images_in_ball_states_out(graph, tmp_path):
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     rig = load_rig(rig_path)
@@ -79,13 +71,14 @@ def test_images_in_ball_states_out(graph, tmp_path):
     spin_pub = peer.create_publisher(Vector3Stamped, f'{ns}/spin', QoSProfile(depth=5))
     got = []
     peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
-    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
+    graph.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs), 5.0,
+                     'the node to subscribe to the images')
     sent = 0
     tr = truth[0]
     for t, k, frame in frames:
         pubs[k].publish(image_msg(t, frame))
         sent += 1
-        assert spin_until(executor, lambda n=sent: node.frames_received >= n), 'image lost'
+        graph.spin_until(lambda n=sent: node.frames_received >= n, 5.0, f'image {sent}')
         if k == 1 and abs(t - 0.15) < 0.5 / rig.fps:   # a measured spin (a marked ball)
             t_spin = t
             spin = Vector3Stamped()
@@ -93,8 +86,10 @@ def test_images_in_ball_states_out(graph, tmp_path):
             w = tr['state'][int(np.argmin(np.abs(tr['t'] - t))), 6:]
             spin.vector.x, spin.vector.y, spin.vector.z = (float(v) for v in w)
             spin_pub.publish(spin)
-            assert spin_until(executor, lambda: node.spin_measurements_used == 1)
-    assert spin_until(executor, lambda: len(got) >= node.states_published > 30)
+            graph.spin_until(lambda: node.spin_measurements_used == 1, 5.0,
+                             'the measured spin to be used')
+    graph.spin_until(lambda: len(got) >= node.states_published > 30, 5.0,
+                     'more than 30 states, all received')
     # After the measured spin (10 rad/s), the component along the velocity is known too (until
     # the bounce adds the rebound's uncertainty).
     bounce = [ev.t for ev in tr['events'] if ev.kind == 'bounce'][0]
@@ -117,7 +112,7 @@ def test_images_in_ball_states_out(graph, tmp_path):
 
 
 def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     rig = load_rig(rig_path)
@@ -131,33 +126,34 @@ def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
     info_pub = peer.create_publisher(CameraInfo, f'{ns}/cam1/camera_info', QoSProfile(depth=5))
     got = []
     peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
-    assert spin_until(executor, lambda: info_pub.get_subscription_count() > 0
-                      and all(p.get_subscription_count() > 0 for p in pubs))
+    graph.spin_until(lambda: info_pub.get_subscription_count() > 0
+                     and all(p.get_subscription_count() > 0 for p in pubs), 5.0,
+                     'the node to subscribe to the images and camera info')
     info = CameraInfo(width=1280, height=720)        # another camera's calibration
     info.k = [900.0, 0.0, 640.0, 0.0, 900.0, 360.0, 0.0, 0.0, 1.0]
     info_pub.publish(info)
-    assert spin_until(executor, lambda: 1 in node._disabled)
+    graph.spin_until(lambda: 1 in node._disabled, 5.0, 'camera 1 to be disabled')
     sent = 0
     for t, k, frame in frames:
         pubs[k].publish(image_msg(t, frame))
         sent += 1
-        assert spin_until(executor, lambda n=sent: node.frames_received >= n)
+        graph.spin_until(lambda n=sent: node.frames_received >= n, 5.0, f'image {sent}')
     assert node.states_published == 0 and got == []
 
 
 def test_missing_rig_file_publishes_nothing(graph, tmp_path):
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     node = add(PerceptionNode(context=ctx, parameter_overrides=[
         Parameter('rig_file', value=str(tmp_path / 'absent.yaml'))]))
     assert node.pipeline is None
-    executor.spin_once(timeout_sec=0.05)
+    graph.executor.spin_once(timeout_sec=0.05)
     assert node.states_published == 0
 
 
 def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
     # The watchdog's clock is the test's: it moves only when the test moves it, so a camera is
     # lost after camera_timeout of that clock, whatever the test's pace.
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
     frames, _ = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
@@ -167,7 +163,8 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
         Parameter('rig_file', value=rig_path), Parameter('camera_timeout', value=0.2)]))
     peer = add(rclpy.create_node('image_player', context=ctx))
     pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
-    assert spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs))
+    graph.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs), 5.0,
+                     'the node to subscribe to the images')
     sent = 0
 
     def send(cameras):
@@ -176,7 +173,8 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
             if k in cameras:
                 pubs[k].publish(image_msg(t, frame))
                 sent += 1
-                assert spin_until(executor, lambda n=sent: node.frames_received >= n)
+                graph.spin_until(lambda n=sent: node.frames_received >= n, 5.0,
+                                 f'image {sent}')
 
     send({0, 1})
     # 0.15 s later (< camera_timeout) only camera 0 sends: no camera is lost yet.
@@ -187,7 +185,7 @@ def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
     # At 10.3 s camera 1's last frame is 0.3 s old (> 0.2 s), camera 0's 0.15 s: the watchdog
     # (its own timer) reports camera 1 alone.
     now[0] = 10.3
-    assert spin_until(executor, lambda: node._lost)
+    graph.spin_until(lambda: node._lost, 5.0, 'a camera to be reported lost')
     assert node._lost == {1}
     send({0, 1})
     assert not node._lost
@@ -208,7 +206,7 @@ def test_blas_threads_are_restored_when_the_node_is_destroyed(graph, tmp_path, m
         events.append('restore')
 
     monkeypatch.setattr(node_module, 'blas_threads', blas_threads)
-    ctx, _, _ = graph
+    ctx = graph.context
     rig_path = synth.make_rig(str(tmp_path), sources=['cam0.avi', 'cam1.avi'])
     node = PerceptionNode(context=ctx, parameter_overrides=[
         Parameter('rig_file', value=rig_path)])
@@ -221,7 +219,7 @@ def test_blas_threads_are_restored_when_the_node_is_destroyed(graph, tmp_path, m
 def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
     ns, topics, _ = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(uuid.uuid4().int % 100 + 1))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(testing.unique_domain()))
     proc = subprocess.Popen([sys.executable, '-m', 'tt_perception.node', '--ros-args', '-p',
                              f'rig_file:={rig_path}'], stderr=subprocess.PIPE, text=True,
                             env=env)
@@ -247,7 +245,7 @@ def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, 
     # Lossless reading (video_rate 0) waits for every camera's next frame to keep time order;
     # a camera whose file is missing has ended before its first frame and is not waited for:
     # every frame of the other file is processed and the node says the files have ended.
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     rig_path = synth.make_rig(str(tmp_path / 'calib'))
     frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
                                        duration=0.4, lead_in=0.1)
@@ -258,12 +256,12 @@ def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, 
     node = add(PerceptionNode(context=ctx, parameter_overrides=[
         Parameter('rig_file', value=video_rig), Parameter('video_rate', value=0.0),
         Parameter('frame_queue', value=2)]))
-    assert spin_until(executor, lambda: node._ended >= {0, 1}, timeout=60.0), node._ended
+    graph.spin_until(lambda: node._ended >= {0, 1}, 60.0, 'both video files to end')
     assert node.frames_received == sum(1 for _, k, _ in frames if k == 0)
 
 
 def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
-    ctx, executor, add = graph
+    ctx, add = graph.context, graph.add
     _, _, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path / 'calib'))
     frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
@@ -284,10 +282,10 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
     # video_rate 0: each frame read once processing takes the one before (real-time pacing is
     # bench_camrate's): every frame is processed, none lost. Both files end (their END item
     # comes after their last frame).
-    assert spin_until(executor, lambda: node._ended >= {0, 1}, timeout=60.0), node._ended
+    graph.spin_until(lambda: node._ended >= {0, 1}, 60.0, 'both video files to end')
     assert node.frames_received == n_frames and node.drops.snapshot() == ([0, 0], 0)
-    assert spin_until(executor, lambda: len(got) >= node.states_published > 20), (
-        len(got), node.states_published)
+    graph.spin_until(lambda: len(got) >= node.states_published > 20, 5.0,
+                     'more than 20 states, all received')
     # Video time runs from camera 0's first frame (the scene's -0.1 s).
     tr = truth[0]
     for msg in got:
