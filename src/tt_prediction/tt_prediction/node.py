@@ -204,22 +204,17 @@ class PredictionNode(Node):
                 self.tracks.pop(next(iter(self.tracks)))
             track = self.tracks[msg.track_id] = _Track()
         plane_x = self.p.hit_plane_x
-        want_path = due(stamp_ns, self.last_path_ns,
-                        self.p.path_rate_hz)
-        step = self.p.path_step_s
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
         bounced = near and stamp_ns > track.bounce_ns + margin_ns
         # Times relative to the stamp inside the integrator (float64 keeps sub-ns resolution
         # there), added to the integer stamp in nanoseconds on output.
-        pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced,
-                       path_dt=step if want_path else None)
+        pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced)
         if near and not bounced and pred.status == 'no_bounce':
             # Within the margin of the bounce the track expects, a state already rising from
             # the table: it has bounced (the estimator's bounce is not exactly the model's).
             bounced = True
-            pred = predict(state, self.packed, 0.0, plane_x, bounced=True,
-                           path_dt=step if want_path else None)
+            pred = predict(state, self.packed, 0.0, plane_x, bounced=True)
         if pred.status == 'invalid':
             self._drop(pred.reason)
             return
@@ -236,9 +231,9 @@ class PredictionNode(Node):
         self.n_predicted += 1
         if request is not None:         # after the publish: the prediction goes out first
             self.uncertainty_worker.submit(request)
-        if want_path:
+        if due(stamp_ns, self.last_path_ns, self.p.path_rate_hz):
             self.last_path_ns = stamp_ns
-            self.path_worker.submit((msg, stamp_ns, pred, step))
+            self.path_worker.submit((msg, stamp_ns, state, plane_x, bounced))
 
     def _prediction_msg(self, msg, stamp_ns, pred, track, plane_x):
         """Fill the node's one BallPrediction (every field, each time) and return it.
@@ -316,10 +311,15 @@ class PredictionNode(Node):
     def _publish_path(self, request):
         """Path worker: /ball/predicted_path and the markers.
 
-        The worker keeps one Path and its PoseStamped and updates them: building 30-70 new
-        poses in Python would hold the GIL for about 0.5 ms, while the state callback waits.
+        The worker predicts the state again with its path (the same flight as the callback's
+        prediction: same state, model and plane): sampling the path costs more than the
+        prediction itself (about 55 us), which the state's callback does not wait for. It
+        keeps one Path and its PoseStamped and updates them: building 30-70 new poses in
+        Python would hold the GIL for about 0.5 ms, while the state callback waits.
         """
-        msg, stamp_ns, pred, step = request
+        msg, stamp_ns, state, plane_x, bounced = request
+        step = self.p.path_step_s
+        pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced, path_dt=step)
         frame = msg.header.frame_id or 'table'
         path = self.path
         path.header.stamp = msg.header.stamp
