@@ -142,6 +142,7 @@ class PredictionNode(Node):
         self.last_ns = None
         self.last_path_ns = None
         self.n_received = 0
+        self.stamps_ns = None             # [first, last] stamp of the states received, ns
         self.work_s = np.zeros(4096)      # the callback's time for the last states, s
         self.n_predicted = 0
         self.n_dropped = 0
@@ -171,16 +172,23 @@ class PredictionNode(Node):
         self.n_received += 1
 
     def work_summary(self):
-        """Median and p99 of the time the callback took for the last states, ms."""
+        """Counts, the median and p99 of the time the callback took for the last states (ms),
+        and the stamps of the first and the last state received (s, to the nanosecond: which
+        part of a replay reached the node)."""
         times = self.work_s[:min(self.n_received, len(self.work_s))]
         if not len(times):
             return 'no state received'
+        first, last = (f'{ns // 10**9}.{ns % 10**9:09d}' for ns in self.stamps_ns)
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times) * 1e3:.3f} ms, p99 '
-                f'{np.percentile(times, 99) * 1e3:.3f} ms (last {len(times)})')
+                f'{np.percentile(times, 99) * 1e3:.3f} ms (last {len(times)}); stamps {first} '
+                f'to {last} s')
 
     def _on_state(self, msg):
         stamp_ns = to_ns(msg.header.stamp)
+        if self.stamps_ns is None:
+            self.stamps_ns = [stamp_ns, stamp_ns]
+        self.stamps_ns[1] = stamp_ns
         if not due(stamp_ns, self.last_ns, self.p.max_rate_hz):
             return
         if msg.header.frame_id not in ('', 'table'):
