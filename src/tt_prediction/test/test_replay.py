@@ -11,7 +11,7 @@ from tt_prediction.cli import main
 from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
-from tt_prediction.replay import COLUMNS, LEADS_MS, measured_crossing
+from tt_prediction.replay import COLUMNS, LEADS_MS, crossing_noise, measured_crossing
 
 PLANE = -1.2
 RATE = 180.0
@@ -148,6 +148,27 @@ def test_measured_crossing_of_a_sampled_parabola():
     tc, pc = measured_crossing(t, p, [(0.0, -0.5)], -0.5)
     assert tc == pytest.approx(0.125, abs=1e-9)
     assert pc == pytest.approx([-0.5, 0.1625, 0.3 + 0.125 - 4.9 * 0.125 ** 2], abs=1e-9)
+
+
+def test_crossing_noise_is_that_of_a_six_sample_quadratic_fit():
+    """The measured crossing's own error on a ball at its apex as it crosses the plane
+    (v_y = v_z = 0 there): the value at t_c of a least-squares quadratic over the 6 samples
+    around it, whose variance is sigma^2 e^T (A^T A)^-1 e, e = (1, 0, 0); its 2-D error in
+    the plane is Rayleigh, median sigma_c sqrt(2 ln 2)."""
+    dt = 1.0 / RATE
+    t = np.arange(0.0, 0.3, dt)
+    tc = t[30] + 0.5 * dt                          # halfway between two samples
+    p = np.stack([PLANE - 4.0 * (t - tc), np.full_like(t, 0.1),
+                  0.3 - 4.9 * (t - tc) ** 2], axis=1)
+    sigma = 5e-4
+    errors = crossing_noise(t, p, [(tc - 0.1, -0.5)], PLANE, sigma, 0.0, draws=3000)
+    offsets = (np.arange(6) - 2.5) * dt
+    A = np.stack([np.ones(6), offsets, offsets ** 2], axis=1)
+    sigma_c = sigma * np.sqrt(np.linalg.inv(A.T @ A)[0, 0])
+    assert len(errors) == 3000
+    assert np.median(errors) == pytest.approx(sigma_c * np.sqrt(2.0 * np.log(2.0)), rel=0.06)
+    # No bounce on the robot's half before the plane: nothing measured, nothing drawn.
+    assert len(crossing_noise(t, p, [(tc - 0.1, 0.5)], PLANE, sigma, 0.0)) == 0
 
 
 def test_learned_spin_prior_recovers_the_population_spread():

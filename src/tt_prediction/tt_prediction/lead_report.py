@@ -58,6 +58,11 @@ def table(result):
     lines.append(f"Hit-point error at x = {final['hit_plane_x']} m, median / p90 in mm over "
                  f"{final['tracks_with_crossing']} tracks with a measured crossing "
                  f"(of {final['tracks']}).")
+    floor = final.get('reference_error', {})
+    if floor.get('median_mm') is not None:
+        lines.append(f"The measured crossing is itself uncertain: a perfect predictor would score "
+                     f"{floor['median_mm']:.2f} / {floor['p90_mm']:.2f} mm (median / p90; the "
+                     "tracks redrawn with their own noise).")
     learned = final.get('spin_prior_learned')
     if learned:
         lines.append('')
@@ -81,6 +86,9 @@ def plot(result, path):
                 label=f'{label}, median')
         ax.plot(leads, [stats[str(lead)]['p90_mm'] for lead in leads], 's--', color=color,
                 alpha=0.6, label=f'{label}, p90')
+    floor = result['final'].get('reference_error', {}).get('median_mm')
+    if floor is not None:
+        ax.axhline(floor, color='0.5', lw=1, ls=':', label='perfect predictor, median')
     ax.set_yscale('log')
     ax.set_xlabel('lead time before the hitting-plane crossing, ms')
     ax.set_ylabel('hit-point error, mm')

@@ -155,6 +155,45 @@ def measured_crossing(t, p, bounce_times, plane_x):
     return float(tc), pc
 
 
+def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, draws=50,
+                   rng=None):
+    """Errors of the measured crossing itself (:func:`measured_crossing`) on one track: the
+    hit errors a perfect predictor would be scored with, m, (k,) (empty without a crossing).
+
+    The track near its crossing stands for the truth: a quadratic in time per axis over the
+    samples within 60 ms of the crossing and after the bounce on the robot's half. Its
+    samples are drawn again ``draws`` times with the data's noise (``position_noise`` m on
+    each axis, ``stamp_noise`` s along the velocity) and measured again; each error is the
+    distance in the plane between that and the quadratic's own crossing.
+    """
+    rng = rng or np.random.default_rng(0)
+    crossing = measured_crossing(t, p, bounce_times, plane_x)
+    if crossing is None:
+        return np.zeros(0)
+    tc = crossing[0]
+    robot = min(tb for tb, xb in bounce_times if xb < 0.0)
+    sel = (t > robot) & (np.abs(t - tc) < 0.06)
+    if sel.sum() < 4:
+        return np.zeros(0)
+    fits = [np.polyfit(t[sel] - tc, p[sel, k], 2) for k in range(3)]
+    roots = np.roots(fits[0] - np.array([0.0, 0.0, plane_x]))
+    roots = roots[np.isreal(roots)].real
+    if not len(roots):
+        return np.zeros(0)
+    t_true = roots[np.argmin(np.abs(roots))]
+    p_true = np.array([np.polyval(f, t_true) for f in fits])
+    smooth = np.stack([np.polyval(f, t - tc) for f in fits], axis=1)
+    velocity = np.stack([np.polyval(np.polyder(f), t - tc) for f in fits], axis=1)
+    errors = []
+    for _ in range(draws):
+        noisy = (smooth + rng.normal(0.0, position_noise, smooth.shape)
+                 + rng.normal(0.0, stamp_noise, (len(t), 1)) * velocity)
+        m = measured_crossing(t, noisy, bounce_times, plane_x)
+        if m is not None:
+            errors.append(np.linalg.norm(m[1][1:] - p_true[1:]))
+    return np.array(errors)
+
+
 def _ground_truth(name, t, p, params, plane_x):
     """Cleaned samples, located bounces [(t, x)] and measured crossing of one track."""
     tc, pc, notes = clean_samples(name, t, p)
@@ -393,6 +432,10 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
             if obs is not None:
                 learner.observe(*obs)
     errors = lead_time_errors(replays, params, hit_plane_x, leads_ms, textbook)
+    rng = np.random.default_rng(0)
+    floor = np.concatenate([np.zeros(0)] + [
+        crossing_noise(rp.t, rp.p, rp.bounce_times, hit_plane_x, config.position_noise,
+                       config.stamp_noise, rng=rng) for rp in replays if rp.crossing])
     summary = {
         'hit_plane_x': hit_plane_x,
         'leads_ms': list(leads_ms),
@@ -401,6 +444,12 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
         'samples': int(sum(len(rp.rows) for rp in replays)),
         'filter_config': dataclasses.asdict(config),
         'hit_error': errors['filter'],
+        'reference_error': {
+            'note': 'the error of the measured crossing itself (what a perfect predictor '
+                    'scores): each track redrawn with position_noise and stamp_noise',
+            'median_mm': round(float(np.median(floor)) * 1e3, 2) if len(floor) else None,
+            'p90_mm': round(float(np.percentile(floor, 90)) * 1e3, 2) if len(floor) else None,
+        },
     }
     if learner is not None:
         summary['spin_prior_learned'] = {
