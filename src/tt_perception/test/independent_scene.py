@@ -22,10 +22,11 @@ Parts:
   the net (dark mesh, white top tape), a textured floor and walls of other greys, and still
   balls (white and orange) lying on the table and on the floor; lit by three rectangular
   ceiling panels (each sampled by a 3 x 3 grid of points), a hemisphere of ambient light
-  from above and a weak warm bounce light from the floor below, with a 100 Hz ripple of the
-  lamps. Every shadow (the table's on the floor, the net's, the still balls', the flying
-  ball's on table and floor while it is within 0.6 m of them) is the fraction of the light
-  samples a shadow ray finds occluded, so penumbrae are physical.
+  from above and the light bounced from below (for the ball, ray cast: the blue table under
+  it, the warm grey floor beyond; weak), with a 100 Hz ripple of the lamps. Every shadow
+  (the table's on the floor, the net's, the still balls', the flying ball's on table and
+  floor while it is within 0.6 m of them) is the fraction of the light samples a shadow
+  ray finds occluded, so penumbrae are physical.
 - Shading: Oren-Nayar diffuse reflection (rough matte ball) plus a broad sheen lobe; the
   background surfaces are Lambertian.
 - Camera: for every pixel in a box around a moving object, 4 x 4 sub-pixel rays (undistorted
@@ -281,8 +282,10 @@ class Lighting:
     points. Their total is scaled so that the direct irradiance on a horizontal surface at the
     table's centre is ``direct`` (radiance units, per channel times ``colour``).
     ``sky``: ambient irradiance from the upper hemisphere (walls, ceiling), RGB; ``bounce``:
-    from the lower (the floor; warm, weak). A surface of normal n gets
-    sky (1 + n_z) / 2 + bounce (1 - n_z) / 2. ``flicker``: relative amplitude of the lamps'
+    from the lower (the floor; warm, weak), for the static surfaces: one of normal n gets
+    sky (1 + n_z) / 2 + bounce (1 - n_z) / 2. Moving objects (the ball) get the lower
+    hemisphere's light by ray casting the scene below them instead
+    (:meth:`Renderer.environment_below`). ``flicker``: relative amplitude of the lamps'
     100 Hz ripple (``flicker_hz``), integrated over each exposure.
     """
 
@@ -411,10 +414,17 @@ class Shader:
         self.sky = np.asarray(lighting.sky, dtype=float)
         self.bounce = np.asarray(lighting.bounce, dtype=float)
 
-    def ambient(self, N):
-        """Hemispherical ambient irradiance (M, 3) at normals N (M, 3)."""
+    def ambient(self, N, below=None):
+        """Ambient irradiance (M, 3) at normals N (M, 3): the sky's uniform upper hemisphere,
+        sky (1 + n_z) / 2, plus the lower hemisphere: uniform ``bounce`` (1 - n_z) / 2, or
+        ``below`` = (directions (E, 3), radiance (E, 3)) of E uniform samples of it, which
+        give (2 / E) sum_i L_i max(0, n . d_i) (radiance in this module's units, albedo
+        times irradiance, so a uniform L gives L on a surface facing down)."""
         up = 0.5 * (1.0 + N[:, 2:3])
-        return up * self.sky + (1.0 - up) * self.bounce
+        if below is None:
+            return up * self.sky + (1.0 - up) * self.bounce
+        dirs, rad = below
+        return up * self.sky + (2.0 / len(dirs)) * np.clip(N @ dirs.T, 0.0, None) @ rad
 
     def irradiance(self, P, N, static=True, occluders=None):
         """Direct irradiance (M, 3) at points P (M, 3) of unit normals N (M, 3), shadowed by
@@ -422,12 +432,12 @@ class Shader:
         those positions: a moving ball over the exposure)."""
         return self._direct(P, N, None, Material((1, 1, 1)), static, occluders)[0]
 
-    def radiance(self, P, N, V, material, static=False, occluders=None):
+    def radiance(self, P, N, V, material, static=False, occluders=None, below=None):
         """Radiance (M, 3) leaving points P (M, 3), unit normals N (M, 3), toward unit view
-        directions V (M, 3) (from the point to the eye)."""
+        directions V (M, 3) (from the point to the eye); ``below``: see :meth:`ambient`."""
         diffuse, sheen = self._direct(P, N, V, material, static, occluders)
         albedo = np.asarray(material.albedo, dtype=float)
-        return albedo * (diffuse + self.ambient(N)) + material.sheen * sheen
+        return albedo * (diffuse + self.ambient(N, below)) + material.sheen * sheen
 
     def occluded(self, P, N, centres):
         """Direct irradiance (M, 3) that balls at ``centres`` (T, 3) take from points P (M, 3)
@@ -682,13 +692,16 @@ def _subpixel_grid(x0, y0, x1, y1, n):
 class Background:
     """One camera's static scene: linear radiance (H, W, 3) and, at pixel centres, the surface
     point (H, W, 3), normal (H, W, 3), id (H, W) and irradiance (H, W, 3) (direct, shadowed
-    by the static scene, plus ambient)."""
+    by the static scene, plus ambient); the n x n sub-pixel rays (H, W, n n, 3) and their
+    distances to the static scene (H, W, n n), float32, reused for the distractors."""
 
     radiance: np.ndarray
     point: np.ndarray
     normal: np.ndarray
     surface: np.ndarray
     light: np.ndarray
+    rays: np.ndarray
+    depth: np.ndarray
 
 
 class Sphere:
@@ -790,12 +803,13 @@ class Renderer:
     """Renders linear radiance images of the rig's cameras (see the module docstring).
 
     ``subpixels``: n x n rays per pixel for moving objects; ``time_samples`` instants over
-    the ``exposure`` (s); ``flat``: objects shaded with their albedo alone (no lights, no
+    the ``exposure`` (s); ``object_subpixels``: n x n rays per pixel for the distractors
+    (large, not measured); ``flat``: objects shaded with their albedo alone (no lights, no
     shadows) and no flicker, for tests of the geometry.
     """
 
     def __init__(self, rig, lighting=None, exposure=2e-3, subpixels=4, time_samples=8,
-                 background_subpixels=2, seed=0, flat=False):
+                 background_subpixels=2, object_subpixels=2, seed=0, flat=False):
         self.rig = rig
         self.cameras = rig.cameras
         self.lighting = lighting or Lighting()
@@ -805,6 +819,7 @@ class Renderer:
         self.subpixels = subpixels
         self.time_samples = time_samples
         self.background_subpixels = background_subpixels
+        self.object_subpixels = object_subpixels
         self.flat = flat
         self._backgrounds = {}
 
@@ -830,6 +845,8 @@ class Renderer:
         normal = np.zeros((h, w, 3))
         surface = np.zeros((h, w), np.int8)
         centre_light = np.ones((h, w, 3))
+        rays = np.zeros((h, w, q, 3), np.float32)
+        depth = np.zeros((h, w, q), np.float32)
         for y0 in range(0, h, rows):
             y1 = min(y0 + rows, h)
             # Pixel centres: the geometry kept for the shadows cast on the background.
@@ -843,6 +860,8 @@ class Renderer:
             # centre where all samples see the same flat surface, else at each sample.
             d = pixel_rays(cam, _subpixel_grid(0, y0, w, y1, n))
             s, sid, nrm = intersect_static(o, d)
+            rays[y0:y1] = d.reshape(y1 - y0, w, q, 3)
+            depth[y0:y1] = s.reshape(y1 - y0, w, q)
             P = o[None] + np.where(np.isfinite(s), s, 0.0)[:, None] * d
             flat = (np.all(sid.reshape(-1, q) == idc[:, None], axis=1)
                     & (idc != SPARE) & (idc != NOTHING))
@@ -856,7 +875,7 @@ class Renderer:
             rest = ~np.repeat(flat, q)
             rad = self._static_radiance(P, nrm, -d, sid, light, rest)
             radiance[y0:y1] = rad.reshape(y1 - y0, w, q, 3).mean(axis=2)
-        return Background(radiance, point, normal, surface, centre_light)
+        return Background(radiance, point, normal, surface, centre_light, rays, depth)
 
     def _static_radiance(self, P, N, V, sid, light, todo):
         """Radiance (M, 3) of static surface points; ``light`` (M, 3) the irradiance (direct
@@ -898,7 +917,7 @@ class Renderer:
             return None
         return x0, y0, x1, y1
 
-    def coverage(self, k, obj, instants=None):
+    def coverage(self, k, obj, instants=None, subpixels=None):
         """Ray-cast ``obj`` in camera ``k``: (box, coverage (h, w), radiance sum (h, w, 3)).
 
         Coverage is the fraction of the box pixels' sub-pixel rays x ``instants`` (default:
@@ -906,19 +925,23 @@ class Renderer:
         the radiance sum is the object's radiance summed over those rays, divided by the
         number of rays per pixel (so that the pixel's value is radiance sum + (1 - coverage)
         background). An object present at fewer instants than the exposure's (a ball
-        launched or ending within it) covers the pixel for that part only. None when the
-        object is out of view.
+        launched or ending within it) covers the pixel for that part only. ``subpixels``:
+        n x n rays a pixel (default: the renderer's). None when the object is out of view.
         """
         cam = self.cameras[k]
         box = self._box(cam, obj)
         if box is None:
             return None
         x0, y0, x1, y1 = box
-        n = self.subpixels
-        uv = _subpixel_grid(x0, y0, x1, y1, n)
+        n = subpixels or self.subpixels
         o = camera_centre(cam)
-        d = pixel_rays(cam, uv)
-        s_static = intersect_static(o, d)[0]
+        if n == self.background_subpixels and k in self._backgrounds:
+            bg = self._backgrounds[k]
+            d = bg.rays[y0:y1, x0:x1].reshape(-1, 3).astype(float)
+            s_static = bg.depth[y0:y1, x0:x1].ravel()
+        else:
+            d = pixel_rays(cam, _subpixel_grid(x0, y0, x1, y1, n))
+            s_static = intersect_static(o, d)[0]
         s = obj.intersect(o, d)                                        # (M, T)
         seen = s < s_static[:, None]
         ray, inst = np.nonzero(seen)
@@ -938,14 +961,55 @@ class Renderer:
             N[flip] *= -1.0
             if self.flat:
                 rad = np.broadcast_to(np.asarray(obj.material.albedo, float), P.shape)
+            elif isinstance(obj, Sphere):
+                below = self.environment_below(obj.bounding()[0].mean(axis=0))
+                rad = self.shader.radiance(P, N, V, obj.material, below=below)
             else:
-                rad = self.shader.radiance(P, N, V, obj.material)
+                rad = self._shade_by_normal(obj, N, V)
             pix = ray // (n * n)
             np.add.at(total, pix, rad)
         return box, cover.reshape(h, w), (total / per_pixel).reshape(h, w, 3)
 
-    def _draw(self, img, k, obj):
-        got = self.coverage(k, obj, self.time_samples)
+    def environment_below(self, centre, n=64):
+        """The lower hemisphere seen from ``centre`` (3,): n directions (n, 3) spread evenly
+        over it (a Fibonacci lattice) and the radiance (n, 3) of the static scene along each
+        (table, floor, spare balls, lit and shadowed as in the background): the light that
+        the scene bounces on to an object's underside (the table's blue over the table, the
+        floor's warm grey beyond it)."""
+        i = np.arange(n) + 0.5
+        z = -i / n                                       # uniform in z: uniform in solid angle
+        phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+        r = np.sqrt(1.0 - z * z)
+        dirs = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+        s, sid, nrm = intersect_static(centre, dirs)
+        P = centre[None] + np.where(np.isfinite(s), s, 0.0)[:, None] * dirs
+        rad = self._static_radiance(P, nrm, -dirs, sid, np.zeros((n, 3)), np.ones(n, bool))
+        return dirs, rad
+
+    def _shade_by_normal(self, obj, N, V, rows=32):
+        """Radiance (K, 3) of a large distractor's hits of normals N (K, 3): shaded exactly
+        on a rows x 2 rows grid of normals (polar angle, azimuth) at the object's centre and
+        mean view direction, then looked up by each hit's normal (its lights and view hardly
+        change over it; the balls are shaded exactly at every hit)."""
+        centre = obj.bounding()[0].mean(axis=0)
+        view = V.mean(axis=0)
+        view /= np.linalg.norm(view)
+        theta = (np.arange(rows) + 0.5) / rows * np.pi
+        phi = (np.arange(2 * rows) + 0.5) / (2 * rows) * 2 * np.pi - np.pi
+        th, ph = np.meshgrid(theta, phi, indexing='ij')
+        G = np.column_stack([(np.sin(th) * np.cos(ph)).ravel(),
+                             (np.sin(th) * np.sin(ph)).ravel(), np.cos(th).ravel()])
+        m = len(G)
+        table = self.shader.radiance(np.tile(centre, (m, 1)), G, np.tile(view, (m, 1)),
+                                     obj.material, below=self.environment_below(centre))
+        i = np.clip((np.arccos(np.clip(N[:, 2], -1, 1)) / np.pi * rows).astype(int), 0,
+                    rows - 1)
+        j = ((np.arctan2(N[:, 1], N[:, 0]) + np.pi) / (2 * np.pi) * 2 * rows).astype(int) \
+            % (2 * rows)
+        return table[i * 2 * rows + j]
+
+    def _draw(self, img, k, obj, subpixels=None, instants=None):
+        got = self.coverage(k, obj, instants, subpixels)
         if got is None:
             return
         (x0, y0, x1, y1), cover, total = got
@@ -1025,16 +1089,18 @@ class Renderer:
     def render_linear(self, k, t, balls=(), objects=()):
         """Camera ``k``'s linear radiance image (H, W, 3) float32, RGB, for the exposure
         centred on ``t`` (s). ``balls``: (centres (T, 3) at :meth:`sample_times`, material)
-        of flying balls (they cast shadows); ``objects``: other moving objects (drawn, no
-        shadow)."""
+        of flying balls (they cast shadows, and a ball present at only some of the instants
+        covers its pixels for that part of the exposure); ``objects``: other moving objects
+        (no shadow), each at its own instants over the exposure (large: fewer rays, see
+        ``object_subpixels``)."""
         img = self.background(k).radiance.copy()
         if not self.flat:
             for centres, _ in balls:
                 self._shade_under(img, k, centres)
         for obj in objects:
-            self._draw(img, k, obj)
+            self._draw(img, k, obj, self.object_subpixels)
         for centres, material in balls:
-            self._draw(img, k, Sphere(centres, RADIUS, material))
+            self._draw(img, k, Sphere(centres, RADIUS, material), instants=self.time_samples)
         if not self.flat:
             img *= np.float32(self.lighting.gain(t, self.exposure))
         return img
@@ -1140,8 +1206,10 @@ def racket_and_sleeve(t, colour='white'):
     phase = 2 * np.pi * 0.9 * t
     centre = np.stack([-1.75 + 0.12 * np.cos(phase), 0.45 + 0.32 * np.sin(phase),
                        0.28 + 0.12 * np.cos(2 * phase)], axis=1)
-    yaw = 0.6 * np.sin(phase)
-    normal = np.stack([np.cos(yaw), np.sin(yaw), 0.25 * np.ones_like(yaw)], axis=1)
+    # The face toward both cameras (behind the robot's end and to its side, above) tilted up
+    # to the lamps, wobbling with the swing.
+    normal = np.stack([-0.55 + 0.2 * np.cos(phase), -0.45 + 0.35 * np.sin(phase),
+                       0.7 * np.ones_like(phase)], axis=1)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     wrist = centre + np.array([-0.06, 0.13, -0.05])
     elbow = wrist + np.stack([-0.22 - 0.05 * np.sin(phase), 0.22 + 0.05 * np.cos(phase),
@@ -1188,10 +1256,10 @@ def render_scene(rig, flights=(), colour='white', t_begin=-0.2, t_end=0.8, time_
             balls = []
             for f in flights:
                 p = f.state(times)[:, :3]
-                p = p[np.all(np.isfinite(p), axis=1)]
+                p = p[np.all(np.isfinite(p), axis=1)]    # launched or ended within it: part
                 if len(p):
                     balls.append((p, material))
-            objects = racket_and_sleeve(times, colour) if distractor else []
+            objects = racket_and_sleeve(times[1::2], colour) if distractor else []
             img = renderer.render_linear(k, t, balls, objects)
             rng = np.random.default_rng([seed, k, n])
             yield t, k, sensor.capture(img, cams[k], rng, caches[k])
