@@ -42,6 +42,7 @@ Entry point: :func:`render_scene` yields ``(t, camera_index, frame)`` in time or
 exposure mid-time, s, on the common clock; ``frame`` uint8 BGR) and returns the truth.
 """
 
+import copy
 import dataclasses
 
 import cv2
@@ -822,6 +823,15 @@ class Renderer:
         self.object_subpixels = object_subpixels
         self.flat = flat
         self._backgrounds = {}
+
+    def variant(self, **options):
+        """A copy with other options (e.g. ``flat=True``) sharing this one's backgrounds."""
+        other = copy.copy(self)
+        for name, value in options.items():
+            if not hasattr(other, name):
+                raise AttributeError(f'Renderer has no option {name!r}')
+            setattr(other, name, value)
+        return other
 
     def sample_times(self, t):
         """The instants (T,) of the exposure centred on ``t``, s (stratified)."""
