@@ -126,7 +126,7 @@ BLUR_STEP = 0.5
 """Largest distance between two of the model's positions of the ball over the exposure, px."""
 N_SHADING = 6
 """Terms of the model of the ball's brightness over its image (a quadratic)."""
-CONVERGED = 0.01
+CONVERGED = 0.03
 """A Gauss-Newton step of the centre shorter than this ends the fit, pixels."""
 
 
@@ -207,7 +207,7 @@ def _whiten(outline):
     return (vecs / np.sqrt(vals)) @ vecs.T
 
 
-def ball_model(xs, ys, centre, ball):
+def ball_model(xs, ys, centre, ball, whitening=None):
     """The image of the ball ``ball`` (:class:`BallImage`) with its centre at ``centre`` at
     mid-exposure, at the pixels (xs, ys) (1-D float arrays of pixel centres): its mean
     coverage of each pixel over the exposure (P,) and the basis (P, 6) of its brightness,
@@ -218,13 +218,16 @@ def ball_model(xs, ys, centre, ball):
     (positions at most :data:`BLUR_STEP` apart); each pixel is sampled at SUBPIXELS^2 points,
     each covered by clip(0.5 - SUBPIXELS s) of its signed distance s to the outline. The
     ball's brightness is a quadratic over its image (in offsets from the centre scaled to
-    the outline; an outline sample takes the outline's brightness), whatever the light."""
+    the outline; an outline sample takes the outline's brightness), whatever the light.
+    ``whitening``: :func:`_whiten` of the outline, when computed already."""
     blur = ball.blur
     steps = max(1, int(np.ceil(np.hypot(blur[0], blur[1]) / BLUR_STEP)))
     n = xs.size
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
-    _render(xs, ys, float(centre[0]), float(centre[1]), _whiten(ball.outline),
+    if whitening is None:
+        whitening = _whiten(ball.outline)
+    _render(xs, ys, float(centre[0]), float(centre[1]), whitening,
             float(blur[0]), float(blur[1]), steps, SUBPIXELS, cover, dcover, basis, dbasis)
     return cover, basis, dcover, dbasis
 
@@ -251,7 +254,8 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
     xs, ys = xs.astype(float), ys.astype(float)
 
     centre = np.array(start, float)
-    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball)
+    whitening = _whiten(ball.outline)
+    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
     shading = np.linalg.lstsq(basis, obs - bg * (1.0 - cover), rcond=None)[0]
     for _ in range(iterations):
         # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading.
@@ -268,7 +272,7 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
             move = step[N_SHADING:]
         shading = shading + step[:N_SHADING]
         centre = centre + move
-        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball)
+        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
         if length < CONVERGED:
             break
     res = obs - bg * (1.0 - cover) - basis @ shading
@@ -468,15 +472,18 @@ class BallDetector:
         grey = _grey(patch).astype(np.float32)
         # The pixels the ball may cover for a centre within a pixel of (u, v), but a shadow's.
         yy, xx = np.mgrid[ay:by, ax:bx]
-        usable = np.hypot(xx - u, yy - v) <= reach + 2.0
+        usable = np.hypot(xx - u, yy - v) <= reach + 1.5
         if self._bg_colour is not None and patch.ndim == 3:
             change = patch.astype(np.float32) - self._bg_colour[ay:by, ax:bx]
             usable &= change.max(axis=2) >= 0.0          # a shadow: darker in all three
-        # From the candidate's own centre and from the predicted one, the better fit: on a
-        # ball of a few pixels, JPEG's blocks can leave a second minimum a pixel or two away.
-        best = None
-        for start in ((u - ax, v - ay), (ball.u - ax, ball.v - ay)):
-            fit = fit_outline(grey, self.background[ay:by, ax:bx], usable, start, ball)
+        # From the candidate's own centre; on a ball of a few pixels JPEG's blocks can leave
+        # a second minimum a pixel or two away, so when that fit ends more than half a pixel
+        # from the predicted centre, from there too, and the better fit.
+        background = self.background[ay:by, ax:bx]
+        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball)
+        predicted = (ball.u - ax, ball.v - ay)
+        if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
+            fit = fit_outline(grey, background, usable, predicted, ball)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)
