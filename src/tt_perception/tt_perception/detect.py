@@ -6,11 +6,19 @@ A pixel is a candidate when its grey level differs from the running background b
 within [min_area, max_area] pixels, its mean colour matches the ball's (white: the three
 channels close and bright; orange: red well above blue), and its width (twice the square root
 of the smaller eigenvalue of its second moments, the diameter of a disc whatever the motion
-blur along the path) is within range. The centre is the difference-weighted centroid, which for
-a motion-blurred disc is the centre at mid-exposure. When the caller knows where the ball
-should be (the tracker's prediction) only a region of interest around it is searched; a blob
-cut by the window's edge is not measured (a ball merging with a larger object there would
-give a biased centre).
+blur along the path) is within range. Its first centre is the centroid of the ball's
+silhouette (:meth:`BallDetector._silhouette_centre`), which for a motion-blurred disc is the
+centre at mid-exposure. When the caller knows where the ball should be (the tracker's
+prediction) only a region of interest around it is searched; a blob cut by the window's edge
+is not measured (a ball merging with a larger object there would give a biased centre).
+
+When the caller also knows how the ball should look (``expected``, a :class:`BallImage`: the
+outline of the sphere at its predicted depth and its motion over the exposure), the centre is
+a fit of that outline to the pixels (:func:`fit_outline`): the image is modelled as the
+background mixed with the ball in proportion to the ball's coverage of each pixel, with the
+ball's brightness a smooth field over its image, so a side of the ball as dark as the
+background behind it carries no weight and the known size places the centre from the sides
+that are seen, whatever the lighting.
 
 The background follows slow changes of lighting (exponential average, ``background_rate`` per
 update, one update every ``background_every`` frames) except under the blobs found, so a ball
@@ -20,6 +28,7 @@ that hovers does not fade into it.
 import dataclasses
 
 import cv2
+from numba import njit
 import numpy as np
 
 
@@ -48,6 +57,8 @@ class DetectorConfig:
     silhouette_threshold: float = 14.0
     """Smallest colour change (largest over B, G, R against the colour background) of a pixel
     of the ball's silhouette, grey levels: low enough to keep its shaded underside."""
+    exposure: float = 2e-3
+    """Exposure time of the camera, s: the ball's motion blur is its image velocity times it."""
 
 
 @dataclasses.dataclass
@@ -64,6 +75,23 @@ class Detection:
     hidden: float = 0.0
     """Fraction of the blob's outline where the background is as bright as the ball (part
     of the ball may be missing from the blob there)."""
+    fitted: bool = False
+    """The centre is the fit of the expected outline (:func:`fit_outline`), not the
+    silhouette's centroid."""
+
+
+@dataclasses.dataclass
+class BallImage:
+    """How the tracked ball should look in a frame, from its predicted state: where its centre
+    projects, the outline of the sphere and its motion over the exposure (distorted pixels)."""
+
+    u: float
+    v: float
+    """Projection of the ball's centre at the frame's time (the middle of the exposure)."""
+    outline: np.ndarray
+    """2 x 2 matrix M: the outline is the ellipse {c + M (cos a, sin a)} around the centre c."""
+    blur: np.ndarray
+    """(2,) the centre's displacement over the exposure, pixels."""
 
 
 def colour_matches(bgr, colour, change=None):
@@ -92,6 +120,174 @@ def _width_from_moments(cxx, cyy, cxy):
     return 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)
 
 
+SUBPIXELS = 2
+"""The model's samples per pixel along each axis (their coverage ramps are 1 / SUBPIXELS px)."""
+BLUR_STEP = 0.5
+"""Largest distance between two of the model's positions of the ball over the exposure, px."""
+N_SHADING = 6
+"""Terms of the model of the ball's brightness over its image (a quadratic)."""
+CONVERGED = 0.03
+"""A Gauss-Newton step of the centre shorter than this ends the fit, pixels."""
+
+
+@njit(cache=True, nogil=True)
+def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, cover, dcover, basis, dbasis):
+    """Kernel of :func:`ball_model`: fills ``cover`` (P,), ``basis`` (P, N_SHADING) and their
+    derivatives with respect to the centre, ``dcover`` (P, 2) and ``dbasis`` (P, 2, N_SHADING)."""
+    inv = 1.0 / (steps * sub * sub)
+    mean_radius = 1.0 / np.sqrt(a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
+    t = np.empty(N_SHADING)
+    dt = np.empty((N_SHADING, 2))
+    for p in range(xs.size):
+        cover[p] = 0.0
+        dcover[p, 0] = dcover[p, 1] = 0.0
+        for j in range(N_SHADING):
+            basis[p, j] = dbasis[p, 0, j] = dbasis[p, 1, j] = 0.0
+        for k in range(steps):
+            s = (k + 0.5) / steps - 0.5
+            for iy in range(sub):
+                dy = ys[p] + (iy + 0.5) / sub - 0.5 - cy - s * bv
+                for ix in range(sub):
+                    dx = xs[p] + (ix + 0.5) / sub - 0.5 - cx - s * bu
+                    wx = a[0, 0] * dx + a[0, 1] * dy        # whitened: |w| = 1 on the outline
+                    wy = a[1, 0] * dx + a[1, 1] * dy
+                    norm = np.sqrt(wx * wx + wy * wy)
+                    gx = a[0, 0] * wx + a[1, 0] * wy        # A^T w: the outline's normal
+                    gy = a[0, 1] * wx + a[1, 1] * wy
+                    g = np.sqrt(gx * gx + gy * gy)
+                    along = norm / g if g > 1e-9 else mean_radius
+                    c = 0.5 - (norm - 1.0) * along * sub
+                    if c <= 0.0:
+                        continue
+                    # d c / d centre: the outline's unit normal, times the ramp's slope.
+                    if c < 1.0 and g > 1e-9:
+                        dcx, dcy = sub * gx / g, sub * gy / g
+                    else:
+                        c, dcx, dcy = min(c, 1.0), 0.0, 0.0
+                    # d w / d centre = -A; an outline sample takes the limb's w / |w|.
+                    d00, d01, d10, d11 = -a[0, 0], -a[0, 1], -a[1, 0], -a[1, 1]
+                    if norm > 1.0:
+                        wx /= norm
+                        wy /= norm
+                        # d (w / |w|) = (I - u u^T) dw / |w|
+                        e00, e01 = (1.0 - wx * wx) / norm, -wx * wy / norm
+                        e11 = (1.0 - wy * wy) / norm
+                        d00, d01, d10, d11 = (e00 * d00 + e01 * d10, e00 * d01 + e01 * d11,
+                                              e01 * d00 + e11 * d10, e01 * d01 + e11 * d11)
+                    t[0], t[1], t[2] = 1.0, wx, wy
+                    t[3], t[4], t[5] = wx * wx, wx * wy, wy * wy
+                    for m in range(2):
+                        dwx = d00 if m == 0 else d01
+                        dwy = d10 if m == 0 else d11
+                        dt[0, m] = 0.0
+                        dt[1, m] = dwx
+                        dt[2, m] = dwy
+                        dt[3, m] = 2.0 * wx * dwx
+                        dt[4, m] = dwx * wy + wx * dwy
+                        dt[5, m] = 2.0 * wy * dwy
+                    cover[p] += c
+                    dcover[p, 0] += dcx
+                    dcover[p, 1] += dcy
+                    for j in range(N_SHADING):
+                        basis[p, j] += c * t[j]
+                        dbasis[p, 0, j] += dcx * t[j] + c * dt[j, 0]
+                        dbasis[p, 1, j] += dcy * t[j] + c * dt[j, 1]
+        cover[p] *= inv
+        dcover[p, 0] *= inv
+        dcover[p, 1] *= inv
+        for j in range(N_SHADING):
+            basis[p, j] *= inv
+            dbasis[p, 0, j] *= inv
+            dbasis[p, 1, j] *= inv
+
+
+def _whiten(outline):
+    """A = (M M^T)^(-1/2) of an outline M: |A d| = 1 on the outline, d from the centre."""
+    vals, vecs = np.linalg.eigh(outline @ outline.T)
+    return (vecs / np.sqrt(vals)) @ vecs.T
+
+
+def ball_model(xs, ys, centre, ball, whitening=None):
+    """The image of the ball ``ball`` (:class:`BallImage`) with its centre at ``centre`` at
+    mid-exposure, at the pixels (xs, ys) (1-D float arrays of pixel centres): its mean
+    coverage of each pixel over the exposure (P,) and the basis (P, 6) of its brightness,
+    such that a pixel is I = G (1 - coverage) + basis @ shading for a background G; and their
+    derivatives with respect to the centre's u and v, (P, 2) and (P, 2, 6).
+
+    The ball is the outline ``ball.outline`` moving by ``ball.blur`` over the exposure
+    (positions at most :data:`BLUR_STEP` apart); each pixel is sampled at SUBPIXELS^2 points,
+    each covered by clip(0.5 - SUBPIXELS s) of its signed distance s to the outline. The
+    ball's brightness is a quadratic over its image (in offsets from the centre scaled to
+    the outline; an outline sample takes the outline's brightness), whatever the light.
+    ``whitening``: :func:`_whiten` of the outline, when computed already."""
+    blur = ball.blur
+    steps = max(1, int(np.ceil(np.hypot(blur[0], blur[1]) / BLUR_STEP)))
+    n = xs.size
+    cover, dcover = np.empty(n), np.empty((n, 2))
+    basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
+    if whitening is None:
+        whitening = _whiten(ball.outline)
+    _render(xs, ys, float(centre[0]), float(centre[1]), whitening,
+            float(blur[0]), float(blur[1]), steps, SUBPIXELS, cover, dcover, basis, dbasis)
+    return cover, basis, dcover, dbasis
+
+
+def fit_outline(grey, background, usable, start, ball, iterations=6):
+    """Centre (u, v) of a ball of known outline and motion blur (``ball``, a
+    :class:`BallImage`) in the grey patch ``grey`` (float; ``start``, ``ball``'s outline and
+    blur in the patch's pixel coordinates), fitted from ``start``, and the sum of the squared
+    residuals; or None when the fit fails (or ends more than a radius from ``start``).
+
+    Each pixel is modelled as the background (``background``) where the ball does not cover
+    it and the ball's own brightness where it does, mixed in proportion to the coverage,
+    I = G (1 - c) + c B (:func:`ball_model`). For a centre, the ball's brightness B is solved
+    by linear least squares; the centre is moved by Gauss-Newton on what remains (variable
+    projection). A pixel tells where the outline is only in proportion to the contrast B - G
+    there, so a shaded side as dark as the background behind it carries no weight and does
+    not pull the centre: the known outline places the centre from the sides that are seen.
+    ``usable`` (bool, the patch's shape): pixels that may be used (not a shadow)."""
+    ys, xs = np.nonzero(usable)
+    if xs.size < 12:
+        return None
+    obs = grey[ys, xs].astype(float)
+    bg = background[ys, xs].astype(float)
+    xs, ys = xs.astype(float), ys.astype(float)
+
+    centre = np.array(start, float)
+    whitening = _whiten(ball.outline)
+    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
+    shading = np.linalg.lstsq(basis, obs - bg * (1.0 - cover), rcond=None)[0]
+    for _ in range(iterations):
+        # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading.
+        res = obs - bg * (1.0 - cover) - basis @ shading
+        jac = np.concatenate([basis, dbasis @ shading - bg[:, None] * dcover], axis=1)
+        try:
+            step = np.linalg.solve(jac.T @ jac, jac.T @ res)
+        except np.linalg.LinAlgError:
+            return None
+        move = step[N_SHADING:]
+        length = np.hypot(move[0], move[1])
+        if length > 1.0:
+            step = step / length
+            move = step[N_SHADING:]
+        shading = shading + step[:N_SHADING]
+        centre = centre + move
+        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
+        if length < CONVERGED:
+            break
+    res = obs - bg * (1.0 - cover) - basis @ shading
+    scale = np.sqrt(abs(np.linalg.det(ball.outline)))
+    if not np.all(np.isfinite(centre)) or np.hypot(*(centre - start)) > max(scale, 1.0):
+        return None
+    return centre, float(res @ res)
+
+
+def warm_up():
+    """Load the compiled kernel of :func:`ball_model` (numba) before the first ball needs it."""
+    ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0),
+               BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0])))
+
+
 _KERNEL3 = np.ones((3, 3), np.uint8)
 
 
@@ -109,11 +305,13 @@ class BallDetector:
         self._bg_colour = None
         self._count = 0
 
-    def detect(self, frame, roi_centre=None, update_background=True):
+    def detect(self, frame, roi_centre=None, update_background=True, expected=None):
         """Ball candidates in ``frame`` (H x W x 3 BGR or H x W grey uint8).
 
         ``roi_centre`` (u, v): search only the window of ``roi_half_size`` around it.
         ``update_background``: False for a second search of the same frame.
+        ``expected``: the :class:`BallImage` of the tracked ball, when known: each candidate's
+        centre is then the fit of that outline (:func:`fit_outline`).
         Returns a list of :class:`Detection` (best first); a frame that is not an image of the
         background's size raises ValueError.
         """
@@ -154,12 +352,14 @@ class BallDetector:
                 cut = (x0 > 0 and bx == 0, y0 > 0 and by == 0,
                        x1 < w and bx + bw == x1 - x0, y1 < h and by + bh == y1 - y0)
                 found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
-                                    mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut)
+                                    mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut,
+                                    expected)
         if update:
             self._update_background(gray, mask, x0, y0, frame)
         return found
 
-    def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False)):
+    def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False),
+               expected=None):
         """Candidates among the blobs of ``mask`` (a crop at x0, y0 of the frame); ``cut``
         says which crop edges (left, top, right, bottom) cut through the scene."""
         cfg = self.config
@@ -202,9 +402,15 @@ class BallDetector:
             if self._bg_colour is not None and frame.ndim == 3:
                 cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
                 cu, cv = cu - x0, cv - y0
+            fitted = None
+            if expected is not None:
+                fitted = self._fit_centre(frame, cu + x0, cv + y0, expected)
+                if fitted is not None:
+                    cu, cv = fitted[0] - x0, fitted[1] - y0
             out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
                                  float(total / area),
-                                 self._hidden(frame, sub, x0 + bx, y0 + by)))
+                                 self._hidden(frame, sub, x0 + bx, y0 + by),
+                                 fitted is not None))
         out.sort(key=lambda d: -d.strength * d.area)
         return out[:cfg.max_candidates]
 
@@ -252,6 +458,35 @@ class BallDetector:
         cu, cv = mom['m10'] / total, mom['m01'] / total
         return (ax + cu, ay + cv,
                 _width_from_moments(mom['mu20'] / total, mom['mu02'] / total, mom['mu11'] / total))
+
+    def _fit_centre(self, frame, u, v, ball):
+        """:func:`fit_outline` for a candidate whose first centre is (u, v): (u, v) or None."""
+        h, w = frame.shape[:2]
+        reach = np.linalg.svd(ball.outline, compute_uv=False)[0] + 0.5 * np.hypot(*ball.blur)
+        half = int(np.ceil(reach + 2.0))
+        ax, ay = int(round(u)) - half, int(round(v)) - half
+        bx, by = ax + 2 * half + 1, ay + 2 * half + 1
+        if ax < 0 or ay < 0 or bx > w or by > h:
+            return None
+        patch = frame[ay:by, ax:bx]
+        grey = _grey(patch).astype(np.float32)
+        # The pixels the ball may cover for a centre within a pixel of (u, v), but a shadow's.
+        yy, xx = np.mgrid[ay:by, ax:bx]
+        usable = np.hypot(xx - u, yy - v) <= reach + 1.5
+        if self._bg_colour is not None and patch.ndim == 3:
+            change = patch.astype(np.float32) - self._bg_colour[ay:by, ax:bx]
+            usable &= change.max(axis=2) >= 0.0          # a shadow: darker in all three
+        # From the candidate's own centre; on a ball of a few pixels JPEG's blocks can leave
+        # a second minimum a pixel or two away, so when that fit ends more than half a pixel
+        # from the predicted centre, from there too, and the better fit.
+        background = self.background[ay:by, ax:bx]
+        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball)
+        predicted = (ball.u - ax, ball.v - ay)
+        if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
+            fit = fit_outline(grey, background, usable, predicted, ball)
+            if fit is not None and (best is None or fit[1] < best[1]):
+                best = fit
+        return None if best is None else (best[0][0] + ax, best[0][1] + ay)
 
     def _hidden(self, frame, sub, x0, y0):
         """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there

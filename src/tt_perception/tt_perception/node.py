@@ -81,6 +81,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('max_width', 30.0, 'Largest ball diameter in the image', 'pixels', 2, 1000),
     ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
      'pixels', 8, 2000),
+    ('exposure', 0.002, 'Exposure time of the cameras (the motion blur of the ball)', 's',
+     1e-5, 0.1),
     ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
@@ -90,7 +92,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
      'rad/s', 0.01, 1000),
-    ('confirm_updates', 3, 'Filter updates before a track is published', '', 1, 100),
+    ('confirm_updates', 1, 'Filter updates after the start before a track is published', '',
+     0, 100),
     ('max_coast', 0.06, 'Time without a measurement that ends a track', 's', 0.001, 5),
     ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
      0.05, 60),
@@ -199,7 +202,7 @@ class PerceptionNode(Node):
         detector = DetectorConfig(
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
-            roi_half_size=self._p('roi_half_size'))
+            roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'))
         filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),

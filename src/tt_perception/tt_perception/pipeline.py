@@ -4,7 +4,9 @@
 (t: exposure time, s), and returns the ball states it estimated from them. Its stages:
 
 1. per camera, a :class:`tt_perception.detect.BallDetector`, searching only a window around
-   the tracked ball's predicted image position while a track runs;
+   the tracked ball's predicted image position while a track runs, and then fitting the
+   ball's expected image (:func:`ball_image`: the projected outline of the sphere at its
+   predicted depth, moving over the exposure) to find its centre;
 2. a :class:`Matcher` that groups each frame of camera 0 (the time reference) with the other
    cameras' detections at the same instant: the frame with the same stamp when the cameras are
    synchronised, otherwise the detections of the frames just before and after, interpolated
@@ -26,7 +28,7 @@ import numpy as np
 from tt_prediction.ball import ModelParams
 from tt_prediction.ball_filter import BallFilter, FilterConfig
 
-from .detect import BallDetector, DetectorConfig
+from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
 
 LIVE = object()
@@ -47,8 +49,9 @@ class BallEstimate:
 class TrackerConfig:
     """Track management (SI units)."""
 
-    confirm_updates: int = 3
-    """Filter updates after the start before states are published."""
+    confirm_updates: int = 1
+    """Filter updates after the start before states are published (1: the third point of a
+    new track must fit the flight the first two started)."""
     max_coast: float = 0.06
     """Time without an accepted measurement after which a track ends, s."""
     min_speed: float = 1.0
@@ -69,6 +72,31 @@ class TrackerConfig:
     hidden_weight: float = 20.0
     """... and a blob whose outline is a fraction h ball-bright background, plus
     hidden_weight h."""
+
+
+def ball_image(cam, position, velocity, radius, exposure):
+    """The :class:`tt_perception.detect.BallImage` of a ball of ``radius`` (m) at ``position``
+    (3,) moving at ``velocity`` (3,) (table frame, m, m/s) in camera ``cam`` over an
+    ``exposure`` (s): the projection of its centre, the projection of its outline (the circle
+    where the lines of sight touch the sphere, through the lens distortion; an ellipse,
+    longer along the radius of the image off the axis) and of its motion over the exposure."""
+    c = cam.R @ position + cam.t
+    d = np.linalg.norm(c)
+    axis = c / d
+    e1 = np.cross(axis, (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    # The outline: the circle of radius r sqrt(d^2 - r^2) / d at (d^2 - r^2) / d along the axis.
+    ring = radius * np.sqrt(d * d - radius * radius) / d
+    mid = (d * d - radius * radius) / d * axis
+    half = 0.5 * exposure * velocity
+    pts = np.stack([c, mid + ring * e1, mid + ring * e2, mid - ring * e1, mid - ring * e2])
+    table = (pts - cam.t) @ cam.R
+    table = np.vstack([table, position - half, position + half])
+    uv = cam.project(table)
+    # Four points a quarter turn apart on the projected circle: c + M (cos, sin).
+    m = 0.5 * np.column_stack([uv[1] - uv[3], uv[2] - uv[4]])
+    return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5])
 
 
 class Matcher:
@@ -164,12 +192,19 @@ class Tracker:
         """Where the tracked ball should be at ``t`` (ballistic guess), or None; from
         ``snapshot`` (see :meth:`snapshot`; None: no track) instead of the running filter
         when given."""
+        motion = self.predicted_motion(t, snapshot)
+        return None if motion is None else motion[0]
+
+    def predicted_motion(self, t, snapshot=LIVE):
+        """(position, velocity) of the tracked ball at ``t`` (ballistic guess), or None; see
+        :meth:`predicted_position`."""
         snap = self.snapshot() if snapshot is LIVE else snapshot
         if snap is None:
             return None
         t_filter, x = snap
         dt = t - t_filter
-        return x[:3] + x[3:6] * dt + 0.5 * self.gravity * dt * dt
+        return (x[:3] + x[3:6] * dt + 0.5 * self.gravity * dt * dt,
+                x[3:6] + self.gravity * dt)
 
     def snapshot(self):
         """(time, position and velocity (6,)) of the running track, a copy, or None: what
@@ -289,11 +324,13 @@ class Pipeline:
 
     def _detect(self, t, k, frame, snapshot):
         cam = self.cameras[k]
-        roi = None
-        predicted = self.tracker.predicted_position(t, snapshot)
-        if predicted is not None and cam.in_front(predicted[None])[0]:
-            roi = cam.project(predicted[None])[0]
-        dets = self.detectors[k].detect(frame, roi)
+        roi = expected = None
+        motion = self.tracker.predicted_motion(t, snapshot)
+        if motion is not None and cam.in_front(motion[0][None])[0]:
+            expected = ball_image(cam, motion[0], motion[1], self.params.radius,
+                                  self.detectors[k].config.exposure)
+            roi = (expected.u, expected.v)
+        dets = self.detectors[k].detect(frame, roi, expected=expected)
         if not dets and roi is not None:
             dets = self.detectors[k].detect(frame, None, update_background=False)
         if not dets:
