@@ -49,9 +49,8 @@ class BallEstimate:
 class TrackerConfig:
     """Track management (SI units)."""
 
-    confirm_updates: int = 1
-    """Filter updates after the start before states are published (1: the third point of a
-    new track must fit the flight the first two started)."""
+    confirm_updates: int = 3
+    """Filter updates after the start before states are published."""
     max_coast: float = 0.06
     """Time without an accepted measurement after which a track ends, s."""
     min_speed: float = 1.0
