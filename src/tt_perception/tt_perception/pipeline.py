@@ -200,16 +200,23 @@ class Tracker:
         snap = self.snapshot() if snapshot is LIVE else snapshot
         if snap is None:
             return None
-        t_filter, x = snap
+        t_filter, x = snap[:2]
         dt = t - t_filter
         return (x[:3] + x[3:6] * dt + 0.5 * self.gravity * dt * dt,
                 x[3:6] + self.gravity * dt)
 
+    @property
+    def confirmed(self):
+        """True while a track runs whose states are published."""
+        return self.filter is not None and self.updates >= self.config.confirm_updates
+
     def snapshot(self):
-        """(time, position and velocity (6,)) of the running track, a copy, or None: what
-        :meth:`predicted_position` needs, for a camera thread to place its search window."""
+        """(time, position and velocity (6,), confirmed) of the running track, a copy, or
+        None: what :meth:`predicted_position` needs, for a camera thread to place its search
+        window, and whether the track is confirmed (:meth:`Pipeline.detect` fits the ball's
+        outline only then)."""
         f = self.filter
-        return None if f is None else (f.t, f.x[:6].copy())
+        return None if f is None else (f.t, f.x[:6].copy(), self.confirmed)
 
     def end(self):
         self.filter = None
@@ -324,11 +331,17 @@ class Pipeline:
     def _detect(self, t, k, frame, snapshot):
         cam = self.cameras[k]
         roi = expected = None
-        motion = self.tracker.predicted_motion(t, snapshot)
+        snap = self.tracker.snapshot() if snapshot is LIVE else snapshot
+        motion = self.tracker.predicted_motion(t, snap)
         if motion is not None and cam.in_front(motion[0][None])[0]:
-            expected = ball_image(cam, motion[0], motion[1], self.params.radius,
-                                  self.detectors[k].config.exposure)
-            roi = (expected.u, expected.v)
+            roi = cam.project(motion[0][None])[0]
+            # The outline fit once the track is confirmed: a new track is confirmed on the
+            # blobs' own centres, so a ball-coloured object that is not a ball (a racket's
+            # disc) does not get centres fitted to a ball's outline that then fit a flight.
+            if snap[2]:
+                expected = ball_image(cam, motion[0], motion[1], self.params.radius,
+                                      self.detectors[k].config.exposure)
+                roi = (expected.u, expected.v)
         dets = self.detectors[k].detect(frame, roi, expected=expected)
         if not dets and roi is not None:
             dets = self.detectors[k].detect(frame, None, update_background=False)
