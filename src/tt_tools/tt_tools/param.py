@@ -6,6 +6,8 @@ Every rclpy and rclcpp node (unless started without parameter services) serves
 successful``, a ``/node: ros__parameters:`` YAML for ``dump``.
 """
 
+import time
+
 from rcl_interfaces.msg import Parameter, ParameterType
 from rcl_interfaces.srv import (
     DescribeParameters,
@@ -88,14 +90,28 @@ def _client(cli, node_name, srv_type, args):
                      f'{args.timeout:g} s (started without parameter services?)')
 
 
+RESEND_S = 2.0
+"""A request without an answer after this long is sent again, s."""
+
+
 def _call(cli, client, request, timeout):
-    """The response of one service call; None on a signal, ValueError after ``timeout`` s."""
-    future = client.call_async(request)
-    if not cli.spin_until(future.done, timeout=timeout):
+    """The response of one service call; None on a signal, ValueError after ``timeout`` s.
+
+    The service can be ready (its request reader matched ours) before its response writer has
+    matched our response reader: the node then answers into the void (rmw: "failed to send
+    response"). So an unanswered request is sent again every RESEND_S s until ``timeout``;
+    every parameter request is idempotent (a set sets the same values again)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        future = client.call_async(request)
+        left = deadline - time.monotonic()
+        if cli.spin_until(future.done, timeout=max(min(RESEND_S, left), 0.0)):
+            return future.result()
+        client.remove_pending_request(future)
         if cli.stopped:
             return None
-        raise ValueError(f'no answer from {client.srv_name} within {timeout:g} s')
-    return future.result()
+        if time.monotonic() >= deadline:
+            raise ValueError(f'no answer from {client.srv_name} within {timeout:g} s')
 
 
 def _per_name(cli, node_name, srv_type, field, names, args):
