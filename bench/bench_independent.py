@@ -53,6 +53,9 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]
                        / 'src' / 'tt_perception' / 'test'))
 import independent_scene as scene  # noqa: E402
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from bench_perception import both_cameras_see  # noqa: E402
+
 LIMITS = {
     'position_rms_mm': 1.5,
     'abs_mean_error_mm': 0.3,
@@ -77,18 +80,6 @@ T_BEGIN, T_END = -0.2, 0.8
 """Scene interval, s (the ball is launched at 0)."""
 SETTLE = 0.05
 STRAY = 0.05
-
-
-def both_cameras_see(rig, truth):
-    """Mask of camera 0's frame times (truth['t']) at which the true centre lies in front of
-    and inside both cameras' images."""
-    p = truth['state'][:, :3]
-    ok = np.ones(len(p), bool)
-    for cam in rig.cameras:
-        uv = cam.project(p)
-        ok &= cam.in_front(p) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) \
-            & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-    return ok
 
 
 def run_pipeline(rig, frames, colour):

@@ -91,7 +91,8 @@ def hall_accuracy():
             idx = [int(np.argmin(np.abs(tr['t'] - e.t))) for e in estimates]
             err = np.array([e.state[:3] - tr['state'][i, :3]
                             for e, i in zip(estimates, idx, strict=True)]).reshape(-1, 3)
-            seen = both_cameras_see(rig, tr, rendered_from=0.5 * exposure)   # launch at 0
+            # The ball is launched at 0: frames from half an exposure on show it.
+            seen = int(both_cameras_see(rig, tr, rendered_from=0.5 * exposure).sum())
             out[f'{colour}_{width}x{height}'] = {
                 'states': len(estimates),
                 'tracks': len({e.track_id for e in estimates}),
@@ -105,17 +106,17 @@ def hall_accuracy():
 
 
 def both_cameras_see(rig, truth, rendered_from=-np.inf):
-    """Frames of camera 0 in which the true ball lies inside both cameras' images, from
-    ``rendered_from`` (s) on: synth draws a ball only in frames whose whole exposure follows
-    its launch (the frame at the launch time, exposed from half an exposure before it, has no
-    ball)."""
+    """Mask of camera 0's frames (truth['t']) in which the true ball lies in front of and
+    inside both cameras' images, from ``rendered_from`` (s) on: synth draws a ball only in
+    frames whose whole exposure follows its launch (the frame at the launch time, exposed from
+    half an exposure before it, has no ball)."""
     p = truth['state'][:, :3]
     ok = truth['t'] >= rendered_from - 1e-9
     for cam in rig.cameras:
         uv = cam.project(p)
         ok &= cam.in_front(p) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) \
             & (uv[:, 1] < cam.height)
-    return int(ok.sum())
+    return ok
 
 
 def accuracy(estimates, truth):

@@ -187,16 +187,10 @@ class Tracker:
     def active(self):
         return self.filter is not None
 
-    def predicted_position(self, t, snapshot=LIVE):
-        """Where the tracked ball should be at ``t`` (ballistic guess), or None; from
+    def predicted_motion(self, t, snapshot=LIVE):
+        """(position, velocity) of the tracked ball at ``t`` (ballistic guess), or None; from
         ``snapshot`` (see :meth:`snapshot`; None: no track) instead of the running filter
         when given."""
-        motion = self.predicted_motion(t, snapshot)
-        return None if motion is None else motion[0]
-
-    def predicted_motion(self, t, snapshot=LIVE):
-        """(position, velocity) of the tracked ball at ``t`` (ballistic guess), or None; see
-        :meth:`predicted_position`."""
         snap = self.snapshot() if snapshot is LIVE else snapshot
         if snap is None:
             return None
@@ -212,7 +206,7 @@ class Tracker:
 
     def snapshot(self):
         """(time, position and velocity (6,), confirmed) of the running track, a copy, or
-        None: what :meth:`predicted_position` needs, for a camera thread to place its search
+        None: what :meth:`predicted_motion` needs, for a camera thread to place its search
         window, and whether the track is confirmed (:meth:`Pipeline.detect` fits the ball's
         outline only then)."""
         f = self.filter
@@ -334,7 +328,6 @@ class Pipeline:
         snap = self.tracker.snapshot() if snapshot is LIVE else snapshot
         motion = self.tracker.predicted_motion(t, snap)
         if motion is not None and cam.in_front(motion[0][None])[0]:
-            roi = cam.project(motion[0][None])[0]
             # The outline fit once the track is confirmed: a new track is confirmed on the
             # blobs' own centres, so a ball-coloured object that is not a ball (a racket's
             # disc) does not get centres fitted to a ball's outline that then fit a flight.
@@ -342,6 +335,8 @@ class Pipeline:
                 expected = ball_image(cam, motion[0], motion[1], self.params.radius,
                                       self.detectors[k].config.exposure)
                 roi = (expected.u, expected.v)
+            else:
+                roi = cam.project(motion[0][None])[0]
         dets = self.detectors[k].detect(frame, roi, expected=expected)
         if not dets and roi is not None:
             dets = self.detectors[k].detect(frame, None, update_background=False)

@@ -156,7 +156,7 @@ def measured_crossing(t, p, bounce_times, plane_x):
 
 
 def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, draws=50,
-                   rng=None):
+                   rng=None, crossing=None):
     """Errors of the measured crossing itself (:func:`measured_crossing`) on one track: the
     hit errors a perfect predictor would be scored with, m, (k,) (empty without a crossing).
 
@@ -164,10 +164,11 @@ def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, dra
     samples within 60 ms of the crossing and after the bounce on the robot's half. Its
     samples are drawn again ``draws`` times with the data's noise (``position_noise`` m on
     each axis, ``stamp_noise`` s along the velocity) and measured again; each error is the
-    distance in the plane between that and the quadratic's own crossing.
+    distance in the plane between that and the quadratic's own crossing. ``crossing``: the
+    track's measured crossing when known already.
     """
     rng = rng or np.random.default_rng(0)
-    crossing = measured_crossing(t, p, bounce_times, plane_x)
+    crossing = crossing or measured_crossing(t, p, bounce_times, plane_x)
     if crossing is None:
         return np.zeros(0)
     tc = crossing[0]
@@ -435,7 +436,8 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     rng = np.random.default_rng(0)
     floor = np.concatenate([np.zeros(0)] + [
         crossing_noise(rp.t, rp.p, rp.bounce_times, hit_plane_x, config.position_noise,
-                       config.stamp_noise, rng=rng) for rp in replays if rp.crossing])
+                       config.stamp_noise, rng=rng, crossing=rp.crossing)
+        for rp in replays if rp.crossing])
     summary = {
         'hit_plane_x': hit_plane_x,
         'leads_ms': list(leads_ms),
