@@ -12,10 +12,14 @@ machine, but in rclpy 7.1.6 it aborts the process at shutdown about one time in 
 SIGINT and SIGTERM are handled here, not by rclpy: the handler only asks the spin loop to
 stop, so that the node logs its last lines and is destroyed while its context is still valid
 (no "failed to publish log message to rosout" at shutdown), then the context is shut down and
-the process exits 0. A node that cannot start (:class:`StartupError`, e.g. a bad parameter)
-exits 2 with one line on stderr, without a traceback.
+the process exits 0. A teardown that hangs (seen once in CI: prediction_node still alive
+15 s after SIGINT, its last lines logged) is ended after :data:`SHUTDOWN_LIMIT_S` with every
+thread's stack on stderr and exit status 1. A node that cannot start
+(:class:`StartupError`, e.g. a bad parameter) exits 2 with one line on stderr, without a
+traceback.
 """
 
+import faulthandler
 import os
 import signal
 import sys
@@ -33,6 +37,10 @@ READY = 'ready'
 """The line a node logs once it is built and about to spin (tt_tools.bringup waits for it)."""
 STARTUP_EXIT = 2
 """Exit status of a node that cannot start (bad parameter, missing file)."""
+SHUTDOWN_LIMIT_S = 8.0
+"""Longest a node may take from the end of its spin to the end of its process, s: past it,
+every thread's stack goes to stderr and the process exits 1 (a hang in the middleware's
+teardown is then reported and ended, not left to the parent's SIGKILL)."""
 
 
 class StartupError(ValueError):
@@ -115,6 +123,8 @@ def run_node(make_node, args=None, on_exit=None, name=None):
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
+            # Left armed through the interpreter's own exit, which can hang too.
+            faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
             if node is not None:
                 if on_exit is not None:
                     on_exit(node)

@@ -1,0 +1,58 @@
+"""tt_ros.executor.run_node as a process: a signal stops the node cleanly (exit 0), and a
+teardown that hangs is reported with every thread's stack and ended (exit 1) instead of
+waiting for the parent's SIGKILL."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+# The node of the child process: a plain rclpy node; its on_exit may hang ({hang} s).
+CHILD = textwrap.dedent("""
+    import time
+    import rclpy.node
+    from tt_ros import executor
+    executor.SHUTDOWN_LIMIT_S = {limit}
+    def hang(node):
+        node.get_logger().info('on_exit')
+        time.sleep({hang})
+    executor.run_node(lambda: rclpy.node.Node('executor_test_{pid}'), [],
+                      on_exit=hang, name='executor_test')
+""")
+
+
+def _run_and_signal(limit, hang):
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    code = CHILD.format(limit=limit, hang=hang, pid=os.getpid())
+    proc = subprocess.Popen([sys.executable, '-c', code], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        line = ''
+        while 'ready' not in line:       # run_node logs READY once the node spins
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, 'the node exited before it was ready'
+        start = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=60)
+        return proc.returncode, rest, time.monotonic() - start
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_a_signal_stops_the_node_with_exit_0():
+    code, out, _ = _run_and_signal(limit=30.0, hang=0.0)
+    assert code == 0, out
+    assert 'on_exit' in out and 'Traceback' not in out
+
+
+def test_a_teardown_that_hangs_is_ended_at_the_limit_with_every_stack():
+    limit = 1.0
+    code, out, took = _run_and_signal(limit=limit, hang=60.0)
+    assert code == 1, out
+    # faulthandler's dump: the main thread's stack, down to the call that hung.
+    assert 'Thread' in out and 'in hang' in out, out
+    assert limit <= took < 30.0, (took, out)
