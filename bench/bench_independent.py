@@ -10,8 +10,9 @@ gamma 2.2 response with a soft shoulder and JPEG q30 4:2:0. Only the rig's calib
 
 For a white and an orange ball at 640 x 480 and 1280 x 720, and three balls each (8 m/s with
 40 rps topspin and 10 rps sidespin; 8 m/s with 30 rps backspin; 11 m/s with 20 rps topspin),
-:class:`tt_perception.pipeline.Pipeline` runs on the frames (``DetectorConfig(colour=...)``,
-other settings at their defaults) and is scored against the renderer's truth:
+:class:`tt_perception.pipeline.Pipeline` runs on the frames (``DetectorConfig(colour=...,
+response_gamma=...)`` with the renderer camera's gamma, as a user sets their camera's; other
+settings at their defaults) and is scored against the renderer's truth:
 
 - ``coverage``: states over camera 0's frames in which the true ball centre lies in both
   images (as bench_perception's ``hall`` section counts; the ball appears in mid-air at
@@ -29,7 +30,8 @@ table and the floor; it must give no state. One more scene (white, 640 x 480) ha
 An ablation (white, 640 x 480, first ball) switches parts of the imaging off: a flat-lit
 ball (its albedo as radiance, no shadow, no flicker) through a clean sensor (no noise, no
 mosaic, no JPEG) is the control of the renderer and the scoring; then the lit ball through
-the clean sensor, with noise and mosaic but no JPEG, and with JPEG alone.
+the clean sensor, with noise and mosaic but no JPEG, and with JPEG alone; and the whole
+imaging with the camera's response not undone (``response_gamma`` 1).
 
 ``passed`` per combination (colour x size): every ball within the issue's limits on
 position RMS, mean error per axis, coverage and one track (``LIMITS``; the velocity limit is
@@ -82,8 +84,13 @@ SETTLE = 0.05
 STRAY = 0.05
 
 
-def run_pipeline(rig, frames, colour):
-    pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour))
+CAMERA_GAMMA = scene.Sensor().gamma
+"""The renderer camera's response exponent, told to the detector (``response_gamma``)."""
+
+
+def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA):
+    pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour,
+                                                        response_gamma=response_gamma))
     estimates = []
     for t, k, frame in frames:
         estimates += pipe.process(t, k, frame)
@@ -151,7 +158,8 @@ def checks(row):
     }
 
 
-def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None):
+def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None,
+               response_gamma=CAMERA_GAMMA):
     start = time.perf_counter()
     frames, truth = scene.render_scene(rig, [flight], colour, T_BEGIN, T_END,
                                        time_offsets=time_offsets, renderer=renderer,
@@ -159,7 +167,7 @@ def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None):
     frames = list(frames)
     render_s = time.perf_counter() - start
     start = time.perf_counter()
-    estimates = run_pipeline(rig, frames, colour)
+    estimates = run_pipeline(rig, frames, colour, response_gamma)
     pipe_s = time.perf_counter() - start
     row = score(rig, estimates, flight, truth[0])
     row['checks'] = checks(row)
@@ -175,14 +183,16 @@ def ablation(rig, renderer, flight):
     """The same white ball with parts of the imaging switched off: what each one costs."""
     clean = scene.Sensor(noise=False, bayer=False, jpeg_quality=None)
     cases = {
-        'flat_lit_ball_clean_sensor': (renderer.variant(flat=True), clean),
-        'lit_ball_clean_sensor': (renderer, clean),
-        'lit_ball_noise_bayer_no_jpeg': (renderer, scene.Sensor(jpeg_quality=None)),
-        'lit_ball_jpeg_only': (renderer, scene.Sensor(noise=False, bayer=False)),
+        'flat_lit_ball_clean_sensor': (renderer.variant(flat=True), clean, CAMERA_GAMMA),
+        'lit_ball_clean_sensor': (renderer, clean, CAMERA_GAMMA),
+        'lit_ball_noise_bayer_no_jpeg': (renderer, scene.Sensor(jpeg_quality=None),
+                                         CAMERA_GAMMA),
+        'lit_ball_jpeg_only': (renderer, scene.Sensor(noise=False, bayer=False), CAMERA_GAMMA),
+        'all_imaging_response_not_undone': (renderer, None, 1.0),
     }
     out = {}
-    for name, (r, sensor) in cases.items():
-        row = ball_scene(rig, r, 'white', flight, sensor=sensor)
+    for name, (r, sensor, gamma) in cases.items():
+        row = ball_scene(rig, r, 'white', flight, sensor=sensor, response_gamma=gamma)
         out[name] = {k: row.get(k) for k in ('position_rms_mm', 'mean_error_mm', 'coverage',
                                              'coverage_from_first_state', 'tracks',
                                              'velocity_max_err_m_s', 'passed')}

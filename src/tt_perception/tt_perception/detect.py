@@ -59,6 +59,11 @@ class DetectorConfig:
     of the ball's silhouette, grey levels: low enough to keep its shaded underside."""
     exposure: float = 2e-3
     """Exposure time of the camera, s: the ball's motion blur is its image velocity times it."""
+    response_gamma: float = 1.0
+    """The camera's response: a pixel value is 255 (L / L_max)^(1 / response_gamma) of the
+    light L it got. 1: linear (synth's scenes, machine-vision cameras with gamma off); about
+    2.2 for a camera that encodes like sRGB (most webcams). The outline fit mixes ball and
+    background light in an outline pixel, so it undoes the response first."""
 
 
 @dataclasses.dataclass
@@ -245,7 +250,8 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
     projection). A pixel tells where the outline is only in proportion to the contrast B - G
     there, so a shaded side as dark as the background behind it carries no weight and does
     not pull the centre: the known outline places the centre from the sides that are seen.
-    ``usable`` (bool, the patch's shape): pixels that may be used (not a shadow)."""
+    ``usable`` (bool, the patch's shape): pixels that may be used (not a shadow). ``grey``
+    and ``background`` in proportion to light (the camera's response undone)."""
     ys, xs = np.nonzero(usable)
     if xs.size < 12:
         return None
@@ -480,6 +486,10 @@ class BallDetector:
         # a second minimum a pixel or two away, so when that fit ends more than half a pixel
         # from the predicted centre, from there too, and the better fit.
         background = self.background[ay:by, ax:bx]
+        gamma = self.config.response_gamma
+        if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
+            grey = 255.0 * (grey * (1.0 / 255.0)) ** gamma
+            background = 255.0 * (background * (1.0 / 255.0)) ** gamma
         best = fit_outline(grey, background, usable, (u - ax, v - ay), ball)
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
