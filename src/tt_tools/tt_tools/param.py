@@ -94,24 +94,42 @@ RESEND_S = 2.0
 """A request without an answer after this long is sent again, s."""
 
 
-def _call(cli, client, request, timeout):
-    """The response of one service call; None on a signal, ValueError after ``timeout`` s.
+def _call_all(cli, calls, timeout):
+    """The responses of service calls sent together, ``calls`` {key: (client, request)}:
+    {key: response} of those answered within ``timeout`` s; None on a signal.
 
     The service can be ready (its request reader matched ours) before its response writer has
     matched our response reader: the node then answers into the void (rmw: "failed to send
     response"). So an unanswered request is sent again every RESEND_S s until ``timeout``;
     every parameter request is idempotent (a set sets the same values again)."""
     deadline = time.monotonic() + timeout
+    answers = {}
     while True:
-        future = client.call_async(request)
+        futures = {key: (client, client.call_async(request))
+                   for key, (client, request) in calls.items() if key not in answers}
         left = deadline - time.monotonic()
-        if cli.spin_until(future.done, timeout=max(min(RESEND_S, left), 0.0)):
-            return future.result()
-        client.remove_pending_request(future)
+        cli.spin_until(lambda sent=futures: all(f.done() for _, f in sent.values()),
+                       timeout=max(min(RESEND_S, left), 0.0))
+        for key, (client, future) in futures.items():
+            if future.done():
+                answers[key] = future.result()
+            else:
+                client.remove_pending_request(future)
         if cli.stopped:
             return None
-        if time.monotonic() >= deadline:
-            raise ValueError(f'no answer from {client.srv_name} within {timeout:g} s')
+        if len(answers) == len(calls) or time.monotonic() >= deadline:
+            return answers
+
+
+def _call(cli, client, request, timeout):
+    """The response of one service call; None on a signal, ValueError after ``timeout`` s
+    (:func:`_call_all`)."""
+    answers = _call_all(cli, {client.srv_name: (client, request)}, timeout)
+    if answers is None:
+        return None
+    if client.srv_name not in answers:
+        raise ValueError(f'no answer from {client.srv_name} within {timeout:g} s')
+    return answers[client.srv_name]
 
 
 def _per_name(cli, node_name, srv_type, field, names, args):
@@ -151,14 +169,13 @@ def param_list(args):
             cli.spin_until(lambda: all(c.service_is_ready() for c in clients.values()),
                            timeout=args.timeout)
         request = ListParameters.Request(prefixes=args.param_prefixes)
-        futures = {n: c.call_async(request) for n, c in clients.items() if c.service_is_ready()}
-        cli.spin_until(lambda: all(f.done() for f in futures.values()), timeout=args.timeout)
+        answers = _call_all(cli, {n: (c, request) for n, c in clients.items()
+                                  if c.service_is_ready()}, args.timeout) or {}
         for node_name in nodes:
-            future = futures.get(node_name)
-            if future is None or not future.done():
+            if node_name not in answers:
                 say(f"ros2 param: no answer from '{node_name}/list_parameters'")
                 continue
-            names = sorted(future.result().result.names)
+            names = sorted(answers[node_name].result.names)
             types = {}
             if args.param_type and names:
                 descriptors = _describe(cli, node_name, names, args) or []
