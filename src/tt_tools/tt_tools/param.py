@@ -161,16 +161,9 @@ def param_list(args):
                 return 0
         else:
             cli.settle(args.spin_time)
-            named = node_names(cli, args.include_hidden_nodes)
-
-            def listing():
-                services = {name for name, _ in cli.node.get_service_names_and_types()}
-                return [n for n in named if f'{n}/list_parameters' in services]
-            # A node's name can be known before its services are (a busy graph, as in a test
-            # with a dozen ros2 commands at once): they get LATE_NODE_S more to show up.
-            cli.spin_until(lambda: len(listing()) == len(named),
-                           timeout=min(args.timeout, LATE_NODE_S))
-            nodes = listing()
+            services = {name for name, _ in cli.node.get_service_names_and_types()}
+            nodes = [n for n in node_names(cli, args.include_hidden_nodes)
+                     if f'{n}/list_parameters' in services]
             clients = {n: cli.node.create_client(ListParameters, f'{n}/list_parameters')
                        for n in nodes}
             cli.spin_until(lambda: all(c.service_is_ready() for c in clients.values()),
