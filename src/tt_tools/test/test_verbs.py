@@ -67,7 +67,7 @@ def param_node(graph):
 
 def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
     n = param_node
-    (get, get_hidden, desc, dump, lst, lst_types, lst_all, get_nope, get_no_node, set_count,
+    (get, get_hidden, desc, dump, lst, lst_types, get_nope, get_no_node, set_count,
      set_neg, set_ro, set_range, set_int) = run_all(
         graph,
         ('param', 'get', n, 'gain'),
@@ -76,7 +76,6 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
         ('param', 'dump', n),
         ('param', 'list', n),
         ('param', 'list', n, '--param-type', '--param-prefixes', 'limits'),
-        ('param', 'list'),
         ('param', 'get', n, 'nope'),
         ('param', 'get', n + '_absent', 'gain'),
         ('param', 'set', n, 'count', '7'),
@@ -104,7 +103,11 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
             'use_sim_time'} <= set(names) and names == sorted(names)
     assert lst_types[1].splitlines() == ['  limits.high (type: double)',
                                          '  limits.low (type: double)']
-    # Without a node: every node's names under '/node:'.
+    # Without a node: every node's names under '/node:'. Run alone: among a dozen ros2
+    # processes starting at once on 2 cores, this node's participant can be discovered more
+    # than SETTLE_MIN_S after the command starts (seen with Python 3.11), past the settle
+    # of a daemon-less CLI (docs/tools.md).
+    (lst_all,) = run_all(graph, ('param', 'list'))
     assert lst_all[0] == 0, lst_all[2]
     every = lst_all[1].splitlines()
     assert every[every.index(f'{n}:') + 1:every.index(f'{n}:') + 4] == [
