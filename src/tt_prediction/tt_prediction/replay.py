@@ -168,7 +168,8 @@ def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, dra
     track's measured crossing when known already.
     """
     rng = rng or np.random.default_rng(0)
-    crossing = crossing or measured_crossing(t, p, bounce_times, plane_x)
+    if crossing is None:
+        crossing = measured_crossing(t, p, bounce_times, plane_x)
     if crossing is None:
         return np.zeros(0)
     tc = crossing[0]
