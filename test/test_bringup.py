@@ -1,7 +1,8 @@
 """`ros2 run tt_tools bringup` (issue 17 item 1): the graph from one parameters file, a node
 that dies restarted with one line, SIGINT stops every node cleanly (exit 0, no rosout noise),
-bad input is one line and exit 2; on a rig of video files with the shipped replay.yaml it
-prints a prediction and a strike command for every ball.
+a node that does not stop writes its stacks before its SIGKILL, no node outlives a killed
+bringup, bad input is one line and exit 2; on a rig of video files with the shipped
+replay.yaml it prints a prediction and a strike command for every ball.
 
 Each test runs in a ROS domain of its own and waits on output lines (conditions), never on
 sleeps.
@@ -77,6 +78,15 @@ class Bringup:
             self.thread.join(10)
 
     def kill(self):
+        """End a bringup that a failed test left running: SIGINT first, so that the nodes'
+        last lines (and the stacks of one that does not stop) come out, then the whole output
+        printed for pytest's report of the failure; SIGKILL if it is still there."""
+        if self.proc.poll() is None:
+            try:
+                self.stop()
+            except subprocess.TimeoutExpired:
+                pass
+            print(self.text)
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
@@ -123,6 +133,85 @@ def test_a_killed_node_is_restarted_with_one_line_and_a_signal_stops_all(tmp_pat
     assert 'rosout' not in run.text and 'Traceback' not in run.text
     assert re.search(r'\[prediction_node\] .*: no state received', run.text)
     assert len([ln for ln in run.lines if 'died' in ln]) == 1
+
+
+def _gone(pid, timeout):
+    """Whether process ``pid`` (not a child of ours) ends within ``timeout`` s: a pidfd
+    becomes readable when it does."""
+    import select
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout)[0])
+    finally:
+        os.close(fd)
+
+
+def test_the_nodes_end_with_bringup_even_when_it_is_killed(tmp_path):
+    run = Bringup('--params-file', _params(tmp_path, GRAPH))
+    pids = []
+    try:
+        run.wait_for(r'^\[prediction_node\] .*\]: ready$')
+        pids = [int(run.wait_for(rf'^bringup: started {name} \(pid (\d+)\)').group(1))
+                for name in ('strike_node', 'prediction_node')]
+        os.kill(run.proc.pid, signal.SIGKILL)     # no handler runs: only the kernel's signal
+        run.proc.wait()
+        left = [pid for pid in pids if not _gone(pid, 20.0)]
+    finally:
+        run.kill()
+        for pid in pids:
+            if not _gone(pid, 0.0):
+                os.kill(pid, signal.SIGKILL)
+    assert left == [], run.text
+
+
+# A node run by tt_ros.executor.run_node that does not stop: it says it is ready, then its
+# start-up never returns (as a kernel stuck in compiled code would not); SIGINT and SIGTERM
+# only set the flag of a spin loop it never reaches.
+STUCK_NODE = """
+import time
+from tt_ros import executor
+def stuck_in_start_up():
+    print('[INFO] [0.0] [prediction_node]: ready', flush=True)
+    time.sleep(600)
+executor.run_node(stuck_in_start_up)
+"""
+
+
+def test_a_node_that_does_not_stop_writes_its_stacks_before_its_sigkill(tmp_path, capsys):
+    import sys
+
+    from tt_tools.bringup import Bringup as Supervisor
+
+    supervisor = Supervisor(_params(tmp_path, GRAPH), ['prediction_node'], stop_timeout=0.5,
+                            env=ros_env({'ROS_DOMAIN_ID': str(unique_domain())}))
+    supervisor.children[0].argv = [sys.executable, '-c', STUCK_NODE]
+    ready = threading.Event()
+    put = supervisor.events.put
+
+    def put_and_tell(event):
+        if event[0] == 'ready':
+            ready.set()
+        put(event)
+
+    supervisor.events.put = put_and_tell
+    status = []
+    thread = threading.Thread(target=lambda: status.append(supervisor.run()))
+    thread.start()
+    try:
+        assert ready.wait(TIMEOUT_S)
+    finally:
+        supervisor.request_stop()
+        thread.join(TIMEOUT_S)
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert status == [1], out
+    said = lines.index('bringup: prediction_node did not stop on SIGINT nor SIGTERM; the '
+                       'stacks of its threads follow, then SIGKILL')
+    assert any('in stuck_in_start_up' in ln for ln in lines[said:]), out
+    assert lines[-1] == 'bringup: stopped; not clean: prediction_node SIGKILL', out
 
 
 def test_a_node_that_cannot_start_stops_the_graph_with_exit_2(tmp_path):

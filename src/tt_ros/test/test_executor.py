@@ -56,3 +56,42 @@ def test_a_teardown_that_hangs_is_ended_at_the_limit_with_every_stack():
     # faulthandler's dump: the main thread's stack, down to the call that hung.
     assert 'Thread' in out and 'in hang' in out, out
     assert limit <= took < 30.0, (took, out)
+
+
+# A node whose callback never returns (as one stuck in compiled code would not).
+STUCK = textwrap.dedent("""
+    import time
+    import rclpy.node
+    from tt_ros import executor
+    def stuck_in_callback():
+        print('stuck', flush=True)
+        time.sleep(60)
+    def make():
+        node = rclpy.node.Node('executor_test_stuck_{pid}')
+        node.create_timer(0.05, stuck_in_callback)
+        return node
+    executor.run_node(make, [], name='executor_test')
+""")
+
+
+def test_sigusr1_writes_the_stacks_of_a_stuck_node_and_the_node_goes_on():
+    from tt_ros.executor import STACKS_SIGNAL
+
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    proc = subprocess.Popen([sys.executable, '-c', STUCK.format(pid=os.getpid())], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        while not lines or lines[-1] != 'stuck':
+            lines.append(proc.stdout.readline().rstrip('\n'))
+            assert lines[-1] or proc.poll() is None, '\n'.join(lines)
+        proc.send_signal(STACKS_SIGNAL)
+        # faulthandler's dump names the function the main thread is stuck in; a
+        # SIGUSR1 with the default action would end the process with nothing written.
+        while 'in stuck_in_callback' not in lines[-1]:
+            lines.append(proc.stdout.readline().rstrip('\n'))
+            assert lines[-1] or proc.poll() is None, '\n'.join(lines)
+        assert proc.poll() is None, '\n'.join(lines)
+    finally:
+        proc.kill()
+        proc.wait()

@@ -14,7 +14,9 @@ stop, so that the node logs its last lines and is destroyed while its context is
 (no "failed to publish log message to rosout" at shutdown), then the context is shut down and
 the process exits 0. A teardown that hangs (seen once in CI: prediction_node still alive
 15 s after SIGINT, its last lines logged) is ended after :data:`SHUTDOWN_LIMIT_S` with every
-thread's stack on stderr and exit status 1. A node that cannot start
+thread's stack on stderr and exit status 1. SIGUSR1 (:data:`STACKS_SIGNAL`) writes every
+thread's stack to stderr at any time and the node goes on: ``kill -USR1 <pid>`` shows where a
+node that does not answer is stuck, even inside compiled code. A node that cannot start
 (:class:`StartupError`, e.g. a bad parameter) exits 2 with one line on stderr, without a
 traceback.
 """
@@ -41,6 +43,9 @@ SHUTDOWN_LIMIT_S = 8.0
 """Longest a node may take from the end of its spin to the end of its process, s: past it,
 every thread's stack goes to stderr and the process exits 1 (a hang in the middleware's
 teardown is then reported and ended, not left to the parent's SIGKILL)."""
+STACKS_SIGNAL = signal.SIGUSR1
+"""The signal on which a node writes every thread's stack to stderr and goes on
+(faulthandler: it works while the main thread is stuck in C or numba code)."""
 
 
 class StartupError(ValueError):
@@ -101,6 +106,7 @@ def run_node(make_node, args=None, on_exit=None, name=None):
     that comes while the node starts (compiling its kernels, say) stops it once started.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
+    faulthandler.register(STACKS_SIGNAL, all_threads=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         executor = make_executor()

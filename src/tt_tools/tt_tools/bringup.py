@@ -8,7 +8,9 @@ camera images when /dev/shm has room, unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` 
 already). Every line a node prints is shown prefixed with its name.
 
 - SIGINT or SIGTERM stops every node (SIGINT, then SIGTERM after ``--stop-timeout``, then
-  SIGKILL) and exits 0 when they all exited 0.
+  SIGUSR1, on which a tt node writes every thread's stack, and SIGKILL) and exits 0 when they
+  all exited 0. The nodes also get SIGTERM when bringup itself ends in any other way (even
+  SIGKILL): none outlives it.
 - A node that dies is restarted after ``--restart-delay`` seconds, with one line:
   ``bringup: prediction_node died (signal SIGKILL) after 12.3 s; restart 1``. A node that
   exits 2 (it cannot start: a bad parameter or file, its one line printed above) is not
@@ -33,7 +35,7 @@ import time
 
 import yaml
 
-from .procs import ros_env
+from .procs import ends_with_parent, ros_env
 from .run import RunError, find_executable
 
 NODES = {
@@ -51,6 +53,10 @@ STARTUP_EXIT = 2
 """A node's exit status when it cannot start (tt_ros.executor.STARTUP_EXIT)."""
 POLL_S = 0.2
 """Longest wait for a node's exit before a signal is looked at, s."""
+STACKS_SIGNAL = signal.SIGUSR1
+"""A tt node writes every thread's stack on it (tt_ros.executor.STACKS_SIGNAL)."""
+STACKS_WAIT_S = 1.0
+"""Time given to a node that does not stop to write its stacks before its SIGKILL, s."""
 
 
 class BringupError(Exception):
@@ -112,7 +118,8 @@ class Child:
         self.ready = False
         self.proc = subprocess.Popen(self.argv, env=self.env, stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, errors='replace', start_new_session=True)
+                                     text=True, errors='replace', start_new_session=True,
+                                     preexec_fn=ends_with_parent())
         threading.Thread(target=self._pump, args=(self.proc,), daemon=True).start()
         say(f'started {self.name} (pid {self.proc.pid})')
 
@@ -211,17 +218,21 @@ class Bringup:
         self.pending[child] = time.monotonic() + self.restart_delay
 
     def _stop_all(self):
-        """SIGINT to every running node, then SIGTERM, then SIGKILL; the exit status."""
+        """SIGINT to every running node, then SIGTERM, then (its stacks written, SIGUSR1)
+        SIGKILL; the exit status."""
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
         for c in live:
             c.signal(signal.SIGINT)
         codes = {}
         for sig, wait in ((None, self.stop_timeout), (signal.SIGTERM, 5.0),
-                          (signal.SIGKILL, 5.0)):
+                          (STACKS_SIGNAL, STACKS_WAIT_S), (signal.SIGKILL, 5.0)):
             deadline = time.monotonic() + wait
             for c in live:
                 if c.name in codes:
                     continue
+                if sig == STACKS_SIGNAL:
+                    say(f'{c.name} did not stop on SIGINT nor SIGTERM; the stacks of its '
+                        'threads follow, then SIGKILL')
                 if sig is not None:
                     c.signal(sig)
                 try:
@@ -266,11 +277,17 @@ class Show:
         self.thread.start()
 
     def _spin(self):
+        last_error = None
         while self.context.ok():
             try:
                 self.executor.spin_once(timeout_sec=0.1)
-            except Exception:       # the context shut down under us
-                return
+            except Exception as exc:
+                if not self.context.ok():       # shut down under us: the end
+                    return
+                error = f'{type(exc).__name__}: {exc}'
+                if error != last_error:         # shown once in a row, and spinning goes on
+                    say(f'--show: {error}')
+                last_error = error
 
     def _prediction(self, msg):
         self.last_prediction[msg.track_id] = msg

@@ -1,5 +1,7 @@
 """Start ROS processes for the demo and the end-to-end tests, and stop them cleanly."""
 
+import ctypes
+import functools
 import os
 import shutil
 import signal
@@ -21,6 +23,35 @@ def large_message_profile():
     except (OSError, LookupError):
         return None
     return path if shm.free >= SHM_NEEDED and os.path.exists(path) else None
+
+
+PR_SET_PDEATHSIG = 1
+"""prctl(2) option: the signal a process gets when the thread that started it ends."""
+
+
+def _prctl():
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):       # not Linux
+        return None
+
+
+_PRCTL = _prctl()   # looked up here: a preexec_fn should do as little as it can
+
+
+def _end_with(parent_pid, sig):
+    if _PRCTL is not None:
+        _PRCTL(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+    if os.getppid() != parent_pid:          # the parent is gone already
+        os.kill(os.getpid(), sig)
+
+
+def ends_with_parent(sig=signal.SIGTERM):
+    """A ``preexec_fn`` for :class:`subprocess.Popen`: the child gets ``sig`` when this process
+    ends, however it ends (SIGKILL too), so that its nodes do not outlive it (Linux
+    ``PR_SET_PDEATHSIG``; elsewhere it does nothing). Start the child from the thread that
+    lives as long as the process: the signal comes when the starting thread ends."""
+    return functools.partial(_end_with, os.getpid(), sig)
 
 
 def ros_env(extra=None, large_messages=False, localhost=True):
