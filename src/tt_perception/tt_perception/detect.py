@@ -26,6 +26,7 @@ that hovers does not fade into it.
 """
 
 import dataclasses
+import math
 
 import cv2
 from numba import njit
@@ -83,6 +84,9 @@ class Detection:
     fitted: bool = False
     """The centre is the fit of the expected outline (:func:`fit_outline`), not the
     silhouette's centroid."""
+    blob_u: float = math.nan
+    blob_v: float = math.nan
+    """The blob's own centre (the silhouette's centroid), pixels: (u, v) unless ``fitted``."""
 
 
 @dataclasses.dataclass
@@ -133,6 +137,11 @@ N_SHADING = 6
 """Terms of the model of the ball's brightness over its image (a quadratic)."""
 CONVERGED = 0.03
 """A Gauss-Newton step of the centre shorter than this ends the fit, pixels."""
+SEARCH_STEP = 0.5
+"""Distance of the extra starts of a fit with a rough prediction from the blob's centre,
+in ball radii (:meth:`BallDetector._fit_centre`)."""
+SEARCH_OFFSETS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+"""Directions of those starts: along the image axes."""
 
 
 @njit(cache=True, nogil=True)
@@ -311,13 +320,16 @@ class BallDetector:
         self._bg_colour = None
         self._count = 0
 
-    def detect(self, frame, roi_centre=None, update_background=True, expected=None):
+    def detect(self, frame, roi_centre=None, update_background=True, expected=None,
+               search=False):
         """Ball candidates in ``frame`` (H x W x 3 BGR or H x W grey uint8).
 
         ``roi_centre`` (u, v): search only the window of ``roi_half_size`` around it.
         ``update_background``: False for a second search of the same frame.
         ``expected``: the :class:`BallImage` of the tracked ball, when known: each candidate's
-        centre is then the fit of that outline (:func:`fit_outline`).
+        centre is then the fit of that outline (:func:`fit_outline`). ``search``: the
+        expected centre is only a rough guess (a track not confirmed yet): the fit starts
+        from points around the blob's centre too (:meth:`_fit_centre`).
         Returns a list of :class:`Detection` (best first); a frame that is not an image of the
         background's size raises ValueError.
         """
@@ -359,13 +371,13 @@ class BallDetector:
                        x1 < w and bx + bw == x1 - x0, y1 < h and by + bh == y1 - y0)
                 found = self._blobs(frame, diff[by:by + bh, bx:bx + bw],
                                     mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut,
-                                    expected)
+                                    expected, search)
         if update:
             self._update_background(gray, mask, x0, y0, frame)
         return found
 
     def _blobs(self, frame, diff, mask, x0, y0, cut=(False, False, False, False),
-               expected=None):
+               expected=None, search=False):
         """Candidates among the blobs of ``mask`` (a crop at x0, y0 of the frame); ``cut``
         says which crop edges (left, top, right, bottom) cut through the scene."""
         cfg = self.config
@@ -409,14 +421,14 @@ class BallDetector:
                 cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
                 cu, cv = cu - x0, cv - y0
             fitted = None
+            blob_u, blob_v = float(cu + x0), float(cv + y0)
             if expected is not None:
-                fitted = self._fit_centre(frame, cu + x0, cv + y0, expected)
-                if fitted is not None:
-                    cu, cv = fitted[0] - x0, fitted[1] - y0
-            out.append(Detection(float(cu + x0), float(cv + y0), float(area), float(width),
+                fitted = self._fit_centre(frame, blob_u, blob_v, expected, search)
+            u, v = (blob_u, blob_v) if fitted is None else fitted
+            out.append(Detection(float(u), float(v), float(area), float(width),
                                  float(total / area),
                                  self._hidden(frame, sub, x0 + bx, y0 + by),
-                                 fitted is not None))
+                                 fitted is not None, blob_u, blob_v))
         out.sort(key=lambda d: -d.strength * d.area)
         return out[:cfg.max_candidates]
 
@@ -465,8 +477,14 @@ class BallDetector:
         return (ax + cu, ay + cv,
                 _width_from_moments(mom['mu20'] / total, mom['mu02'] / total, mom['mu11'] / total))
 
-    def _fit_centre(self, frame, u, v, ball):
-        """:func:`fit_outline` for a candidate whose first centre is (u, v): (u, v) or None."""
+    def _fit_centre(self, frame, u, v, ball, search=False):
+        """:func:`fit_outline` for a candidate whose first centre is (u, v): (u, v) or None.
+
+        The fit starts from (u, v) and, when it ends more than half a pixel from the
+        predicted centre, from there too. With ``search`` (the prediction is rough), also
+        from the 8 points :data:`SEARCH_STEP` radii around (u, v) along the image axes and
+        diagonals: a blob's centre leans toward the lit side by up to a third of a radius,
+        and from there the fit can stop in a minimum of its own."""
         h, w = frame.shape[:2]
         reach = np.linalg.svd(ball.outline, compute_uv=False)[0] + 0.5 * np.hypot(*ball.blur)
         half = int(np.ceil(reach + 2.0))
@@ -496,6 +514,13 @@ class BallDetector:
             fit = fit_outline(grey, background, usable, predicted, ball)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
+        if search:
+            step = SEARCH_STEP * np.sqrt(abs(np.linalg.det(ball.outline)))
+            for du, dv in SEARCH_OFFSETS:
+                fit = fit_outline(grey, background, usable,
+                                  (u - ax + step * du, v - ay + step * dv), ball)
+                if fit is not None and (best is None or fit[1] < best[1]):
+                    best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)
 
     def _hidden(self, frame, sub, x0, y0):

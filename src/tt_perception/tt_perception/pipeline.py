@@ -6,7 +6,8 @@
 1. per camera, a :class:`tt_perception.detect.BallDetector`, searching only a window around
    the tracked ball's predicted image position while a track runs, and then fitting the
    ball's expected image (:func:`ball_image`: the projected outline of the sphere at its
-   predicted depth, moving over the exposure) to find its centre;
+   predicted depth, moving over the exposure) to find its centre (for a track not
+   confirmed yet, from starts around the blob's own centre too, which comes along);
 2. a :class:`Matcher` that groups each frame of camera 0 (the time reference) with the other
    cameras' detections at the same instant: the frame with the same stamp when the cameras are
    synchronised, otherwise the detections of the frames just before and after, interpolated
@@ -16,11 +17,13 @@
    narrower blob, part of the ball lost against a same-coloured background, is down-weighted);
 4. a :class:`Tracker`: track start from two points at a plausible speed, EKF
    (:mod:`tt_prediction.ball_filter`) with Mahalanobis gating, confirmation after
-   ``confirm_updates`` updates, end after ``max_coast`` s without a measurement or when the
-   ball leaves the volume above the floor.
+   ``confirm_updates`` updates (gated on the blobs' own centres, so that a ball-coloured
+   object that is not a ball is not confirmed on centres fitted to a ball), end after
+   ``max_coast`` s without a measurement or when the ball leaves the volume above the floor.
 """
 
 import collections
+import copy
 import dataclasses
 import itertools
 
@@ -111,8 +114,9 @@ class Matcher:
         self.latest = [-np.inf] * n_cameras
 
     def add(self, k, t, detections):
-        """Add camera ``k``'s frame at ``t`` with its detections (list of arrays
-        [x_n, y_n, width, hidden]); returns the groups now complete: ``(t, [per-camera list])``."""
+        """Add camera ``k``'s frame at ``t`` with its detections (list of arrays [x_n, y_n,
+        width, hidden, x_n, y_n of the blob's own centre]); returns the groups now complete:
+        ``(t, [per-camera list])``."""
         self.frames[k].append((t, detections))
         self.latest[k] = max(self.latest[k], t)
         if k == 0:
@@ -207,8 +211,8 @@ class Tracker:
     def snapshot(self):
         """(time, position and velocity (6,), confirmed) of the running track, a copy, or
         None: what :meth:`predicted_motion` needs, for a camera thread to place its search
-        window, and whether the track is confirmed (:meth:`Pipeline.detect` fits the ball's
-        outline only then)."""
+        window, and whether the track is confirmed (:meth:`Pipeline.detect` searches wider
+        for the ball's outline until then)."""
         f = self.filter
         return None if f is None else (f.t, f.x[:6].copy(), self.confirmed)
 
@@ -217,8 +221,9 @@ class Tracker:
         self.updates = 0
 
     def add(self, t, points):
-        """Fuse the 3-D points (list of (X, cov)) seen at ``t``; returns a
-        :class:`BallEstimate` when a confirmed track was updated, else None."""
+        """Fuse the 3-D points seen at ``t`` (:meth:`Pipeline._points`: pairs of (X, cov)
+        from the detections' centres and from their blobs' own centres, either None);
+        returns a :class:`BallEstimate` when a confirmed track was updated, else None."""
         cfg = self.config
         if self.filter is not None:
             if t - self.last_update > cfg.max_coast:
@@ -227,21 +232,46 @@ class Tracker:
                 self.filter.predict(t)
                 if self.filter.x[2] < cfg.min_z:
                     self.end()
-        if self.filter is not None:
-            best = None
-            for X, R in points:
-                d2 = self.filter.innovation(X, R)[2]
-                if best is None or d2 < best[0]:
-                    best = (d2, X, R)
-            if best is not None and self.filter.update(best[1], best[2], rebounce=True):
-                self.updates += 1
-                self.last_update = t
-                if self.updates >= cfg.confirm_updates:
-                    f = self.filter
-                    return BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
+        if self.filter is None:
+            self._seed(t, [blob for _, blob in points if blob is not None])
             return None
-        self._seed(t, points)
+        if self._update(points):
+            self.updates += 1
+            self.last_update = t
+            if self.updates >= cfg.confirm_updates:
+                f = self.filter
+                return BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
         return None
+
+    def _update(self, points):
+        """Update the running track with the nearest of ``points``; True when one passed.
+
+        A confirmed track takes the detections' centres (fitted to the ball's outline). A
+        track not confirmed yet is gated on the blobs' own centres, so that a ball-coloured
+        object that is not a ball (a racket's disc) is not confirmed on centres fitted to a
+        ball's outline; the filter then takes the fitted point when it passes too (a blob's
+        centre leans toward the ball's lit side)."""
+        f = self.filter
+        confirmed = self.confirmed
+        best = None
+        for point, blob in points:
+            gated = point if confirmed else blob
+            if gated is None:
+                continue
+            d2 = f.innovation(*gated)[2]
+            if best is None or d2 < best[0]:
+                best = (d2, point, blob)
+        if best is None:
+            return False
+        _, point, blob = best
+        if confirmed:
+            return f.update(*point, rebounce=True)
+        trial = copy.copy(f)                    # update() replaces arrays, never writes them
+        if not trial.update(*blob, rebounce=True):
+            return False
+        if point is None or point is blob or not f.update(*point, rebounce=True):
+            self.filter = trial
+        return True
 
     def measure_spin(self, t, w, R):
         """Fuse a measured spin (rad/s, covariance R) taken at ``t`` into the running track,
@@ -328,27 +358,28 @@ class Pipeline:
         snap = self.tracker.snapshot() if snapshot is LIVE else snapshot
         motion = self.tracker.predicted_motion(t, snap)
         if motion is not None and cam.in_front(motion[0][None])[0]:
-            # The outline fit once the track is confirmed: a new track is confirmed on the
-            # blobs' own centres, so a ball-coloured object that is not a ball (a racket's
-            # disc) does not get centres fitted to a ball's outline that then fit a flight.
-            if snap[2]:
-                expected = ball_image(cam, motion[0], motion[1], self.params.radius,
-                                      self.detectors[k].config.exposure)
-                roi = (expected.u, expected.v)
-            else:
-                roi = cam.project(motion[0][None])[0]
-        dets = self.detectors[k].detect(frame, roi, expected=expected)
+            # Each candidate's centre is the fit of the tracked ball's outline; its blob's own
+            # centre comes too, for a track not confirmed yet (Tracker.add), whose predicted
+            # centre is rough: the fit searches around the blob's.
+            expected = ball_image(cam, motion[0], motion[1], self.params.radius,
+                                  self.detectors[k].config.exposure)
+            roi = (expected.u, expected.v)
+        dets = self.detectors[k].detect(frame, roi, expected=expected,
+                                        search=expected is not None and not snap[2])
         if not dets and roi is not None:
             dets = self.detectors[k].detect(frame, None, update_background=False)
         if not dets:
             return []
-        uv = np.array([[d.u, d.v] for d in dets])
-        xy = cam.normalise(uv)
-        return [np.array([x, y, d.width, d.hidden]) for (x, y), d in zip(xy, dets, strict=True)]
+        xy = cam.normalise(np.array([[d.u, d.v] for d in dets]))
+        blob = cam.normalise(np.array([[d.blob_u, d.blob_v] for d in dets]))
+        return [np.array([x, y, d.width, d.hidden, bx, by])
+                for (x, y), (bx, by), d in zip(xy, blob, dets, strict=True)]
 
     def _points(self, group):
-        """Triangulated, gated candidate points (X, cov) of one time-matched group."""
-        cfg = self.config
+        """Triangulated, gated candidate points of one time-matched group, each a pair: the
+        point (X, cov) of the detections' centres and that of their blobs' own centres (the
+        same when none was fitted), either None when it fails the gates; for
+        :meth:`Tracker.add`. Only the points seen by the most cameras are kept."""
         options = [list(dets) + [None] for dets in group]
         points = []
         for combo in itertools.product(*options):
@@ -357,24 +388,35 @@ class Pipeline:
                 continue
             cams = [self.cameras[k] for k in used]
             obs = np.array([combo[k] for k in used])
-            result = triangulate(cams, obs[:, :2], cfg.pixel_sigma, cfg.max_reprojection)
-            if result is None or len(result[3]) < len(used):
-                continue
-            X, cov, _, _ = result
-            ratio = np.array([o[2] / (2.0 * cam.focal * self.params.radius
-                                      / (cam.R @ X + cam.t)[2])
-                              for cam, o in zip(cams, obs, strict=True)])
-            if np.any(ratio < cfg.width_ratio[0]) or np.any(ratio > cfg.width_ratio[1]):
-                continue
-            # A blob narrower than the ball, or bordered by background as bright as the ball,
-            # may have lost part of it (a white line behind a white ball): its centre may be
-            # biased, so it counts for less.
-            weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
-                    + cfg.hidden_weight * obs[:, 3])
-            if np.any(weak > 1.0):
-                X, cov, _ = refine(cams, obs[:, :2], X, cfg.pixel_sigma * weak)
-            points.append((len(used), X, cov))
+            point = self._point(cams, obs[:, :2], obs)
+            blob = (point if np.array_equal(obs[:, :2], obs[:, 4:6])
+                    else self._point(cams, obs[:, 4:6], obs))
+            if point is not None or blob is not None:
+                points.append((len(used), point, blob))
         if not points:
             return []
         most = max(n for n, _, _ in points)
-        return [(X, cov) for n, X, cov in points if n == most]
+        return [(point, blob) for n, point, blob in points if n == most]
+
+    def _point(self, cams, centres, obs):
+        """(X, cov) triangulated from the normalised image ``centres`` (n, 2) of ``cams``,
+        gated on the reprojection error and on the blobs' widths (``obs`` rows [.., width,
+        hidden, ..]); None when it fails."""
+        cfg = self.config
+        result = triangulate(cams, centres, cfg.pixel_sigma, cfg.max_reprojection)
+        if result is None or len(result[3]) < len(cams):
+            return None
+        X, cov, _, _ = result
+        ratio = np.array([o[2] / (2.0 * cam.focal * self.params.radius
+                                  / (cam.R @ X + cam.t)[2])
+                          for cam, o in zip(cams, obs, strict=True)])
+        if np.any(ratio < cfg.width_ratio[0]) or np.any(ratio > cfg.width_ratio[1]):
+            return None
+        # A blob narrower than the ball, or bordered by background as bright as the ball,
+        # may have lost part of it (a white line behind a white ball): its centre may be
+        # biased, so it counts for less.
+        weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
+                + cfg.hidden_weight * obs[:, 3])
+        if np.any(weak > 1.0):
+            X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)
+        return X, cov
