@@ -482,9 +482,9 @@ class BallDetector:
 
         The fit starts from (u, v) and, when it ends more than half a pixel from the
         predicted centre, from there too. With ``search`` (the prediction is rough), also
-        from the 8 points :data:`SEARCH_STEP` radii around (u, v) along the image axes and
-        diagonals: a blob's centre leans toward the lit side by up to a third of a radius,
-        and from there the fit can stop in a minimum of its own."""
+        from the 4 points :data:`SEARCH_STEP` radii around (u, v) along the image axes
+        (:data:`SEARCH_OFFSETS`): a blob's centre leans toward the lit side by up to a third
+        of a radius, and from there the fit can stop in a minimum of its own."""
         h, w = frame.shape[:2]
         reach = np.linalg.svd(ball.outline, compute_uv=False)[0] + 0.5 * np.hypot(*ball.blur)
         half = int(np.ceil(reach + 2.0))
