@@ -220,10 +220,11 @@ class Tracker:
         self.filter = None
         self.updates = 0
 
-    def add(self, t, points):
-        """Fuse the 3-D points seen at ``t`` (:meth:`Pipeline._points`: pairs of (X, cov)
-        from the detections' centres and from their blobs' own centres, either None);
-        returns a :class:`BallEstimate` when a confirmed track was updated, else None."""
+    def advance(self, t):
+        """Bring the running track to ``t`` (s): predicted there, or ended when it has had no
+        measurement for ``max_coast`` or is below ``min_z``. Call it once for each instant
+        before :meth:`add`, which then knows whether the track is still confirmed (whether
+        the points need their blobs' own centres)."""
         cfg = self.config
         if self.filter is not None:
             if t - self.last_update > cfg.max_coast:
@@ -232,6 +233,14 @@ class Tracker:
                 self.filter.predict(t)
                 if self.filter.x[2] < cfg.min_z:
                     self.end()
+
+    def add(self, t, points):
+        """Fuse the 3-D points seen at ``t``, after :meth:`advance` to ``t``
+        (:meth:`Pipeline._points`: pairs of (X, cov) from the detections' centres and from
+        their blobs' own centres, either None; the blobs' are not needed while the track is
+        confirmed); returns a :class:`BallEstimate` when a confirmed track was updated, else
+        None."""
+        cfg = self.config
         if self.filter is None:
             self._seed(t, [blob for _, blob in points if blob is not None])
             return None
@@ -346,7 +355,9 @@ class Pipeline:
             detections = []
         out = []
         for t0, group in self.matcher.add(k, t, detections):
-            points = self._points(group)
+            self.tracker.advance(t0)
+            # A confirmed track takes only the fitted points: no triangulation of the blobs'.
+            points = self._points(group, blobs=not self.tracker.confirmed)
             est = self.tracker.add(t0, points)
             if est is not None:
                 out.append(est)
@@ -375,11 +386,12 @@ class Pipeline:
         return [np.array([x, y, d.width, d.hidden, bx, by])
                 for (x, y), (bx, by), d in zip(xy, blob, dets, strict=True)]
 
-    def _points(self, group):
+    def _points(self, group, blobs=True):
         """Triangulated, gated candidate points of one time-matched group, each a pair: the
         point (X, cov) of the detections' centres and that of their blobs' own centres (the
         same when none was fitted), either None when it fails the gates; for
-        :meth:`Tracker.add`. Only the points seen by the most cameras are kept."""
+        :meth:`Tracker.add`. Without ``blobs`` (a confirmed track) a blobs' point that differs
+        is not triangulated: None. Only the points seen by the most cameras are kept."""
         options = [list(dets) + [None] for dets in group]
         points = []
         for combo in itertools.product(*options):
@@ -389,8 +401,10 @@ class Pipeline:
             cams = [self.cameras[k] for k in used]
             obs = np.array([combo[k] for k in used])
             point = self._point(cams, obs[:, :2], obs)
-            blob = (point if np.array_equal(obs[:, :2], obs[:, 4:6])
-                    else self._point(cams, obs[:, 4:6], obs))
+            if np.array_equal(obs[:, :2], obs[:, 4:6]):
+                blob = point
+            else:
+                blob = self._point(cams, obs[:, 4:6], obs) if blobs else None
             if point is not None or blob is not None:
                 points.append((len(used), point, blob))
         if not points:
