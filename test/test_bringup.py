@@ -108,6 +108,25 @@ strike_node:
 """
 
 
+def _locked_by(pid):
+    """The files in /dev/shm that process ``pid`` holds a lock on (flock, as Fast DDS locks
+    the files of its participant's shared memory), from the kernel's /proc/locks."""
+    inodes = set()
+    with open('/proc/locks') as locks:
+        for line in locks:
+            f = line.split()      # '1: FLOCK  ADVISORY  WRITE <pid> <maj>:<min>:<inode> 0 EOF'
+            if f[1] == 'FLOCK' and f[4] == str(pid):
+                inodes.add(int(f[5].split(':')[2]))
+    names = []
+    for name in os.listdir('/dev/shm'):
+        try:
+            if os.stat(os.path.join('/dev/shm', name)).st_ino in inodes:
+                names.append(name)
+        except OSError:
+            pass
+    return names
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_killed_node_is_restarted_with_one_line_and_a_signal_stops_all(tmp_path, sig):
     run = Bringup('--params-file', _params(tmp_path, GRAPH), '--restart-delay', '0.2')
@@ -115,10 +134,18 @@ def test_a_killed_node_is_restarted_with_one_line_and_a_signal_stops_all(tmp_pat
         run.wait_for(r'^\[strike_node\] .*\]: ready$')
         pid = int(run.wait_for(r'^bringup: started prediction_node \(pid (\d+)\)').group(1))
         run.wait_for(r'^\[prediction_node\] .*\]: ready$')
+        own = _locked_by(pid)                   # its participant's shared-memory files
         os.kill(pid, signal.SIGKILL)
+        removed = run.wait_for(r'^bringup: prediction_node ended: removed (\d+) Fast DDS '
+                               r'shared-memory files in /dev/shm that no running process '
+                               r'holds$')
         died = run.wait_for(r'^bringup: prediction_node died .*$').group(0)
         assert re.fullmatch(r'bringup: prediction_node died \(signal SIGKILL\) after '
                             r'[\d.]+ s; restart 1', died), died
+        # A killed participant leaves its files; bringup removed them (each lock file with
+        # the segment or port it guards).
+        assert own and int(removed.group(1)) >= 2 * len(own), (own, removed.group(0))
+        assert not [name for name in own if os.path.exists(os.path.join('/dev/shm', name))]
         new_pid = int(run.wait_for(r'^bringup: started prediction_node \(pid (\d+)\)',
                                    count=2).group(1))
         assert new_pid != pid
@@ -293,6 +320,15 @@ def test_replay_config_on_a_rig_of_video_files_strikes_every_ball(tmp_path):
         run.kill()
     assert code == 0, run.text
     assert [m.group(2) for m in shown] == ['ok'] * len(balls), run.text
+    # The video's source started once strike_node's input was connected (DDS discovery
+    # between prediction_node and strike_node can take seconds: the first ball was lost).
+    lines = run.lines
+    connected = [i for i, ln in enumerate(lines)
+                 if re.fullmatch(r'\[strike_node\] .*\]: /ball/prediction: connected '
+                                 r'\(\d+ publishers?\)', ln)]
+    source = lines.index(next(ln for ln in lines if ln.startswith('bringup: started '
+                                                                  'perception_node')))
+    assert connected and connected[0] < source, run.text
     summary = re.search(r'\[prediction_node\] .*: (\d+) states, (\d+) predictions, (\d+) '
                         r'dropped', run.text)
     assert summary, run.text

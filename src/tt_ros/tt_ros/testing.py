@@ -13,6 +13,8 @@ import uuid
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
+from .shm import domains_with_ports
+
 
 def unique_prefix():
     """A topic prefix (``/t<pid>_<random>``) no other test on this machine uses."""
@@ -28,10 +30,16 @@ def remap_args(prefix, topics):
     return args
 
 
-def unique_domain():
-    """A random ROS domain id (150..230) for a test whose graph must be its own (a global
-    topic such as /clock): another test on this machine picks the same one rarely."""
-    return random.Random(uuid.uuid4().int).randint(150, 230)
+def unique_domain(low=150, high=230):
+    """A random ROS domain id in [low, high] for a test whose graph must be its own (a global
+    topic such as /clock), among those with no Fast DDS shared-memory port on this machine
+    (:func:`tt_ros.shm.domains_with_ports`): not another running test's, and none that a
+    killed process left (a new participant on such a port can lose its first messages);
+    any domain of the range when none is free."""
+    rng = random.Random(uuid.uuid4().int)
+    taken = domains_with_ports()
+    free = [d for d in range(low, high + 1) if d not in taken]
+    return rng.choice(free) if free else rng.randint(low, high)
 
 
 class Graph:

@@ -3,6 +3,7 @@
 
 import math
 import pathlib
+import re
 
 import numpy as np
 import pytest
@@ -169,6 +170,13 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
         cmd = g.commands[0]
         assert cmd.status == 'infeasible' and not cmd.feasible
         assert cmd.reason.startswith('racket speed') and 'limit 0.2 m/s' in cmd.reason
+        # The exit summary says which balls came and what was sent for each.
+        counts, times, tracks = g.node.work_summary().split('; ', 2)
+        assert counts == '3 predictions, 1 commands, 2 dropped, 0 too late'
+        assert re.fullmatch(r'callback median [\d.]+ ms, p99 [\d.]+ ms, max [\d.]+ ms '
+                            r'\(last 3\)', times), times
+        assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
+                          'stroke): 1: 1/0 -, 2: 1/0 -, 3: 1/1 infeasible')
     finally:
         g.close()
 

@@ -12,17 +12,21 @@ node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit
 no such check, for replays; none either, with one warning, for hit times on another time base
 than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point or with
 non-finite numbers are dropped with a throttled warning: nothing is published for them. A bad
-workspace file stops the node at start with a one-line reason.
+workspace file stops the node at start with a one-line reason. At exit it logs one line of
+counts, with each of the latest tracks' predictions, commands and first command's status.
 """
 
+import collections
 import dataclasses
 import math
+import time
 
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import Hit
+from tt_ros.connections import input_events
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
@@ -103,6 +107,24 @@ def check_parameters(values):
     return None
 
 
+TALLIED_TRACKS = 20
+"""Tracks whose counts the exit summary lists (the latest)."""
+
+
+@dataclasses.dataclass
+class TrackTally:
+    """What one track (ball) got from this node."""
+
+    received: int = 0
+    """Predictions received."""
+    commands: int = 0
+    """Commands published."""
+    first_status: str = ''
+    """Status of the first command ('' before one)."""
+    ok: bool = False
+    """A command with a feasible stroke was sent."""
+
+
 class StrikeNode(Node):
     """Solves the racket stroke for every predicted hit point."""
 
@@ -124,13 +146,16 @@ class StrikeNode(Node):
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
         self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
+        self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
+        self.work_s = np.zeros(4096)      # the callback's time for the last predictions, s
         self.time_base = TimeBaseCheck(self.get_logger().warning)
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
-        self.sub = self.create_subscription(BallPrediction, '/ball/prediction',
-                                            self.on_prediction, reliable)
+        self.sub = self.create_subscription(
+            BallPrediction, '/ball/prediction', self.on_prediction, reliable,
+            event_callbacks=input_events(self, '/ball/prediction'))
         self.sub_target = self.create_subscription(StrikeTarget, '/strike/target',
                                                    self.on_target, reliable)
         self.get_logger().info(f'striking /ball/prediction -> /strike/command, target '
@@ -184,8 +209,40 @@ class StrikeNode(Node):
         last = self.last_probability
         return last is None or last[0] != key or due(stamp_ns, last[1], rate)
 
+    def _tally(self, track_id):
+        """The counts of track ``track_id`` (the latest :data:`TALLIED_TRACKS` are kept)."""
+        tally = self.tracks.get(track_id)
+        if tally is None:
+            tally = self.tracks[track_id] = TrackTally()
+            while len(self.tracks) > TALLIED_TRACKS:
+                self.tracks.popitem(last=False)
+        return tally
+
+    def work_summary(self):
+        """One line for the log at exit: the counts, then each of the latest tracks as
+        ``id: predictions/commands first status`` (which balls reached this node, and what it
+        sent for them)."""
+        if not self.n_received:
+            return 'no prediction received'
+        ok = sum(t.ok for t in self.tracks.values())
+        tracks = ', '.join(f'{i}: {t.received}/{t.commands} {t.first_status or "-"}'
+                           for i, t in self.tracks.items())
+        times = self.work_s[:min(self.n_received, len(self.work_s))] * 1e3
+        return (f'{self.n_received} predictions, {self.n_commands} commands, '
+                f'{self.n_dropped} dropped, {self.n_too_late} too late; callback median '
+                f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
+                f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
+                f"first command's status; {ok} with an ok stroke): {tracks}")
+
     def on_prediction(self, msg):
+        start = time.perf_counter()
+        self._on_prediction(msg)
+        self.work_s[self.n_received % len(self.work_s)] = time.perf_counter() - start
         self.n_received += 1
+
+    def _on_prediction(self, msg):
+        tally = self._tally(msg.track_id)
+        tally.received += 1
         if not msg.hit_valid:
             self._drop(f'no hit point (prediction status {msg.status!r})')
             return
@@ -240,6 +297,9 @@ class StrikeNode(Node):
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
+        tally.commands += 1
+        tally.ok = tally.ok or status == 'ok'
+        tally.first_status = tally.first_status or status
         if status != 'ok':
             self.get_logger().warning(f'no feasible stroke ({status}): {reason}',
                                       throttle_duration_sec=1.0)
@@ -309,7 +369,8 @@ class StrikeNode(Node):
 
 
 def main(args=None):
-    run_node(StrikeNode, args, name='strike_node')
+    run_node(StrikeNode, args, name='strike_node',
+             on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 
 if __name__ == '__main__':

@@ -3,9 +3,12 @@
 Starts each node the file names (``perception_node``, ``prediction_node``, ``strike_node``; a
 ``/**`` section applies to all of them) as its own process with ``--ros-args --params-file
 FILE`` (consumers first: strike, prediction, then perception, each once the one before
-logged that it is ready), in the environment the graph needs (tt's Fast DDS profile for
-camera images when /dev/shm has room, unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` is set
-already). Every line a node prints is shown prefixed with its name.
+logged that it is ready and each running node logged that its input is connected to the
+running node that publishes it, ``/ball/prediction: connected``; DDS discovery can take a
+second or two, and a video's first ball would be lost), in the environment the graph
+needs (tt's Fast DDS profile for camera images when /dev/shm has room, unless
+``FASTRTPS_DEFAULT_PROFILES_FILE`` is set already). Every line a node prints is shown
+prefixed with its name.
 
 - SIGINT or SIGTERM stops every node (SIGINT, then SIGTERM after ``--stop-timeout``, then
   SIGUSR1, on which a tt node writes every thread's stack, and SIGKILL) and exits 0 when they
@@ -15,7 +18,9 @@ already). Every line a node prints is shown prefixed with its name.
   ``bringup: prediction_node died (signal SIGKILL) after 12.3 s; restart 1``. A node that
   exits 2 (it cannot start: a bad parameter or file, its one line printed above) is not
   restarted: bringup stops the others and exits 2. More than ``--max-restarts`` restarts of
-  one node also stop the graph (exit 1).
+  one node also stop the graph (exit 1). The shared memory that a node killed by a signal
+  leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then (:mod:`tt_ros.shm`),
+  with one line.
 - ``--show`` prints one line per ball (track): the prediction and the strike command.
 
 The shipped files (``share/tt_tools/config``): ``robot.yaml`` (live cameras) and
@@ -33,6 +38,7 @@ import sys
 import threading
 import time
 
+from tt_ros.shm import remove_dead_segments
 import yaml
 
 from .procs import ends_with_parent, ros_env
@@ -49,6 +55,17 @@ START_ORDER = ('strike_node', 'prediction_node', 'perception_node')
 video file's first ball finds the whole graph listening."""
 READY_LINE = re.compile(r'\]: ready$')
 """A node's 'ready' log line (tt_ros.executor.READY)."""
+INPUTS = {
+    'strike_node': ('/ball/prediction', 'prediction_node'),
+    'prediction_node': ('/ball/state', 'perception_node'),
+}
+"""Node -> (its input topic, the node that publishes it)."""
+INPUT_LINE = re.compile(r'\]: (/\S+): (connected|no publisher left)')
+"""A node's log line when its input gets its first publisher or loses its last
+(tt_ros.connections)."""
+CONNECT_WAIT_S = 10.0
+"""Longest wait for a running node's input to be connected before the next node starts, s
+(DDS discovery between two processes can take a second or two)."""
 STARTUP_EXIT = 2
 """A node's exit status when it cannot start (tt_ros.executor.STARTUP_EXIT)."""
 POLL_S = 0.2
@@ -112,10 +129,12 @@ class Child:
         self.restarts = 0
         self.last_line = ''
         self.ready = False
+        self.connected = set()      # input topics with a publisher, as the node logged
 
     def start(self):
         self.started = time.monotonic()
         self.ready = False
+        self.connected = set()
         self.proc = subprocess.Popen(self.argv, env=self.env, stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, errors='replace', start_new_session=True,
@@ -131,6 +150,14 @@ class Child:
             if READY_LINE.search(line):
                 self.ready = True
                 self.events.put(('ready', self, proc))
+            connection = INPUT_LINE.search(line)
+            if connection:
+                topic, state = connection.groups()
+                if state == 'connected':
+                    self.connected.add(topic)
+                else:
+                    self.connected.discard(topic)
+                self.events.put(('input', self, proc))
             print(f'[{self.name}] {line}', flush=True)
         proc.wait()
         self.events.put(('exit', self, proc))
@@ -176,10 +203,18 @@ class Bringup:
         say(f'starting {", ".join(c.name for c in self.children)} (Fast DDS profile: '
             f'{self.profile or "default"})')
         waiting = list(self.children)       # not started yet, in order
+        since = None                        # when the nodes started so far were all ready
         while not self.stopping:
             if waiting and all(c.ready for c in self.children if c.proc is not None):
-                waiting.pop(0).start()
-                continue
+                since = since or time.monotonic()
+                late = self._unconnected()
+                if not late or time.monotonic() - since > CONNECT_WAIT_S:
+                    if late:
+                        say(f'{", ".join(late)} not connected after {CONNECT_WAIT_S:.0f} s; '
+                            f'starting {waiting[0].name} anyway')
+                    waiting.pop(0).start()
+                    since = None
+                    continue
             timeout = POLL_S
             if self.pending:
                 timeout = min(timeout, max(0.0, min(self.pending.values()) - time.monotonic()))
@@ -198,12 +233,24 @@ class Bringup:
                     child.start()
         return self._stop_all()
 
+    def _unconnected(self):
+        """'<node>'s <topic>' for each running node whose input's publisher (:data:`INPUTS`)
+        runs too but which has not logged that its subscription is connected to it."""
+        running = {c.name: c for c in self.children if c.proc is not None}
+        late = []
+        for child in running.values():
+            topic, producer = INPUTS.get(child.name, (None, None))
+            if producer in running and topic not in child.connected:
+                late.append(f"{child.name}'s {topic}")
+        return late
+
     def _exited(self, child, proc):
         if proc is not child.proc or self.stopping:
             return
         code = proc.returncode
         lived = time.monotonic() - child.started
         how = f'signal {_signal_name(code)}' if code < 0 else f'exit {code}'
+        self._remove_left_files(child.name)
         if code == STARTUP_EXIT:
             say(f'{child.name} cannot start ({how}): {child.last_line}; stopping the graph')
             self.status, self.stopping = STARTUP_EXIT, True
@@ -216,6 +263,15 @@ class Bringup:
             return
         say(f'{child.name} died ({how}) after {lived:.1f} s; restart {child.restarts}')
         self.pending[child] = time.monotonic() + self.restart_delay
+
+    @staticmethod
+    def _remove_left_files(names):
+        """Remove the Fast DDS shared-memory files of processes that ended without deleting
+        their participant (:func:`tt_ros.shm.remove_dead_segments`), with one line."""
+        removed = remove_dead_segments()
+        if removed:
+            say(f'{names} ended: removed {removed} Fast DDS shared-memory files in /dev/shm '
+                'that no running process holds')
 
     def _stop_all(self):
         """SIGINT to every running node, then SIGTERM, then (its stacks written, SIGUSR1)
@@ -243,6 +299,7 @@ class Bringup:
                 break
         bad = {n: code for n, code in codes.items() if code != 0}
         if bad:
+            self._remove_left_files(', '.join(bad))
             say('stopped; not clean: ' + ', '.join(
                 f'{n} {_signal_name(c) if c < 0 else f"exit {c}"}' for n, c in bad.items()))
             return self.status or 1

@@ -1,0 +1,61 @@
+"""tt_ros.shm: which Fast DDS shared-memory files a dead process left, and which domains
+have ports."""
+
+import fcntl
+import os
+
+from tt_ros.testing import unique_domain
+
+from tt_ros import shm
+
+
+def _touch(folder, name):
+    path = folder / name
+    path.write_bytes(b'')
+    return path
+
+
+def test_only_files_whose_lock_no_process_holds_are_removed(tmp_path, monkeypatch):
+    monkeypatch.setattr(shm, 'RECHECK_S', 0.0)
+    live = ['fastrtps_0123456789abcdef', 'fastrtps_port26661']
+    dead = ['fastrtps_fedcba9876543210', 'fastrtps_port26911']
+    for name in live + dead:
+        _touch(tmp_path, name)
+        _touch(tmp_path, name + '_el')
+    for port in ('26661', '26911'):
+        _touch(tmp_path, f'sem.fastrtps_port{port}_mutex')
+    others = ['fastrtps_port7000', 'lttng-ust-wait-6', 'fastrtps_0123456789abcdef_x']
+    for name in others:
+        _touch(tmp_path, name)
+    held = []
+    for name in live:                   # a live participant holds an flock on its lock file
+        fd = os.open(tmp_path / f'{name}_el', os.O_RDONLY)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        held.append(fd)
+    try:
+        assert shm.remove_dead_segments(str(tmp_path)) == 5
+        left = sorted(os.listdir(tmp_path))
+    finally:
+        for fd in held:
+            os.close(fd)
+    assert left == sorted(others + live + [f'{n}_el' for n in live]
+                          + ['sem.fastrtps_port26661_mutex'])
+    # Once their owner ends, the live ones go too.
+    assert shm.remove_dead_segments(str(tmp_path)) == 5
+    assert sorted(os.listdir(tmp_path)) == sorted(others)
+
+
+def test_a_port_belongs_to_the_domain_of_the_rtps_numbering(tmp_path):
+    # RTPS: port = 7400 + 250 domain + offset (offsets 0..249).
+    for port in (7400 + 250 * 42 + 11, 7400 + 250 * 0, 7400 + 250 * 230 + 249, 7000):
+        _touch(tmp_path, f'fastrtps_port{port}')
+    _touch(tmp_path, f'fastrtps_port{7400 + 250 * 99}_el')     # a lock file: not a port
+    assert shm.domains_with_ports(str(tmp_path)) == {0, 42, 230}
+    assert shm.domains_with_ports(str(tmp_path / 'missing')) == set()
+
+
+def test_a_test_domain_avoids_domains_with_ports(monkeypatch):
+    monkeypatch.setattr('tt_ros.testing.domains_with_ports', lambda: set(range(150, 230)))
+    assert {unique_domain() for _ in range(20)} == {230}
+    monkeypatch.setattr('tt_ros.testing.domains_with_ports', lambda: set(range(1, 300)))
+    assert all(150 <= unique_domain() <= 230 for _ in range(20))     # none free: any

@@ -1,0 +1,31 @@
+"""A node's input, connected or not: one log line when its subscription gets its first
+publisher and when it loses its last.
+
+DDS discovery between two processes can take a second or two after both are up (measured:
+strike_node matched prediction_node's /ball/prediction ~1.8 s after prediction_node was
+ready, on this 2-core machine). Whatever is published before that is lost for a volatile
+subscription. The line tells a user which link is up; bringup waits for it before it starts
+a video file source (``tt_tools.bringup``), so that the first ball finds the chain connected.
+"""
+
+from rclpy.event_handler import SubscriptionEventCallbacks
+
+CONNECTED = 'connected'
+"""The word of the line ``<topic>: connected (<n> publisher(s))``."""
+DISCONNECTED = 'no publisher left'
+"""The line ``<topic>: no publisher left``."""
+
+
+def input_events(node, topic):
+    """Event callbacks for ``node``'s subscription of ``topic`` (``create_subscription(...,
+    event_callbacks=...)``) that log ``<topic>: connected (<n> publisher(s))`` when it gets
+    its first matched publisher and ``<topic>: no publisher left`` when the last one goes."""
+
+    def matched(info):
+        if info.current_count > 0 and info.current_count == info.current_count_change:
+            node.get_logger().info(f'{topic}: {CONNECTED} ({info.current_count} '
+                                   f'publisher{"s" if info.current_count > 1 else ""})')
+        elif info.current_count == 0 and info.current_count_change < 0:
+            node.get_logger().info(f'{topic}: {DISCONNECTED}')
+
+    return SubscriptionEventCallbacks(matched=matched)
