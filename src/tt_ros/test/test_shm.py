@@ -15,33 +15,27 @@ def _touch(folder, name):
     return path
 
 
-def test_only_files_whose_lock_no_process_holds_are_removed(tmp_path, monkeypatch):
+def test_only_segments_whose_lock_no_process_holds_are_removed(tmp_path, monkeypatch):
     monkeypatch.setattr(shm, 'RECHECK_S', 0.0)
-    live = ['fastrtps_0123456789abcdef', 'fastrtps_port26661']
-    dead = ['fastrtps_fedcba9876543210', 'fastrtps_port26911']
-    for name in live + dead:
+    live, dead = 'fastrtps_0123456789abcdef', 'fastrtps_fedcba9876543210'
+    for name in (live, dead):
         _touch(tmp_path, name)
         _touch(tmp_path, name + '_el')
-    for port in ('26661', '26911'):
-        _touch(tmp_path, f'sem.fastrtps_port{port}_mutex')
-    others = ['fastrtps_port7000', 'lttng-ust-wait-6', 'fastrtps_0123456789abcdef_x']
+    # Ports are left alone, listened to or not; so is anything else.
+    others = ['fastrtps_port26661', 'fastrtps_port26661_el', 'sem.fastrtps_port26661_mutex',
+              'fastrtps_port7000', 'lttng-ust-wait-6', 'fastrtps_0123456789abcdef_x']
     for name in others:
         _touch(tmp_path, name)
-    held = []
-    for name in live:                   # a live participant holds an flock on its lock file
-        fd = os.open(tmp_path / f'{name}_el', os.O_RDONLY)
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        held.append(fd)
+    fd = os.open(tmp_path / f'{live}_el', os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX)      # a live participant holds an flock on its lock file
     try:
-        assert shm.remove_dead_segments(str(tmp_path)) == 5
+        assert shm.remove_dead_segments(str(tmp_path)) == 2
         left = sorted(os.listdir(tmp_path))
     finally:
-        for fd in held:
-            os.close(fd)
-    assert left == sorted(others + live + [f'{n}_el' for n in live]
-                          + ['sem.fastrtps_port26661_mutex'])
-    # Once their owner ends, the live ones go too.
-    assert shm.remove_dead_segments(str(tmp_path)) == 5
+        os.close(fd)
+    assert left == sorted(others + [live, f'{live}_el'])
+    # Once its owner ends, the live one goes too.
+    assert shm.remove_dead_segments(str(tmp_path)) == 2
     assert sorted(os.listdir(tmp_path)) == sorted(others)
 
 

@@ -11,10 +11,13 @@ watchdog's ``_exit``) leaves them:
 - a later participant of the same domain that opens a left-over port may lose its first
   messages (discovery included) until Fast DDS finds the port's listener dead.
 
-:func:`remove_dead_segments` removes what no live process holds (as ``fastdds shm clean``,
-the Fast DDS tool, does; written here from the locking rule above, so that bringup can do it
-whenever one of its nodes dies). :func:`domains_with_ports` says which domains have port
-files at all (live or left over), so that a test can take a domain that has none.
+:func:`remove_dead_segments` removes the data segments that no live process holds (as
+``fastdds shm clean`` does; written here from the locking rule above, so that bringup can do
+it whenever one of its nodes dies). Ports are left alone: live processes that wrote to a dead
+node's port keep it open, and the node restarted with the same participant id reopens it
+(Fast DDS resets a port whose listener died); removing it would part them.
+:func:`domains_with_ports` says which domains have port files at all (live or left over), so
+that a test can take a domain that has none.
 No ROS import: bringup uses it without rclpy.
 """
 
@@ -33,7 +36,6 @@ RECHECK_S = 0.1
 participant creates its lock file a moment before it locks it, s."""
 
 _SEGMENT_LOCK = re.compile(r'^fastrtps_[0-9a-z]{16}_el$')
-_PORT_LOCK = re.compile(r'^fastrtps_port(\d{1,5})_el$')
 _PORT = re.compile(r'^fastrtps_port(\d{1,5})$')
 
 
@@ -65,14 +67,15 @@ def _remove(paths):
 
 
 def remove_dead_segments(shm_dir=SHM_DIR):
-    """Remove the Fast DDS segments and ports whose lock file no live process holds (their
-    owner ended without deleting its participant); returns the number of files removed.
-    Safe while other participants run: a held lock is never touched."""
+    """Remove the Fast DDS data segments (with their lock files) whose lock no live process
+    holds (their owner ended without deleting its participant); returns the number of files
+    removed. Safe while other participants run: a held lock is never touched, a reader that
+    still maps a dead writer's segment keeps its mapping, and ports are left alone."""
     try:
         names = os.listdir(shm_dir)
     except OSError:
         return 0
-    locks = [name for name in names if _SEGMENT_LOCK.match(name) or _PORT_LOCK.match(name)]
+    locks = [name for name in names if _SEGMENT_LOCK.match(name)]
     free = [name for name in locks if not _held(os.path.join(shm_dir, name))]
     if not free:
         return 0
@@ -83,9 +86,6 @@ def remove_dead_segments(shm_dir=SHM_DIR):
         if _held(path):
             continue
         dead += [path, path[:-3]]
-        port = _PORT_LOCK.match(name)
-        if port:
-            dead.append(os.path.join(shm_dir, f'sem.fastrtps_port{port.group(1)}_mutex'))
     return _remove(dead)
 
 
