@@ -17,7 +17,7 @@ from nav_msgs.msg import Path
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from tt_ros.connections import input_events
+from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
@@ -155,9 +155,7 @@ class PredictionNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.sub = self.create_subscription(BallState, '/ball/state', self.on_state,
-                                            states_qos,
-                                            event_callbacks=input_events(self, '/ball/state'))
+        self.sub = subscribe_input(self, BallState, '/ball/state', self.on_state, states_qos)
         self.get_logger().info(
             f'predicting /ball/state -> /ball/prediction, hitting plane x = '
             f'{self.p.hit_plane_x:.3f} m, model '

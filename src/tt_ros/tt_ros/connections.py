@@ -8,7 +8,7 @@ subscription. The line tells a user which link is up; bringup waits for it befor
 a video file source (``tt_tools.bringup``), so that the first ball finds the chain connected.
 """
 
-from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 
 CONNECTED = 'connected'
 """The word of the line ``<topic>: connected (<n> publisher(s))``."""
@@ -29,3 +29,16 @@ def input_events(node, topic):
             node.get_logger().info(f'{topic}: {DISCONNECTED}')
 
     return SubscriptionEventCallbacks(matched=matched)
+
+
+def subscribe_input(node, msg_type, topic, callback, qos):
+    """``node.create_subscription(msg_type, topic, callback, qos)`` with :func:`input_events`;
+    without them, and a warning, on a middleware that has no matched events (bringup then
+    waits its limit for the line)."""
+    try:
+        return node.create_subscription(msg_type, topic, callback, qos,
+                                        event_callbacks=input_events(node, topic))
+    except UnsupportedEventTypeError:
+        node.get_logger().warning(f'{topic}: this middleware does not report matched '
+                                  'publishers; no connected line')
+        return node.create_subscription(msg_type, topic, callback, qos)

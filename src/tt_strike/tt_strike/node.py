@@ -26,7 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import Hit
-from tt_ros.connections import input_events
+from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import point_msg, set_time, set_xyz
@@ -153,9 +153,8 @@ class StrikeNode(Node):
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
-        self.sub = self.create_subscription(
-            BallPrediction, '/ball/prediction', self.on_prediction, reliable,
-            event_callbacks=input_events(self, '/ball/prediction'))
+        self.sub = subscribe_input(self, BallPrediction, '/ball/prediction',
+                                   self.on_prediction, reliable)
         self.sub_target = self.create_subscription(StrikeTarget, '/strike/target',
                                                    self.on_target, reliable)
         self.get_logger().info(f'striking /ball/prediction -> /strike/command, target '
