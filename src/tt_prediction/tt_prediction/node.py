@@ -10,7 +10,6 @@ markers follow at a lower rate. Invalid or stale states are dropped with a throt
 import gc
 import sys
 import threading
-import time
 
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -25,6 +24,7 @@ from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
 from tt_ros.timebase import TimeBaseCheck
+from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, BallState
@@ -144,7 +144,7 @@ class PredictionNode(Node):
         self.last_path_ns = None
         self.n_received = 0
         self.stamps_ns = None             # [first, last] stamp of the states received, ns
-        self.work_s = np.zeros(4096)      # the callback's time for the last states, s
+        self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -166,22 +166,20 @@ class PredictionNode(Node):
         self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
 
     def on_state(self, msg):
-        start = time.perf_counter()
-        self._on_state(msg)
-        self.work_s[self.n_received % len(self.work_s)] = time.perf_counter() - start
+        self.work.call(self._on_state, msg)
         self.n_received += 1
 
     def work_summary(self):
         """Counts, the median and p99 of the time the callback took for the last states (ms),
         and the stamps of the first and the last state received (s, to the nanosecond: which
         part of a replay reached the node)."""
-        times = self.work_s[:min(self.n_received, len(self.work_s))]
+        times = self.work.latest_ms()
         if not len(times):
             return 'no state received'
         first, last = (f'{ns // 10**9}.{ns % 10**9:09d}' for ns in self.stamps_ns)
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
-                f'dropped; callback median {np.median(times) * 1e3:.3f} ms, p99 '
-                f'{np.percentile(times, 99) * 1e3:.3f} ms (last {len(times)}); stamps {first} '
+                f'dropped; callback median {np.median(times):.3f} ms, p99 '
+                f'{np.percentile(times, 99):.3f} ms (last {len(times)}); stamps {first} '
                 f'to {last} s')
 
     def _on_state(self, msg):

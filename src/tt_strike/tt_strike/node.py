@@ -19,7 +19,6 @@ counts, with each of the latest tracks' predictions, commands and first command'
 import collections
 import dataclasses
 import math
-import time
 
 import numpy as np
 from rclpy.node import Node
@@ -34,6 +33,7 @@ from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
 from tt_ros.timebase import TimeBaseCheck
+from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
@@ -147,7 +147,7 @@ class StrikeNode(Node):
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
         self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
-        self.work_s = np.zeros(4096)      # the callback's time for the last predictions, s
+        self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -226,7 +226,7 @@ class StrikeNode(Node):
         ok = sum(t.ok for t in self.tracks.values())
         tracks = ', '.join(f'{i}: {t.received}/{t.commands} {t.first_status or "-"}'
                            for i, t in self.tracks.items())
-        times = self.work_s[:min(self.n_received, len(self.work_s))] * 1e3
+        times = self.work.latest_ms()
         return (f'{self.n_received} predictions, {self.n_commands} commands, '
                 f'{self.n_dropped} dropped, {self.n_too_late} too late; callback median '
                 f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
@@ -234,9 +234,7 @@ class StrikeNode(Node):
                 f"first command's status; {ok} with an ok stroke): {tracks}")
 
     def on_prediction(self, msg):
-        start = time.perf_counter()
-        self._on_prediction(msg)
-        self.work_s[self.n_received % len(self.work_s)] = time.perf_counter() - start
+        self.work.call(self._on_prediction, msg)
         self.n_received += 1
 
     def _on_prediction(self, msg):
