@@ -4,7 +4,7 @@ spin and robustness criteria, each checked against the model's truth of the scen
 import numpy as np
 import pytest
 from tt_perception.detect import DetectorConfig
-from tt_perception.pipeline import Pipeline
+from tt_perception.pipeline import Pipeline, Tracker, TrackerConfig
 
 from tt_perception import synth
 
@@ -277,3 +277,26 @@ def test_a_tracks_first_states_are_as_accurate_as_the_later_ones(webcam_scene):
     first = np.array([e.state[:3] - s[:3] for e, s in pairs if e.t < start + FILTER_SETTLE])
     assert len(first) >= 5                       # 150 fps: 7 or 8 frames in 50 ms
     assert np.sqrt(np.mean(np.sum(first ** 2, axis=1))) <= 1.5e-3, first
+
+
+@pytest.mark.parametrize('search_updates', [0, 1, 2, 3, 4])
+def test_the_outline_search_runs_only_while_the_tracks_prediction_is_rough(search_updates):
+    """Tracker.rough (the detector's ``search``, four more fits per candidate) holds from a
+    track's start for ``search_updates`` updates and never once it is confirmed
+    (``confirm_updates`` 3); with the default 2, not on the update that confirms it either,
+    whose state is the first published and would wait for the search."""
+    tracker = Tracker(150.0, config=TrackerConfig(confirm_updates=3,
+                                                  search_updates=search_updates))
+    p0, v0 = np.array([1.2, 0.1, 0.3]), np.array([-6.0, 0.2, 1.0])
+    cov = np.eye(3) * 1e-6
+    rough, published = [], []
+    for n in range(8):
+        t = n / 150.0
+        rough.append(tracker.rough)              # what the frame at t is detected with
+        X = p0 + v0 * t + 0.5 * tracker.gravity * t * t
+        tracker.advance(t)
+        published.append(tracker.add(t, [((X, cov), (X, cov))]) is not None)
+    # Frame 0 seeds, frame 1 starts the track (updates 0), frames 2-4 update it.
+    expected = [False, False] + [u < min(search_updates, 3) for u in range(6)]
+    assert rough == expected
+    assert published == [False] * 4 + [True] * 4
