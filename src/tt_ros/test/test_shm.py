@@ -39,17 +39,23 @@ def test_only_segments_whose_lock_no_process_holds_are_removed(tmp_path, monkeyp
     assert sorted(os.listdir(tmp_path)) == sorted(others)
 
 
-def test_a_port_belongs_to_the_domain_of_the_rtps_numbering(tmp_path):
-    # RTPS: port = 7400 + 250 domain + offset (offsets 0..249).
-    for port in (7400 + 250 * 42 + 11, 7400 + 250 * 0, 7400 + 250 * 230 + 249, 7000):
+def test_a_port_with_a_listeners_lock_belongs_to_the_domain_of_the_rtps_numbering(tmp_path):
+    # RTPS: port = 7400 + 250 domain + offset (offsets 0..249); a listener's lock file is
+    # the port's name + _el (exclusive: a unicast port) or _sl (shared: the multicast one).
+    for port, lock in ((7400 + 250 * 42 + 11, '_el'), (7400 + 250 * 0, '_sl'),
+                       (7400 + 250 * 230 + 249, '_el'), (7000, '_el')):
         _touch(tmp_path, f'fastrtps_port{port}')
-    _touch(tmp_path, f'fastrtps_port{7400 + 250 * 99}_el')     # a lock file: not a port
-    assert shm.domains_with_ports(str(tmp_path)) == {0, 42, 230}
-    assert shm.domains_with_ports(str(tmp_path / 'missing')) == set()
+        _touch(tmp_path, f'fastrtps_port{port}{lock}')
+    # Ports whose listeners ended cleanly (no lock file), a mutex, a segment's lock: none.
+    for name in (f'fastrtps_port{7400 + 250 * 99}', f'sem.fastrtps_port{7400 + 250 * 7}_mutex',
+                 'fastrtps_0123456789abcdef_el', f'fastrtps_port{7400 + 250 * 8}_elx'):
+        _touch(tmp_path, name)
+    assert shm.domains_with_listeners(str(tmp_path)) == {0, 42, 230}
+    assert shm.domains_with_listeners(str(tmp_path / 'missing')) == set()
 
 
-def test_a_test_domain_avoids_domains_with_ports(monkeypatch):
-    monkeypatch.setattr('tt_ros.testing.domains_with_ports', lambda: set(range(150, 230)))
+def test_a_test_domain_avoids_domains_with_listeners(monkeypatch):
+    monkeypatch.setattr('tt_ros.testing.domains_with_listeners', lambda: set(range(150, 230)))
     assert {unique_domain() for _ in range(20)} == {230}
-    monkeypatch.setattr('tt_ros.testing.domains_with_ports', lambda: set(range(1, 300)))
+    monkeypatch.setattr('tt_ros.testing.domains_with_listeners', lambda: set(range(1, 300)))
     assert all(150 <= unique_domain() <= 230 for _ in range(20))     # none free: any

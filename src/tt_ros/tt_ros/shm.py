@@ -16,8 +16,11 @@ watchdog's ``_exit``) leaves them:
 it whenever one of its nodes dies). Ports are left alone: live processes that wrote to a dead
 node's port keep it open, and the node restarted with the same participant id reopens it
 (Fast DDS resets a port whose listener died); removing it would part them.
-:func:`domains_with_ports` says which domains have port files at all (live or left over), so
-that a test can take a domain that has none.
+:func:`domains_with_listeners` says which domains have a port with a listener's lock file
+(held by a running participant, or left by a killed one), so that a test can take a domain
+that has none. A port file without one is harmless: its listeners ended cleanly and a new
+participant that opens it finds no listener to wait for (Fast DDS leaves these behind
+after every run; counting them, the test domains filled up within days).
 No ROS import: bringup uses it without rclpy.
 """
 
@@ -36,7 +39,7 @@ RECHECK_S = 0.1
 participant creates its lock file a moment before it locks it, s."""
 
 _SEGMENT_LOCK = re.compile(r'^fastrtps_[0-9a-z]{16}_el$')
-_PORT = re.compile(r'^fastrtps_port(\d{1,5})$')
+_PORT_LOCK = re.compile(r'^fastrtps_port(\d{1,5})_[es]l$')
 
 
 def _held(path):
@@ -94,12 +97,13 @@ def port_domain(port):
     return None if port < PORT_BASE else (port - PORT_BASE) // DOMAIN_GAIN
 
 
-def domains_with_ports(shm_dir=SHM_DIR):
-    """The domain ids that have a Fast DDS shared-memory port file in ``shm_dir``, held by a
-    running participant or left by a killed one."""
+def domains_with_listeners(shm_dir=SHM_DIR):
+    """The domain ids that have a Fast DDS shared-memory port with a listener's lock file
+    (``_el`` exclusive, ``_sl`` shared) in ``shm_dir``: held by a running participant, or
+    left by a killed one."""
     try:
         names = os.listdir(shm_dir)
     except OSError:
         return set()
-    ports = (_PORT.match(name) for name in names)
+    ports = (_PORT_LOCK.match(name) for name in names)
     return {port_domain(int(m.group(1))) for m in ports if m} - {None}

@@ -13,7 +13,7 @@ import uuid
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from .shm import domains_with_ports
+from .shm import domains_with_listeners
 
 
 def unique_prefix():
@@ -32,12 +32,12 @@ def remap_args(prefix, topics):
 
 def unique_domain(low=150, high=230):
     """A random ROS domain id in [low, high] for a test whose graph must be its own (a global
-    topic such as /clock), among those with no Fast DDS shared-memory port on this machine
-    (:func:`tt_ros.shm.domains_with_ports`): not another running test's, and none that a
-    killed process left (a new participant on such a port can lose its first messages);
-    any domain of the range when none is free."""
+    topic such as /clock), among those with no Fast DDS shared-memory port listened to on
+    this machine (:func:`tt_ros.shm.domains_with_listeners`): not another running test's, and
+    none that a killed process left (a new participant on such a port can lose its first
+    messages); any domain of the range when none is free."""
     rng = random.Random(uuid.uuid4().int)
-    taken = domains_with_ports()
+    taken = domains_with_listeners()
     free = [d for d in range(low, high + 1) if d not in taken]
     return rng.choice(free) if free else rng.randint(low, high)
 
