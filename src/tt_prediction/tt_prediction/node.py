@@ -142,7 +142,6 @@ class PredictionNode(Node):
         self.tracks = {}
         self.last_ns = None
         self.last_path_ns = None
-        self.n_received = 0
         self.stamps_ns = None             # [first, last] stamp of the states received, ns
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
@@ -167,7 +166,11 @@ class PredictionNode(Node):
 
     def on_state(self, msg):
         self.work.call(self._on_state, msg)
-        self.n_received += 1
+
+    @property
+    def n_received(self):
+        """States received (the callback's calls)."""
+        return self.work.count
 
     def work_summary(self):
         """Counts, the median and p99 of the time the callback took for the last states (ms),

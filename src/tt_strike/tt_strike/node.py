@@ -145,7 +145,7 @@ class StrikeNode(Node):
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
-        self.n_received = self.n_commands = self.n_dropped = self.n_too_late = 0
+        self.n_commands = self.n_dropped = self.n_too_late = 0
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -235,7 +235,11 @@ class StrikeNode(Node):
 
     def on_prediction(self, msg):
         self.work.call(self._on_prediction, msg)
-        self.n_received += 1
+
+    @property
+    def n_received(self):
+        """Predictions received (the callback's calls)."""
+        return self.work.count
 
     def _on_prediction(self, msg):
         tally = self._tally(msg.track_id)
