@@ -55,9 +55,6 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]
                        / 'src' / 'tt_perception' / 'test'))
 import independent_scene as scene  # noqa: E402
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from bench_perception import both_cameras_see  # noqa: E402
-
 LIMITS = {
     'position_rms_mm': 1.5,
     'abs_mean_error_mm': 0.3,
@@ -99,7 +96,7 @@ def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA):
 
 def score(rig, estimates, flight, truth):
     """The issue's numbers for one ball (see the module docstring)."""
-    both = both_cameras_see(rig, truth)
+    both = synth.both_cameras_see(rig, truth)
     seen = int(both.sum())
     out = {'states': len(estimates), 'frames_both_see': seen,
            'tracks': len({e.track_id for e in estimates}),

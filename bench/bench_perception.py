@@ -92,7 +92,7 @@ def hall_accuracy():
             err = np.array([e.state[:3] - tr['state'][i, :3]
                             for e, i in zip(estimates, idx, strict=True)]).reshape(-1, 3)
             # The ball is launched at 0: frames from half an exposure on show it.
-            seen = int(both_cameras_see(rig, tr, rendered_from=0.5 * exposure).sum())
+            seen = int(synth.both_cameras_see(rig, tr, rendered_from=0.5 * exposure).sum())
             out[f'{colour}_{width}x{height}'] = {
                 'states': len(estimates),
                 'tracks': len({e.track_id for e in estimates}),
@@ -103,20 +103,6 @@ def hall_accuracy():
                 if len(err) else None,
             }
     return out
-
-
-def both_cameras_see(rig, truth, rendered_from=-np.inf):
-    """Mask of camera 0's frames (truth['t']) in which the true ball lies in front of and
-    inside both cameras' images, from ``rendered_from`` (s) on: synth draws a ball only in
-    frames whose whole exposure follows its launch (the frame at the launch time, exposed from
-    half an exposure before it, has no ball)."""
-    p = truth['state'][:, :3]
-    ok = truth['t'] >= rendered_from - 1e-9
-    for cam in rig.cameras:
-        uv = cam.project(p)
-        ok &= cam.in_front(p) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) \
-            & (uv[:, 1] < cam.height)
-    return ok
 
 
 def accuracy(estimates, truth):

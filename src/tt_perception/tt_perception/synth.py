@@ -384,6 +384,20 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
     return frames(), truth
 
 
+def both_cameras_see(rig, truth, rendered_from=-np.inf):
+    """Mask of camera 0's frames (truth['t']) in which the true ball lies in front of and
+    inside both cameras' images, from ``rendered_from`` (s) on: synth draws a ball only in
+    frames whose whole exposure follows its launch (the frame at the launch time, exposed from
+    half an exposure before it, has no ball)."""
+    p = truth['state'][:, :3]
+    ok = truth['t'] >= rendered_from - 1e-9
+    for cam in rig.cameras:
+        uv = cam.project(p)
+        ok &= cam.in_front(p) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) \
+            & (uv[:, 1] < cam.height)
+    return ok
+
+
 def _sensor(frame, noise, rng):
     """A hall camera's sensor and codec: photon (shot) noise growing as the square root of the
     signal plus read noise, then JPEG at quality 30, as cheap USB cameras send (MJPG)."""
