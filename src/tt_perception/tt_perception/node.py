@@ -209,7 +209,8 @@ class PerceptionNode(Node):
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
-                                max_reprojection=self._p('max_reprojection'))
+                                max_reprojection=self._p('max_reprojection'),
+                                backfill=False)    # only states newer than the last published
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
         warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame

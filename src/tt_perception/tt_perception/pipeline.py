@@ -54,12 +54,26 @@ class TrackerConfig:
 
     confirm_updates: int = 3
     """Filter updates after the start before states are published."""
+    backfill: bool = True
+    """With the confirming update's state, also give the states of the track's earlier
+    frames (its seed, its start and the updates before confirmation), carried back from the
+    confirming estimate (:meth:`tt_prediction.ball_filter.BallFilter.earlier_state`): a
+    track then covers its whole flight. Off where only the newest state matters (the live
+    node: a state 30 ms old is of no use to the robot)."""
     search_updates: int = 2
     """Filter updates after the start during which the outline fit also starts around the
     blob's centre (:meth:`tt_perception.detect.BallDetector.detect`'s ``search``): the
     prediction then rests on the start's two blob centres and at most one fitted point. Not
     on the update that confirms a track (3 by default), so that the first published state
     does not wait for the search (1.7 ms of work per frame pair at 640x480)."""
+    blob_sigma: float = 0.01
+    """Standard deviation per axis added to the positions a track starts from (its seed
+    and start points: the blobs' own centres, as no prediction places the outline fit
+    yet), m; half the ball's radius. A blob's centre leans toward the ball's lit side by up
+    to a quarter of its radius, a bias the triangulation's covariance does not know: with
+    it the filter takes its position from the outline fits of the updates that follow;
+    without it, it started millimetres high and stayed so for tens of milliseconds
+    (docs/perception.md)."""
     max_coast: float = 0.06
     """Time without an accepted measurement after which a track ends, s."""
     min_speed: float = 1.0
@@ -192,6 +206,7 @@ class Tracker:
         self.updates = 0
         self.last_update = -np.inf
         self.seeds = []
+        self.early = []            # times of the running track's frames before confirmation
 
     @property
     def active(self):
@@ -251,19 +266,29 @@ class Tracker:
         """Fuse the 3-D points seen at ``t``, after :meth:`advance` to ``t``
         (:meth:`Pipeline._points`: pairs of (X, cov) from the detections' centres and from
         their blobs' own centres, either None; the blobs' are not needed while the track is
-        confirmed); returns a :class:`BallEstimate` when a confirmed track was updated, else
-        None."""
+        confirmed); returns the list of :class:`BallEstimate` it completes, in time order:
+        the state at ``t`` when a confirmed track was updated, preceded on the confirming
+        update by those of the track's earlier frames (``backfill``)."""
         cfg = self.config
         if self.filter is None:
             self._seed(t, [blob for _, blob in points if blob is not None])
-            return None
-        if self._update(points):
-            self.updates += 1
-            self.last_update = t
-            if self.updates >= cfg.confirm_updates:
-                f = self.filter
-                return BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
-        return None
+            return []
+        if not self._update(points):
+            return []
+        self.updates += 1
+        self.last_update = t
+        if self.updates < cfg.confirm_updates:
+            self.early.append(t)
+            return []
+        f = self.filter
+        out = []
+        if self.updates == cfg.confirm_updates and cfg.backfill:
+            for te in self.early:
+                state = f.earlier_state(te)
+                if state is not None:
+                    out.append(BallEstimate(te, state[0], state[1], self.track_id))
+        out.append(BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id))
+        return out
 
     def _update(self, points):
         """Update the running track with the nearest of ``points``; True when one passed.
@@ -314,10 +339,13 @@ class Tracker:
             if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
                 self.track_id += 1
                 self.filter = BallFilter(self.params, self.filter_config)
-                self.filter.start(t, X2, v, R2, (R1 + R2) / dt ** 2 + np.eye(3) * 0.05)
+                bias = np.eye(3) * cfg.blob_sigma ** 2
+                self.filter.start(t, X2, v, R2 + bias, (R1 + R2 + 2.0 * bias) / dt ** 2
+                                  + np.eye(3) * 0.05)
                 self.updates = 0
                 self.last_update = t
                 self.seeds = []
+                self.early = [t1, t]
                 return
         self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
         self.seeds.extend((t, X, R) for X, R in points)
@@ -356,8 +384,10 @@ class Pipeline:
 
     def process(self, t, k, frame, detections=None):
         """Process camera ``k``'s frame stamped ``t`` (s, its own clock); returns the list of
-        :class:`BallEstimate` it completes. A missing or corrupt frame (None, wrong size, not
-        8-bit) is skipped: ``last_error`` says why, nothing is estimated from it.
+        :class:`BallEstimate` it completes, in time order (on the frame that confirms a
+        track, its earlier frames' too: :attr:`TrackerConfig.backfill`). A missing or corrupt
+        frame (None, wrong size, not 8-bit) is skipped: ``last_error`` says why, nothing is
+        estimated from it.
         ``detections``: the result of :meth:`detect` on this frame, when done already."""
         if detections is None:
             detections = self.detect(t, k, frame)
@@ -371,9 +401,7 @@ class Pipeline:
             self.tracker.advance(t0)
             # A confirmed track takes only the fitted points: no triangulation of the blobs'.
             points = self._points(group, blobs=not self.tracker.confirmed)
-            est = self.tracker.add(t0, points)
-            if est is not None:
-                out.append(est)
+            out += self.tracker.add(t0, points)
         return out
 
     def _detect(self, t, k, frame, snapshot):

@@ -6,6 +6,7 @@ import pytest
 from scipy.stats import chi2
 from tt_prediction.ball import ModelParams, rollout, table_rebound_inplace
 from tt_prediction.ball_filter import (
+    BallFilter,
     FilterConfig,
     TrackFilter,
     estimate_measurement_noise,
@@ -224,3 +225,42 @@ def test_filter_state_predicts_the_hit_the_model_predicts():
     pred = predict(tf.filter.x, t0=tf.filter.t, hit_plane_x=-1.2, bounced=True)
     assert pred.status == 'ok'
     assert np.linalg.norm(pred.hit.p - ref.hit.p) < 2e-3
+
+
+def test_an_earlier_state_is_the_flight_carried_back_and_none_across_a_bounce():
+    """earlier_state carries the estimate back along eq. 8: the model's forward rollout
+    (its own integrator) at the earlier time, within 0.05 mm and 1 mm/s; its covariance,
+    carried forward again by the flight with no process noise, is the one it came from
+    (within 1 % of each entry's sigmas: the flight map is of second order per step). A
+    time before a table contact has no such state (the rebound is not undone)."""
+    params = ModelParams()
+    state = np.array([0.9, 0.1, 0.25, -5.0, 0.3, -0.5, 30.0, -200.0, 10.0])
+    times = np.arange(0.0, 0.3, 0.01)
+    _, flight = rollout(state, params, sample_times=times, stop_at_plane=False,
+                        stop_at_net=False, t_max=times[-1] + 1e-6)
+    bounce = times[np.argmin(flight[:, 2])]
+    assert 0.05 < bounce < 0.25 and flight[-1, 5] > 0.0      # one contact, then up again
+    after = int(np.searchsorted(times, bounce)) + 2
+    f = BallFilter(params, FilterConfig(accel_noise=0.0, spin_noise=0.0))
+    P0 = np.diag([1e-6] * 3 + [1e-2] * 3 + [1e2] * 3)
+    f.start(times[after], flight[after, :3], flight[after, 3:6], P0[:3, :3], P0[3:6, 3:6],
+            spin=flight[after, 6:], spin_cov=P0[6:, 6:])
+    f.P = P0
+    f.predict(times[-1])
+    x, C = f.earlier_state(times[after + 3])
+    assert np.allclose(x[:3], flight[after + 3, :3], atol=5e-5)
+    assert np.allclose(x[3:6], flight[after + 3, 3:6], atol=1e-3)
+    g = BallFilter(params, FilterConfig(accel_noise=0.0, spin_noise=0.0))
+    g.start(times[after + 3], x[:3], x[3:6], C[:3, :3], C[3:6, 3:6], spin=x[6:],
+            spin_cov=C[6:, 6:])
+    g.P = C
+    g.predict(times[-1])
+    scale = np.sqrt(np.outer(np.diag(f.P), np.diag(f.P)))      # each entry against its sigmas
+    assert np.all(np.abs(g.P - f.P) <= 0.01 * scale)
+    assert f.earlier_state(times[after]) is not None
+    before = BallFilter(params)
+    before.start(0.0, state[:3], state[3:6], P0[:3, :3], P0[3:6, 3:6], spin=state[6:])
+    before.predict(times[-1])
+    assert before.bounces == 1
+    assert before.earlier_state(bounce - 0.02) is None
+    assert before.earlier_state(times[-1] + 0.01) is None

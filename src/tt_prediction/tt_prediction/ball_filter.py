@@ -451,6 +451,26 @@ class BallFilter:
             self.last_bounce = (float(self._bounce[0]), float(self._bounce[1]),
                                 float(self._bounce[2]))
 
+    def earlier_state(self, t):
+        """State (9,) and covariance (9, 9) at an earlier time ``t`` (s) of the same flight:
+        the current estimate carried back by eq. 8 integrated backward, the covariance by
+        the inverse flight map, with no process noise. That is what a fixed-interval
+        smoother gives when the process noise is negligible over the interval (a few frames):
+        the states of a track's first frames once later ones have confirmed it. None when
+        the ball bounced since ``t`` (a contact this filter saw, or the path back passing
+        below the table's surface over the table)."""
+        r = self.params.radius
+        x, C, now = self.x, self.P, self.t
+        if t > now or (self.last_bounce is not None and self.last_bounce[0] > t):
+            return None
+        while now - t > 1e-9:
+            h = -min(self.config.max_step, now - t)
+            x, C = _propagate(x, C, h, self.P_model, 0.0, 0.0)
+            now += h
+            if (x[2] < r and abs(x[0]) <= HALF_LENGTH + r and abs(x[1]) <= HALF_WIDTH + r):
+                return None
+        return x, C
+
     def innovation(self, z, R):
         """Innovation y (3,), its covariance S (3, 3) and squared Mahalanobis distance."""
         y = np.asarray(z, dtype=float) - self.x[:3]
