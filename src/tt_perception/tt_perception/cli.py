@@ -79,25 +79,45 @@ def detections_per_camera(rig, frames, colour):
     return [(np.array(t), np.array(x).reshape(-1, 2)) for t, x in found]
 
 
+UNRELIABLE_OFFSET_PX = 3.0
+"""Median epipolar distance (pixels) above which an estimated time offset is reported as
+unreliable (a right offset on a detected ball gives under a pixel)."""
+
+
 def estimate_offsets(rig, colour):
     """Fill in the missing ``time_offset`` of the rig's cameras from the ball's detections
-    (:mod:`tt_perception.sync`); returns one line per camera estimated."""
+    (:mod:`tt_perception.sync`); returns one line per camera estimated. With ``colour``
+    'any', the detections of a white and of an orange ball are both tried and the offset
+    that puts its pairs nearer the epipolar lines kept: without a colour, the frames with
+    the ball also have other moving things (a racket, an arm, shadows), and those with a
+    single detection are mostly not the ball."""
     missing = [k for k, cam in enumerate(rig.cameras) if k > 0 and cam.time_offset is None]
     if not missing:
         return []
-    found = detections_per_camera(rig, file_frames(rig), colour)   # OSError: bad input
+    colours = ('white', 'orange') if colour == 'any' else (colour,)
+    found = {c: detections_per_camera(rig, file_frames(rig), c)   # OSError: bad input
+             for c in colours}
     notes = []
     for k in missing:
         cam = rig.cameras[k]
-        offset, cost = estimate_offset(rig.cameras[0], cam, *found[0], *found[k], rig.fps)
-        if offset is None:
+        tried = [(*estimate_offset(rig.cameras[0], cam, *found[c][0], *found[c][k], rig.fps),
+                  c) for c in colours]
+        tried = [t for t in tried if t[0] is not None]
+        if not tried:
             cam.time_offset = 0.0
             notes.append(f'{cam.name}: too few ball detections to estimate its time offset, '
                          'taken as 0')
-        else:
-            cam.time_offset = float(offset)
-            notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
-                         f'ball (median epipolar distance {cost * cam.focal:.2f} px)')
+            continue
+        offset, cost, used = min(tried, key=lambda t: t[1])
+        cam.time_offset = float(offset)
+        px = cost * cam.focal
+        which = f'{used} ' if len(colours) > 1 else ''
+        notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
+                     f'{which}ball (median epipolar distance {px:.2f} px)')
+        if px > UNRELIABLE_OFFSET_PX:
+            notes.append(f'warning: {cam.name}: that time offset is unreliable (above '
+                         f'{UNRELIABLE_OFFSET_PX:g} px): set time_offset in the rig file or '
+                         'give --colour')
     return notes
 
 
