@@ -467,9 +467,9 @@ class BallFilter:
             h = -min(self.config.max_step, now - t)
             x, C = _propagate(x, C, h, self.P_model, 0.0, 0.0)
             now += h
-            if (x[2] < r and abs(x[0]) <= HALF_LENGTH + r and abs(x[1]) <= HALF_WIDTH + r):
+            if x[2] < r and abs(x[0]) <= HALF_LENGTH + r and abs(x[1]) <= HALF_WIDTH + r:
                 return None
-        return x, C
+        return x.copy(), C.copy()
 
     def innovation(self, z, R):
         """Innovation y (3,), its covariance S (3, 3) and squared Mahalanobis distance."""
