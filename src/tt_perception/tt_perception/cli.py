@@ -67,16 +67,21 @@ def bag_frames(rig, bag):
         reader.close()
 
 
-def detections_per_camera(rig, frames, colour):
-    """Single-candidate detections per camera over all frames: (times, normalised (n, 2))."""
-    detectors = [BallDetector(DetectorConfig(colour=colour)) for _ in rig.cameras]
-    found = [([], []) for _ in rig.cameras]
+def detections_per_camera(rig, frames, colours):
+    """Single-candidate detections per camera over all frames, for each ball colour of
+    ``colours`` (each frame decoded once, looked at by one detector per colour): {colour:
+    [(times, normalised (n, 2)) per camera]}."""
+    detectors = {c: [BallDetector(DetectorConfig(colour=c)) for _ in rig.cameras]
+                 for c in colours}
+    found = {c: [([], []) for _ in rig.cameras] for c in colours}
     for t, k, frame in frames:
-        dets = detectors[k].detect(frame) if frame is not None else []
-        if len(dets) == 1:
-            found[k][0].append(t)
-            found[k][1].append(rig.cameras[k].normalise([[dets[0].u, dets[0].v]])[0])
-    return [(np.array(t), np.array(x).reshape(-1, 2)) for t, x in found]
+        for c in colours:
+            dets = detectors[c][k].detect(frame) if frame is not None else []
+            if len(dets) == 1:
+                found[c][k][0].append(t)
+                found[c][k][1].append(rig.cameras[k].normalise([[dets[0].u, dets[0].v]])[0])
+    return {c: [(np.array(t), np.array(x).reshape(-1, 2)) for t, x in found[c]]
+            for c in colours}
 
 
 UNRELIABLE_OFFSET_PX = 3.0
@@ -95,8 +100,7 @@ def estimate_offsets(rig, colour):
     if not missing:
         return []
     colours = ('white', 'orange') if colour == 'any' else (colour,)
-    found = {c: detections_per_camera(rig, file_frames(rig), c)   # OSError: bad input
-             for c in colours}
+    found = detections_per_camera(rig, file_frames(rig), colours)   # OSError: bad input
     notes = []
     for k in missing:
         cam = rig.cameras[k]
