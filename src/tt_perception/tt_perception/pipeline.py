@@ -89,8 +89,8 @@ class TrackerConfig:
     width_ratio: tuple = (0.45, 1.9)
     """Accepted range of blob width over the ball's expected image diameter."""
     narrow_weight: float = 30.0
-    """A blob narrower than the ball by a fraction f has its centre's sigma times
-    1 + narrow_weight f."""
+    """A blob narrower than the ball by a fraction f has its own centre's sigma times
+    1 + narrow_weight f (not a centre fitted to the ball's outline)."""
     hidden_weight: float = 20.0
     """... and a blob whose outline is a fraction h ball-bright background, plus
     hidden_weight h."""
@@ -468,10 +468,12 @@ class Pipeline:
         if np.any(ratio < cfg.width_ratio[0]) or np.any(ratio > cfg.width_ratio[1]):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
-        # may have lost part of it (a white line behind a white ball): its centre may be
-        # biased, so it counts for less.
+        # may have lost part of it (a white line behind a white ball): its own centre may be
+        # biased, so it counts for less. Not a centre fitted to the ball's outline: the fit
+        # models the background, and a blob that lost the shaded side does not move it.
         weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
                 + cfg.hidden_weight * obs[:, 3])
+        weak[np.any(centres != obs[:, 4:6], axis=1)] = 1.0
         if np.any(weak > 1.0):
             X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)
         return X, cov
