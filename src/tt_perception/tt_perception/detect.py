@@ -65,6 +65,14 @@ class DetectorConfig:
     light L it got. 1: linear (synth's scenes, machine-vision cameras with gamma off); about
     2.2 for a camera that encodes like sRGB (most webcams). The outline fit mixes ball and
     background light in an outline pixel, so it undoes the response first."""
+    curvature_weight: float = 1.0
+    """Penalty of the outline fit on the curvature of the ball's brightness (the quadratic's
+    part that a brightness linear over the image does not explain), in units of that
+    curvature's own squared contribution to the ball's pixels (:func:`fit_outline`). On a
+    ball a few pixels across, blurred by demosaicing and JPEG, a free curvature lets the
+    fitted outline slide toward the lit side where the shaded side is invisible (a second
+    minimum 0.4 radius up, docs/perception.md). 0: a free quadratic, the least biased under
+    a single compact light with no ambient (a sharp terminator)."""
 
 
 @dataclasses.dataclass
@@ -246,11 +254,25 @@ def ball_model(xs, ys, centre, ball, whitening=None):
     return cover, basis, dcover, dbasis
 
 
-def fit_outline(grey, background, usable, start, ball, iterations=6):
+def curvature_penalty(basis, weight):
+    """(N_SHADING, N_SHADING) matrix W of the penalty s^T W s on the shading s of
+    :func:`ball_model`'s ``basis`` (P, N_SHADING): ``weight`` times the squared norm over the
+    P pixels of the quadratic terms' image once its best linear fit (the first three terms)
+    is taken out. Zero on the linear terms; independent of the brightness's units and of the
+    number of pixels."""
+    linear, quadratic = basis[:, :3], basis[:, 3:]
+    beyond = quadratic - linear @ np.linalg.lstsq(linear, quadratic, rcond=None)[0]
+    out = np.zeros((N_SHADING, N_SHADING))
+    out[3:, 3:] = weight * (beyond.T @ beyond)
+    return out
+
+
+def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0):
     """Centre (u, v) of a ball of known outline and motion blur (``ball``, a
     :class:`BallImage`) in the grey patch ``grey`` (float; ``start``, ``ball``'s outline and
     blur in the patch's pixel coordinates), fitted from ``start``, and the sum of the squared
-    residuals; or None when the fit fails (or ends more than a radius from ``start``).
+    residuals and the curvature penalty; or None when the fit fails (or ends more than a
+    radius from ``start``).
 
     Each pixel is modelled as the background (``background``) where the ball does not cover
     it and the ball's own brightness where it does, mixed in proportion to the coverage,
@@ -260,7 +282,11 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
     there, so a shaded side as dark as the background behind it carries no weight and does
     not pull the centre: the known outline places the centre from the sides that are seen.
     ``usable`` (bool, the patch's shape): pixels that may be used (not a shadow). ``grey``
-    and ``background`` in proportion to light (the camera's response undone)."""
+    and ``background`` in proportion to light (the camera's response undone).
+
+    ``curvature_weight`` > 0 adds the penalty s^T W s of :func:`curvature_penalty` (W from
+    the pixels' basis at ``start``) to the squared residuals: a ridge on the brightness's
+    curvature beyond a linear shading (:attr:`DetectorConfig.curvature_weight`)."""
     ys, xs = np.nonzero(usable)
     if xs.size < 12:
         return None
@@ -271,13 +297,24 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
     centre = np.array(start, float)
     whitening = _whiten(ball.outline)
     cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
-    shading = np.linalg.lstsq(basis, obs - bg * (1.0 - cover), rcond=None)[0]
+    penalty = np.zeros((N_SHADING + 2, N_SHADING + 2))
+    if curvature_weight > 0.0:
+        penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
+    ridge = penalty[:N_SHADING, :N_SHADING]
+    try:
+        shading = np.linalg.solve(basis.T @ basis + ridge,
+                                  basis.T @ (obs - bg * (1.0 - cover)))
+    except np.linalg.LinAlgError:
+        shading = np.linalg.lstsq(basis, obs - bg * (1.0 - cover), rcond=None)[0]
     for _ in range(iterations):
-        # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading.
+        # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading,
+        # minimising |res|^2 + shading^T W shading.
         res = obs - bg * (1.0 - cover) - basis @ shading
         jac = np.concatenate([basis, dbasis @ shading - bg[:, None] * dcover], axis=1)
+        gradient = jac.T @ res
+        gradient[:N_SHADING] -= ridge @ shading
         try:
-            step = np.linalg.solve(jac.T @ jac, jac.T @ res)
+            step = np.linalg.solve(jac.T @ jac + penalty, gradient)
         except np.linalg.LinAlgError:
             return None
         move = step[N_SHADING:]
@@ -294,7 +331,7 @@ def fit_outline(grey, background, usable, start, ball, iterations=6):
     scale = np.sqrt(abs(np.linalg.det(ball.outline)))
     if not np.all(np.isfinite(centre)) or np.hypot(*(centre - start)) > max(scale, 1.0):
         return None
-    return centre, float(res @ res)
+    return centre, float(res @ res + shading @ ridge @ shading)
 
 
 def warm_up():
@@ -508,17 +545,21 @@ class BallDetector:
         if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
             grey = 255.0 * (grey * (1.0 / 255.0)) ** gamma
             background = 255.0 * (background * (1.0 / 255.0)) ** gamma
-        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball)
+        weight = self.config.curvature_weight
+        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball,
+                           curvature_weight=weight)
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
-            fit = fit_outline(grey, background, usable, predicted, ball)
+            fit = fit_outline(grey, background, usable, predicted, ball,
+                              curvature_weight=weight)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
         if search:
             step = SEARCH_STEP * np.sqrt(abs(np.linalg.det(ball.outline)))
             for du, dv in SEARCH_OFFSETS:
                 fit = fit_outline(grey, background, usable,
-                                  (u - ax + step * du, v - ay + step * dv), ball)
+                                  (u - ax + step * du, v - ay + step * dv), ball,
+                                  curvature_weight=weight)
                 if fit is not None and (best is None or fit[1] < best[1]):
                     best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)

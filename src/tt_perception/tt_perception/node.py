@@ -85,6 +85,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      1e-5, 0.1),
     ('response_gamma', 1.0, "Cameras' response: pixel = 255 (light / full)^(1/gamma); 1 linear, "
      'about 2.2 for sRGB-like webcams', '', 1.0, 3.0),
+    ('curvature_weight', 1.0, "Penalty of the outline fit on the ball's brightness curving "
+     'beyond a linear shading (0: a free quadratic, for a single compact light with no '
+     'ambient)', '', 0.0, 100.0),
     ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
@@ -204,7 +207,8 @@ class PerceptionNode(Node):
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
-            response_gamma=self._p('response_gamma'))
+            response_gamma=self._p('response_gamma'),
+            curvature_weight=self._p('curvature_weight'))
         filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
