@@ -73,6 +73,28 @@ def test_ball_over_a_white_line_is_flagged():
     assert found[0].v < 57.0 - 0.2        # the part over the line is lost: biased centre
 
 
+@pytest.mark.parametrize('change, kept, sure', [
+    ((+40, +60, +205), True, True),       # an orange ball: red well above blue
+    ((+45, +46, +54), True, False),       # a small orange ball whose chroma JPEG washed out
+    ((+60, +30, +5), False, False),       # bluish: not an orange ball, whatever its size
+], ids=['orange', 'washed-out', 'bluish'])
+def test_a_washed_out_orange_blob_is_kept_but_not_sure_of_its_colour(change, kept, sure):
+    """In orange mode a blob of the ball's colour is a sure candidate; one whose colour only
+    does not contradict it (grey, adding red at least as much as blue and green) is kept,
+    marked not sure (the pipeline pairs it only with a camera that is sure); a colour that
+    does contradict it is dropped."""
+    table = np.array([95, 60, 25], np.uint8)                   # B, G, R
+    d = BallDetector(DetectorConfig(colour='orange'))
+    frame = np.tile(table, (120, 160, 1))
+    d.detect(frame.copy())
+    colour = tuple(int(c) for c in np.clip(table.astype(int) + change, 0, 255))
+    cv2.circle(frame, (80, 60), 5, colour, -1)
+    found = d.detect(frame)
+    assert len(found) == int(kept)
+    if kept:
+        assert found[0].colour_sure is sure and abs(found[0].u - 80) < 0.5
+
+
 def test_shading_and_a_contact_shadow_do_not_move_the_centre():
     """Overhead light: a bright top, an underside dimmer than the threshold in grey but of
     another colour than the blue table, and a shadow below it: the centre stays the disc's."""

@@ -219,6 +219,27 @@ def test_hall_light_at_1280x720_meets_every_line_of_the_issue():
     assert_spin_across_within_20_percent_and_degrees(truth, estimates, pairs)
 
 
+def test_a_point_needs_one_camera_sure_of_the_colour():
+    """Two cameras' detections of the same ball triangulate to a point when at least one of
+    them is sure of the ball's colour, and to none when neither is (a washed-out blob in
+    each view may be anything of that brightness)."""
+    rig = synth.demo_rig()
+    pipe = Pipeline(rig)
+    ball = np.array([0.5, 0.1, 0.3])
+    dets = []
+    for cam in rig.cameras:
+        x, y = cam.normalise(cam.project(ball[None]))[0]
+        width = 2.0 * cam.focal * 0.02 / (cam.R @ ball + cam.t)[2]
+        dets.append(np.array([x, y, width, 0.0, x, y, 1.0]))
+    sure = pipe._points([[dets[0]], [dets[1]]])
+    assert len(sure) == 1 and np.allclose(sure[0][0][0], ball, atol=1e-6)
+    unsure = [d.copy() for d in dets]
+    for d in unsure:
+        d[6] = 0.0
+    assert pipe._points([[unsure[0]], [unsure[1]]]) == []
+    assert len(pipe._points([[dets[0]], [unsure[1]]])) == 1
+
+
 def test_two_balls_get_two_tracks():
     rig = synth.demo_rig()
     a = synth.incoming_ball(speed=9.0, y0=0.3, target=(-0.6, 0.3))

@@ -77,6 +77,7 @@ def detections_per_camera(rig, frames, colours):
     for t, k, frame in frames:
         for c in colours:
             dets = detectors[c][k].detect(frame) if frame is not None else []
+            dets = [d for d in dets if d.colour_sure]
             if len(dets) == 1:
                 found[c][k][0].append(t)
                 found[c][k][1].append(rig.cameras[k].normalise([[dets[0].u, dets[0].v]])[0])

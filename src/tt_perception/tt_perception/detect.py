@@ -95,6 +95,11 @@ class Detection:
     blob_u: float = math.nan
     blob_v: float = math.nan
     """The blob's own centre (the silhouette's centroid), pixels: (u, v) unless ``fitted``."""
+    colour_sure: bool = True
+    """The blob's colour is the ball's. False: it only does not contradict it
+    (:func:`colour_possible`: an orange ball a few pixels across whose colour JPEG's halved
+    chroma resolution washed out); the pipeline uses such a candidate only together with a
+    camera that is sure."""
 
 
 @dataclasses.dataclass
@@ -127,6 +132,17 @@ def colour_matches(bgr, colour, change=None):
         db, dg, dr = (float(c) for c in change)
         return dr > 30.0 and dr > 1.6 * max(db, 0.0) + 10.0 and dr > dg
     return True
+
+
+def colour_possible(change, colour):
+    """True when a blob whose mean colour is not the ``colour`` ball's (:func:`colour_matches`)
+    may still be that ball: for an orange ball, a ``change`` against the background (B, G, R)
+    that adds red at least as much as blue or green, less 10 grey levels (a ball of 2-3 px
+    radius behind JPEG 4:2:0 is grey, e.g. +43, +46, +54). Never for a white ball."""
+    if colour != 'orange' or change is None:
+        return False
+    db, dg, dr = (float(c) for c in change)
+    return dr > 0.0 and dr >= max(db, dg) - 10.0
 
 
 def _width_from_moments(cxx, cyy, cxy):
@@ -441,6 +457,7 @@ class BallDetector:
                                         shape['mu11'] / area)
             if width > cfg.max_width:
                 continue
+            sure = True
             if cfg.colour != 'any' and frame.ndim == 3:
                 # The colour of the lit half of the blob: the shaded half and the outline
                 # take the background's colour (JPEG's halved chroma resolution spreads it).
@@ -453,7 +470,9 @@ class BallDetector:
                     bg = self._bg_colour[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
                     change = np.asarray(colour) - cv2.mean(bg, mask=lit)[:3]
                 if not colour_matches(colour, cfg.colour, change):
-                    continue
+                    if not colour_possible(change, cfg.colour):
+                        continue
+                    sure = False
             if self._bg_colour is not None and frame.ndim == 3:
                 cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
                 cu, cv = cu - x0, cv - y0
@@ -465,8 +484,8 @@ class BallDetector:
             out.append(Detection(float(u), float(v), float(area), float(width),
                                  float(total / area),
                                  self._hidden(frame, sub, x0 + bx, y0 + by),
-                                 fitted is not None, blob_u, blob_v))
-        out.sort(key=lambda d: -d.strength * d.area)
+                                 fitted is not None, blob_u, blob_v, sure))
+        out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
         return out[:cfg.max_candidates]
 
     def _silhouette_centre(self, frame, sub, x0, y0):

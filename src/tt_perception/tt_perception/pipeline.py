@@ -424,7 +424,7 @@ class Pipeline:
             return []
         xy = cam.normalise(np.array([[d.u, d.v] for d in dets]))
         blob = cam.normalise(np.array([[d.blob_u, d.blob_v] for d in dets]))
-        return [np.array([x, y, d.width, d.hidden, bx, by])
+        return [np.array([x, y, d.width, d.hidden, bx, by, float(d.colour_sure)])
                 for (x, y), (bx, by), d in zip(xy, blob, dets, strict=True)]
 
     def _points(self, group, blobs=True):
@@ -437,8 +437,8 @@ class Pipeline:
         points = []
         for combo in itertools.product(*options):
             used = [k for k, d in enumerate(combo) if d is not None]
-            if len(used) < 2:
-                continue
+            if len(used) < 2 or not any(combo[k][6] > 0.0 for k in used):
+                continue          # no camera sure of the ball's colour (Detection.colour_sure)
             cams = [self.cameras[k] for k in used]
             obs = np.array([combo[k] for k in used])
             point = self._point(cams, obs[:, :2], obs)
