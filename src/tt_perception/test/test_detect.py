@@ -148,7 +148,8 @@ def lit_ball(centre, radius, blur, light, size=(60, 80), ss=8, steps=16):
 def fitted_and_plain_errors(light, radii=(3.0, 4.0, 6.0), n=5, seed=0, curvature_weight=0.0):
     """Errors (px) of the outline fit and of the plain (silhouette) centre on lit balls at
     sub-pixel centres, blurred by a radius along random directions; the fit's penalty on the
-    brightness's curvature is ``curvature_weight`` (:class:`DetectorConfig`)."""
+    brightness's curvature is ``curvature_weight`` (:class:`DetectorConfig`). The renders
+    are sharp (no camera blur): the detector is told so (``image_blur`` 0)."""
     rng = np.random.default_rng(seed)
     fitted, plain = [], []
     for radius in radii:
@@ -157,7 +158,8 @@ def fitted_and_plain_errors(light, radii=(3.0, 4.0, 6.0), n=5, seed=0, curvature
             angle = rng.uniform(0.0, np.pi)
             blur = radius * np.array([np.cos(angle), np.sin(angle)])
             frame = lit_ball(centre, radius, blur, light)
-            d = BallDetector(DetectorConfig(colour='any', curvature_weight=curvature_weight))
+            d = BallDetector(DetectorConfig(colour='any', curvature_weight=curvature_weight,
+                                            image_blur=0.0))
             d.detect(np.full_like(frame, TABLE.astype(np.uint8)))
             found = d.detect(frame, update_background=False)
             # The prediction is a third of a pixel off; the outline and blur are exact.

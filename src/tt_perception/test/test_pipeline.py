@@ -14,10 +14,13 @@ TOPSPIN_RPS = 40.0     # |w_perp| >= 30 rps, as the issue asks
 FILTER_SETTLE = 0.05   # s after a track's start (and after a bounce) before velocity is judged
 
 
-def run(rig, frames, colour='any', response_gamma=1.0, curvature_weight=None, **kwargs):
+def run(rig, frames, colour='any', response_gamma=1.0, curvature_weight=None, image_blur=None,
+        **kwargs):
     detector = DetectorConfig(colour=colour, response_gamma=response_gamma)
     if curvature_weight is not None:
         detector.curvature_weight = curvature_weight
+    if image_blur is not None:
+        detector.image_blur = image_blur
     pipe = Pipeline(rig, detector_config=detector, **kwargs)
     estimates, errors = [], []
     for t, k, frame in frames:
@@ -323,7 +326,8 @@ def test_the_cameras_response_undone_removes_the_height_bias_it_causes(webcam_sc
     as L^(1/2.2) mixes their values unevenly, which moves the fitted outline where only the
     lit top of the ball stands out (its underside is as dark as the table). Told the
     camera's response (response_gamma), the detector undoes it and meets the issue's limits
-    (RMS <= 1.5 mm, mean error within 0.3 mm per axis); not told, the centre is fitted high."""
+    (RMS <= 1.5 mm, mean error within 0.3 mm per axis); not told, the centre is fitted high,
+    beyond that limit."""
     rig, frames, truth, gamma = webcam_scene
     estimates, _ = run(rig, frames, colour='white', response_gamma=gamma if undone else 1.0)
     pairs = matched(estimates, truth)
@@ -354,19 +358,26 @@ def test_small_balls_are_placed_by_the_outline_not_by_a_curved_shading(small_bal
     is as dark as the table, a free quadratic brightness lets the fitted outline slide toward
     the lit top (a second minimum of the fit 0.4 radius up, in about 40 % of the frames at
     4 px radius): the height is then millimetres off. With the default penalty on the
-    brightness's curvature (``DetectorConfig.curvature_weight``) the flight meets the
-    issue's 1.5 mm RMS, under a third of the error without it."""
+    brightness's curvature (``curvature_weight``) the flight meets the issue's 1.5 mm RMS,
+    under half the error without it. What the penalty leaves is the lean of a sharp outline
+    toward the blurred lit top (height mean above 0.3 mm); with the camera's blur modelled
+    (``image_blur`` 0.4 px, this renderer's cameras blur 0.5-0.8 px) the mean is within the
+    issue's 0.3 mm too."""
     rig, frames, truth, gamma = small_ball_scene
-    rms = {}
-    for weight in (None, 0.0):
+    rms, mean = {}, {}
+    for weight, blur in ((None, None), (0.0, None), (None, 0.4)):
         estimates, _ = run(rig, frames, colour='white', response_gamma=gamma,
-                           curvature_weight=weight)
+                           curvature_weight=weight, image_blur=blur)
         pairs = matched(estimates, truth)
         assert len(pairs) == len(estimates) > 50
         err = np.array([e.state[:3] - s[:3] for e, s in pairs])
-        rms[weight] = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
-    assert rms[None] <= 1.5e-3
-    assert rms[0.0] > 2.0 * rms[None]
+        rms[weight, blur] = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
+        mean[weight, blur] = err.mean(axis=0)
+    assert rms[None, None] <= 1.5e-3
+    assert rms[0.0, None] > 2.0 * rms[None, None]
+    assert mean[None, None][2] > 0.3e-3
+    assert rms[None, 0.4] <= 1.5e-3
+    assert np.all(np.abs(mean[None, 0.4]) <= 0.3e-3), mean[None, 0.4]
 
 
 def test_a_tracks_first_states_are_as_accurate_as_the_later_ones(webcam_scene):

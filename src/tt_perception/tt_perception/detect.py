@@ -73,6 +73,15 @@ class DetectorConfig:
     fitted outline slide toward the lit side where the shaded side is invisible (a second
     minimum 0.4 radius up, docs/perception.md). 0: a free quadratic, the least biased under
     a single compact light with no ambient (a sharp terminator)."""
+    image_blur: float = 0.0
+    """The camera's own blur across an edge, pixels: the standard deviation of a Gaussian
+    point spread (a Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's
+    outline by the fit. On a ball 3-4 px in radius an unmodelled blur of the lit top edge
+    moves the fitted centre toward it by 0.1-0.2 px. 0: a sharp camera (the ramp of one
+    sub-sample). Measured from the background's edges: the independent renderer's Bayer +
+    JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px. 0.4 on the former takes 640x480 balls
+    within the issue's limits (docs/perception.md) but makes a fit 60 % slower: off by
+    default, for the camera-rate budget."""
 
 
 @dataclasses.dataclass
@@ -169,7 +178,7 @@ SEARCH_OFFSETS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
 
 @njit(cache=True, nogil=True)
-def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, cover, dcover, basis, dbasis):
+def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis):
     """Kernel of :func:`ball_model`: fills ``cover`` (P,), ``basis`` (P, N_SHADING) and their
     derivatives with respect to the centre, ``dcover`` (P, 2) and ``dbasis`` (P, 2, N_SHADING)."""
     inv = 1.0 / (steps * sub * sub)
@@ -194,14 +203,25 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, cover, dcover, basis, dbasis)
                     gy = a[0, 1] * wx + a[1, 1] * wy
                     g = np.sqrt(gx * gx + gy * gy)
                     along = norm / g if g > 1e-9 else mean_radius
-                    c = 0.5 - (norm - 1.0) * along * sub
-                    if c <= 0.0:
-                        continue
-                    # d c / d centre: the outline's unit normal, times the ramp's slope.
-                    if c < 1.0 and g > 1e-9:
-                        dcx, dcy = sub * gx / g, sub * gy / g
+                    if psf > 0.0:
+                        z = (norm - 1.0) * along / psf
+                        if z >= 3.0:
+                            continue
+                        if z > -3.0 and g > 1e-9:
+                            c = 0.5 * math.erfc(z * 0.7071067811865476)
+                            slope = math.exp(-0.5 * z * z) * 0.3989422804014327 / psf
+                            dcx, dcy = slope * gx / g, slope * gy / g
+                        else:
+                            c, dcx, dcy = 1.0, 0.0, 0.0
                     else:
-                        c, dcx, dcy = min(c, 1.0), 0.0, 0.0
+                        c = 0.5 - (norm - 1.0) * along * sub
+                        if c <= 0.0:
+                            continue
+                        # d c / d centre: the outline's unit normal, times the ramp's slope.
+                        if c < 1.0 and g > 1e-9:
+                            dcx, dcy = sub * gx / g, sub * gy / g
+                        else:
+                            c, dcx, dcy = min(c, 1.0), 0.0, 0.0
                     # d w / d centre = -A; an outline sample takes the limb's w / |w|.
                     d00, d01, d10, d11 = -a[0, 0], -a[0, 1], -a[1, 0], -a[1, 1]
                     if norm > 1.0:
@@ -245,7 +265,7 @@ def _whiten(outline):
     return (vecs / np.sqrt(vals)) @ vecs.T
 
 
-def ball_model(xs, ys, centre, ball, whitening=None):
+def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     """The image of the ball ``ball`` (:class:`BallImage`) with its centre at ``centre`` at
     mid-exposure, at the pixels (xs, ys) (1-D float arrays of pixel centres): its mean
     coverage of each pixel over the exposure (P,) and the basis (P, 6) of its brightness,
@@ -257,7 +277,10 @@ def ball_model(xs, ys, centre, ball, whitening=None):
     each covered by clip(0.5 - SUBPIXELS s) of its signed distance s to the outline. The
     ball's brightness is a quadratic over its image (in offsets from the centre scaled to
     the outline; an outline sample takes the outline's brightness), whatever the light.
-    ``whitening``: :func:`_whiten` of the outline, when computed already."""
+    ``whitening``: :func:`_whiten` of the outline, when computed already. ``image_blur`` >
+    0: the camera's own blur (demosaicing, compression, lens), a Gaussian of that standard
+    deviation in pixels across the outline: each sample is covered by Phi(-s / image_blur)
+    of its signed distance s instead of the ramp."""
     blur = ball.blur
     steps = max(1, int(np.ceil(np.hypot(blur[0], blur[1]) / BLUR_STEP)))
     n = xs.size
@@ -266,7 +289,8 @@ def ball_model(xs, ys, centre, ball, whitening=None):
     if whitening is None:
         whitening = _whiten(ball.outline)
     _render(xs, ys, float(centre[0]), float(centre[1]), whitening,
-            float(blur[0]), float(blur[1]), steps, SUBPIXELS, cover, dcover, basis, dbasis)
+            float(blur[0]), float(blur[1]), steps, SUBPIXELS, float(image_blur), cover, dcover,
+            basis, dbasis)
     return cover, basis, dcover, dbasis
 
 
@@ -283,7 +307,8 @@ def curvature_penalty(basis, weight):
     return out
 
 
-def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0):
+def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0,
+                image_blur=0.0):
     """Centre (u, v) of a ball of known outline and motion blur (``ball``, a
     :class:`BallImage`) in the grey patch ``grey`` (float; ``start``, ``ball``'s outline and
     blur in the patch's pixel coordinates), fitted from ``start``, and the sum of the squared
@@ -302,7 +327,8 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
 
     ``curvature_weight`` > 0 adds the penalty s^T W s of :func:`curvature_penalty` (W from
     the pixels' basis at ``start``) to the squared residuals: a ridge on the brightness's
-    curvature beyond a linear shading (:attr:`DetectorConfig.curvature_weight`)."""
+    curvature beyond a linear shading (:attr:`DetectorConfig.curvature_weight`).
+    ``image_blur``: the camera's blur, px (:func:`ball_model`)."""
     ys, xs = np.nonzero(usable)
     if xs.size < 12:
         return None
@@ -312,7 +338,7 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
 
     centre = np.array(start, float)
     whitening = _whiten(ball.outline)
-    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
+    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening, image_blur)
     penalty = np.zeros((N_SHADING + 2, N_SHADING + 2))
     if curvature_weight > 0.0:
         penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
@@ -340,7 +366,7 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
             move = step[N_SHADING:]
         shading = shading + step[:N_SHADING]
         centre = centre + move
-        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening)
+        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening, image_blur)
         if length < CONVERGED:
             break
     res = obs - bg * (1.0 - cover) - basis @ shading
@@ -564,21 +590,19 @@ class BallDetector:
         if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
             grey = 255.0 * (grey * (1.0 / 255.0)) ** gamma
             background = 255.0 * (background * (1.0 / 255.0)) ** gamma
-        weight = self.config.curvature_weight
-        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball,
-                           curvature_weight=weight)
+        options = {'curvature_weight': self.config.curvature_weight,
+                   'image_blur': self.config.image_blur}
+        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball, **options)
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
-            fit = fit_outline(grey, background, usable, predicted, ball,
-                              curvature_weight=weight)
+            fit = fit_outline(grey, background, usable, predicted, ball, **options)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
         if search:
             step = SEARCH_STEP * np.sqrt(abs(np.linalg.det(ball.outline)))
             for du, dv in SEARCH_OFFSETS:
                 fit = fit_outline(grey, background, usable,
-                                  (u - ax + step * du, v - ay + step * dv), ball,
-                                  curvature_weight=weight)
+                                  (u - ax + step * du, v - ay + step * dv), ball, **options)
                 if fit is not None and (best is None or fit[1] < best[1]):
                     best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)

@@ -88,6 +88,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('curvature_weight', 1.0, "Penalty of the outline fit on the ball's brightness curving "
      'beyond a linear shading (0: a free quadratic, for a single compact light with no '
      'ambient)', '', 0.0, 100.0),
+    ('image_blur', 0.0, "The cameras' own blur across an edge (demosaicing, JPEG, lens), a "
+     'Gaussian standard deviation; 0: sharp', 'pixels', 0.0, 5.0),
     ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
@@ -208,7 +210,7 @@ class PerceptionNode(Node):
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
-            curvature_weight=self._p('curvature_weight'))
+            curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'))
         filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
