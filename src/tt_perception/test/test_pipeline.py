@@ -16,11 +16,11 @@ FILTER_SETTLE = 0.05   # s after a track's start (and after a bounce) before vel
 
 def run(rig, frames, colour='any', response_gamma=1.0, curvature_weight=None, image_blur=None,
         **kwargs):
-    detector = DetectorConfig(colour=colour, response_gamma=response_gamma)
-    if curvature_weight is not None:
-        detector.curvature_weight = curvature_weight
-    if image_blur is not None:
-        detector.image_blur = image_blur
+    """The pipeline over ``frames``: (estimates, errors). ``curvature_weight`` and
+    ``image_blur``: DetectorConfig's, its defaults when None."""
+    given = {'curvature_weight': curvature_weight, 'image_blur': image_blur}
+    detector = DetectorConfig(colour=colour, response_gamma=response_gamma,
+                              **{k: v for k, v in given.items() if v is not None})
     pipe = Pipeline(rig, detector_config=detector, **kwargs)
     estimates, errors = [], []
     for t, k, frame in frames:
@@ -68,17 +68,22 @@ def test_position_rms_within_2_mm(white_scene):
     assert np.sqrt(np.mean(err ** 2)) <= 2e-3
 
 
-def test_velocity_within_5_cm_per_s_after_50_ms(white_scene):
-    truth, estimates = white_scene
+def assert_velocity_within_5_cm_per_s_after_50_ms(truth, estimates, pairs):
+    """Issue 15's velocity line on ``pairs`` (estimate, true state): from FILTER_SETTLE after
+    the track's first state, the FILTER_SETTLE after the bounce left out (the velocity then
+    depends on the spin along the incoming velocity, which flight cannot observe: the filter
+    needs the same settling time after it as after the start)."""
     bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
-    start = estimates[0].t
-    # After a bounce the velocity depends on the spin along the incoming velocity, which flight
-    # cannot observe: the filter needs the same settling time after it as after the start.
-    judged = [(e, s) for e, s in matched(estimates, truth)
+    start = min(e.t for e in estimates)
+    judged = [(e, s) for e, s in pairs
               if e.t >= start + FILTER_SETTLE and not bounce <= e.t < bounce + FILTER_SETTLE]
     assert len(judged) > 40
-    err = max(np.linalg.norm(e.state[3:6] - s[3:6]) for e, s in judged)
-    assert err <= 0.05
+    assert max(np.linalg.norm(e.state[3:6] - s[3:6]) for e, s in judged) <= 0.05
+
+
+def test_velocity_within_5_cm_per_s_after_50_ms(white_scene):
+    truth, estimates = white_scene
+    assert_velocity_within_5_cm_per_s_after_50_ms(truth, estimates, matched(estimates, truth))
 
 
 def test_one_track_and_nothing_from_the_distractor(white_scene):
@@ -156,6 +161,9 @@ def test_orange_ball_with_unsynchronised_cameras():
     assert np.sqrt(np.mean(err ** 2)) <= 2e-3
 
 
+HALL_EXPOSURE = 2e-3
+
+
 def hall_run(width, height):
     """A white ball (8 m/s, 40 rps topspin, 10 rps sidespin) under synth's 'hall' imaging
     (overhead light with a highlight, contact shadow, shot noise, JPEG q30, 2 ms blur):
@@ -167,9 +175,6 @@ def hall_run(width, height):
     estimates, _ = run(rig, frames, colour='white')
     seen = synth.both_cameras_see(rig, truth[0], rendered_from=0.5 * HALL_EXPOSURE).sum()
     return truth[0], estimates, matched(estimates, truth[0]), seen
-
-
-HALL_EXPOSURE = 2e-3
 
 
 def test_hall_light_one_track_and_no_shading_bias_beyond_a_twentieth_of_the_ball():
@@ -213,12 +218,7 @@ def test_hall_light_at_1280x720_meets_every_line_of_the_issue():
     err = np.array([e.state[:3] - s[:3] for e, s in pairs])
     assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) <= 1.5e-3
     assert np.all(np.abs(err.mean(axis=0)) <= 0.3e-3), err.mean(axis=0)
-    bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
-    start = min(e.t for e in estimates)
-    judged = [(e, s) for e, s in pairs
-              if e.t >= start + FILTER_SETTLE and not bounce <= e.t < bounce + FILTER_SETTLE]
-    assert len(judged) > 40
-    assert max(np.linalg.norm(e.state[3:6] - s[3:6]) for e, s in judged) <= 0.05
+    assert_velocity_within_5_cm_per_s_after_50_ms(truth, estimates, pairs)
     assert_spin_across_within_20_percent_and_degrees(truth, estimates, pairs)
 
 
