@@ -229,3 +229,35 @@ def test_expected_ball_image_is_the_projection_of_the_sphere():
             # The support of the ellipse {d: d^T a d = 1} along e.
             support = np.sqrt(e @ np.linalg.inv(a) @ e)
             assert abs(reach - support) < 0.01 * support
+
+
+@pytest.mark.parametrize('radius, image_blur', [(3.2, 0.3), (3.2, 0.6), (6.5, 0.4)])
+def test_a_blurred_outline_covers_each_pixel_as_a_gaussian_edge_averaged_over_it(
+        radius, image_blur):
+    """With ``image_blur`` the model's coverage of a pixel is that of a disc whose edge is
+    spread by a Gaussian of that standard deviation, averaged over the pixel's area: here
+    integrated directly (40 x 40 points per pixel), and the coverage's derivative with
+    respect to the centre is that integral's. (The model samples each pixel once, with the
+    pixel's width in the Gaussian: within 2 % of a pixel, 7 % of the derivative's peak.)"""
+    from scipy.stats import norm
+    from tt_perception.detect import ball_model
+    centre = np.array([10.3, 9.8])
+    ys, xs = np.mgrid[0:21, 0:21]
+    xs, ys = xs.ravel().astype(float), ys.ravel().astype(float)
+    offsets = (np.arange(40) + 0.5) / 40 - 0.5
+
+    def integrated(c):
+        px = xs[:, None, None] + offsets[None, None, :] - c[0]
+        py = ys[:, None, None] + offsets[None, :, None] - c[1]
+        return norm.cdf((radius - np.hypot(px, py)) / image_blur).mean(axis=(1, 2))
+
+    ball = BallImage(centre[0], centre[1], np.eye(2) * radius, np.zeros(2))
+    cover, _, dcover, _ = ball_model(xs, ys, centre, ball, image_blur=image_blur)
+    truth = integrated(centre)
+    assert np.abs(cover - truth).max() < 0.02
+    assert abs(cover.sum() - truth.sum()) < 0.015 * truth.sum()      # the ball's area
+    h = 1e-3
+    for axis in range(2):
+        step = np.eye(2)[axis] * h
+        slope = (integrated(centre + step) - integrated(centre - step)) / (2 * h)
+        assert np.abs(dcover[:, axis] - slope).max() < 0.07 * np.abs(slope).max()

@@ -279,8 +279,9 @@ def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     the outline; an outline sample takes the outline's brightness), whatever the light.
     ``whitening``: :func:`_whiten` of the outline, when computed already. ``image_blur`` >
     0: the camera's own blur (demosaicing, compression, lens), a Gaussian of that standard
-    deviation in pixels across the outline: each sample is covered by Phi(-s / image_blur)
-    of its signed distance s instead of the ramp."""
+    deviation in pixels across the outline: each pixel is sampled once, at its centre,
+    covered by Phi(-s / sqrt(image_blur^2 + 1/12)) of its signed distance s (the camera's
+    blur and the pixel's width) instead of the ramps."""
     blur = ball.blur
     steps = max(1, int(np.ceil(np.hypot(blur[0], blur[1]) / BLUR_STEP)))
     n = xs.size
@@ -288,9 +289,14 @@ def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     if whitening is None:
         whitening = _whiten(ball.outline)
+    if image_blur > 0.0:
+        # One sample per pixel, at its centre: a Gaussian edge averaged over the pixel's
+        # width is close to a Gaussian of the variances' sum (the box's: 1/12 px^2).
+        sub, spread = 1, math.sqrt(image_blur ** 2 + 1.0 / 12.0)
+    else:
+        sub, spread = SUBPIXELS, 0.0
     _render(xs, ys, float(centre[0]), float(centre[1]), whitening,
-            float(blur[0]), float(blur[1]), steps, SUBPIXELS, float(image_blur), cover, dcover,
-            basis, dbasis)
+            float(blur[0]), float(blur[1]), steps, sub, spread, cover, dcover, basis, dbasis)
     return cover, basis, dcover, dbasis
 
 
