@@ -21,6 +21,10 @@ settings at their defaults) and is scored against the renderer's truth:
 - ``position_rms_mm``, ``mean_error_mm`` (x, y, z), ``position_max_mm``;
 - ``velocity_max_err_m_s``: the largest velocity error 50 ms or more after the track's first
   state and outside the 50 ms after a bounce (as bench_perception's ``accuracy``);
+  ``velocity_max_err_ideal_detector_m_s``: the same number for ideal detectors that see the
+  true centre with 0.1 and 0.2 px of white noise, through the same triangulation and
+  tracker (median and p90 over 10 draws): the reference the pipeline's number is read
+  against, as the tracker cannot know the spin at a track's start;
 - ``tracks``: distinct track ids; ``stray_states``: states farther than 5 cm from the ball.
 
 A distractor scene per colour and size has no flying ball: a racket-sized disc of the ball's
@@ -47,7 +51,8 @@ import time
 import cv2
 import numpy as np
 from tt_perception.detect import DetectorConfig
-from tt_perception.pipeline import Pipeline
+from tt_perception.pipeline import Pipeline, Tracker
+from tt_perception.triangulate import triangulate
 
 from tt_perception import synth
 
@@ -79,6 +84,9 @@ T_BEGIN, T_END = -0.2, 0.8
 """Scene interval, s (the ball is launched at 0)."""
 SETTLE = 0.05
 STRAY = 0.05
+IDEAL_PIXEL_NOISE = (0.1, 0.2)
+"""Pixel noise of the ideal detectors of :func:`ideal_detector_velocity`, px."""
+IDEAL_DRAWS = 10
 
 
 CAMERA_GAMMA = scene.Sensor().gamma
@@ -92,6 +100,61 @@ def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA):
     for t, k, frame in frames:
         estimates += pipe.process(t, k, frame)
     return estimates
+
+
+def judged_for_velocity(estimates, bounce_times):
+    """Mask of the estimates the velocity limit judges: SETTLE or more after their track's
+    first state, outside the SETTLE after a bounce."""
+    start = {}
+    for e in estimates:
+        start.setdefault(e.track_id, e.t)
+    t = np.array([e.t for e in estimates])
+    out = t >= np.array([start[e.track_id] for e in estimates]) + SETTLE
+    for b in bounce_times:
+        out &= ~((t >= b) & (t < b + SETTLE))
+    return out
+
+
+def ideal_detector_velocity(rig, flight, pixel_noise, draws=IDEAL_DRAWS):
+    """The velocity limit's number for a detector that sees the ball's true centre in every
+    frame of camera 0's clock with white Gaussian pixel noise of ``pixel_noise`` (px, per
+    axis) and nothing else: the same triangulation and :class:`Tracker` as the pipeline
+    (its defaults), the largest velocity error judged (:func:`judged_for_velocity`), median
+    and 90th percentile over ``draws`` noise draws, m/s. What the tracker can give with the
+    information such a detector has (the spin, unknown at the start, seen only through the
+    Magnus curvature), against which the pipeline's own number is read."""
+    times = np.arange(0.0, T_END, 1.0 / rig.fps)
+    states = flight.state(times)
+    worst = []
+    for draw in range(draws):
+        rng = np.random.default_rng(draw)
+        tracker = Tracker(rig.fps)
+        estimates = []
+        for t, s in zip(times, states, strict=True):
+            X = s[:3]
+            if not np.all(np.isfinite(X)) or not all(c.in_front(X[None])[0]
+                                                      for c in rig.cameras):
+                continue
+            uv = [c.project(X[None])[0] + rng.normal(0.0, pixel_noise, 2) for c in rig.cameras]
+            if not all(0.0 <= p[0] < c.width and 0.0 <= p[1] < c.height
+                       for p, c in zip(uv, rig.cameras, strict=True)):
+                continue
+            normalised = np.array([c.normalise(p[None])[0]
+                                   for p, c in zip(uv, rig.cameras, strict=True)])
+            found = triangulate(rig.cameras, normalised, tracker.config.pixel_sigma,
+                                tracker.config.max_reprojection)
+            if found is None:
+                continue
+            point = found[:2]
+            tracker.advance(t)
+            estimates += tracker.add(t, [(point, point)])
+        judged = judged_for_velocity(estimates, flight.bounce_times)
+        t = np.array([e.t for e in estimates])
+        err = np.linalg.norm(np.array([e.state[3:6] for e in estimates])
+                             - flight.state(t)[:, 3:6], axis=1)
+        worst.append(float(err[judged].max()))
+    return {'median': round(float(np.median(worst)), 4),
+            'p90': round(float(np.percentile(worst, 90)), 4)}
 
 
 def score(rig, estimates, flight, truth):
@@ -117,13 +180,7 @@ def score(rig, estimates, flight, truth):
     out['position_rms_mm'] = round(float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))) * 1e3, 4)
     out['mean_error_mm'] = [round(float(v) * 1e3, 4) for v in e.mean(axis=0)]
     out['position_max_mm'] = round(float(dist[ball].max()) * 1e3, 4)
-    start = {}
-    for est_ in estimates:
-        start.setdefault(est_.track_id, est_.t)
-    t0 = np.array([start[est_.track_id] for est_ in estimates])
-    settled = ball & (t >= t0 + SETTLE)
-    for b in flight.bounce_times:
-        settled &= ~((t >= b) & (t < b + SETTLE))
+    settled = ball & judged_for_velocity(estimates, flight.bounce_times)
     verr = np.linalg.norm(est[:, 3:6] - true[:, 3:6], axis=1)
     if settled.any():
         out['velocity_max_err_m_s'] = round(float(verr[settled].max()), 4)
@@ -223,6 +280,7 @@ def run():
                for name, kw in BALLS.items()}
     out = {'limits': LIMITS, 'balls': {}, 'combinations': {}, 'distractor': {},
            'timing': {}}
+    ideal = {}
     for name, f in flights.items():
         s0 = f.state([0.0])[0]
         out['balls'][name] = {'serve': BALLS[name], 'initial_state': np.round(s0, 4).tolist(),
@@ -237,11 +295,16 @@ def run():
         for k in range(len(rig.cameras)):
             renderer.background(k)
         out['timing'][f'background_{width}x{height}_s'] = round(time.perf_counter() - start, 2)
+        for name, f in flights.items():
+            ideal[width, name] = {f'{noise} px': ideal_detector_velocity(rig, f, noise)
+                                  for noise in IDEAL_PIXEL_NOISE}
         for colour in COLOURS:
             key = f'{colour}_{width}x{height}'
             rows = {name: ball_scene(rig, renderer, colour, f) for name, f in flights.items()}
             out['combinations'][key] = {'passed': all(r['passed'] for r in rows.values()),
                                         'balls': rows}
+            for name in flights:
+                rows[name]['velocity_max_err_ideal_detector_m_s'] = ideal[width, name]
             out['distractor'][key] = distractor_scene(rig, renderer, colour)
             print(key, {n: (r.get('position_rms_mm'), r.get('mean_error_mm'), r['coverage'],
                             r['tracks'], r.get('velocity_max_err_m_s'), r['render_s'])
