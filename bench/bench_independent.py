@@ -22,9 +22,9 @@ settings at their defaults) and is scored against the renderer's truth:
 - ``velocity_max_err_m_s``: the largest velocity error 50 ms or more after the track's first
   state and outside the 50 ms after a bounce (as bench_perception's ``accuracy``);
   ``velocity_max_err_ideal_detector_m_s``: the same number for ideal detectors that see the
-  true centre with 0.1 and 0.2 px of white noise, through the same triangulation and
-  tracker (median and p90 over 10 draws): the reference the pipeline's number is read
-  against, as the tracker cannot know the spin at a track's start;
+  true centre exactly and with 0.1 and 0.2 px of white noise, through the same
+  triangulation and tracker (median and p90 over 10 draws): the reference the pipeline's
+  number is read against, as the tracker cannot know the spin at a track's start;
 - ``tracks``: distinct track ids; ``stray_states``: states farther than 5 cm from the ball.
 
 A distractor scene per colour and size has no flying ball: a racket-sized disc of the ball's
@@ -84,8 +84,9 @@ T_BEGIN, T_END = -0.2, 0.8
 """Scene interval, s (the ball is launched at 0)."""
 SETTLE = 0.05
 STRAY = 0.05
-IDEAL_PIXEL_NOISE = (0.1, 0.2)
-"""Pixel noise of the ideal detectors of :func:`ideal_detector_velocity`, px."""
+IDEAL_PIXEL_NOISE = (0.0, 0.1, 0.2)
+"""Pixel noise of the ideal detectors of :func:`ideal_detector_velocity`, px (0: the
+tracker's own part, the spin unknown at the start and its model against the renderer's)."""
 IDEAL_DRAWS = 10
 
 
