@@ -261,3 +261,36 @@ def test_a_blurred_outline_covers_each_pixel_as_a_gaussian_edge_averaged_over_it
         step = np.eye(2)[axis] * h
         slope = (integrated(centre + step) - integrated(centre - step)) / (2 * h)
         assert np.abs(dcover[:, axis] - slope).max() < 0.07 * np.abs(slope).max()
+
+
+def test_a_small_balls_bright_part_is_not_wider_than_the_ball_behind_jpeg():
+    """An orange ball of 2.3 px radius lit from above, through OpenCV's JPEG at quality 30,
+    at nine sub-pixel positions: the silhouette takes in the compression block's ringing
+    (measured up to 1.8 times the ball's width), the bright part stays within the ball's
+    width, so the pipeline's "too wide" gate (``TrackerConfig.width_ratio``, 1.9) on the
+    smaller of the two keeps the ball."""
+    rng = np.random.default_rng(0)
+
+    def jpeg(image):
+        ok, buffer = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, 30])
+        return cv2.imdecode(buffer, cv2.IMREAD_COLOR)
+
+    table = np.clip(np.full((120, 160, 3), (70.0, 60.0, 50.0)) + rng.normal(0, 2, (120, 160, 3)),
+                    0, 255).astype(np.uint8)
+    radius, cy = 2.3, 60.3
+    ys, xs = np.mgrid[0:120, 0:160]
+    offsets = (np.arange(8) + 0.5) / 8 - 0.5
+    widths = []
+    for cx in np.linspace(70.1, 77.9, 9):
+        d = BallDetector(DetectorConfig(colour='orange'))
+        d.detect(jpeg(table))
+        cover = np.mean([np.hypot(xs + ox - cx, ys + oy - cy) <= radius
+                         for ox in offsets for oy in offsets], axis=0)[:, :, None]
+        shade = np.clip(0.35 + 0.65 * (cy - ys) / radius, 0.15, 1.0)[:, :, None]
+        ball = np.array([30.0, 120.0, 235.0]) * shade
+        dets = d.detect(jpeg(np.clip(table * (1 - cover) + ball * cover, 0, 255)
+                             .astype(np.uint8)))
+        assert dets
+        widths.append((dets[0].width, dets[0].bright_width))
+    widths = np.array(widths) / (2 * radius)
+    assert np.all(widths[:, 1] <= 1.0)

@@ -233,7 +233,7 @@ def test_a_point_needs_one_camera_sure_of_the_colour():
     for cam in rig.cameras:
         x, y = cam.normalise(cam.project(ball[None]))[0]
         width = 2.0 * cam.focal * 0.02 / (cam.R @ ball + cam.t)[2]
-        dets.append(np.array([x, y, width, 0.0, x, y, 1.0]))
+        dets.append(np.array([x, y, width, 0.0, x, y, 1.0, width]))
     sure = pipe._points([[dets[0]], [dets[1]]])
     assert len(sure) == 1 and np.allclose(sure[0][0][0], ball, atol=1e-6)
     unsure = [d.copy() for d in dets]
@@ -241,6 +241,26 @@ def test_a_point_needs_one_camera_sure_of_the_colour():
         d[6] = 0.0
     assert pipe._points([[unsure[0]], [unsure[1]]]) == []
     assert len(pipe._points([[dets[0]], [unsure[1]]])) == 1
+
+
+@pytest.mark.parametrize('silhouette, bright, kept', [
+    (1.0, 1.0, True), (2.05, 0.6, True), (2.05, 2.05, False), (0.3, 0.3, False)])
+def test_a_point_is_gated_on_the_widths_of_the_silhouette_and_of_its_bright_part(
+        silhouette, bright, kept):
+    """A candidate is ball-sized when its silhouette is not too narrow (``width_ratio``
+    0.45) and either the silhouette or its bright part is not too wide (1.9): JPEG's ringing
+    around a ball of 2-3 px radius widens the silhouette, not the bright part; an object
+    whose bright part is twice the ball's width is not the ball."""
+    rig = synth.demo_rig()
+    pipe = Pipeline(rig)
+    ball = np.array([0.5, 0.1, 0.3])
+    dets = []
+    for k, cam in enumerate(rig.cameras):
+        x, y = cam.normalise(cam.project(ball[None]))[0]
+        diameter = 2.0 * cam.focal * 0.02 / (cam.R @ ball + cam.t)[2]
+        wide, lit = (silhouette, bright) if k == 0 else (1.0, 1.0)
+        dets.append(np.array([x, y, wide * diameter, 0.0, x, y, 1.0, lit * diameter]))
+    assert len(pipe._points([[dets[0]], [dets[1]]])) == int(kept)
 
 
 def test_two_balls_get_two_tracks():
@@ -416,7 +436,7 @@ def test_a_narrow_blob_weakens_its_own_centre_and_not_the_one_fitted_to_the_outl
         width = (1.0 - shortfall) * 2.0 * cam.focal * pipe.params.radius / depth
         centre = cam.normalise(uv)[0]
         blob = cam.normalise(uv + np.array([0.0, -1.5]))[0]     # leaning toward the lit top
-        obs.append([centre[0], centre[1], width, 0.0, blob[0], blob[1]])
+        obs.append([centre[0], centre[1], width, 0.0, blob[0], blob[1], 1.0, width])
     obs = np.array(obs)
     fitted = pipe._point(cams, obs[:, :2], obs)
     own = pipe._point(cams, obs[:, 4:6], obs)

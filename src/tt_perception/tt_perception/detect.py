@@ -109,6 +109,11 @@ class Detection:
     (:func:`colour_possible`: an orange ball a few pixels across whose colour JPEG's halved
     chroma resolution washed out); the pipeline uses such a candidate only together with a
     camera that is sure."""
+    bright_width: float = math.nan
+    """Width of the bright blob alone (its pixels' difference from the background above
+    the detection threshold), pixels; ``width`` is the silhouette's, which takes in the
+    shaded side too and, around a ball of a few pixels behind JPEG, the ringing of its
+    compression block. The bright blob is not wider than the object."""
 
 
 @dataclasses.dataclass
@@ -485,8 +490,8 @@ class BallDetector:
             cu = bx + weighted['m10'] / total       # difference-weighted centroid
             cv = by + weighted['m01'] / total
             shape = cv2.moments(sub, binaryImage=True)
-            width = _width_from_moments(shape['mu20'] / area, shape['mu02'] / area,
-                                        shape['mu11'] / area)
+            width = bright_width = _width_from_moments(
+                shape['mu20'] / area, shape['mu02'] / area, shape['mu11'] / area)
             if width > cfg.max_width:
                 continue
             sure = True
@@ -516,7 +521,7 @@ class BallDetector:
             out.append(Detection(float(u), float(v), float(area), float(width),
                                  float(total / area),
                                  self._hidden(frame, sub, x0 + bx, y0 + by),
-                                 fitted is not None, blob_u, blob_v, sure))
+                                 fitted is not None, blob_u, blob_v, sure, bright_width))
         out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
         return out[:cfg.max_candidates]
 

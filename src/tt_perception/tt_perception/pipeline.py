@@ -87,7 +87,12 @@ class TrackerConfig:
     max_reprojection: float = 2.5
     """Largest reprojection error of a triangulated point, pixels."""
     width_ratio: tuple = (0.45, 1.9)
-    """Accepted range of blob width over the ball's expected image diameter."""
+    """Accepted range of blob width over the ball's expected image diameter. Too narrow:
+    the silhouette's width (the shaded side included); too wide: the smaller of the
+    silhouette's and the bright blob's (:attr:`tt_perception.detect.Detection.bright_width`),
+    as around a ball of 2-3 px radius behind JPEG q30 the silhouette takes in its compression
+    block's ringing (twice the ball's width) while its bright part is no wider than the
+    ball."""
     narrow_weight: float = 30.0
     """A blob narrower than the ball by a fraction f has its own centre's sigma times
     1 + narrow_weight f (not a centre fitted to the ball's outline)."""
@@ -135,8 +140,9 @@ class Matcher:
 
     def add(self, k, t, detections):
         """Add camera ``k``'s frame at ``t`` with its detections (list of arrays [x_n, y_n,
-        width, hidden, x_n, y_n of the blob's own centre]); returns the groups now complete:
-        ``(t, [per-camera list])``."""
+        width, hidden, x_n, y_n of the blob's own centre, colour sure (1/0), bright width]:
+        :meth:`Pipeline.detect`); returns the groups now complete: ``(t, [per-camera
+        list])``."""
         self.frames[k].append((t, detections))
         self.latest[k] = max(self.latest[k], t)
         if k == 0:
@@ -424,7 +430,8 @@ class Pipeline:
             return []
         xy = cam.normalise(np.array([[d.u, d.v] for d in dets]))
         blob = cam.normalise(np.array([[d.blob_u, d.blob_v] for d in dets]))
-        return [np.array([x, y, d.width, d.hidden, bx, by, float(d.colour_sure)])
+        return [np.array([x, y, d.width, d.hidden, bx, by, float(d.colour_sure),
+                          d.bright_width])
                 for (x, y), (bx, by), d in zip(xy, blob, dets, strict=True)]
 
     def _points(self, group, blobs=True):
@@ -455,17 +462,18 @@ class Pipeline:
 
     def _point(self, cams, centres, obs):
         """(X, cov) triangulated from the normalised image ``centres`` (n, 2) of ``cams``,
-        gated on the reprojection error and on the blobs' widths (``obs`` rows [.., width,
-        hidden, ..]); None when it fails."""
+        gated on the reprojection error and on the blobs' widths (``obs`` rows as
+        :meth:`Matcher.add`'s; :attr:`TrackerConfig.width_ratio`); None when it fails."""
         cfg = self.config
         result = triangulate(cams, centres, cfg.pixel_sigma, cfg.max_reprojection)
         if result is None or len(result[3]) < len(cams):
             return None
         X, cov, _, _ = result
-        ratio = np.array([o[2] / (2.0 * cam.focal * self.params.radius
-                                  / (cam.R @ X + cam.t)[2])
-                          for cam, o in zip(cams, obs, strict=True)])
-        if np.any(ratio < cfg.width_ratio[0]) or np.any(ratio > cfg.width_ratio[1]):
+        diameter = np.array([2.0 * cam.focal * self.params.radius / (cam.R @ X + cam.t)[2]
+                             for cam in cams])
+        ratio = obs[:, 2] / diameter
+        if np.any(ratio < cfg.width_ratio[0]) or np.any(np.fmin(ratio, obs[:, 7] / diameter)
+                                                        > cfg.width_ratio[1]):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
         # may have lost part of it (a white line behind a white ball): its own centre may be
