@@ -4,7 +4,14 @@ spin and robustness criteria, each checked against the model's truth of the scen
 import numpy as np
 import pytest
 from tt_perception.detect import DetectorConfig
-from tt_perception.pipeline import Pipeline, Tracker, TrackerConfig
+from tt_perception.pipeline import (
+    BLOB_XY,
+    XY,
+    Pipeline,
+    Tracker,
+    TrackerConfig,
+    detection_row,
+)
 from tt_perception.triangulate import triangulate
 from tt_prediction.ball import rollout
 
@@ -222,25 +229,32 @@ def test_hall_light_at_1280x720_meets_every_line_of_the_issue():
     assert_spin_across_within_20_percent_and_degrees(truth, estimates, pairs)
 
 
+BALL_AT = np.array([0.5, 0.1, 0.3])
+
+
+def detections_of_a_ball(rig, sure=(True, True), widths=((1.0, 1.0), (1.0, 1.0))):
+    """One detection row per camera of a ball at BALL_AT, exactly where it projects:
+    ``sure`` of its colour per camera, ``widths`` (silhouette, bright part) per camera in
+    the ball's image diameters."""
+    rows = []
+    for cam, ok, (silhouette, bright) in zip(rig.cameras, sure, widths, strict=True):
+        xy = cam.normalise(cam.project(BALL_AT[None]))[0]
+        diameter = 2.0 * cam.focal * 0.02 / (cam.R @ BALL_AT + cam.t)[2]
+        rows.append(detection_row(xy, silhouette * diameter, sure=ok,
+                                  bright_width=bright * diameter))
+    return [[row] for row in rows]
+
+
 def test_a_point_needs_one_camera_sure_of_the_colour():
     """Two cameras' detections of the same ball triangulate to a point when at least one of
     them is sure of the ball's colour, and to none when neither is (a washed-out blob in
     each view may be anything of that brightness)."""
     rig = synth.demo_rig()
     pipe = Pipeline(rig)
-    ball = np.array([0.5, 0.1, 0.3])
-    dets = []
-    for cam in rig.cameras:
-        x, y = cam.normalise(cam.project(ball[None]))[0]
-        width = 2.0 * cam.focal * 0.02 / (cam.R @ ball + cam.t)[2]
-        dets.append(np.array([x, y, width, 0.0, x, y, 1.0, width]))
-    sure = pipe._points([[dets[0]], [dets[1]]])
-    assert len(sure) == 1 and np.allclose(sure[0][0][0], ball, atol=1e-6)
-    unsure = [d.copy() for d in dets]
-    for d in unsure:
-        d[6] = 0.0
-    assert pipe._points([[unsure[0]], [unsure[1]]]) == []
-    assert len(pipe._points([[dets[0]], [unsure[1]]])) == 1
+    sure = pipe._points(detections_of_a_ball(rig))
+    assert len(sure) == 1 and np.allclose(sure[0][0][0], BALL_AT, atol=1e-6)
+    assert pipe._points(detections_of_a_ball(rig, sure=(False, False))) == []
+    assert len(pipe._points(detections_of_a_ball(rig, sure=(True, False)))) == 1
 
 
 @pytest.mark.parametrize('silhouette, bright, kept', [
@@ -252,15 +266,8 @@ def test_a_point_is_gated_on_the_widths_of_the_silhouette_and_of_its_bright_part
     around a ball of 2-3 px radius widens the silhouette, not the bright part; an object
     whose bright part is twice the ball's width is not the ball."""
     rig = synth.demo_rig()
-    pipe = Pipeline(rig)
-    ball = np.array([0.5, 0.1, 0.3])
-    dets = []
-    for k, cam in enumerate(rig.cameras):
-        x, y = cam.normalise(cam.project(ball[None]))[0]
-        diameter = 2.0 * cam.focal * 0.02 / (cam.R @ ball + cam.t)[2]
-        wide, lit = (silhouette, bright) if k == 0 else (1.0, 1.0)
-        dets.append(np.array([x, y, wide * diameter, 0.0, x, y, 1.0, lit * diameter]))
-    assert len(pipe._points([[dets[0]], [dets[1]]])) == int(kept)
+    rows = detections_of_a_ball(rig, widths=((silhouette, bright), (1.0, 1.0)))
+    assert len(Pipeline(rig)._points(rows)) == int(kept)
 
 
 def test_two_balls_get_two_tracks():
@@ -436,11 +443,11 @@ def test_a_narrow_blob_weakens_its_own_centre_and_not_the_one_fitted_to_the_outl
         width = (1.0 - shortfall) * 2.0 * cam.focal * pipe.params.radius / depth
         centre = cam.normalise(uv)[0]
         blob = cam.normalise(uv + np.array([0.0, -1.5]))[0]     # leaning toward the lit top
-        obs.append([centre[0], centre[1], width, 0.0, blob[0], blob[1], 1.0, width])
+        obs.append(detection_row(centre, width, blob_xy=blob))
     obs = np.array(obs)
-    fitted = pipe._point(cams, obs[:, :2], obs)
-    own = pipe._point(cams, obs[:, 4:6], obs)
-    _, plain, _, _ = triangulate(cams, obs[:, :2], cfg.pixel_sigma, cfg.max_reprojection)
+    fitted = pipe._point(cams, obs[:, XY], obs)
+    own = pipe._point(cams, obs[:, BLOB_XY], obs)
+    _, plain, _, _ = triangulate(cams, obs[:, XY], cfg.pixel_sigma, cfg.max_reprojection)
     np.testing.assert_allclose(fitted[0], X, atol=1e-9)
     np.testing.assert_allclose(fitted[1], plain, rtol=1e-9)
     ratio = np.trace(own[1]) / np.trace(plain)

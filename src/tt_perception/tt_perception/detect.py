@@ -79,9 +79,10 @@ class DetectorConfig:
     outline by the fit. On a ball 3-4 px in radius an unmodelled blur of the lit top edge
     moves the fitted centre toward it by 0.1-0.2 px. 0: a sharp camera (the ramp of one
     sub-sample). Measured from the background's edges: the independent renderer's Bayer +
-    JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px. 0.4 on the former takes 640x480 balls
-    within the issue's limits (docs/perception.md) but makes a fit 60 % slower: off by
-    default, for the camera-rate budget."""
+    JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px. 0.4 brings the former's white 640x480
+    height means to the issue's 0.3 mm but moves synth's beyond it, and neither the
+    fit's residual nor the background's edges choose the value (docs/perception.md): off by
+    default. It costs no time (a fit samples each pixel once with it, four times without)."""
 
 
 @dataclasses.dataclass

@@ -35,6 +35,21 @@ from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
 
 LIVE = object()
+
+# Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).
+XY, WIDTH, HIDDEN, BLOB_XY, SURE, BRIGHT_WIDTH = slice(0, 2), 2, 3, slice(4, 6), 6, 7
+
+
+def detection_row(xy, width, hidden=0.0, blob_xy=None, sure=True, bright_width=None):
+    """One detection as the pipeline passes it between its stages (:meth:`Matcher.add`,
+    :meth:`Pipeline._points`): its centre ``xy`` and its blob's own centre ``blob_xy``
+    (normalised image coordinates; ``xy`` when None), the silhouette's and the bright blob's
+    widths (pixels; the bright blob's ``width`` when None), ``hidden``
+    (:attr:`tt_perception.detect.Detection.hidden`) and whether its colour is sure."""
+    blob_xy = xy if blob_xy is None else blob_xy
+    bright_width = width if bright_width is None else bright_width
+    return np.array([xy[0], xy[1], width, hidden, blob_xy[0], blob_xy[1], float(sure),
+                     bright_width])
 """``snapshot`` default: read the running filter (only the processing thread may)."""
 
 
@@ -139,10 +154,8 @@ class Matcher:
         self.latest = [-np.inf] * n_cameras
 
     def add(self, k, t, detections):
-        """Add camera ``k``'s frame at ``t`` with its detections (list of arrays [x_n, y_n,
-        width, hidden, x_n, y_n of the blob's own centre, colour sure (1/0), bright width]:
-        :meth:`Pipeline.detect`); returns the groups now complete: ``(t, [per-camera
-        list])``."""
+        """Add camera ``k``'s frame at ``t`` with its detections (a list of
+        :func:`detection_row`); returns the groups now complete: ``(t, [per-camera list])``."""
         self.frames[k].append((t, detections))
         self.latest[k] = max(self.latest[k], t)
         if k == 0:
@@ -430,9 +443,8 @@ class Pipeline:
             return []
         xy = cam.normalise(np.array([[d.u, d.v] for d in dets]))
         blob = cam.normalise(np.array([[d.blob_u, d.blob_v] for d in dets]))
-        return [np.array([x, y, d.width, d.hidden, bx, by, float(d.colour_sure),
-                          d.bright_width])
-                for (x, y), (bx, by), d in zip(xy, blob, dets, strict=True)]
+        return [detection_row(c, d.width, d.hidden, b, d.colour_sure, d.bright_width)
+                for c, b, d in zip(xy, blob, dets, strict=True)]
 
     def _points(self, group, blobs=True):
         """Triangulated, gated candidate points of one time-matched group, each a pair: the
@@ -444,15 +456,15 @@ class Pipeline:
         points = []
         for combo in itertools.product(*options):
             used = [k for k, d in enumerate(combo) if d is not None]
-            if len(used) < 2 or not any(combo[k][6] > 0.0 for k in used):
+            if len(used) < 2 or not any(combo[k][SURE] > 0.0 for k in used):
                 continue          # no camera sure of the ball's colour (Detection.colour_sure)
             cams = [self.cameras[k] for k in used]
             obs = np.array([combo[k] for k in used])
-            point = self._point(cams, obs[:, :2], obs)
-            if np.array_equal(obs[:, :2], obs[:, 4:6]):
+            point = self._point(cams, obs[:, XY], obs)
+            if np.array_equal(obs[:, XY], obs[:, BLOB_XY]):
                 blob = point
             else:
-                blob = self._point(cams, obs[:, 4:6], obs) if blobs else None
+                blob = self._point(cams, obs[:, BLOB_XY], obs) if blobs else None
             if point is not None or blob is not None:
                 points.append((len(used), point, blob))
         if not points:
@@ -462,8 +474,9 @@ class Pipeline:
 
     def _point(self, cams, centres, obs):
         """(X, cov) triangulated from the normalised image ``centres`` (n, 2) of ``cams``,
-        gated on the reprojection error and on the blobs' widths (``obs`` rows as
-        :meth:`Matcher.add`'s; :attr:`TrackerConfig.width_ratio`); None when it fails."""
+        gated on the reprojection error and on the blobs' widths (``obs``: the
+        :func:`detection_row` of each camera; :attr:`TrackerConfig.width_ratio`); None when
+        it fails."""
         cfg = self.config
         result = triangulate(cams, centres, cfg.pixel_sigma, cfg.max_reprojection)
         if result is None or len(result[3]) < len(cams):
@@ -471,8 +484,9 @@ class Pipeline:
         X, cov, _, _ = result
         diameter = np.array([2.0 * cam.focal * self.params.radius / (cam.R @ X + cam.t)[2]
                              for cam in cams])
-        ratio = obs[:, 2] / diameter
-        if np.any(ratio < cfg.width_ratio[0]) or np.any(np.fmin(ratio, obs[:, 7] / diameter)
+        ratio = obs[:, WIDTH] / diameter
+        bright = obs[:, BRIGHT_WIDTH] / diameter
+        if np.any(ratio < cfg.width_ratio[0]) or np.any(np.fmin(ratio, bright)
                                                         > cfg.width_ratio[1]):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
@@ -480,8 +494,8 @@ class Pipeline:
         # biased, so it counts for less. Not a centre fitted to the ball's outline: the fit
         # models the background, and a blob that lost the shaded side does not move it.
         weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
-                + cfg.hidden_weight * obs[:, 3])
-        weak[np.any(centres != obs[:, 4:6], axis=1)] = 1.0
+                + cfg.hidden_weight * obs[:, HIDDEN])
+        weak[np.any(centres != obs[:, BLOB_XY], axis=1)] = 1.0
         if np.any(weak > 1.0):
             X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)
         return X, cov
