@@ -264,3 +264,74 @@ def test_an_earlier_state_is_the_flight_carried_back_and_none_across_a_bounce():
     assert before.bounces == 1
     assert before.earlier_state(bounce - 0.02) is None
     assert before.earlier_state(times[-1] + 0.01) is None
+
+
+@pytest.mark.parametrize('velocity', [(-5.0, 0.0, 0.0), (-4.0, 1.5, -2.0), (3.0, -2.0, 1.0)])
+def test_the_spin_prior_mean_is_set_on_the_axes_of_the_velocity(velocity):
+    """FilterConfig.spin_prior_mean as its docstring defines it: topspin moves the ball's top
+    along the horizontal part of v, side spin turns about the vertical (counter-clockwise
+    seen from above positive, for a level v) and spin along v is along v."""
+    v = np.array(velocity)
+    u = v / np.linalg.norm(v)
+    h = np.array([v[0], v[1], 0.0]) / np.hypot(v[0], v[1])
+    z = np.array([0.0, 0.0, 1.0])
+
+    def start(mean):
+        f = BallFilter(config=FilterConfig(spin_prior_mean=mean))
+        f.start(0.0, np.zeros(3), v, np.eye(3), np.eye(3))
+        return f.x[6:]
+
+    top = start((30.0, 0.0, 0.0))
+    assert np.linalg.norm(top) == pytest.approx(30.0)
+    assert abs(top @ v) < 1e-9                                 # across v
+    assert np.cross(top, z) @ h / 30.0 == pytest.approx(1.0)   # the top moves along v
+    along = start((0.0, 0.0, -15.0))
+    assert np.allclose(along, -15.0 * u)
+    side = start((0.0, 20.0, 0.0))
+    assert np.linalg.norm(side) == pytest.approx(20.0)
+    assert abs(side @ v) < 1e-9 and abs(side @ top) < 1e-9
+    if v[2] == 0.0:
+        assert np.allclose(side, 20.0 * z)
+    assert side @ z > 0.0
+    assert np.allclose(start((30.0, 20.0, -15.0)), top + side + along)
+    # Without a mean (the default) the spin starts at zero.
+    assert np.allclose(start((0.0, 0.0, 0.0)), 0.0)
+
+
+def test_dividing_the_prior_out_gives_back_what_the_data_said():
+    """spin_likelihood_per_axis inverts Bayes' rule: a prior N(m0, C0) times the data's
+    Gaussian likelihood N(y, L^-1) (on the axes of the velocity frame, here with the side and
+    along-v axes measured together, correlated, as a bounce does) gives the posterior
+    N(m, C); from (m, C, C0, m0) it returns y and each axis's marginal variance diag(L^-1),
+    whatever the prior's mean. An axis the data did not inform gives inf."""
+    from tt_prediction.ball_filter import spin_likelihood_per_axis, velocity_frame
+    v = np.array([-4.0, 0.8, -2.5])
+    E = velocity_frame(v)
+    y = np.array([120.0, -35.0, -18.0])
+    L_axes = np.array([[1 / 20.0 ** 2, 0.0, 0.0],
+                       [0.0, 1 / 30.0 ** 2, 0.8 / (30.0 * 40.0)],
+                       [0.0, 0.8 / (30.0 * 40.0), 1 / 40.0 ** 2]])
+    C0 = np.diag([250.0, 180.0, 90.0]) ** 2
+
+    def posterior(L_axes, m0):
+        L = E.T @ L_axes @ E                                 # the data's information
+        C = np.linalg.inv(np.linalg.inv(C0) + L)
+        return C @ (np.linalg.solve(C0, m0) + L @ (E.T @ y)), C
+
+    for m0 in (np.zeros(3), np.array([40.0, -60.0, 25.0])):
+        m, C = posterior(L_axes, m0)
+        got_y, got_s2 = spin_likelihood_per_axis(m, C, C0, v, m0)
+        assert np.allclose(got_y, y, atol=1e-6)
+        assert np.allclose(got_s2, np.diag(np.linalg.inv(L_axes)), rtol=1e-6)
+        # The marginal, not the conditional 1 / L_kk: the correlation widens both.
+        assert got_s2[2] > 1.5 / L_axes[2, 2]
+    # The mean left out of the division is read as data: the answer moves.
+    got_y, _ = spin_likelihood_per_axis(m, C, C0, v)
+    assert not np.allclose(got_y, y, atol=1.0)
+    # Only top/back spin measured (flight's curvature): the other two axes say nothing.
+    only_top = np.diag([1 / 20.0 ** 2, 0.0, 0.0])
+    m, C = posterior(only_top, np.zeros(3))
+    got_y, got_s2 = spin_likelihood_per_axis(m, C, C0, v)
+    assert got_y[0] == pytest.approx(y[0], abs=1e-3)
+    assert got_s2[0] == pytest.approx(20.0 ** 2, rel=1e-6)
+    assert np.all(np.isinf(got_s2[1:]))

@@ -141,6 +141,41 @@ def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, conte
     assert not [p for p in tmp_path.iterdir() if p.name.startswith('.tt-predict')]
 
 
+@pytest.mark.parametrize('setting, what', [
+    ('spin_prior_mean: 12', 'spin_prior_mean must be a list of 3 numbers'),
+    ('spin_prior_mean: [1, 2]', 'spin_prior_mean must be a list of 3 numbers'),
+    ('spin_priors: 20', 'unknown filter setting(s) spin_priors'),
+])
+def test_a_bad_filter_config_is_one_line_exit_2_no_output(data, tmp_path, capsys, setting,
+                                                         what):
+    folder, _ = data
+    config = tmp_path / 'filter.yaml'
+    config.write_text(setting + '\n')
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--filter-config',
+                 str(config)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(config) in err[0] and what in err[0]
+    assert not out.exists()
+
+
+def test_a_spin_prior_mean_in_the_filter_config_is_the_spin_a_track_starts_with(data,
+                                                                              tmp_path):
+    """--no-learn keeps the configured prior: its mean along v is each track's first spin,
+    along the velocity the filter starts from (the first rows' velocity)."""
+    folder, tracks = data
+    config = tmp_path / 'filter.yaml'
+    config.write_text('spin_prior_mean: [0, 0, -40]\nspin_prior: 1.0e-3\nspin_noise: 0\n')
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--filter-config', str(config),
+                 '--no-learn', '--no-textbook']) == 0
+    _, rows = _rows(out / tracks[0][0])
+    first = next(np.array(r[1:10], float) for r in rows if r[1] != '')
+    v, w = first[3:6], first[6:9]
+    assert np.linalg.norm(w) == pytest.approx(40.0, rel=1e-3)
+    assert w @ v / np.linalg.norm(v) == pytest.approx(-40.0, rel=1e-2)
+
+
 def test_measured_crossing_of_a_sampled_parabola():
     """Local quadratic fit: exact for a parabola in time, whatever the sample phase."""
     t = np.arange(0.0, 0.2, 1.0 / RATE) + 0.0013
@@ -190,6 +225,63 @@ def test_learned_spin_prior_recovers_the_population_spread():
     assert top == pytest.approx(200.0, rel=0.12)
     assert side < 12.0 and along < 12.0
     assert learner.counts() == [400, 400, 400]
+
+
+def test_learned_spin_prior_recovers_the_population_mean():
+    """A population with a common spin: top/back 30 +- 20 rad/s, none to the side, and
+    -15 rad/s along v on every ball (a launcher's gyro spin, smaller than one track's
+    measurement of it), each measured with its own noise s_i (10-40 rad/s): the learned mean
+    is the population's within 4 standard errors sqrt((tau^2 + mean s^2) / n), its spread
+    20 rad/s on top/back and the floor on the two axes that do not vary."""
+    from tt_prediction.ball_filter import SpinPriorLearner
+    rng = np.random.default_rng(4)
+    learner = SpinPriorLearner(floor=5.0, max_sigma=60.0)
+    assert list(learner.moments()[0]) == [0.0, 0.0, 0.0]          # nothing seen yet
+    n = 400
+    for _ in range(n):
+        s = rng.uniform(10.0, 40.0, 3)
+        w = np.array([rng.normal(30.0, 20.0), 0.0, -15.0])
+        learner.observe(w + rng.normal(0.0, s), s * s)
+    mean, sd = learner.moments()
+    noise2 = np.mean(rng.uniform(10.0, 40.0, 100000) ** 2)
+    se = np.sqrt((np.array([20.0, 0.0, 0.0]) ** 2 + noise2) / n)
+    assert np.all(np.abs(mean - [30.0, 0.0, -15.0]) < 4.0 * se)
+    # sd of tau^2's estimate: sqrt(2 / n) (tau^2 + s^2) -> +-6 rad/s on tau = 20 here
+    assert sd[0] == pytest.approx(20.0, abs=8.0)
+    assert sd[1] < 12.0 and sd[2] < 12.0
+    assert list(learner.prior()) == list(sd)
+
+
+def test_a_common_gyro_spin_is_learned_and_moves_the_predicted_bounce(tmp_path):
+    """Every ball carries -80 rad/s of spin along its velocity, which flight cannot show
+    (w x v = 0) but the table's friction turns into a sideways kick (eqs. 1-2: r w x n). The
+    replay learns that mean from the bounces of the tracks before each one, and the hit
+    predicted 300 ms ahead, before the bounce, is then far closer to the measured crossing
+    than with the generic zero-mean prior, which leaves each ball's kick out."""
+    rng = np.random.default_rng(8)
+    tracks = []
+    for i, s in enumerate(_states(30, rng)):
+        v = s[3:6]
+        s = s.copy()
+        s[6:] = -80.0 * v / np.linalg.norm(v)
+        if predict(s, hit_plane_x=PLANE).status == 'ok':
+            tracks.append((f'{i:04d}.csv', *_track(s, rng, noise=5e-4)))
+    folder = tmp_path / 'gyro'
+    _write(folder, tracks)
+    medians = {}
+    for learn in (True, False):
+        out = tmp_path / f'out_{learn}'
+        args = ['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
+                '--no-textbook'] + ([] if learn else ['--no-learn'])
+        assert main(args) == 0
+        summary = json.loads((out / 'summary.json').read_text())
+        medians[learn] = summary['hit_error']['300']['median_mm']
+        if learn:
+            along = summary['spin_prior_learned']['final_mean'][2]
+            assert along == pytest.approx(-80.0, abs=20.0)
+            means = summary['spin_prior_learned']['per_track_mean']
+            assert means[tracks[0][0]] == [0.0, 0.0, 0.0]     # nothing learned before it
+    assert medians[True] < 0.5 * medians[False], medians
 
 
 def test_learned_prior_is_causal(data):

@@ -82,6 +82,12 @@ class FilterConfig:
     spin_prior_along: float = None
     """Prior standard deviation of the spin along the velocity (gyro spin, which flight
     cannot observe), rad/s; None: ``spin_prior``."""
+    spin_prior_mean: tuple = (0.0, 0.0, 0.0)
+    """Prior mean of the spin on the same axes (:func:`velocity_frame`), rad/s: top/back
+    spin (topspin positive: the ball's top moves along v), side spin (about the axis across
+    v in the vertical plane; for a level v, counter-clockwise seen from above positive) and
+    spin along v. A ball's spin before the data has spoken is this, expressed in the frame
+    of its velocity at the start."""
     bounce_velocity_noise: float = 0.15
     """Standard deviation added to each velocity component at a bounce, m/s."""
     bounce_spin_noise: float = 25.0
@@ -406,6 +412,7 @@ class BallFilter:
         self.x = np.zeros(9)
         self.P = np.eye(9)
         self.t = 0.0
+        self.start_velocity = np.zeros(3)
         self.bounces = 0
         self.last_bounce = None
         self._bounce = np.zeros(4)
@@ -414,10 +421,12 @@ class BallFilter:
     def start(self, t, position, velocity, position_cov, velocity_cov, spin=None,
               spin_cov=None):
         """Initialise at time ``t`` (s) from a position (m) and velocity (m/s) with their
-        covariances (3, 3); the spin (rad/s) is zero with ``spin_prior`` unless given."""
+        covariances (3, 3); the spin (rad/s) is the prior's (``spin_prior_mean``,
+        ``spin_prior*``) unless given."""
         self.t = float(t)
-        w = np.zeros(3) if spin is None else np.asarray(spin, dtype=float)
+        w = self.spin_prior_mean(velocity) if spin is None else np.asarray(spin, dtype=float)
         self.x = np.concatenate([position, velocity, w]).astype(float)
+        self.start_velocity = np.array(velocity, dtype=float)   # the spin prior's frame
         self.P = np.zeros((9, 9))
         self.P[:3, :3] = position_cov
         self.P[3:6, 3:6] = velocity_cov
@@ -425,6 +434,11 @@ class BallFilter:
         self.bounces = 0
         self.last_bounce = None
         self._prev = None
+
+    def spin_prior_mean(self, velocity):
+        """Prior mean (3,) of the spin, rad/s, table frame, for a ball moving with
+        ``velocity``: ``spin_prior_mean`` on the axes of :func:`velocity_frame`."""
+        return velocity_frame(velocity).T @ np.asarray(self.config.spin_prior_mean, float)
 
     def spin_prior_cov(self, velocity):
         """Prior covariance (3, 3) of the spin, (rad/s)^2, for a ball moving with
@@ -667,57 +681,77 @@ class TrackFilter:
             self._seen_bounce = f.last_bounce
 
 
-def spin_likelihood_per_axis(mean, cov, prior_cov, velocity):
+INFORMED = 1e-8
+"""Information (rad/s)^-2 above which a track's data inform an axis of the spin (a standard
+deviation under 10,000 rad/s) (:func:`spin_likelihood_per_axis`)."""
+
+
+def spin_likelihood_per_axis(mean, cov, prior_cov, velocity, prior_mean=None):
     """What one track's data say about its spin, per axis of the prior's velocity frame.
 
     ``mean`` (3,), ``cov`` (3, 3): the posterior of the spin (rad/s) given the track's data
-    under the zero-mean prior ``prior_cov`` (3, 3); ``velocity`` (3,) m/s defines the axes
-    (:func:`velocity_frame`: top/back, side, along v). Dividing the prior out (information
-    form, Lambda = C^-1 - C0^-1, eta = C^-1 m) leaves the likelihood; on each axis e it is
-    read as a measurement y = e.eta / e.Lambda.e with variance s^2 = 1 / e.Lambda.e
-    (correlations between the axes ignored). Returns ``(y (3,), s2 (3,))``; s2 is inf on an
-    axis the data did not inform.
+    under the prior of mean ``prior_mean`` (3,), table frame (None: zero) and covariance
+    ``prior_cov`` (3, 3); ``velocity`` (3,) m/s defines the axes (:func:`velocity_frame`:
+    top/back, side, along v). Dividing the prior out (information form,
+    Lambda = C^-1 - C0^-1, eta = C^-1 m - C0^-1 m0) leaves the likelihood, N(y, Lambda^-1)
+    on the axes the data informed: y is the spin the data alone give and s^2 the diagonal
+    of Lambda^-1 there (each axis's marginal variance: a bounce that measures the spin along
+    v and to the side only together leaves each of them uncertain, and its y unbiased).
+    Returns ``(y (3,), s2 (3,))``; y is 0 and s2 inf on an axis the data did not inform.
     """
     E = velocity_frame(velocity)
     Ci = np.linalg.inv(0.5 * (cov + cov.T))
-    lam = Ci - np.linalg.inv(0.5 * (prior_cov + prior_cov.T))
+    C0i = np.linalg.inv(0.5 * (prior_cov + prior_cov.T))
+    lam = E @ (Ci - C0i) @ E.T
     eta = Ci @ np.asarray(mean, dtype=float)
+    if prior_mean is not None:
+        eta = eta - C0i @ np.asarray(prior_mean, dtype=float)
+    eta = E @ eta
     y = np.zeros(3)
     s2 = np.full(3, np.inf)
-    for k in range(3):
-        info = float(E[k] @ lam @ E[k])
-        if info > 0.0:
-            y[k] = float(E[k] @ eta) / info
-            s2[k] = 1.0 / info
+    axes = [k for k in range(3) if lam[k, k] > INFORMED]
+    while axes:
+        sub = lam[np.ix_(axes, axes)]
+        if np.all(np.linalg.eigvalsh(0.5 * (sub + sub.T)) > 0.0):
+            cov_axes = np.linalg.inv(sub)
+            y[axes] = cov_axes @ eta[axes]
+            s2[axes] = np.diag(cov_axes)
+            break
+        axes.remove(min(axes, key=lambda k: lam[k, k]))     # the least informed: not seen
     return y, s2
 
 
 class SpinPriorLearner:
     """Empirical-Bayes prior of the spin, per axis of the velocity frame, from finished tracks.
 
-    The filter's spin prior is zero-mean with standard deviations (top/back, side, along v)
-    (:meth:`BallFilter.spin_prior_cov`). Each finished track adds, per axis, a measurement
-    y_i of its spin with variance s_i^2 (:func:`spin_likelihood_per_axis`; in the replay the
-    pre-bounce spin as the flight's curvature and the bounce measured it). With
-    y_i = w_i + e_i, E[y_i^2] = tau^2 + s_i^2, so the population's second moment is
-    estimated by the method of moments, tau^2 = mean(min(y_i^2, cap^2) - s_i^2), over the
-    tracks whose s_i is below ``max_sigma`` (an axis the data did not see says nothing), then
-    floored at ``floor`` and capped at ``cap``. Until ``min_tracks`` tracks informed an axis
+    The filter's spin prior has a mean and standard deviations on the axes top/back, side
+    and along v (:meth:`BallFilter.spin_prior_mean`, :meth:`BallFilter.spin_prior_cov`).
+    Each finished track adds, per axis, a measurement y_i of its spin with variance s_i^2
+    (:func:`spin_likelihood_per_axis`; in the replay the pre-bounce spin as the flight's
+    curvature and the bounce measured it). With y_i = w_i + e_i, w_i drawn from the
+    population N(mu, tau^2), the method of moments gives mu = mean(y_i) and
+    tau^2 = var(y_i) - mean(s_i^2), over the tracks whose s_i is below ``max_sigma`` (an axis
+    the data did not see says nothing), each y_i clipped to +-``cap``; tau is then floored
+    at ``floor`` and capped at ``cap``. A population whose spin along v is consistent but
+    smaller than what one track can measure of it (a launcher's gyro spin) has tau at the
+    floor and the mean where the tracks put it. Until ``min_tracks`` tracks informed an axis
     it keeps the generic prior. Only what was :meth:`observe`-d is used: the caller decides
     which tracks (in the replay, those before the current one).
 
-    Parameters: ``generic`` (3,) rad/s, the prior before anything is learned; ``min_tracks``;
-    ``floor``, ``cap``, ``max_sigma`` rad/s.
+    Parameters: ``generic`` (3,) rad/s, the standard deviations before anything is learned,
+    ``generic_mean`` (3,) rad/s, the mean; ``min_tracks``; ``floor``, ``cap``,
+    ``max_sigma`` rad/s.
     """
 
-    def __init__(self, generic=(250.0, 250.0, 250.0), min_tracks=5, floor=5.0, cap=600.0,
-                 max_sigma=60.0):
+    def __init__(self, generic=(250.0, 250.0, 250.0), generic_mean=(0.0, 0.0, 0.0),
+                 min_tracks=5, floor=5.0, cap=600.0, max_sigma=60.0):
         self.generic = np.asarray(generic, dtype=float) * np.ones(3)
+        self.generic_mean = np.asarray(generic_mean, dtype=float) * np.ones(3)
         self.min_tracks = int(min_tracks)
         self.floor = float(floor)
         self.cap = float(cap)
         self.max_sigma = float(max_sigma)
-        self._y2 = [[], [], []]
+        self._y = [[], [], []]
         self._s2 = [[], [], []]
 
     def observe(self, y, s2):
@@ -725,27 +759,37 @@ class SpinPriorLearner:
         (rad/s)^2 (inf: not measured), in the order top/back, side, along v."""
         for k in range(3):
             if math.isfinite(y[k]) and s2[k] <= self.max_sigma ** 2:
-                self._y2[k].append(min(float(y[k]) ** 2, self.cap ** 2))
+                self._y[k].append(min(max(float(y[k]), -self.cap), self.cap))
                 self._s2[k].append(float(s2[k]))
 
     def counts(self):
         """Tracks that informed each axis (top/back, side, along v)."""
-        return [len(a) for a in self._y2]
+        return [len(a) for a in self._y]
+
+    def moments(self):
+        """Mean (3,) and standard deviations (3,) of the learned prior, rad/s: top/back,
+        side, along v."""
+        mean, sd = self.generic_mean.copy(), self.generic.copy()
+        for k in range(3):
+            n = len(self._y[k])
+            if n >= self.min_tracks:
+                y = np.array(self._y[k])
+                mean[k] = float(np.mean(y))
+                tau2 = float(np.var(y, ddof=1) - np.mean(self._s2[k]))
+                sd[k] = min(max(math.sqrt(max(tau2, 0.0)), self.floor), self.cap)
+        return mean, sd
 
     def prior(self):
         """Standard deviations (3,) rad/s: top/back, side, along v."""
-        out = self.generic.copy()
-        for k in range(3):
-            if len(self._y2[k]) >= self.min_tracks:
-                tau2 = float(np.mean(self._y2[k]) - np.mean(self._s2[k]))
-                out[k] = min(max(math.sqrt(max(tau2, 0.0)), self.floor), self.cap)
-        return out
+        return self.moments()[1]
 
     def config(self, base):
         """``base`` (FilterConfig) with the learned spin prior."""
-        top, side, along = (float(v) for v in self.prior())
+        mean, sd = self.moments()
+        top, side, along = (float(v) for v in sd)
         return dataclasses.replace(base, spin_prior=top, spin_prior_side=side,
-                                   spin_prior_along=along)
+                                   spin_prior_along=along,
+                                   spin_prior_mean=tuple(float(v) for v in mean))
 
 
 class AccelNoiseLearner:

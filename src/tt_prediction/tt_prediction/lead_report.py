@@ -68,8 +68,10 @@ def table(result):
         lines.append('')
         lines.append('Spin prior and accel_noise learned causally from the tracks before each '
                      'one (docs/prediction.md); at the end (final model): top/back, side, '
-                     f"along v {', '.join(f'{v:g}' for v in learned['final'])} rad/s, "
-                     f"accel_noise {learned['accel_noise_final']:g} m/s^2/sqrt(Hz).")
+                     f"along v {', '.join(f'{v:g}' for v in learned['final_mean'])} rad/s "
+                     f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
+                     f"(standard deviation), accel_noise {learned['accel_noise_final']:g} "
+                     'm/s^2/sqrt(Hz).')
     return '\n'.join(lines)
 
 

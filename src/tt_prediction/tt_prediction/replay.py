@@ -63,9 +63,12 @@ class TrackReplay:
     p: np.ndarray
     bounce_times: list
     spin_prior: tuple = None
-    """The spin prior the track was replayed with (top/back, side, along v), rad/s."""
+    """The spin prior's standard deviations the track was replayed with (top/back, side,
+    along v), rad/s."""
     nis: list = None
     """Squared Mahalanobis distances of the filter's accepted samples."""
+    spin_prior_mean: tuple = (0.0, 0.0, 0.0)
+    """The spin prior's mean on the same axes, rad/s."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
@@ -219,7 +222,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
     return TrackReplay(name, rows, crossing, first, tt, pp, bounces, config.spin_prior_axes(),
-                       nis)
+                       nis, tuple(config.spin_prior_mean))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -260,6 +263,7 @@ def bounce_spin_observation(rp, params, config):
     if not tf.running or tf.updates < 5 or tf.filter.x[3] >= 0.0:
         return None
     x0, P0, t0 = tf.filter.x, tf.filter.P, tf.filter.t
+    v0 = tf.filter.start_velocity       # the prior's axes: the velocity the filter started from
     bf = BallFilter(params, config)
     bf.x, bf.P, bf.t = x0, P0, t0
     bf.predict(t0 + 0.25)
@@ -290,7 +294,7 @@ def bounce_spin_observation(rp, params, config):
     K = Cwv @ np.linalg.inv(Svv)
     m = xc[6:] + K @ (v_meas - x_out[3:6])
     C = Cc[6:, 6:] - K @ Cwv.T
-    return spin_likelihood_per_axis(m, C, bf.spin_prior_cov(xc[3:6]), xc[3:6])
+    return spin_likelihood_per_axis(m, C, bf.spin_prior_cov(v0), v0, bf.spin_prior_mean(v0))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -419,7 +423,8 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     if learn_spin_prior:
         noise = AccelNoiseLearner(config.accel_noise)
         generic = config
-        learner = SpinPriorLearner(generic=config.spin_prior_axes())
+        learner = SpinPriorLearner(generic=config.spin_prior_axes(),
+                                   generic_mean=config.spin_prior_mean)
     replays = []
     for name, t, p, spin in tracks:
         cfg = config
@@ -455,14 +460,18 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
         },
     }
     if learner is not None:
+        final_mean, final_sd = learner.moments()
         summary['spin_prior_learned'] = {
             'rule': 'causal: each track uses the prior learned from the tracks before it '
                     '(input order); axes top/back, side, along v; rad/s',
-            'final': [round(float(v), 1) for v in learner.prior()],
+            'final': [round(float(v), 1) for v in final_sd],
+            'final_mean': [round(float(v), 1) for v in final_mean],
             'accel_noise_final': round(noise.value, 4),
             'tracks_informing': learner.counts(),
             'per_track': {rp.name: [round(float(v), 1) for v in rp.spin_prior]
                           for rp in replays},
+            'per_track_mean': {rp.name: [round(float(v), 1) for v in rp.spin_prior_mean]
+                               for rp in replays},
         }
     if textbook:
         summary['textbook_hit_error'] = errors['textbook']

@@ -75,6 +75,10 @@ def load_filter_config(path, tracks):
         stamp = est_stamp if stamp == 'auto' else stamp
     def typed(name, value):
         default = getattr(FilterConfig, name)
+        if isinstance(default, tuple):
+            if not isinstance(value, list) or len(value) != len(default):
+                raise ValueError(f'{name} must be a list of {len(default)} numbers')
+            return tuple(float(v) for v in value)
         return (str(value) if isinstance(default, str) else
                 int(value) if isinstance(default, int) else float(value))
 
