@@ -187,12 +187,28 @@ def test_the_nodes_end_with_bringup_even_when_it_is_killed(tmp_path):
         os.kill(run.proc.pid, signal.SIGKILL)     # no handler runs: only the kernel's signal
         run.proc.wait()
         left = [pid for pid in pids if not _gone(pid, 20.0)]
+        seen = {pid: _process_state(pid) for pid in left}
     finally:
         run.kill()
         for pid in pids:
             if not _gone(pid, 0.0):
                 os.kill(pid, signal.SIGKILL)
-    assert left == [], run.text
+    assert left == [], f'{seen}\n{run.text}'
+
+
+def _process_state(pid):
+    """What the kernel says of a process that did not end (for a failure's message): its
+    state and signal masks (was the parent's SIGTERM pending, blocked, ignored, caught?)
+    and where each of its threads waits."""
+    proc = pathlib.Path(f'/proc/{pid}')
+    try:
+        status = [line for line in (proc / 'status').read_text().splitlines()
+                  if line.split(':')[0] in ('Name', 'State', 'PPid', 'SigPnd', 'ShdPnd',
+                                            'SigBlk', 'SigIgn', 'SigCgt')]
+        waits = sorted({(task / 'wchan').read_text() for task in (proc / 'task').iterdir()})
+    except OSError as exc:
+        return f'gone or unreadable: {exc}'
+    return '; '.join(status) + '; threads wait in ' + ', '.join(waits)
 
 
 # A node run by tt_ros.executor.run_node that does not stop: it says it is ready, then its
