@@ -35,6 +35,7 @@ from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
 
 LIVE = object()
+"""``snapshot`` default: read the running filter (only the processing thread may)."""
 
 # Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).
 XY, WIDTH, HIDDEN, BLOB_XY, SURE, BRIGHT_WIDTH = slice(0, 2), 2, 3, slice(4, 6), 6, 7
@@ -50,7 +51,6 @@ def detection_row(xy, width, hidden=0.0, blob_xy=None, sure=True, bright_width=N
     bright_width = width if bright_width is None else bright_width
     return np.array([xy[0], xy[1], width, hidden, blob_xy[0], blob_xy[1], float(sure),
                      bright_width])
-"""``snapshot`` default: read the running filter (only the processing thread may)."""
 
 
 @dataclasses.dataclass

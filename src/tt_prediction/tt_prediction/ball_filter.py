@@ -712,7 +712,7 @@ def spin_likelihood_per_axis(mean, cov, prior_cov, velocity, prior_mean=None):
     axes = [k for k in range(3) if lam[k, k] > INFORMED]
     while axes:
         sub = lam[np.ix_(axes, axes)]
-        if np.all(np.linalg.eigvalsh(0.5 * (sub + sub.T)) > 0.0):
+        if np.all(np.linalg.eigvalsh(sub) > 0.0):
             cov_axes = np.linalg.inv(sub)
             y[axes] = cov_axes @ eta[axes]
             s2[axes] = np.diag(cov_axes)
