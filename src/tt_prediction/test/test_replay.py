@@ -42,9 +42,9 @@ def _write(folder, tracks):
                 f.write(f'{ti:.6f},{pi[0]:.6f},{pi[1]:.6f},{pi[2]:.6f}\n')
 
 
-def _track(state, rng, noise=1e-3, duration=0.75):
+def _track(state, rng, noise=1e-3, duration=0.75, params=None):
     t = np.arange(0.0, duration, 1.0 / RATE)
-    _, s = rollout(state, ModelParams(), sample_times=t, stop_at_plane=False,
+    _, s = rollout(state, params or ModelParams(), sample_times=t, stop_at_plane=False,
                    stop_at_net=False, max_bounces=2, t_max=duration)
     ok = np.isfinite(s[:, 0]) & (s[:, 0] > -1.6)
     return t[ok], s[ok, :3] + rng.normal(0.0, noise, (ok.sum(), 3))
@@ -282,6 +282,71 @@ def test_a_common_gyro_spin_is_learned_and_moves_the_predicted_bounce(tmp_path):
             means = summary['spin_prior_learned']['per_track_mean']
             assert means[tracks[0][0]] == [0.0, 0.0, 0.0]     # nothing learned before it
     assert medians[True] < 0.5 * medians[False], medians
+
+
+def test_a_table_that_gives_back_less_is_learned_from_its_bounces(tmp_path):
+    """Balls bounce on a table of restitution 0.86 (the model says 0.93; eqs. 1-6). Each
+    track's bounce shows -v_z'/v_z; the replay learns the table's e_t from the tracks before
+    each one, and the hit predicted 300 ms ahead, before the bounce, is then closer to the
+    measured crossing than with the model's e_t."""
+    rng = np.random.default_rng(11)
+    table = ModelParams(e_t=0.86)
+    tracks = [(f'{i:04d}.csv', *_track(s, rng, noise=5e-4, params=table))
+              for i, s in enumerate(_states(20, rng))]
+    folder = tmp_path / 'table'
+    _write(folder, tracks)
+    medians = {}
+    for learn in (True, False):
+        out = tmp_path / f'out_{learn}'
+        args = ['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
+                '--no-textbook'] + ([] if learn else ['--no-learn'])
+        assert main(args) == 0
+        summary = json.loads((out / 'summary.json').read_text())
+        medians[learn] = summary['hit_error']['300']['median_mm']
+        if learn:
+            learned = summary['restitution_learned']
+            assert learned['final'] == pytest.approx(0.86, abs=0.01)
+            assert learned['per_track'][tracks[0][0]] == 0.93      # nothing learned before it
+            assert learned['tracks_informing'] >= 15
+    assert medians[True] < 0.5 * medians[False], medians
+
+
+def test_the_restitution_a_bounce_shows_is_the_model_e_t_without_its_effects():
+    """With impact-speed-dependent restitution on, e(v_z) = e_t + slope (|v_z| - 3 m/s)
+    (params.py's declaration): a bounce at 4 m/s that came back with 0.85 of its normal speed
+    says e_t = 0.85 - slope * 1 m/s; a bounce slower than 0.5 m/s says nothing."""
+    from tt_prediction.identify.segment import Bounce
+    from tt_prediction.replay import TrackReplay, restitution_observation
+    params = ModelParams(e_t_speed_slope=-0.05)
+    rows = np.full((1, len(COLUMNS)), np.nan)
+    rows[0, 0] = 0.0
+    rows[0, 7:10] = 0.0                                 # the filter's spin before the contact
+
+    def seen(v_in, v_out):
+        bounce = Bounce(0.1, np.array([-0.5, 0.1, 0.02]), np.array(v_in), np.array(v_out))
+        rp = TrackReplay('a.csv', rows, None, 0.0, np.zeros(0), np.zeros((0, 3)), [],
+                         robot_bounce=bounce)
+        return restitution_observation(rp, params)
+
+    assert seen([-3.0, 0.0, -4.0], [-2.0, 0.0, 3.4]) == pytest.approx(0.85 + 0.05 * 1.0)
+    assert seen([-3.0, 0.0, -0.3], [-2.0, 0.0, 0.25]) is None
+
+
+def test_restitution_learner_is_the_median_once_it_has_seen_enough():
+    """The model's value until min_tracks bounces; then their median (an outlier does not
+    move it), held to e_t's declared range."""
+    from tt_prediction.replay import RestitutionLearner
+    learner = RestitutionLearner(0.93, min_tracks=3)
+    for e in (0.90, None, 0.88):
+        learner.observe(e)
+    assert (learner.value, learner.count) == (0.93, 2)
+    learner.observe(0.20)                                       # a bounce fitted across a hit
+    learner.observe(0.89)
+    assert learner.value == pytest.approx(0.885)
+    assert learner.params(ModelParams()).e_t == pytest.approx(0.885)
+    high = RestitutionLearner(0.93, min_tracks=1)
+    high.observe(1.3)
+    assert high.value == 1.0
 
 
 def test_learned_prior_is_causal(data):

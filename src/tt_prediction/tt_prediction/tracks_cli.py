@@ -125,8 +125,9 @@ def main(argv=None):
     parser.add_argument('--no-textbook', action='store_true',
                         help='skip the textbook reference predictor in summary.json')
     parser.add_argument('--no-learn', action='store_true',
-                        help='keep the configured spin prior and accel_noise (default: learn '
-                             'them from the tracks before each one, docs/prediction.md)')
+                        help="keep the configured spin prior, accel_noise and the model's "
+                             'table restitution (default: learn them from the tracks before '
+                             'each one, docs/prediction.md)')
     args = parser.parse_args(argv)
     if not math.isfinite(args.hit_plane_x):
         print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
@@ -140,7 +141,7 @@ def main(argv=None):
         return 2
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
-                                     learn_spin_prior=not args.no_learn)
+                                     learn=not args.no_learn)
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
     try:
