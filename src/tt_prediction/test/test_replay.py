@@ -350,8 +350,9 @@ def test_restitution_learner_is_the_median_once_it_has_seen_enough():
 
 
 def test_learned_prior_is_causal(data):
-    """A track's prior comes only from the tracks before it: changing the last track's own
-    data (or dropping it) changes no prior, and the first min_tracks use the generic one."""
+    """A track's prior (and table restitution) comes only from the tracks before it: changing
+    the last track's own data (or dropping it) changes no prior, and the first min_tracks use
+    the generic one."""
     from tt_prediction.ball_filter import FilterConfig
     from tt_prediction.replay import replay_tracks
     _, tracks = data
@@ -365,6 +366,7 @@ def test_learned_prior_is_causal(data):
     _, fewer = replay_tracks(rows[:-1], ModelParams(), cfg, PLANE, textbook=False)
     per = full['spin_prior_learned']['per_track']
     assert per == other['spin_prior_learned']['per_track']
+    assert full['restitution_learned']['per_track'] == other['restitution_learned']['per_track']
     assert {k: v for k, v in per.items() if k != name} == fewer['spin_prior_learned'][
         'per_track']
     for k in sorted(per)[:5]:
