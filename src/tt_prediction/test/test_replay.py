@@ -66,10 +66,14 @@ def _rows(path):
         return header, list(reader)
 
 
-def test_rows_for_every_sample_and_the_lead_time_summary(data, tmp_path):
+def test_rows_for_every_sample_and_the_lead_time_summary(data, tmp_path, capsys):
     folder, tracks = data
     out = tmp_path / 'out'
     assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE)]) == 0
+    said = capsys.readouterr()
+    assert said.out == ''                     # stdout stays free for the JSON Lines mode
+    assert said.err.startswith(f'tt-predict: wrote {out} ({len(tracks)} tracks')
+    assert len(said.err.strip().splitlines()) == 1
     for name, t, _ in tracks:
         header, rows = _rows(out / name)
         assert header == list(COLUMNS)
@@ -86,6 +90,8 @@ def test_rows_for_every_sample_and_the_lead_time_summary(data, tmp_path):
     # The model's own flights: after the bounce the spin is measured and the hit is close
     # to the measured crossing (1 mm noise).
     assert summary['hit_error']['50']['median_mm'] < 5.0
+    fifty = summary['hit_error']['50']['median_mm']
+    assert f'/{fifty:.1f} mm, textbook ' in said.err            # the line quotes the summary
 
 
 def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):

@@ -149,7 +149,23 @@ def main(argv=None):
     except OSError as exc:
         print(f'tt-predict: {args.out}: cannot write: {exc.strerror}', file=sys.stderr)
         return 2
+    print(f'tt-predict: wrote {args.out} ({_outcome(summary)})', file=sys.stderr)
     return 0
+
+
+def _outcome(summary):
+    """One line of summary.json: tracks and the median hit errors against lead time."""
+
+    def medians(errors):
+        return '/'.join('-' if v['median_mm'] is None else f"{v['median_mm']:.1f}"
+                        for v in errors.values())
+
+    leads = '/'.join(str(lead) for lead in summary['leads_ms'])
+    line = (f"{summary['tracks']} tracks, {summary['tracks_with_crossing']} with a measured "
+            f"crossing; median hit error at {leads} ms: {medians(summary['hit_error'])} mm")
+    if 'textbook_hit_error' in summary:
+        line += f", textbook {medians(summary['textbook_hit_error'])} mm"
+    return line
 
 
 if __name__ == '__main__':
