@@ -258,6 +258,18 @@ def test_learned_spin_prior_recovers_the_population_mean():
     assert list(learner.prior()) == list(sd)
 
 
+def _with_and_without_learning(tracks, tmp_path):
+    """summary.json of the default replay of ``tracks`` and of the one with --no-learn."""
+    _write(tmp_path / 'set', tracks)
+    summaries = []
+    for extra in ([], ['--no-learn']):
+        out = tmp_path / f'out{len(summaries)}'
+        assert main(['--tracks', str(tmp_path / 'set'), '--out', str(out), '--hit-plane-x',
+                     str(PLANE), '--no-textbook'] + extra) == 0
+        summaries.append(json.loads((out / 'summary.json').read_text()))
+    return summaries
+
+
 def test_a_common_gyro_spin_is_learned_and_moves_the_predicted_bounce(tmp_path):
     """Every ball carries -80 rad/s of spin along its velocity, which flight cannot show
     (w x v = 0) but the table's friction turns into a sideways kick (eqs. 1-2: r w x n). The
@@ -272,22 +284,12 @@ def test_a_common_gyro_spin_is_learned_and_moves_the_predicted_bounce(tmp_path):
         s[6:] = -80.0 * v / np.linalg.norm(v)
         if predict(s, hit_plane_x=PLANE).status == 'ok':
             tracks.append((f'{i:04d}.csv', *_track(s, rng, noise=5e-4)))
-    folder = tmp_path / 'gyro'
-    _write(folder, tracks)
-    medians = {}
-    for learn in (True, False):
-        out = tmp_path / f'out_{learn}'
-        args = ['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
-                '--no-textbook'] + ([] if learn else ['--no-learn'])
-        assert main(args) == 0
-        summary = json.loads((out / 'summary.json').read_text())
-        medians[learn] = summary['hit_error']['300']['median_mm']
-        if learn:
-            along = summary['spin_prior_learned']['final_mean'][2]
-            assert along == pytest.approx(-80.0, abs=20.0)
-            means = summary['spin_prior_learned']['per_track_mean']
-            assert means[tracks[0][0]] == [0.0, 0.0, 0.0]     # nothing learned before it
-    assert medians[True] < 0.5 * medians[False], medians
+    learned, generic = _with_and_without_learning(tracks, tmp_path)
+    assert learned['spin_prior_learned']['final_mean'][2] == pytest.approx(-80.0, abs=20.0)
+    means = learned['spin_prior_learned']['per_track_mean']
+    assert means[tracks[0][0]] == [0.0, 0.0, 0.0]             # nothing learned before it
+    medians = [s['hit_error']['300']['median_mm'] for s in (learned, generic)]
+    assert medians[0] < 0.5 * medians[1], medians
 
 
 def test_a_table_that_gives_back_less_is_learned_from_its_bounces(tmp_path):
@@ -299,22 +301,13 @@ def test_a_table_that_gives_back_less_is_learned_from_its_bounces(tmp_path):
     table = ModelParams(e_t=0.86)
     tracks = [(f'{i:04d}.csv', *_track(s, rng, noise=5e-4, params=table))
               for i, s in enumerate(_states(20, rng))]
-    folder = tmp_path / 'table'
-    _write(folder, tracks)
-    medians = {}
-    for learn in (True, False):
-        out = tmp_path / f'out_{learn}'
-        args = ['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
-                '--no-textbook'] + ([] if learn else ['--no-learn'])
-        assert main(args) == 0
-        summary = json.loads((out / 'summary.json').read_text())
-        medians[learn] = summary['hit_error']['300']['median_mm']
-        if learn:
-            learned = summary['restitution_learned']
-            assert learned['final'] == pytest.approx(0.86, abs=0.01)
-            assert learned['per_track'][tracks[0][0]] == 0.93      # nothing learned before it
-            assert learned['tracks_informing'] >= 15
-    assert medians[True] < 0.5 * medians[False], medians
+    learned, generic = _with_and_without_learning(tracks, tmp_path)
+    table = learned['restitution_learned']
+    assert table['final'] == pytest.approx(0.86, abs=0.01)
+    assert table['per_track'][tracks[0][0]] == 0.93              # nothing learned before it
+    assert table['tracks_informing'] >= 15
+    medians = [s['hit_error']['300']['median_mm'] for s in (learned, generic)]
+    assert medians[0] < 0.5 * medians[1], medians
 
 
 def test_the_restitution_a_bounce_shows_is_the_model_e_t_without_its_effects():
