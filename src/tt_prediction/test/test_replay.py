@@ -298,14 +298,13 @@ def test_a_table_that_gives_back_less_is_learned_from_its_bounces(tmp_path):
     each one, and the hit predicted 300 ms ahead, before the bounce, is then closer to the
     measured crossing than with the model's e_t."""
     rng = np.random.default_rng(11)
-    table = ModelParams(e_t=0.86)
-    tracks = [(f'{i:04d}.csv', *_track(s, rng, noise=5e-4, params=table))
+    tracks = [(f'{i:04d}.csv', *_track(s, rng, noise=5e-4, params=ModelParams(e_t=0.86)))
               for i, s in enumerate(_states(20, rng))]
     learned, generic = _with_and_without_learning(tracks, tmp_path)
-    table = learned['restitution_learned']
-    assert table['final'] == pytest.approx(0.86, abs=0.01)
-    assert table['per_track'][tracks[0][0]] == 0.93              # nothing learned before it
-    assert table['tracks_informing'] >= 15
+    restitution = learned['restitution_learned']
+    assert restitution['final'] == pytest.approx(0.86, abs=0.01)
+    assert restitution['per_track'][tracks[0][0]] == 0.93        # nothing learned before it
+    assert restitution['tracks_informing'] >= 15
     medians = [s['hit_error']['300']['median_mm'] for s in (learned, generic)]
     assert medians[0] < 0.5 * medians[1], medians
 

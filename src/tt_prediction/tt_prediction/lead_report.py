@@ -66,14 +66,13 @@ def table(result):
     learned = final.get('spin_prior_learned')
     if learned:
         lines.append('')
-        e_t = final.get('restitution_learned', {}).get('final')
         lines.append('Spin prior, accel_noise and the table restitution learned causally from '
                      'the tracks before each one (docs/prediction.md); at the end (final '
                      'model): top/back, side, '
                      f"along v {', '.join(f'{v:g}' for v in learned['final_mean'])} rad/s "
                      f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
                      f"(standard deviation), accel_noise {learned['accel_noise_final']:g} "
-                     'm/s^2/sqrt(Hz)' + (f', e_t {e_t:g}.' if e_t is not None else '.'))
+                     f"m/s^2/sqrt(Hz), e_t {final['restitution_learned']['final']:g}.")
     return '\n'.join(lines)
 
 

@@ -257,10 +257,9 @@ def bounce_spin_observation(rp, params, config):
     tangential velocity (r w x n) for the spin along v. The track's prior is divided out
     (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`).
     """
-    robot = [tb for tb, xb in rp.bounce_times if xb < 0.0]
-    if not robot:
+    if rp.robot_bounce is None:
         return None
-    tb = robot[0]
+    tb = rp.robot_bounce.t
     # The filter over the samples before the bounce, with the config's (generic) prior: what
     # the data say is then read against that prior, whatever the track was replayed with.
     tf = TrackFilter(params, config)
