@@ -1,6 +1,6 @@
 """tt_ros.executor.run_node as a process: a signal stops the node cleanly (exit 0), and a
 teardown that hangs is reported with every thread's stack and ended (exit 1) instead of
-waiting for the parent's SIGKILL."""
+waiting for the parent's SIGKILL; a bad --params-file is one line and exit 2."""
 
 import os
 import signal
@@ -8,6 +8,8 @@ import subprocess
 import sys
 import textwrap
 import time
+
+import pytest
 
 # The node of the child process: a plain rclpy node; its on_exit may hang ({hang} s).
 CHILD = textwrap.dedent("""
@@ -95,3 +97,32 @@ def test_sigusr1_writes_the_stacks_of_a_stuck_node_and_the_node_goes_on():
     finally:
         proc.kill()
         proc.wait()
+
+
+# A node started as `ros2 run` starts it: the ROS arguments come from sys.argv (args=None).
+ARGV_CHILD = textwrap.dedent("""
+    import rclpy.node
+    from tt_ros import executor
+    executor.run_node(lambda: rclpy.node.Node('executor_test_{pid}'), name='executor_test')
+""")
+
+
+@pytest.mark.parametrize('content', [
+    None,                              # no such file
+    'a: [1, 2\n',                      # not YAML
+    'hello\n',                         # YAML, but not a mapping of node names
+])
+def test_a_bad_params_file_is_one_line_and_exit_2(tmp_path, content):
+    path = tmp_path / 'params.yaml'
+    if content is not None:
+        path.write_text(content)
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    proc = subprocess.run(
+        [sys.executable, '-c', ARGV_CHILD.format(pid=os.getpid()),
+         '--ros-args', '--params-file', str(path)],
+        env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert 'Traceback' not in proc.stderr and proc.stdout == '', proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f'executor_test: cannot read --params-file {path}: '), lines

@@ -17,19 +17,24 @@ the process exits 0. A teardown that hangs (seen once in CI: prediction_node sti
 thread's stack on stderr and exit status 1. SIGUSR1 (:data:`STACKS_SIGNAL`) writes every
 thread's stack to stderr at any time and the node goes on: ``kill -USR1 <pid>`` shows where a
 node that does not answer is stuck, even inside compiled code. A node that cannot start
-(:class:`StartupError`, e.g. a bad parameter) exits 2 with one line on stderr, without a
-traceback.
+(:class:`StartupError`, e.g. a bad parameter, or ROS arguments that rcl cannot use such as a
+``--params-file`` that is missing or not a ROS parameters file) exits 2 with one line on
+stderr, without a traceback.
 """
 
 import faulthandler
 import os
+import re
 import signal
 import sys
 import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+import yaml
 
 EXECUTOR_ENV = 'TT_EXECUTOR'
 EXECUTORS = ('events', 'single')
@@ -50,6 +55,65 @@ STACKS_SIGNAL = signal.SIGUSR1
 
 class StartupError(ValueError):
     """A node cannot start: the one-line reason (names the parameter or file)."""
+
+
+_RCL_WHERE = re.compile(r'(\s*, at \S+:\d+)+\s*$')
+"""rcl's trailer on an error message: ', at /path/file.c:123' (repeated)."""
+_RCL_PARAMS_FILE = re.compile(r"Couldn't parse params file: '--params-file (.*)'\. Error: (.*)",
+                              re.DOTALL)
+NOT_PARAMS = 'not a ROS parameters file (a mapping of node names to ros__parameters)'
+
+
+def _rcl_reason(text):
+    """rcl's error ``text`` in one line: its prefix and source locations left out."""
+    text = _RCL_WHERE.sub('', text.removeprefix('Failed to parse ROS arguments: '))
+    match = _RCL_PARAMS_FILE.fullmatch(text)
+    if match:
+        path, error = match.groups()
+        text = f'cannot read --params-file {path}: {error}'
+    else:
+        text = f'bad ROS arguments: {text}'
+    return ' '.join(text.split())
+
+
+def _params_files(argv):
+    """The paths given to ``--params-file`` in the ROS arguments of ``argv``."""
+    paths, in_ros, i = [], False, 0
+    while i < len(argv):
+        if argv[i] == '--ros-args':
+            in_ros = True
+        elif argv[i] == '--':
+            in_ros = False
+        elif in_ros and argv[i] == '--params-file' and i + 1 < len(argv):
+            paths.append(argv[i + 1])
+            i += 1
+        i += 1
+    return paths
+
+
+def check_ros_args(args=None):
+    """Raise :class:`StartupError` with one line if rcl cannot use the ROS arguments of
+    ``args`` (None: ``sys.argv``): a ``--params-file`` that cannot be read, is not YAML or is
+    not a ROS parameters file, an unknown ``--ros-args`` flag, a malformed ``-p`` or ``-r``.
+
+    Checked before ``rclpy.init``, which would log an extra line and raise with a traceback.
+    """
+    argv = list(sys.argv if args is None else args)
+    try:
+        remove_ros_args(argv)
+    except _rclpy.UnknownROSArgsError as exc:
+        raise StartupError(f'unknown ROS arguments: {exc}') from None
+    except _rclpy.RCLError as exc:
+        raise StartupError(_rcl_reason(str(exc))) from None
+    # rcl takes a file whose YAML is one scalar ('hello') and sets nothing from it.
+    for path in _params_files(argv):
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f)
+        except (OSError, yaml.YAMLError):
+            continue                    # rcl has read it: its own parser is the judge
+        if data is not None and not isinstance(data, dict):
+            raise StartupError(f'cannot read --params-file {path}: {NOT_PARAMS}')
 
 
 def make_executor(kind=None, context=None):
@@ -101,12 +165,18 @@ def run_node(make_node, args=None, on_exit=None, name=None):
     cleanly: ``on_exit(node)`` (may log), the node destroyed, the context shut down, exit
     status 0 and no traceback.
 
-    A :class:`StartupError` from ``make_node`` ends the process with status 2 and the line
-    ``<name>: <reason>`` on stderr (``name``: the executable's name by default). A signal
-    that comes while the node starts (compiling its kernels, say) stops it once started.
+    A :class:`StartupError` from ``make_node`` or from :func:`check_ros_args` on ``args``
+    (None: ``sys.argv``) ends the process with status 2 and the line ``<name>: <reason>`` on
+    stderr (``name``: the executable's name by default). A signal that comes while the node
+    starts (compiling its kernels, say) stops it once started.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
+    try:
+        check_ros_args(args)
+    except StartupError as exc:
+        print(f'{name}: {exc}', file=sys.stderr, flush=True)
+        raise SystemExit(STARTUP_EXIT) from None
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         executor = make_executor()
