@@ -252,3 +252,39 @@ def test_bad_workspace_file_stops_the_node(tmp_path):
                        parameter_overrides=[Parameter('workspace_file', value=str(bad))])
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
+    def off_half(x, y):
+        return f"target_point ({x:.3f}, {y:.3f}) m is not on the opponent's half"
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    remap = remap_args(unique_prefix(), ('/ball/prediction', '/strike/target',
+                                         '/strike/command', '/tt/markers'))
+    try:
+        # At start-up, with the default target_zone 5: the node does not start (run_node
+        # prints this one line and exits 2).
+        with pytest.raises(StartupError) as refused:
+            StrikeNode(context=context, cli_args=remap,
+                       parameter_overrides=[Parameter('target_point', value=[-0.5, 0.0])])
+        assert str(refused.value) == off_half(-0.5, 0.0)
+        node = StrikeNode(context=context, cli_args=remap)
+        try:
+            assert node.target[0] == 5
+            # At run time, while target_zone is 5: the set of target_point fails with the
+            # reason, and the point keeps its value.
+            for x, y in ((-0.5, 0.0), (5.5, 0.0)):
+                result, = node.set_parameters([Parameter('target_point', value=[x, y])])
+                assert not result.successful and result.reason == off_half(x, y)
+                assert list(node.get_parameter('target_point').value) == [0.7, 0.0]
+            # A point on the opponent's half is taken, and aimed at once target_zone is 0.
+            result, = node.set_parameters([Parameter('target_point', value=[0.9, -0.2])])
+            assert result.successful and node.target[0] == 5
+            result, = node.set_parameters([Parameter('target_zone', value=0)])
+            assert result.successful
+            assert node.target[0] == 0 and list(node.target[1]) == [0.9, -0.2]
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

@@ -101,6 +101,9 @@ def check_parameters(values):
         return (f"reach_z_min ({values['reach_z_min']:g} m) must not exceed reach_z_max "
                 f"({values['reach_z_max']:g} m)")
     try:
+        # target_point is checked even while target_zone is set: a point off the opponent's
+        # half is refused when it is set, not later when target_zone goes to 0.
+        resolve_target(target_point=list(values['target_point']))
         _target_from(values['target_zone'], values['target_point'])
     except ValueError as exc:
         return str(exc)
