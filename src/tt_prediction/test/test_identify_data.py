@@ -251,6 +251,29 @@ def test_interrupted_report_leaves_nothing_as_if_complete(tmp_path, monkeypatch)
     assert os.listdir(tmp_path) == []
 
 
+def test_report_folder_replaces_the_old_one_with_the_mode_of_the_umask(tmp_path,
+                                                                       monkeypatch):
+    """The report is staged in a private temporary folder; the folder that takes DIR's place
+    (new, or swapped for an earlier report) has the umask's mode, 0755 under umask 022."""
+    import stat
+    monkeypatch.setattr(report_module, 'plot_all', lambda result, folder: None)
+    monkeypatch.setattr(report_module, 'markdown', lambda result: '# report\n')
+    result = {'_model': ModelParams(), 'selected_effects': []}
+    out = tmp_path / 'out'
+    before = os.umask(0o022)
+    try:
+        report_module.write_outputs(result, str(out), ['synthetic'])
+        assert stat.S_IMODE(out.stat().st_mode) == 0o755
+        out.chmod(0o700)
+        (out / 'stale.png').write_text('from an earlier run')
+        report_module.write_outputs(result, str(out), ['synthetic'])
+    finally:
+        os.umask(before)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    assert sorted(os.listdir(out)) == ['model.yaml', 'report.json', 'report.md']
+    assert os.listdir(tmp_path) == ['out']            # no temporary folder left
+
+
 def test_loads_the_real_sets_format():
     here = os.path.dirname(__file__)
     folder = os.path.join(here, '..', '..', '..', 'data', 'mpi_launcher')
