@@ -2,6 +2,8 @@
 contract: one CSV per track, columns t,x,y,z,vx,vy,vz,wx,wy,wz)."""
 
 import csv
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -52,6 +54,43 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
         header, row = list(csv.reader(f))[:2]
     assert header == ['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source']
     assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
+
+
+def test_a_second_run_replaces_the_output_folder(scene, tmp_path, capsys):
+    """An earlier run's tracks that this run does not write do not stay behind (a reader
+    would take them as tracks of this run); the new folder has the umask's mode."""
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth])
+    out = tmp_path / 'out'
+    out.mkdir(mode=0o700)
+    for n in (1, 2, 3):
+        (out / f'track_{n:03d}.csv').write_text(','.join(HEADER) + '\n')
+    (out / 'index.csv').write_text('file,wx,wy,wz,label,source_id,spin_source\n')
+    before = os.umask(0o022)
+    try:
+        assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
+    finally:
+        os.umask(before)
+    assert sorted(p.name for p in out.iterdir()) == ['index.csv', 'track_001.csv']
+    with open(out / 'index.csv', newline='') as f:
+        assert [row[0] for row in list(csv.reader(f))[1:]] == ['track_001.csv']
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['out', 'video']   # nothing staged
+
+
+def test_an_out_folder_with_other_files_is_refused_and_left_alone(scene, tmp_path, capsys):
+    """The output replaces the whole folder: a folder holding anything but an earlier output
+    (here the rig and its calibration, given as --out by mistake) is refused before any
+    work, one line, exit 2."""
+    base, rig_path, _, _ = scene
+    calib = os.path.dirname(rig_path)
+    before = sorted(os.listdir(calib))
+    assert cli.main(['--rig', rig_path, '--out', calib]) == 2
+    said = capsys.readouterr()
+    err = said.err.strip().splitlines()
+    assert said.out == '' and len(err) == 1 and f'--out {calib}' in err[0]
+    assert sorted(os.listdir(calib)) == before
 
 
 def test_time_offset_of_unsynchronised_videos_is_estimated(tmp_path, capsys):
@@ -143,7 +182,8 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
     (['--rig', '{tmp}/absent.yaml'], 2, 'absent.yaml: no such file'),
     (['--rig', '{rig}'], 1, "source '/cam0/image_raw' is not a video file"),
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
-], ids=['missing rig', 'topics without a bag', 'missing bag'])
+    (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
+], ids=['missing rig', 'topics without a bag', 'missing bag', 'missing model'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
     base, rig_path, _, _ = scene
     out = tmp_path / 'out'
@@ -151,4 +191,6 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     assert cli.main(args) == code
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0]
+    named = [a for a in args if str(tmp_path) in a and a != str(out)]
+    assert all(err[0].count(a) == 1 for a in named)          # each path said once
     assert not out.exists()

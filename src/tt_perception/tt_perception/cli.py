@@ -8,8 +8,11 @@ Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` wit
 image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id,spin_source``;
 the spin columns are left empty and spin_source is ``estimated``: perception estimates spin,
 it does not measure it, and tt-identify must not take it as measured); with
-``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. Bad input: one line
-on stderr, exit status 2 for the rig or calibration, 1 for the data; nothing is written then.
+``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. The folder is written into a
+temporary folder that then takes the place of DIR, so nothing of an earlier run stays; an
+existing DIR must hold only such files (an earlier output), else it is refused. Bad input: one
+line on stderr, exit status 2 for the rig, calibration, model or ``--out``, 1 for the data;
+nothing is written then.
 
 Video files have no common clock: a camera (other than camera 0) whose ``time_offset`` the
 rig leaves out gets it estimated from the ball first (:mod:`tt_perception.sync`, one extra
@@ -20,10 +23,12 @@ import argparse
 import csv
 import os
 import pathlib
+import re
 import sys
 
 import numpy as np
 from tt_prediction.ball import load_model
+from tt_prediction.staged import staged_folder
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
@@ -42,6 +47,8 @@ def bag_frames(rig, bag):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
+    if not os.path.exists(bag):
+        raise InputError(f'{bag}: not a readable rosbag2 bag: no such file or folder')
     try:
         reader = AnyReader([pathlib.Path(bag)],
                            default_typestore=get_typestore(Stores.ROS2_JAZZY))
@@ -140,26 +147,49 @@ def run(frames, pipeline):
 
 
 def write_tracks(out, estimates, label):
-    """Write one CSV per track and index.csv into ``out``; returns the file names."""
-    os.makedirs(out, exist_ok=True)
+    """Write one CSV per track and index.csv into a temporary folder, then put it in the place
+    of ``out`` (staged_folder: an earlier run's files do not stay, an error leaves ``out`` as
+    it was); returns the file names."""
     tracks = {}
     for t_ref, e in estimates:
         tracks.setdefault(e.track_id, []).append((t_ref + e.t, e.state))
-    names = []
-    for n, track_id in enumerate(sorted(tracks), start=1):
-        name = f'track_{n:03d}.csv'
-        with open(os.path.join(out, name), 'w', newline='', encoding='utf-8') as f:
-            w = csv.writer(f)
-            w.writerow(['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])
-            for t, s in tracks[track_id]:
-                w.writerow([f'{t:.6f}'] + [f'{v:.6f}' for v in s])
-        names.append(name)
-    with open(os.path.join(out, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
-        w = csv.writer(f)
-        w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source'])
+    names = [f'track_{n:03d}.csv' for n in range(1, len(tracks) + 1)]
+    with staged_folder(out, 'tt-perceive', replace_folder=True) as tmp:
         for name, track_id in zip(names, sorted(tracks), strict=True):
-            w.writerow([name, '', '', '', label, track_id, 'estimated'])
+            with open(os.path.join(tmp, name), 'w', newline='', encoding='utf-8') as f:
+                w = csv.writer(f)
+                w.writerow(['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])
+                for t, s in tracks[track_id]:
+                    w.writerow([f'{t:.6f}'] + [f'{v:.6f}' for v in s])
+        with open(os.path.join(tmp, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
+            w = csv.writer(f)
+            w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source'])
+            for name, track_id in zip(names, sorted(tracks), strict=True):
+                w.writerow([name, '', '', '', label, track_id, 'estimated'])
     return names
+
+
+OUTPUT_FILE = re.compile(r'(track_\d{3,}\.csv|index\.csv)$')
+"""The files tt-perceive writes into its output folder."""
+
+
+def output_folder_error(out):
+    """Why ``out`` cannot take tt-perceive's output, or '': the folder is replaced as a whole,
+    so an existing one may hold only what an earlier run wrote (not the rig, the videos or
+    other data given as ``--out`` by mistake)."""
+    if not os.path.lexists(out):
+        return ''
+    if os.path.islink(out) or not os.path.isdir(out):
+        return f'--out {out}: not a folder'
+    try:
+        others = sorted(n for n in os.listdir(out) if not OUTPUT_FILE.match(n))
+    except OSError as exc:
+        return f'--out {out}: cannot read: {exc.strerror}'
+    if not others:
+        return ''
+    more = f' and {len(others) - 1} more' if len(others) > 1 else ''
+    return (f'--out {out}: holds {others[0]}{more}, not written by tt-perceive (the output '
+            'replaces the whole folder): give a new folder')
 
 
 def write_bag(path, estimates, frame_id):
@@ -196,6 +226,10 @@ def main(argv=None):
     if args.out_bag and os.path.exists(args.out_bag):
         print(f'tt-perceive: output bag {args.out_bag} already exists', file=sys.stderr)
         return 1
+    out_error = output_folder_error(args.out)
+    if out_error:
+        print(f'tt-perceive: {out_error}', file=sys.stderr)
+        return 2
     try:
         rig = load_rig(args.rig, min_cameras=2)
     except CalibrationError as exc:
@@ -205,7 +239,8 @@ def main(argv=None):
         params = load_model(args.model)
     except Exception as exc:      # the model loader's own errors (file, YAML, values)
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f'tt-perceive: model {args.model}: {first}', file=sys.stderr)
+        named = first if first.startswith(f'{args.model}: ') else f'{args.model}: {first}'
+        print(f'tt-perceive: --model {named}', file=sys.stderr)
         return 2
     try:
         if not args.bag:
@@ -220,7 +255,12 @@ def main(argv=None):
         return 1
     for message in errors.values():
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
-    names = write_tracks(args.out, estimates, 'tt-perceive')
+    try:
+        names = write_tracks(args.out, estimates, 'tt-perceive')
+    except OSError as exc:
+        print(f'tt-perceive: --out {args.out}: cannot write: {exc.strerror or exc}',
+              file=sys.stderr)
+        return 1
     if args.out_bag:
         write_bag(args.out_bag, estimates, rig.frame_id)
     print(f'tt-perceive: {len(names)} track(s), {len(estimates)} states -> {args.out}')
