@@ -154,9 +154,38 @@ def test_pose_from_named_points(tmp_path, capsys):
     assert np.allclose(load_rig(path).cameras[0].centre, cam.centre, atol=1e-4)
     points.write_text(yaml.safe_dump({'corner_7': [1, 2]}))
     assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
-                           '--points', str(points)]) == 1
+                           '--points', str(points)]) == 2       # bad input
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'unknown point names' in err[0]
+
+
+@pytest.mark.parametrize('args, option', [
+    (['--image', '{tmp}/absent.png'], '--image'),
+    (['--image', '{tmp}'], '--image'),
+    (['--image', '{image}', '--points', '{tmp}/absent.yaml'], '--points'),
+    (['--image', '{image}', '--points', '{bad_yaml}'], '--points'),
+    (['--image', '{image}', '--max-error', '-1'], '--max-error'),
+    (['--image', '{image}', '--max-error', '0'], '--max-error'),
+    (['--image', '{image}', '--max-error', 'nan'], '--max-error'),
+], ids=['missing image', 'folder as image', 'missing points', 'bad points YAML',
+        'negative max error', 'zero max error', 'nan max error'])
+def test_bad_input_of_the_pose_command_is_one_line_exit_2_rig_untouched(tmp_path, capfd,
+                                                                        args, option):
+    import cv2
+    path = synth.make_rig(str(tmp_path / 'calib'))
+    rig_text = open(path).read()
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(load_rig(path), 0))
+    bad_yaml = tmp_path / 'points.yaml'
+    bad_yaml.write_text('robot_left: [1, 2\n')
+    capfd.readouterr()
+    args = [a.format(tmp=tmp_path, image=image, bad_yaml=bad_yaml) for a in args]
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', *args]) == 2
+    said = capfd.readouterr()             # file descriptors: OpenCV's own warnings too
+    err = said.err.strip().splitlines()
+    assert said.out == '' and len(err) == 1
+    assert err[0].startswith(f'tt_perception.calibrate: {option}')
+    assert open(path).read() == rig_text
 
 
 def test_measured_spin_fills_in_the_unobservable_component():

@@ -12,10 +12,14 @@ corners look the same turned by 180 degrees: the solution kept is the one whose 
 (x = -1.37) is nearer the camera (``--robot-end near``, a camera behind the robot) or farther
 (``far``). The pose is solved with SQPnP, refined by Levenberg-Marquardt, checked (RMS
 reprojection error at most ``--max-error`` pixels, camera above the table) and written into the
-rig file; the command prints the pose and the error. Errors: one line, exit status 1.
+rig file; the command prints the pose and the error. Errors: one line; exit status 2 for bad
+arguments or input files (rig, camera, image, points), 1 when no pose is found or it does not
+fit.
 """
 
 import argparse
+import math
+import os
 import sys
 
 import cv2
@@ -102,6 +106,53 @@ def pose_from_corners(camera, corners, robot_end='near'):
     return best
 
 
+def _file_error(option, path):
+    """Why the file ``path`` given as ``option`` cannot be read, or ''."""
+    if not os.path.exists(path):
+        return f'{option} {path}: no such file'
+    if not os.path.isfile(path):
+        return f'{option} {path}: not a file'
+    if not os.access(path, os.R_OK):
+        return f'{option} {path}: cannot read: permission denied'
+    return ''
+
+
+def read_points(path):
+    """The pixels of known table points in the YAML file ``path`` given as ``--points``:
+    (names, pixels (n, 2)); raises CalibrationError naming the file."""
+    import yaml
+    error = _file_error('--points', path)
+    if error:
+        raise CalibrationError(error)
+    try:
+        with open(path, encoding='utf-8') as f:
+            marks = yaml.safe_load(f) or {}
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f'--points {path}: cannot read: {exc}') from None
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f'--points {path}: not valid YAML: '
+                               f'{str(exc).splitlines()[0]}') from None
+    if not isinstance(marks, dict):
+        raise CalibrationError(f'--points {path}: expected a mapping of point names to '
+                               '[u, v] pixels')
+    unknown = sorted(str(n) for n in set(marks) - set(TABLE_POINTS))
+    if unknown:
+        raise CalibrationError(f'--points {path}: unknown point names {unknown} '
+                               f'(known: {sorted(TABLE_POINTS)})')
+    names = sorted(marks)
+    for name in names:
+        uv = marks[name]
+        if not (isinstance(uv, list) and len(uv) == 2
+                and all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                        and math.isfinite(c) for c in uv)):
+            raise CalibrationError(f'--points {path}: {name} must be [u, v], two finite '
+                                   f'pixel numbers, got {uv!r}')
+    if len(names) < 4:
+        raise CalibrationError(f'--points {path}: {len(names)} point(s); the pose needs 4 '
+                               'or more')
+    return names, np.array([marks[n] for n in names], dtype=float)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m tt_perception.calibrate',
                                      description=__doc__.splitlines()[0])
@@ -112,31 +163,36 @@ def main(argv=None):
     parser.add_argument('--robot-end', choices=('near', 'far'), default='near',
                         help='whether the robot end of the table is the nearer one')
     parser.add_argument('--max-error', type=float, default=3.0,
-                        help='largest accepted RMS reprojection error, pixels')
+                        help='largest accepted RMS reprojection error, pixels (default: '
+                             '%(default)s)')
     args = parser.parse_args(argv)
-    try:
+    try:                          # the arguments and input files: exit 2
+        if not (math.isfinite(args.max_error) and args.max_error > 0.0):
+            raise CalibrationError(f'--max-error must be a positive number of pixels, got '
+                                   f'{args.max_error:g}')
         rig = load_rig(args.rig)
         cams = [c for c in rig.cameras if c.name == args.camera]
         if not cams:
             raise CalibrationError(f'rig {args.rig}: no camera named {args.camera!r}')
         cam = cams[0]
+        # Checked first: OpenCV warns on stderr about a file it cannot open.
+        error = _file_error('--image', args.image)
+        if error:
+            raise CalibrationError(error)
         image = cv2.imread(args.image, cv2.IMREAD_COLOR)
         if image is None:
-            raise CalibrationError(f'{args.image}: not a readable image')
+            raise CalibrationError(f'--image {args.image}: not a readable image')
         if image.shape[:2] != (cam.height, cam.width):
-            raise CalibrationError(f'{args.image}: {image.shape[1]}x{image.shape[0]} but '
-                                   f'{cam.name} is calibrated at {cam.width}x{cam.height}')
-        if args.points:
-            import yaml
-            with open(args.points, encoding='utf-8') as f:
-                marks = yaml.safe_load(f) or {}
-            unknown = sorted(set(marks) - set(TABLE_POINTS))
-            if unknown:
-                raise CalibrationError(f'{args.points}: unknown point names {unknown} '
-                                       f'(known: {sorted(TABLE_POINTS)})')
-            names = sorted(marks)
-            R, t, rms = solve_pose(cam, [TABLE_POINTS[n] for n in names],
-                                   [marks[n] for n in names])
+            raise CalibrationError(f'--image {args.image}: {image.shape[1]}x{image.shape[0]} '
+                                   f'but {cam.name} is calibrated at {cam.width}x{cam.height}')
+        marks = read_points(args.points) if args.points else None
+    except (CalibrationError, OSError, ValueError, TypeError) as exc:
+        print(f'tt_perception.calibrate: {exc}', file=sys.stderr)
+        return 2
+    try:                          # no pose found, or one that does not fit: exit 1
+        if marks is not None:
+            names, pixels = marks
+            R, t, rms = solve_pose(cam, [TABLE_POINTS[n] for n in names], pixels)
         else:
             corners = find_table_corners(image)
             if corners is None:
@@ -146,11 +202,12 @@ def main(argv=None):
         if rms > args.max_error:
             raise CalibrationError(f'reprojection error {rms:.2f} px exceeds {args.max_error} '
                                    'px: the points do not fit the table')
-    except (CalibrationError, OSError, ValueError, TypeError) as exc:
-        print(f'tt_perception.calibrate: {exc}', file=sys.stderr)
+        cam.R, cam.t = R, t
+        save_rig(args.rig, rig)
+    except (CalibrationError, OSError, ValueError, cv2.error) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f'tt_perception.calibrate: {first}', file=sys.stderr)
         return 1
-    cam.R, cam.t = R, t
-    save_rig(args.rig, rig)
     centre = -R.T @ t
     print(f'{cam.name}: camera at ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}) m, '
           f'reprojection RMS {rms:.2f} px; written to {args.rig}')
