@@ -150,12 +150,22 @@ def write(result, folder):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--data', required=True, metavar='DIR')
-    parser.add_argument('--model', required=True, metavar='FILE')
-    parser.add_argument('--out', required=True, metavar='FOLDER')
-    parser.add_argument('--hit-plane-x', type=float, default=-1.2, metavar='X')
-    parser.add_argument('--filter-config', metavar='FILE')
+    parser = argparse.ArgumentParser(prog='python -m tt_prediction.lead_report',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--data', required=True, metavar='DIR',
+                        help='data set: track CSVs t,x,y,z and index.csv (as tt-identify and '
+                             'tt-predict --tracks read it)')
+    parser.add_argument('--model', required=True, metavar='FILE',
+                        help='the final model.yaml (written by tt-identify), replayed against '
+                             'the nominal model')
+    parser.add_argument('--out', required=True, metavar='FOLDER',
+                        help="folder for lead_time.png, .md and .json; tt-identify's "
+                             'report.md there gets the section')
+    parser.add_argument('--hit-plane-x', type=float, default=-1.2, metavar='X',
+                        help='hitting plane x, m (default: %(default)s)')
+    parser.add_argument('--filter-config', metavar='FILE',
+                        help='YAML of FilterConfig fields (default: defaults, position noise '
+                             'estimated from the data)')
     args = parser.parse_args(argv)
     try:
         result = lead_time_errors_for(args.data, args.model, args.hit_plane_x,

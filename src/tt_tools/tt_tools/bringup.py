@@ -369,7 +369,8 @@ class Show:
 
 
 def parse_args(argv):
-    p = argparse.ArgumentParser(prog='bringup', description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog='bringup',
+                                description=__doc__.splitlines()[0].replace('``', ''))
     p.add_argument('--params-file', required=True,
                    help='ROS parameters file naming the nodes to start (e.g. the installed '
                         'share/tt_tools/config/robot.yaml or replay.yaml)')

@@ -34,16 +34,19 @@ def _progress_factory(enabled):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='tt-identify', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='tt-identify',
+                                     description=__doc__.splitlines()[0].replace('``', ''))
     parser.add_argument('data', nargs='+', metavar='DATA',
                         help='trajectory folder or rosbag2 bag')
     parser.add_argument('--out', required=True, metavar='DIR', help='output folder')
     parser.add_argument('--model', default='', help='base model.yaml (default: nominal)')
     parser.add_argument('--topic', default=None, help='bag topic (default: the only one)')
     parser.add_argument('--folds', type=int, default=5,
-                        help='cross-validation folds (by trajectory), >= 2')
+                        help='cross-validation folds (by trajectory), >= 2 '
+                             '(default: %(default)s)')
     parser.add_argument('--hit-plane-x', type=float, default=-1.5,
-                        help='x of the hitting plane for the hit-plane error, m')
+                        help='x of the hitting plane for the hit-plane error, m '
+                             '(default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     args = parser.parse_args(argv)
     if args.folds < 2:
