@@ -55,6 +55,30 @@ def test_hit_plane_and_model_options(capsys, tmp_path):
     assert row['hit']['p'][2] < nominal.hit.p[2] - 0.01
 
 
+@pytest.mark.parametrize('plane', ['5', '0.001', '-3.001', '-10', 'nan', '-inf'])
+def test_a_hit_plane_outside_the_node_range_is_one_line_exit_2(capsys, tmp_path, plane):
+    # The prediction node accepts hit_plane_x in [-3, 0] m; the command takes the same.
+    rc, out, err = run_main(capsys, json.dumps(GOOD), f'--hit-plane-x={plane}',
+                            tmp_path=tmp_path)
+    assert rc == 2 and out == ''
+    assert err.count('\n') == 1 and err.startswith('tt-predict: --hit-plane-x ')
+
+
+@pytest.mark.parametrize('plane', ['-3', '0'])
+def test_the_ends_of_the_node_range_are_accepted(capsys, tmp_path, plane):
+    rc, out, err = run_main(capsys, json.dumps(GOOD), '--hit-plane-x', plane,
+                            tmp_path=tmp_path)
+    assert rc == 0 and err == '' and len(out.splitlines()) == 1
+
+
+def test_a_missing_input_file_is_named_once(capsys, tmp_path):
+    path = str(tmp_path / 'absent.jsonl')
+    rc = cli.main(['--input', path])
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ''
+    assert err.count('\n') == 1 and err.count(path) == 1 and 'no such file' in err
+
+
 def test_implausible_model_file_is_refused_naming_file_and_field(capsys, tmp_path):
     # No air (c_d = 0) is outside C_D's plausible range 0.1..2 (issue 17): exit 2, one line.
     model = tmp_path / 'model.yaml'

@@ -3,7 +3,9 @@ samples, and bad input (one-line error naming the file, exit 2, no output)."""
 
 import csv
 import json
+import os
 from pathlib import Path
+import stat
 
 import numpy as np
 import pytest
@@ -180,6 +182,32 @@ def test_a_spin_prior_mean_in_the_filter_config_is_the_spin_a_track_starts_with(
     v, w = first[3:6], first[6:9]
     assert np.linalg.norm(w) == pytest.approx(40.0, rel=1e-3)
     assert w @ v / np.linalg.norm(v) == pytest.approx(-40.0, rel=1e-2)
+
+
+@pytest.mark.parametrize('umask', [0o022, 0o077])
+def test_the_output_folder_mode_follows_the_umask(data, tmp_path, umask):
+    """The rows are staged in a temporary folder: the folder that takes OUT's place has the
+    mode of any folder made under the umask (0777 less it), not a private 0700."""
+    folder, _ = data
+    out = tmp_path / 'out'
+    before = os.umask(umask)
+    try:
+        assert main(['--tracks', str(folder), '--out', str(out), '--no-textbook']) == 0
+    finally:
+        os.umask(before)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~umask
+
+
+@pytest.mark.parametrize('plane', ['5', '0.01', '-3.01', 'nan', 'inf'])
+def test_a_hit_plane_outside_the_node_range_is_one_line_exit_2_no_output(data, tmp_path,
+                                                                          capsys, plane):
+    folder, _ = data
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', plane]) == 2
+    said = capsys.readouterr()
+    err = said.err.strip().splitlines()
+    assert said.out == '' and len(err) == 1 and '--hit-plane-x' in err[0]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_measured_crossing_of_a_sampled_parabola():

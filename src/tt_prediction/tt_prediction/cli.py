@@ -19,7 +19,7 @@ import sys
 import numpy as np
 
 from .ball import load_model
-from .predict import DEFAULT_HIT_PLANE_X, check_state, predict, predict_many
+from .predict import DEFAULT_HIT_PLANE_X, HIT_PLANE_X_RANGE, check_state, predict, predict_many
 from .units import ROOM_HALF_EXTENT_M, position_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
@@ -95,12 +95,22 @@ def parse_line(text, lineno, radius):
     return parse_state(parse_object(text, lineno), lineno, radius)
 
 
+def _read_error(exc):
+    """Why a file could not be read, in a few plain words (the file is named by the caller)."""
+    if isinstance(exc, UnicodeDecodeError):
+        return 'not a UTF-8 text file'
+    if isinstance(exc, FileNotFoundError):
+        return 'no such file'
+    return f'cannot read: {(exc.strerror or str(exc)).lower()}'
+
+
 def read_input(model_file, input_file, parse):
     """The model (``model_file`` or the nominal one) and every non-blank input line parsed by
     ``parse(line, lineno, radius)``, from ``input_file`` or stdin. Everything is read and
     checked before any output, so a bad line leaves nothing half-written. Raises InputError
-    or ValueError with a one-line reason."""
+    or ValueError with a one-line reason, naming ``input_file`` once (then the line)."""
     params = load_model(model_file)
+    where = f'{input_file}: ' if input_file else ''
     try:
         if input_file:
             with open(input_file) as f:
@@ -108,9 +118,23 @@ def read_input(model_file, input_file, parse):
         else:
             lines = sys.stdin.readlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f'cannot read {input_file or "stdin"}: {exc}') from None
-    return params, [parse(line, i, params.radius)
-                    for i, line in enumerate(lines, start=1) if line.strip()]
+        raise InputError(f'{input_file or "stdin"}: {_read_error(exc)}') from None
+    try:
+        return params, [parse(line, i, params.radius)
+                        for i, line in enumerate(lines, start=1) if line.strip()]
+    except InputError as exc:
+        raise InputError(f'{where}{exc}') from None
+
+
+def hit_plane_error(value):
+    """Why ``value`` cannot be a ``--hit-plane-x``, or '': it must be finite and inside
+    HIT_PLANE_X_RANGE, the range of the prediction node's ``hit_plane_x`` parameter too."""
+    if not math.isfinite(value):
+        return '--hit-plane-x must be finite'
+    lo, hi = HIT_PLANE_X_RANGE
+    if not lo <= value <= hi:
+        return f'--hit-plane-x must be a number in [{lo:g}, {hi:g}] m, got {value:g}'
+    return ''
 
 
 def predictions(states, params, hit_plane_x):
@@ -138,16 +162,13 @@ def main(argv=None):
     parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,
                         metavar='X', help='hitting plane x, m (default: %(default)s)')
     args = parser.parse_args(argv)
-    if not math.isfinite(args.hit_plane_x):
-        print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
+    plane_error = hit_plane_error(args.hit_plane_x)
+    if plane_error:
+        print(f'tt-predict: {plane_error}', file=sys.stderr)
         return 2
     try:
         params, states = read_input(args.model, args.input, parse_line)
-    except InputError as exc:
-        where = f'{args.input}: ' if args.input else ''     # the file, when not stdin
-        print(f'tt-predict: {where}{exc}', file=sys.stderr)
-        return 2
-    except ValueError as exc:                  # the model file's own errors
+    except ValueError as exc:        # InputError and the model file's errors name the file
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     out = [json.dumps(pred.to_dict()) for pred in predictions(states, params, args.hit_plane_x)]

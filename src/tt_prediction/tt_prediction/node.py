@@ -30,7 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tt_msgs.msg import BallPrediction, BallState
 
 from .ball import load_model
-from .predict import DEFAULT_HIT_PLANE_X, predict
+from .predict import DEFAULT_HIT_PLANE_X, HIT_PLANE_X_RANGE, predict
 from .uncertainty import predict_uncertainty
 from .units import ROOM_HALF_EXTENT_M, position_error
 
@@ -47,7 +47,7 @@ _ZERO3 = (0.0, 0.0, 0.0)
 
 PARAMETERS = (
     Param('hit_plane_x', DEFAULT_HIT_PLANE_X,
-          "x of the hitting plane on the robot's side (table frame)", 'm', -3.0, 0.0),
+          "x of the hitting plane on the robot's side (table frame)", 'm', *HIT_PLANE_X_RANGE),
     Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
           read_only=True),
     Param('max_rate_hz', 0.0, "highest prediction rate per the states' stamps; 0: every "

@@ -48,6 +48,8 @@ STATUSES = ('ok', 'net', 'no_bounce', 'miss', 'wrong_half', 'double_bounce', 'no
 
 DEFAULT_HIT_PLANE_X = -1.5
 """Default hitting plane x = -1.50 m (DESIGN.md, tt-predict), 13 cm behind the end line."""
+HIT_PLANE_X_RANGE = (-3.0, 0.0)
+"""The hitting planes the tools and the prediction node accept: x on the robot's side, m."""
 T_MAX = 3.0
 """Longest flight integrated, s (a slow lob from the far end takes about 1.5 s)."""
 STEP = 0.01

@@ -22,6 +22,7 @@ import yaml
 
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
+from .cli import hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
@@ -109,8 +110,8 @@ def write_output(out_dir, replays, summary):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(
-        prog='tt-predict --tracks', description=__doc__.splitlines()[0],
+    parser = argparse.ArgumentParser(       # the usage line names --tracks as an option
+        prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Output format and measured numbers: see docs/prediction.md.')
     parser.add_argument('--tracks', metavar='DIR', required=True,
                         help='data set: track CSVs t,x,y,z and index.csv')
@@ -129,8 +130,9 @@ def main(argv=None):
                              'table restitution (default: learn them from the tracks before '
                              'each one, docs/prediction.md)')
     args = parser.parse_args(argv)
-    if not math.isfinite(args.hit_plane_x):
-        print('tt-predict: --hit-plane-x must be finite', file=sys.stderr)
+    plane_error = hit_plane_error(args.hit_plane_x)
+    if plane_error:
+        print(f'tt-predict: {plane_error}', file=sys.stderr)
         return 2
     try:
         params = load_model(args.model)

@@ -70,6 +70,22 @@ def test_missing_data_is_a_one_line_error(tmp_path, capsys):
 
 
 
+@pytest.mark.parametrize('args, option', [
+    (['--net-clearance', '-1'], '--net-clearance'),        # tt-strike refuses it too
+    (['--net-clearance', 'nan'], '--net-clearance'),
+    (['--limit', '-5'], '--limit'),
+    (['--hit-plane-x', '-1.5', '--monte-carlo', '-1'], '--monte-carlo'),
+    (['--hit-plane-x', '5'], '--hit-plane-x'),
+])
+def test_a_bad_number_is_a_one_line_error_and_nothing_is_written(tmp_path, capsys, args,
+                                                                  option):
+    table = tmp_path / 'table.json'
+    assert main(['--data', str(DATA), '--json', str(table), *args]) == 2
+    said = capsys.readouterr()
+    assert said.out == '' and said.err.count('\n') == 1 and option in said.err
+    assert not table.exists()
+
+
 @pytest.mark.parametrize('args', [['--hit-plane-x', '-1.5', '--strokes', 'x.jsonl'],
                                   ['--hit-plane-x', '-1.5', '--workspace', 'w.yaml'],
                                   ['--monte-carlo', '3']])

@@ -103,6 +103,15 @@ def test_bad_option(monkeypatch, capsys):
     assert code == 2 and out == [] and '--net-clearance' in err and err.count('\n') == 1
 
 
+@pytest.mark.parametrize('plane', ['5', '0.01', '-3.5', 'nan'])
+def test_a_hit_plane_outside_the_node_range_is_a_one_line_error(plane, monkeypatch, capsys):
+    # The prediction node's hit_plane_x range is [-3, 0] m; tt-strike takes the same.
+    code, out, err = run([dict(BALL, target_zone=5)], monkeypatch, capsys,
+                         ['--hit-plane-x', plane])
+    assert code == 2 and out == [] and err.count('\n') == 1
+    assert err.startswith('tt-strike: --hit-plane-x ')
+
+
 def test_hit_plane_x_is_the_old_behaviour(monkeypatch, capsys):
     code, out, _ = run([dict(BALL, target_zone=5)], monkeypatch, capsys,
                        ['--hit-plane-x', '-1.5'])

@@ -28,7 +28,7 @@ import math
 import sys
 
 import numpy as np
-from tt_prediction.cli import InputError, parse_object, parse_state, read_input
+from tt_prediction.cli import InputError, hit_plane_error, parse_object, parse_state, read_input
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .hitpoint import choose
@@ -54,6 +54,14 @@ def parse_strike_line(text, lineno, radius):
             raise InputError(f'line {lineno}: "covariance" must be 81 finite numbers (9x9)')
         cov = np.array(cov, dtype=float).reshape(9, 9)
     return t, np.array(state), zone, point, cov
+
+
+def positive_error(option, value):
+    """Why ``value`` cannot be the value of ``option`` (a length or speed: finite and
+    positive), or '' (also for None, an option not given)."""
+    if value is None or (math.isfinite(value) and value > 0.0):
+        return ''
+    return f'{option} must be finite and positive'
 
 
 def _vec(a):
@@ -116,14 +124,12 @@ def main(argv=None):
     parser.add_argument('--aim-inside-zone', action='store_true',
                         help='aim where the in-zone probability is highest (needs covariance)')
     args = parser.parse_args(argv)
-    for name in ('hit_plane_x', 'net_clearance', 'max_racket_speed'):
-        value = getattr(args, name)
-        if value is None:
-            continue
-        if not math.isfinite(value) or (name != 'hit_plane_x' and value <= 0.0):
-            print(f'tt-strike: --{name.replace("_", "-")} must be finite'
-                  f'{"" if name == "hit_plane_x" else " and positive"}', file=sys.stderr)
-            return 2
+    errors = [hit_plane_error(args.hit_plane_x) if args.hit_plane_x is not None else '',
+              positive_error('--net-clearance', args.net_clearance),
+              positive_error('--max-racket-speed', args.max_racket_speed)]
+    for error in filter(None, errors):
+        print(f'tt-strike: {error}', file=sys.stderr)
+        return 2
     try:
         workspace = None if args.hit_plane_x is not None else load_workspace(args.workspace)
         params, balls = read_input(args.model, args.input, parse_strike_line)

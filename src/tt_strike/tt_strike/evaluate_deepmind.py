@@ -38,8 +38,10 @@ import time
 
 import numpy as np
 from tt_prediction.ball import load_model
+from tt_prediction.cli import hit_plane_error
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
+from .cli import positive_error
 from .hitpoint import choose
 from .incoming import hit_point
 from .robust import monte_carlo_in_zone, noise_covariance
@@ -215,14 +217,17 @@ def markdown(rows):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='python -m tt_strike.evaluate_deepmind',
+                                     description=__doc__.splitlines()[0])
     parser.add_argument('--data', default=str(DEFAULT_DATA), help='deepmind_states folder')
     parser.add_argument('--model', default=None, help='model.yaml (default: nominal model)')
     parser.add_argument('--workspace', default=None,
                         help='workspace YAML (default: the template config/workspace.yaml)')
     parser.add_argument('--hit-plane-x', type=float, default=None,
                         help=f'old behaviour: hit at the plane x = X (e.g. {DEFAULT_HIT_PLANE_X})')
-    parser.add_argument('--net-clearance', type=float, default=StrikeSettings.net_clearance)
+    parser.add_argument('--net-clearance', type=float, default=StrikeSettings.net_clearance,
+                        metavar='M', help='gap between ball and net top at x = 0 the strokes '
+                        'aim for, m (default: %(default)s)')
     parser.add_argument('--limit', type=int, default=0, help='use every k-th state only '
                         'so that about this many remain (0: all)')
     parser.add_argument('--json', default=None, help='write the numbers to this file')
@@ -237,6 +242,13 @@ def main(argv=None):
                      'with --hit-plane-x')
     if not plane and args.monte_carlo:
         parser.error('--monte-carlo checks the strokes at the plane: it needs --hit-plane-x')
+    errors = [hit_plane_error(args.hit_plane_x) if plane else '',
+              positive_error('--net-clearance', args.net_clearance),    # as tt-strike
+              '--limit must be 0 (all states) or more' if args.limit < 0 else '',
+              '--monte-carlo must be 0 (none) or more' if args.monte_carlo < 0 else '']
+    for error in filter(None, errors):
+        print(f'tt_strike.evaluate_deepmind: {error}', file=sys.stderr)
+        return 2
     folder = pathlib.Path(args.data)
     path = folder / FULL_SET if (folder / FULL_SET).is_file() else folder / 'states.csv'
     if not path.is_file():

@@ -88,3 +88,21 @@ def test_native_writes_to_fd_1_go_to_stderr_and_python_output_stays_on_stdout():
                          timeout=60)
     assert out.returncode == 0
     assert out.stdout == 'a: 1\n' and out.stderr == 'native log\n'
+
+
+@pytest.mark.parametrize('plane', ['5', '-3.5', 'nan', '-3'])
+def test_demo_refuses_a_hit_plane_its_balls_cannot_reach_before_writing(tmp_path, capsys,
+                                                                        plane):
+    # Outside the prediction node's range [-3, 0] m, or in it but where none of the demo's
+    # balls arrive (-3 m): one error line and exit 2, as for --target-zone, and no
+    # recording.partial (or anything else) left behind.
+    from tt_tools import demo
+    out = tmp_path / 'demo'
+    with pytest.raises(SystemExit) as exit_:
+        demo.main(['--out', str(out), '--hit-plane-x', plane])
+    assert exit_.value.code == 2
+    said = capsys.readouterr()
+    errors = [line for line in said.err.splitlines() if 'error:' in line]
+    assert said.out == '' and 'Traceback' not in said.err
+    assert len(errors) == 1 and '--hit-plane-x' in errors[0]
+    assert list(tmp_path.iterdir()) == []

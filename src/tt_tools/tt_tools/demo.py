@@ -13,7 +13,7 @@
    views) and shows `ros2 bag info` of the session bag.
 
 Usage: python -m tt_tools.demo [--out DIR] [--balls N] [--source video|topics] [--rate R]
-                               [--target-zone Z]
+                               [--target-zone Z] [--hit-plane-x X]
 """
 
 import argparse
@@ -24,13 +24,16 @@ import subprocess
 import sys
 import time
 
+from tt_prediction.cli import hit_plane_error
+
 from .procs import ProcessGroup, ros_env, wait_until
 
 OUTPUT_TOPICS = ('/ball/state', '/ball/prediction', '/strike/command')
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog='tt-demo', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='python -m tt_tools.demo',
+                                     description=__doc__.splitlines()[0].replace('`', ''))
     parser.add_argument('--out', default='out/demo', help='output folder (default out/demo)')
     parser.add_argument('--balls', type=int, default=4, help='incoming balls (default 4)')
     parser.add_argument('--source', choices=('video', 'topics'), default='video',
@@ -52,6 +55,14 @@ def parse_args(argv):
         args.rate = 1.0 if args.source == 'video' else 0.15
     if args.balls < 1 or args.rate <= 0.0:
         parser.error('--balls must be >= 1 and --rate > 0')
+    plane_error = hit_plane_error(args.hit_plane_x)     # the prediction node's range
+    if plane_error:
+        parser.error(plane_error)
+    from .scenario import demo_balls
+    try:                      # the recording's balls (ms; before anything is written)
+        demo_balls(args.balls, args.hit_plane_x)
+    except RuntimeError as exc:
+        parser.error(f'--hit-plane-x {args.hit_plane_x:g}: {exc}')
     return args
 
 
