@@ -48,6 +48,19 @@ def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, file
     assert [p.name for p in tmp_path.iterdir()] == ['data']   # no temp folder left
 
 
+@pytest.mark.parametrize('plane', ['1.0', '-3.5', 'nan'])
+def test_a_hit_plane_outside_the_node_range_is_refused_before_any_work(tmp_path, capsys,
+                                                                       plane):
+    # The prediction node takes hit_plane_x in [-3, 0] m; tt-identify scores the same planes.
+    folder = _folder(tmp_path, {})          # empty: refused for the plane before the data
+    out = tmp_path / 'out'
+    with pytest.raises(SystemExit) as stop:
+        main([str(folder), '--out', str(out), '--hit-plane-x', plane, '--no-progress'])
+    assert stop.value.code == 2
+    assert '--hit-plane-x must be' in capsys.readouterr().err
+    assert not out.exists()
+
+
 def _write_bag(path, topic, msgtype, messages):
     """A rosbag2 (MCAP) bag with one topic; messages built by the typestore's classes."""
     from rosbags.rosbag2 import StoragePlugin, Writer

@@ -20,6 +20,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interactive backend)
 
 from .ball import load_model  # noqa: E402
+from .cli import hit_plane_error  # noqa: E402
 from .replay import LEADS_MS, replay_tracks  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
 
@@ -167,6 +168,9 @@ def main(argv=None):
                         help='YAML of FilterConfig fields (default: defaults, position noise '
                              'estimated from the data)')
     args = parser.parse_args(argv)
+    plane_error = hit_plane_error(args.hit_plane_x)
+    if plane_error:
+        parser.error(plane_error)
     try:
         result = lead_time_errors_for(args.data, args.model, args.hit_plane_x,
                                       args.filter_config)

@@ -9,6 +9,7 @@ import argparse
 import sys
 
 from ..ball import load_model
+from ..cli import hit_plane_error
 from .data import DataError, load
 from .pipeline import identify
 from .report import write_outputs
@@ -51,6 +52,9 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.folds < 2:
         parser.error('--folds must be at least 2')
+    plane_error = hit_plane_error(args.hit_plane_x)
+    if plane_error:
+        parser.error(plane_error)
     progress = _progress_factory(not args.no_progress)
     try:
         base = load_model(args.model)
