@@ -183,7 +183,9 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
     (['--rig', '{rig}'], 1, "source '/cam0/image_raw' is not a video file"),
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
-], ids=['missing rig', 'topics without a bag', 'missing bag', 'missing model'])
+    (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, 'already exists'),
+], ids=['missing rig', 'topics without a bag', 'missing bag', 'missing model',
+        'existing output bag'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
     base, rig_path, _, _ = scene
     out = tmp_path / 'out'

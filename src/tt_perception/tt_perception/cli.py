@@ -224,8 +224,9 @@ def main(argv=None):
                                           'into this new bag (MCAP)')
     args = parser.parse_args(argv)
     if args.out_bag and os.path.exists(args.out_bag):
-        print(f'tt-perceive: output bag {args.out_bag} already exists', file=sys.stderr)
-        return 1
+        print(f'tt-perceive: --out-bag {args.out_bag}: already exists (give a new bag)',
+              file=sys.stderr)
+        return 2
     out_error = output_folder_error(args.out)
     if out_error:
         print(f'tt-perceive: {out_error}', file=sys.stderr)
