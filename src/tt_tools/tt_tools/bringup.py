@@ -38,6 +38,7 @@ import sys
 import threading
 import time
 
+from tt_ros.executor import NOT_PARAMS
 from tt_ros.shm import remove_dead_segments
 import yaml
 
@@ -98,8 +99,7 @@ def nodes_in(params_file):
         where = f' (line {mark.line + 1})' if mark is not None else ''
         raise BringupError(f'{params_file}: not valid YAML{where}') from None
     if not isinstance(data, dict):
-        raise BringupError(f'{params_file}: not a ROS parameters file (a mapping of node '
-                           'names to ros__parameters)')
+        raise BringupError(f'{params_file}: {NOT_PARAMS}')
     names = [str(k).lstrip('/') for k in data]
     for key, value in data.items():
         if not isinstance(value, dict) or 'ros__parameters' not in value:
