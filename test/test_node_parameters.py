@@ -145,3 +145,44 @@ def test_a_bad_value_at_start_up_exits_2_with_one_line(package, executable, para
     for word in words:
         assert word in lines[0]
     assert 'Traceback' not in proc.stderr + proc.stdout
+
+
+@pytest.mark.parametrize('package, executable, module', [
+    ('tt_prediction', 'prediction_node', 'tt_prediction.node'),
+    ('tt_strike', 'strike_node', 'tt_strike.node'),
+    ('tt_perception', 'perception_node', 'tt_perception.node'),
+])
+def test_help_lists_every_parameter_with_its_range_and_starts_nothing(package, executable,
+                                                                      module):
+    # What a ROS user types first: `ros2 run <package> <node> --help`. It prints how to set
+    # the parameters and each declared one with what it accepts (as ros2 param describe
+    # does), and exits 0 without starting the node.
+    import importlib
+    parameters = importlib.import_module(module).PARAMETERS
+    proc = subprocess.run(['ros2', 'run', package, executable, '--help'], capture_output=True,
+                          text=True, env=ros_env(), timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr
+    assert _tt_lines(proc.stderr) == []
+    out = proc.stdout.splitlines()
+    assert out[0].startswith(f'usage: ros2 run {package} {executable} [--ros-args')
+    for p in parameters:
+        assert any(line.startswith(f'  {p.name} = ') and p.expected() in line
+                   for line in out), p.name
+
+
+def test_a_parameter_given_without_ros_args_is_named_in_a_warning():
+    # rclpy ignores `-p name:=value` before --ros-args; the node says so instead of starting
+    # silently on the default. It still starts: a bad value given after --ros-args stops it
+    # as above, with only that line.
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    proc = subprocess.run(['ros2', 'run', 'tt_strike', 'strike_node', '-p', 'target_zone:=3',
+                           '--ros-args', '-r', f'__ns:={ns}', '-p', 'target_zone:=12'],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
+    lines = _tt_lines(proc.stderr)
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 2, proc.stderr
+    assert lines[0].startswith('strike_node: warning: ignoring -p target_zone:=3')
+    assert '--ros-args' in lines[0]
+    assert lines[1].startswith('strike_node: ') and 'target_zone' in lines[1]

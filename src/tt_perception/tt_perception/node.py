@@ -497,7 +497,7 @@ class PerceptionNode(Node):
 
 
 def main(args=None):
-    run_node(PerceptionNode, args, name='perception_node')
+    run_node(PerceptionNode, args, name='perception_node', parameters=PARAMETERS)
 
 
 if __name__ == '__main__':

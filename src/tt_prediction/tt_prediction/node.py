@@ -381,7 +381,7 @@ def main(args=None):
     # The workers hold the GIL for their Python parts; a short switch interval
     # (default 5 ms) lets a state's callback take it back within a fraction of a millisecond.
     sys.setswitchinterval(2e-4)
-    run_node(_started_node, args, name='prediction_node',
+    run_node(_started_node, args, name='prediction_node', parameters=PARAMETERS,
              on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 

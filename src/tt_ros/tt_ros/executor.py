@@ -95,12 +95,13 @@ def check_ros_args(args=None):
     """Raise :class:`StartupError` with one line if rcl cannot use the ROS arguments of
     ``args`` (None: ``sys.argv``): a ``--params-file`` that cannot be read, is not YAML or is
     not a ROS parameters file, an unknown ``--ros-args`` flag, a malformed ``-p`` or ``-r``.
+    Returns the arguments that are not ROS arguments (the program's name left out).
 
     Checked before ``rclpy.init``, which would log an extra line and raise with a traceback.
     """
     argv = list(sys.argv if args is None else args)
     try:
-        remove_ros_args(argv)
+        rest = remove_ros_args(argv)[1:]
     except _rclpy.UnknownROSArgsError as exc:
         raise StartupError(f'unknown ROS arguments: {exc}') from None
     except _rclpy.RCLError as exc:
@@ -114,6 +115,19 @@ def check_ros_args(args=None):
             continue                    # rcl has read it: its own parser is the judge
         if data is not None and not isinstance(data, dict):
             raise StartupError(f'cannot read --params-file {path}: {NOT_PARAMS}')
+    return rest
+
+
+def node_help(name, parameters, package='<package>'):
+    """What ``<node> --help`` prints: how to set the parameters, and each one
+    (:class:`tt_ros.parameters.Param`) with its default and what it accepts."""
+    lines = [f'usage: ros2 run {package} {name} [--ros-args [-p NAME:=VALUE ...] '
+             '[--params-file FILE]]', '', 'parameters (ros2 param describe shows the same):']
+    for p in parameters:
+        when = '; read at start-up only' if p.read_only else ''
+        lines.append(f'  {p.name} = {p.default!r}: {p.expected()}{when}')
+        lines.append(f'      {p.description}')
+    return '\n'.join(lines)
 
 
 def make_executor(kind=None, context=None):
@@ -160,7 +174,7 @@ class _StopOnSignal:
             signal.signal(sig, old)
 
 
-def run_node(make_node, args=None, on_exit=None, name=None):
+def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     """Run the node that ``make_node()`` returns until SIGINT or SIGTERM, then shut down
     cleanly: ``on_exit(node)`` (may log), the node destroyed, the context shut down, exit
     status 0 and no traceback.
@@ -169,14 +183,25 @@ def run_node(make_node, args=None, on_exit=None, name=None):
     (None: ``sys.argv``) ends the process with status 2 and the line ``<name>: <reason>`` on
     stderr (``name``: the executable's name by default). A signal that comes while the node
     starts (compiling its kernels, say) stops it once started.
+
+    ``-h`` or ``--help`` before ``--ros-args`` prints :func:`node_help` of ``parameters``
+    and exits 0. Other arguments outside ``--ros-args`` (``-p x:=1`` without it, say), which
+    rclpy ignores, are named in a warning on stderr.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
     try:
-        check_ros_args(args)
+        rest = check_ros_args(args)
     except StartupError as exc:
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         raise SystemExit(STARTUP_EXIT) from None
+    if '-h' in rest or '--help' in rest:
+        package = getattr(make_node, '__module__', '').split('.')[0] or '<package>'
+        print(node_help(name, parameters, package), flush=True)
+        raise SystemExit(0)
+    if rest:
+        print(f'{name}: warning: ignoring {" ".join(rest)}: node parameters go after '
+              '--ros-args (--ros-args -p NAME:=VALUE)', file=sys.stderr, flush=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         executor = make_executor()

@@ -373,7 +373,7 @@ class StrikeNode(Node):
 
 
 def main(args=None):
-    run_node(StrikeNode, args, name='strike_node',
+    run_node(StrikeNode, args, name='strike_node', parameters=PARAMETERS,
              on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 
