@@ -137,10 +137,11 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
     request = _request(balls, hit_plane_x, seed)
     meta_file = path / 'recording.json'
     if not (meta_file.exists() and json.loads(meta_file.read_text())['request'] == request):
+        # The balls first: a plane they do not reach raises before anything is written.
+        truths = demo_balls(balls, hit_plane_x, seed=seed, params=params)
         tmp = path.with_name(path.name + '.partial')
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
-        truths = demo_balls(balls, hit_plane_x, seed=seed, params=params)
         rig = load_rig(synth.make_rig(str(tmp), request['width'], request['height'],
                                       request['fps']))
         last = truths[-1]
