@@ -27,6 +27,10 @@ Measurements: positions (3,) with covariance R (3, 3); an innovation whose squar
 Mahalanobis distance exceeds ``gate`` (3 dof) is rejected, one beyond ``robust`` counts with a
 proportionally inflated covariance (Huber-like).
 
+Offline, :func:`smooth` takes a filter's run (its states after each update) back through the
+same flight and rebound (Rauch-Tung-Striebel): every state then rests on the samples after it
+too.
+
 :class:`TrackFilter` wraps it for a stream of measured positions: NaN rows and out-of-order or
 duplicate stamps are skipped, spikes gated, gaps coasted over, and the filter re-started from
 the data after a run of rejected samples (a racket hit, a missed bounce) or a long gap.
@@ -417,6 +421,10 @@ class BallFilter:
         self.last_bounce = None
         self._bounce = np.zeros(4)
         self._prev = None          # (x, P, t, bounces, last_bounce) before the last predict
+        self.contact_z = self.params.radius
+        """Centre height at contact (m) of the prediction that led to the current state (the
+        one :meth:`update`'s ``rebounce`` kept, when it did): what :func:`smooth` needs to
+        retrace it."""
 
     def start(self, t, position, velocity, position_cov, velocity_cov, spin=None,
               spin_cov=None):
@@ -457,6 +465,7 @@ class BallFilter:
             return
         self._prev = (self.x, self.P, self.t, self.bounces, self.last_bounce)
         cz = self.params.radius if contact_z is None else contact_z
+        self.contact_z = cz
         x, P, n = _predict_to(self.x, self.P, self.t, float(t), self.P_model, self._cfg, cz,
                               self._bounce)
         self.x, self.P, self.t = x, P, float(t)
@@ -523,10 +532,10 @@ class BallFilter:
                 continue
             xu, Pu, d2, ok = _fuse_position(xb, Pb, z, R, cfg.gate, cfg.robust)
             if ok and (best is None or d2 < best[0]):
-                best = (d2, xu, Pu, n, bounce)
+                best = (d2, xu, Pu, n, bounce, cz)
         if best is None:
             return False
-        _, self.x, self.P, n, bounce = best
+        _, self.x, self.P, n, bounce, self.contact_z = best
         self.bounces = b0 + n
         self.last_bounce = (float(bounce[0]), float(bounce[1]), float(bounce[2]))
         return True
@@ -546,6 +555,74 @@ class BallFilter:
         """Variance (rad/s)^2 of the spin component along the current velocity."""
         u = self.x[3:6] / max(np.linalg.norm(self.x[3:6]), 1e-9)
         return float(u @ self.P[6:, 6:] @ u)
+
+
+def _flight_map_jacobian(x, t, t_end, P, cfg, contact_z):
+    """Jacobian (9, 9) of the state at ``t_end`` with respect to the state ``x`` at ``t``
+    under :func:`_predict_to` (flight, and a bounce in between with its contact time), by
+    central differences. Where a step moves the state across a contact at ``t_end`` (a
+    bounce in one of the two evaluations only), the side that bounces as ``x`` does is
+    used alone."""
+    C = np.zeros((9, 9))
+    bounce = np.zeros(4)
+    x_end, _, n = _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce)
+    F = np.empty((9, 9))
+    for j, eps in enumerate((1e-5,) * 3 + (1e-4,) * 3 + (1e-2,) * 3):
+        sides = []
+        for sign in (1.0, -1.0):
+            xj = x.copy()
+            xj[j] += sign * eps
+            yj, _, nj = _predict_to(xj, C, t, t_end, P, cfg, contact_z, bounce)
+            sides.append(yj if nj == n else None)
+        plus, minus = sides
+        if plus is not None and minus is not None:
+            F[:, j] = (plus - minus) / (2.0 * eps)
+        elif plus is not None:
+            F[:, j] = (plus - x_end) / eps
+        elif minus is not None:
+            F[:, j] = (x_end - minus) / eps
+        else:
+            F[:, j] = 0.0
+    return F
+
+
+def smooth(steps, params=None, config=None):
+    """Fixed-interval (Rauch-Tung-Striebel) smoothing of one :class:`BallFilter` run.
+
+    Parameters
+    ----------
+    steps : list of (t, x, P, contact_z)
+        The filter's time (s), state (9,) and covariance (9, 9) at its start and after each
+        update that followed, in time order, and the :attr:`BallFilter.contact_z` of the
+        prediction that led to each (the start's is not used).
+    params, config : ModelParams, FilterConfig
+        Those the filter ran with.
+
+    Returns
+    -------
+    list of (x (9,), P (9, 9))
+        The state and covariance at each step's time given every measurement of the run, those
+        after it too: x_k + G (x_{k+1}^s - x_{k+1|k}), P_k + G (P_{k+1}^s - P_{k+1|k}) G^T with
+        G = P_k F^T P_{k+1|k}^-1. The prediction x_{k+1|k}, P_{k+1|k} is retraced with the
+        filter's own flight, rebound and process noise (:func:`_predict_to`); F is the
+        Jacobian of the same map (:func:`_flight_map_jacobian`), a bounce in between
+        included. For offline use (``tt-perceive``): a state that waits for later frames is
+        of no use to a robot.
+    """
+    f = BallFilter(params, config)           # the packed model and noise settings
+    out = [None] * len(steps)
+    out[-1] = (steps[-1][1].copy(), steps[-1][2].copy())
+    bounce = np.zeros(4)
+    for k in range(len(steps) - 2, -1, -1):
+        t0, x0, C0, _ = steps[k]
+        t1, _, _, contact_z = steps[k + 1]
+        x_pred, C_pred, _ = _predict_to(x0, C0, t0, t1, f.P_model, f._cfg, contact_z, bounce)
+        F = _flight_map_jacobian(x0, t0, t1, f.P_model, f._cfg, contact_z)
+        G = np.linalg.solve(C_pred, F @ C0).T          # C0 F^T C_pred^-1 (both symmetric)
+        x_next, C_next = out[k + 1]
+        C = C0 + G @ (C_next - C_pred) @ G.T
+        out[k] = (x0 + G @ (x_next - x_pred), 0.5 * (C + C.T))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
