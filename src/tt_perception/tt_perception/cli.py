@@ -1,14 +1,16 @@
 """tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
 
     tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
-                [--out-bag BAG]
+                [--out-bag BAG] [--smooth]
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
 image header stamps for a bag), and ``index.csv`` (``file,wx,wy,wz,label,source_id,spin_source``;
 the spin columns are left empty and spin_source is ``estimated``: perception estimates spin,
 it does not measure it, and tt-identify must not take it as measured); with
-``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. The folder is written into a
+``--out-bag`` also a bag of tt_msgs/BallState on /ball/state. The states are the live node's
+(each from the frames up to it); with ``--smooth`` each is given all of its track's frames,
+the later ones too (:meth:`tt_perception.pipeline.Pipeline.smoothed`). The folder is written into a
 temporary folder that then takes the place of DIR, so nothing of an earlier run stays; an
 existing DIR must hold only such files (an earlier output), else it is refused. Bad input: one
 line on stderr, exit status 2 for the rig, calibration, model or ``--out``, 1 for the data;
@@ -32,7 +34,7 @@ from tt_prediction.staged import staged_folder
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
-from .pipeline import Pipeline
+from .pipeline import Pipeline, TrackerConfig
 from .sources import file_frames, image_to_bgr
 from .sync import estimate_offset
 
@@ -222,6 +224,10 @@ def main(argv=None):
     parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')
     parser.add_argument('--out-bag', help='also write the states as BallState on /ball/state '
                                           'into this new bag (MCAP)')
+    parser.add_argument('--smooth', action='store_true',
+                        help="each state from all of its track's frames, the later ones too "
+                             '(fixed-interval smoother; default: as perception_node publishes '
+                             'it, from the frames up to it)')
     args = parser.parse_args(argv)
     if args.out_bag and os.path.exists(args.out_bag):
         print(f'tt-perceive: --out-bag {args.out_bag}: already exists (give a new bag)',
@@ -248,9 +254,13 @@ def main(argv=None):
             for note in estimate_offsets(rig, args.colour):
                 print(f'tt-perceive: {note}', file=sys.stderr)
         pipeline = Pipeline(rig, params=params,
-                            detector_config=DetectorConfig(colour=args.colour))
+                            detector_config=DetectorConfig(colour=args.colour),
+                            tracker_config=TrackerConfig(smooth=args.smooth))
         frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
         estimates, errors = run(frames, pipeline)
+        if args.smooth:
+            smoothed = pipeline.smoothed([e for _, e in estimates])
+            estimates = [(t_ref, e) for (t_ref, _), e in zip(estimates, smoothed, strict=True)]
     except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1

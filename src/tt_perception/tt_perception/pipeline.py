@@ -20,6 +20,9 @@
    ``confirm_updates`` updates (gated on the blobs' own centres, so that a ball-coloured
    object that is not a ball is not confirmed on centres fitted to a ball), end after
    ``max_coast`` s without a measurement or when the ball leaves the volume above the floor.
+
+Offline (``tt-perceive``), :meth:`Pipeline.smoothed` then replaces each track's states by
+those of a fixed-interval smoother (:attr:`TrackerConfig.smooth`).
 """
 
 import collections
@@ -29,7 +32,7 @@ import itertools
 
 import numpy as np
 from tt_prediction.ball import ModelParams
-from tt_prediction.ball_filter import BallFilter, FilterConfig
+from tt_prediction.ball_filter import BallFilter, FilterConfig, smooth
 
 from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
@@ -75,6 +78,11 @@ class TrackerConfig:
     confirming estimate (:meth:`tt_prediction.ball_filter.BallFilter.earlier_state`): a
     track then covers its whole flight. Off where only the newest state matters (the live
     node: a state 30 ms old is of no use to the robot)."""
+    smooth: bool = False
+    """Keep each track's filtered states and covariances (its start and every update), so
+    that :meth:`Pipeline.smoothed` can give every state from all of the track's frames, the
+    later ones too (:func:`tt_prediction.ball_filter.smooth`). For offline use
+    (``tt-perceive``); off in the live node, which publishes each state as it comes."""
     search_updates: int = 2
     """Filter updates after the start during which the outline fit also starts around the
     blob's centre (:meth:`tt_perception.detect.BallDetector.detect`'s ``search``): the
@@ -226,6 +234,7 @@ class Tracker:
         self.last_update = -np.inf
         self.seeds = []
         self.early = []            # times of the running track's frames before confirmation
+        self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
 
     @property
     def active(self):
@@ -296,6 +305,8 @@ class Tracker:
             return []
         self.updates += 1
         self.last_update = t
+        if cfg.smooth:
+            self.runs[self.track_id][1].append(self._step())
         if self.updates < cfg.confirm_updates:
             self.early.append(t)
             return []
@@ -348,6 +359,11 @@ class Tracker:
         self.filter.update_spin(w, R)
         return True
 
+    def _step(self):
+        """The running filter's (t, x, P, contact_z), as :func:`smooth` takes them."""
+        f = self.filter
+        return f.t, f.x.copy(), f.P.copy(), f.contact_z
+
     def _seed(self, t, points):
         """Start a track from a previous point and one of ``points`` at a plausible speed."""
         cfg = self.config
@@ -365,6 +381,8 @@ class Tracker:
                 self.last_update = t
                 self.seeds = []
                 self.early = [t1, t]
+                if cfg.smooth:
+                    self.runs[self.track_id] = (t1, [self._step()])
                 return
         self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
         self.seeds.extend((t, X, R) for X, R in points)
@@ -421,6 +439,31 @@ class Pipeline:
             # A confirmed track takes only the fitted points: no triangulation of the blobs'.
             points = self._points(group, blobs=not self.tracker.confirmed)
             out += self.tracker.add(t0, points)
+        return out
+
+    def smoothed(self, estimates):
+        """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
+        covariance given all of its track's frames (:func:`tt_prediction.ball_filter.smooth`;
+        a track's seed frame, before its filter started, carried back from the smoothed start
+        as :attr:`TrackerConfig.backfill` does); the estimates of a track not kept
+        (:attr:`TrackerConfig.smooth` off) unchanged."""
+        tracker = self.tracker
+        done = {}
+        for track_id in {e.track_id for e in estimates} & tracker.runs.keys():
+            t_seed, steps = tracker.runs[track_id]
+            states = smooth(steps, self.params, tracker.filter_config)
+            done.update(((track_id, step[0]), state)
+                        for step, state in zip(steps, states, strict=True))
+            start = BallFilter(self.params, tracker.filter_config)
+            start.t, (start.x, start.P) = steps[0][0], states[0]
+            earlier = start.earlier_state(t_seed)
+            if earlier is not None:
+                done[(track_id, t_seed)] = earlier
+        out = []
+        for e in estimates:
+            state = done.get((e.track_id, e.t))
+            out.append(e if state is None else
+                       BallEstimate(e.t, state[0].copy(), state[1].copy(), e.track_id))
         return out
 
     def _detect(self, t, k, frame, snapshot):
