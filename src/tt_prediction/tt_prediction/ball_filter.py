@@ -372,7 +372,7 @@ def _fuse_position(x, C, z, R, gate, robust):
         R = R * (d2 / robust)
         S = C[:3, :3] + R
         Si = np.linalg.inv(S)
-    K = C[:, :3] @ Si                      # P H^T S^-1
+    K = np.ascontiguousarray(C[:, :3]) @ np.ascontiguousarray(Si)    # P H^T S^-1
     xn = x + K @ y
     IKH = np.eye(9)
     IKH[:, :3] -= K
