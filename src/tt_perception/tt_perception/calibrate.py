@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from tt_prediction.ball import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
 
-from .camera import CalibrationError, load_rig, save_rig
+from .camera import CalibrationError, load_rig, read_yaml, save_rig
 
 L, W = HALF_LENGTH, HALF_WIDTH
 TABLE_POINTS = {
@@ -120,21 +120,7 @@ def _file_error(option, path):
 def read_points(path):
     """The pixels of known table points in the YAML file ``path`` given as ``--points``:
     (names, pixels (n, 2)); raises CalibrationError naming the file."""
-    import yaml
-    error = _file_error('--points', path)
-    if error:
-        raise CalibrationError(error)
-    try:
-        with open(path, encoding='utf-8') as f:
-            marks = yaml.safe_load(f) or {}
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(f'--points {path}: cannot read: {exc}') from None
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f'--points {path}: not valid YAML: '
-                               f'{str(exc).splitlines()[0]}') from None
-    if not isinstance(marks, dict):
-        raise CalibrationError(f'--points {path}: expected a mapping of point names to '
-                               '[u, v] pixels')
+    marks = read_yaml(path, '--points')
     unknown = sorted(str(n) for n in set(marks) - set(TABLE_POINTS))
     if unknown:
         raise CalibrationError(f'--points {path}: unknown point names {unknown} '

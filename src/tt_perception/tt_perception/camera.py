@@ -89,13 +89,15 @@ class Camera:
         return self.to_camera(points)[:, 2] > 1e-3
 
 
-def _read_yaml(path, what):
+def read_yaml(path, what):
+    """The mapping at the top of the YAML file ``path``; raises CalibrationError naming it as
+    ``what`` (no such file, not readable YAML, not a mapping)."""
     if not os.path.isfile(path):
         raise CalibrationError(f'{what} {path}: no such file')
     try:
         with open(path, encoding='utf-8') as f:
             data = yaml.safe_load(f)
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise CalibrationError(f'{what} {path}: not readable YAML ({first})') from None
     if not isinstance(data, dict):
@@ -123,7 +125,7 @@ def load_camera_info(path):
 
     Raises :class:`CalibrationError` (one line) when the file is missing or inconsistent.
     """
-    data = _read_yaml(path, 'camera_info')
+    data = read_yaml(path, 'camera_info')
     try:
         width, height = int(data['image_width']), int(data['image_height'])
     except (KeyError, TypeError, ValueError):
@@ -180,7 +182,7 @@ def load_rig(path, min_cameras=1):
     Raises :class:`CalibrationError` with one line naming the file and the field at fault,
     or when the rig has fewer than ``min_cameras`` cameras.
     """
-    data = _read_yaml(path, 'rig')
+    data = read_yaml(path, 'rig')
     base = os.path.dirname(os.path.abspath(path))
     try:
         fps = float(data.get('fps', 0.0))

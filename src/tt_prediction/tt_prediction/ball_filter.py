@@ -557,15 +557,15 @@ class BallFilter:
         return float(u @ self.P[6:, 6:] @ u)
 
 
-def _flight_map_jacobian(x, t, t_end, P, cfg, contact_z):
+def _flight_map_jacobian(x, t, t_end, P, cfg, contact_z, x_end, n):
     """Jacobian (9, 9) of the state at ``t_end`` with respect to the state ``x`` at ``t``
     under :func:`_predict_to` (flight, and a bounce in between with its contact time), by
-    central differences. Where a step moves the state across a contact at ``t_end`` (a
-    bounce in one of the two evaluations only), the side that bounces as ``x`` does is
-    used alone."""
+    central differences; ``x_end`` and ``n``: what :func:`_predict_to` gives for ``x`` (the
+    state at ``t_end``, the number of contacts). Where a step moves the state across a
+    contact at ``t_end`` (a bounce in one of the two evaluations only), the side that
+    bounces as ``x`` does is used alone."""
     C = np.zeros((9, 9))
     bounce = np.zeros(4)
-    x_end, _, n = _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce)
     F = np.empty((9, 9))
     for j, eps in enumerate((1e-5,) * 3 + (1e-4,) * 3 + (1e-2,) * 3):
         sides = []
@@ -616,8 +616,8 @@ def smooth(steps, params=None, config=None):
     for k in range(len(steps) - 2, -1, -1):
         t0, x0, C0, _ = steps[k]
         t1, _, _, contact_z = steps[k + 1]
-        x_pred, C_pred, _ = _predict_to(x0, C0, t0, t1, f.P_model, f._cfg, contact_z, bounce)
-        F = _flight_map_jacobian(x0, t0, t1, f.P_model, f._cfg, contact_z)
+        x_pred, C_pred, n = _predict_to(x0, C0, t0, t1, f.P_model, f._cfg, contact_z, bounce)
+        F = _flight_map_jacobian(x0, t0, t1, f.P_model, f._cfg, contact_z, x_pred, n)
         G = np.linalg.solve(C_pred, F @ C0).T          # C0 F^T C_pred^-1 (both symmetric)
         x_next, C_next = out[k + 1]
         C = C0 + G @ (C_next - C_pred) @ G.T
