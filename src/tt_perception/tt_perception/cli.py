@@ -30,7 +30,7 @@ import sys
 
 import numpy as np
 from tt_prediction.ball import load_model
-from tt_prediction.staged import staged_folder
+from tt_prediction.staged import output_folder_error, staged_folder
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
@@ -171,27 +171,8 @@ def write_tracks(out, estimates, label):
     return names
 
 
-OUTPUT_FILE = re.compile(r'(track_\d{3,}\.csv|index\.csv)$')
+OUTPUT_FILE = re.compile(r'track_\d{3,}\.csv|index\.csv')
 """The files tt-perceive writes into its output folder."""
-
-
-def output_folder_error(out):
-    """Why ``out`` cannot take tt-perceive's output, or '': the folder is replaced as a whole,
-    so an existing one may hold only what an earlier run wrote (not the rig, the videos or
-    other data given as ``--out`` by mistake)."""
-    if not os.path.lexists(out):
-        return ''
-    if os.path.islink(out) or not os.path.isdir(out):
-        return f'--out {out}: not a folder'
-    try:
-        others = sorted(n for n in os.listdir(out) if not OUTPUT_FILE.match(n))
-    except OSError as exc:
-        return f'--out {out}: cannot read: {exc.strerror}'
-    if not others:
-        return ''
-    more = f' and {len(others) - 1} more' if len(others) > 1 else ''
-    return (f'--out {out}: holds {others[0]}{more}, not written by tt-perceive (the output '
-            'replaces the whole folder): give a new folder')
 
 
 def write_bag(path, estimates, frame_id):
@@ -233,7 +214,7 @@ def main(argv=None):
         print(f'tt-perceive: --out-bag {args.out_bag}: already exists (give a new bag)',
               file=sys.stderr)
         return 2
-    out_error = output_folder_error(args.out)
+    out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-perceive')
     if out_error:
         print(f'tt-perceive: {out_error}', file=sys.stderr)
         return 2

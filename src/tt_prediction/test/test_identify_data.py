@@ -48,6 +48,20 @@ def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, file
     assert [p.name for p in tmp_path.iterdir()] == ['data']   # no temp folder left
 
 
+def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys):
+    # The report replaces its folder as a whole: --out as the data folder, its parent or a
+    # track file would delete the measured tracks. Refused (exit 2, one line), data intact.
+    track = 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))
+    folder = _folder(tmp_path, {'a.csv': track})
+    for out, what in ((folder, 'holds a.csv'), (tmp_path, 'holds data'),
+                      (folder / 'a.csv', 'not a folder')):
+        code, err = _run(capsys, [str(folder), '--out', str(out)])
+        assert code == 2
+        assert len(err) == 1 and str(out) in err[0] and what in err[0]
+    assert (folder / 'a.csv').read_text() == track
+    assert sorted(os.listdir(tmp_path)) == ['data']
+
+
 @pytest.mark.parametrize('plane', ['1.0', '-3.5', 'nan'])
 def test_a_hit_plane_outside_the_node_range_is_refused_before_any_work(tmp_path, capsys,
                                                                        plane):

@@ -153,6 +153,10 @@ def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, conte
     ('spin_prior_mean: 12', 'spin_prior_mean must be a list of 3 numbers'),
     ('spin_prior_mean: [1, 2]', 'spin_prior_mean must be a list of 3 numbers'),
     ('spin_priors: 20', 'unknown filter setting(s) spin_priors'),
+    ('max_step: 0', 'max_step must be > 0'),
+    ('position_noise: -1', 'position_noise must be >= 0'),
+    ('accel_noise: -3', 'accel_noise must be >= 0'),
+    ('bounce_transform: cubic', "bounce_transform must be 'linear' or 'unscented'"),
 ])
 def test_a_bad_filter_config_is_one_line_exit_2_no_output(data, tmp_path, capsys, setting,
                                                          what):
@@ -165,6 +169,27 @@ def test_a_bad_filter_config_is_one_line_exit_2_no_output(data, tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(config) in err[0] and what in err[0]
     assert not out.exists()
+
+
+def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data, tmp_path,
+                                                                          capsys):
+    # The rows are named as the tracks: --out as the data set's own folder (or a copy of
+    # it: its index.csv) would overwrite the measured CSVs; a file is not a folder.
+    folder = tmp_path / 'set'
+    _write(folder, data[1][:2])
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    note = tmp_path / 'note.txt'
+    note.write_text('keep')
+    for out, what in ((folder, 'holds index.csv'), (note, 'not a folder')):
+        assert main(['--tracks', str(folder), '--out', str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0] and what in err[0]
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    assert note.read_text() == 'keep'
+    # An earlier replay's folder (rows and summary.json) is still a valid output.
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--no-textbook']) == 0
+    assert main(['--tracks', str(folder), '--out', str(out), '--no-textbook']) == 0
 
 
 def test_a_spin_prior_mean_in_the_filter_config_is_the_spin_a_track_starts_with(data,

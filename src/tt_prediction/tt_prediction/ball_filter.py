@@ -69,6 +69,11 @@ __all__ = ['AccelNoiseLearner', 'BallFilter', 'FilterConfig', 'SpinPriorLearner'
 _NJIT = {'cache': True, 'nogil': True}
 
 
+_POSITIVE = frozenset(('gate', 'robust', 'max_step', 'max_gap'))
+_SIGNED = frozenset(('spin_prior_mean',))
+"""FilterConfig fields that must be > 0, and those that may be negative (the others >= 0)."""
+
+
 @dataclasses.dataclass
 class FilterConfig:
     """Noise, gating and track handling of :class:`BallFilter` / :class:`TrackFilter` (SI)."""
@@ -119,6 +124,25 @@ class FilterConfig:
     saltation term) or 'unscented' (sigma points through eqs. 1-6)."""
     rebounce_range: float = 0.015
     """Contact heights tried around z = r when a sample near a bounce fails the gate, +-m."""
+
+    def __post_init__(self):
+        """ValueError naming the first field out of its range (all finite; noises, priors
+        and ranges >= 0; steps, gates and gaps > 0; a known bounce_transform)."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == 'bounce_transform':
+                if value not in ('linear', 'unscented'):
+                    raise ValueError(f"bounce_transform must be 'linear' or 'unscented', "
+                                     f'not {value!r}')
+                continue
+            values = () if value is None else value if isinstance(value, tuple) else (value,)
+            for v in values:
+                if not math.isfinite(v):
+                    raise ValueError(f'{f.name} must be finite, not {v}')
+                if f.name in _POSITIVE and v <= 0.0:
+                    raise ValueError(f'{f.name} must be > 0, not {v}')
+                if f.name not in _SIGNED and v < 0.0:
+                    raise ValueError(f'{f.name} must be >= 0, not {v}')
 
     def spin_prior_axes(self):
         """Prior standard deviations of the spin (top/back, side, along v), rad/s: the

@@ -11,6 +11,26 @@ import shutil
 import tempfile
 
 
+def output_folder_error(out, ours, tool):
+    """Why ``out`` cannot take ``tool``'s output, or '': it must be missing, or a folder (not
+    a link) whose files all match ``ours`` (a compiled regular expression of the names the
+    tool writes), so that an output given as the input's folder, the data's parent or a file
+    by mistake is refused before any work rather than overwritten or replaced."""
+    if not os.path.lexists(out):
+        return ''
+    if os.path.islink(out) or not os.path.isdir(out):
+        return f'--out {out}: not a folder'
+    try:
+        others = sorted(n for n in os.listdir(out) if not ours.fullmatch(n))
+    except OSError as exc:
+        return f'--out {out}: cannot read: {exc.strerror}'
+    if not others:
+        return ''
+    more = f' and {len(others) - 1} more' if len(others) > 1 else ''
+    return (f'--out {out}: holds {others[0]}{more}, not written by {tool} (it would be '
+            'overwritten or removed): give a new folder')
+
+
 @contextlib.contextmanager
 def staged_folder(out_dir, prefix, replace_folder):
     """Yield a fresh temporary folder next to ``out_dir`` to write the outputs into.

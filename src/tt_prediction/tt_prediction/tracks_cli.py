@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 
 import numpy as np
@@ -26,7 +27,7 @@ from .cli import hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
-from .staged import staged_folder
+from .staged import output_folder_error, staged_folder
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
 
@@ -91,6 +92,11 @@ def load_filter_config(path, tracks):
     return config
 
 
+OUTPUT_FILE = re.compile(r'(?!index\.csv$).+\.csv|summary\.json')
+"""The files tt-predict --tracks writes: one CSV per track (not a data set's index.csv) and
+summary.json."""
+
+
 def write_rows(path, rows):
     """One CSV of replay rows (COLUMNS), empty fields where NaN."""
     with open(path, 'w') as f:
@@ -133,6 +139,10 @@ def main(argv=None):
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:
         print(f'tt-predict: {plane_error}', file=sys.stderr)
+        return 2
+    out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-predict --tracks')
+    if out_error:
+        print(f'tt-predict: {out_error}', file=sys.stderr)
         return 2
     try:
         params = load_model(args.model)

@@ -6,13 +6,15 @@ Writes DIR/report.json, DIR/report.md, plots and DIR/model.yaml (the model for
 """
 
 import argparse
+import re
 import sys
 
 from ..ball import load_model
 from ..cli import hit_plane_error
+from ..staged import output_folder_error
 from .data import DataError, load
 from .pipeline import identify
-from .report import write_outputs
+from .report import PLOTS, write_outputs
 
 
 def _progress_factory(enabled):
@@ -32,6 +34,12 @@ def _progress_factory(enabled):
 
     make.close = lambda: bars and bars.pop().close()
     return make
+
+
+REPORT_FILE = re.compile('|'.join(map(re.escape, ('report.json', 'report.md', 'model.yaml')
+                                      + PLOTS))
+                         + r'|lead_time\.(json|md|png)')
+"""The files of a report folder: tt-identify's and those lead_report adds (``make report``)."""
 
 
 def main(argv=None):
@@ -55,6 +63,10 @@ def main(argv=None):
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:
         parser.error(plane_error)
+    out_error = output_folder_error(args.out, REPORT_FILE, 'tt-identify')
+    if out_error:
+        print(f'tt-identify: {out_error}', file=sys.stderr)
+        return 2
     progress = _progress_factory(not args.no_progress)
     try:
         base = load_model(args.model)
