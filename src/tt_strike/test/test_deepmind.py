@@ -86,6 +86,17 @@ def test_a_bad_number_is_a_one_line_error_and_nothing_is_written(tmp_path, capsy
     assert not table.exists()
 
 
+@pytest.mark.parametrize('option', ['--json', '--strokes'])
+def test_an_output_that_is_a_folder_is_refused_before_any_work(tmp_path, capsys, option):
+    # The files are written at the end of a run of minutes: a folder given for one is
+    # refused up front, not found out then (an IsADirectoryError traceback).
+    assert main(['--data', str(DATA), option, str(tmp_path)]) == 2
+    said = capsys.readouterr()
+    assert said.out == '' and said.err.count('\n') == 1
+    assert option in said.err and 'a folder, not a file' in said.err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize('args', [['--hit-plane-x', '-1.5', '--strokes', 'x.jsonl'],
                                   ['--hit-plane-x', '-1.5', '--workspace', 'w.yaml'],
                                   ['--monte-carlo', '3']])

@@ -31,6 +31,7 @@ import collections
 import csv
 import gzip
 import json
+import os
 import pathlib
 import re
 import sys
@@ -246,6 +247,9 @@ def main(argv=None):
               positive_error('--net-clearance', args.net_clearance),    # as tt-strike
               '--limit must be 0 (all states) or more' if args.limit < 0 else '',
               '--monte-carlo must be 0 (none) or more' if args.monte_carlo < 0 else '']
+    errors += [f'{name} {value}: a folder, not a file' for name, value in
+               (('--json', args.json), ('--strokes', args.strokes))
+               if value and os.path.isdir(value)]
     for error in filter(None, errors):
         print(f'tt_strike.evaluate_deepmind: {error}', file=sys.stderr)
         return 2

@@ -106,3 +106,19 @@ def test_demo_refuses_a_hit_plane_its_balls_cannot_reach_before_writing(tmp_path
     assert said.out == '' and 'Traceback' not in said.err
     assert len(errors) == 1 and '--hit-plane-x' in errors[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_refuses_an_out_that_is_a_file_before_writing(tmp_path, capsys):
+    # --out is a folder: an existing file is one error line and exit 2 (it was a
+    # FileExistsError traceback once the recording was made), the file untouched.
+    from tt_tools import demo
+    out = tmp_path / 'demo.jsonl'
+    out.write_text('keep')
+    with pytest.raises(SystemExit) as exit_:
+        demo.main(['--out', str(out)])
+    assert exit_.value.code == 2
+    said = capsys.readouterr()
+    errors = [line for line in said.err.splitlines() if 'error:' in line]
+    assert said.out == '' and 'Traceback' not in said.err
+    assert len(errors) == 1 and '--out' in errors[0] and 'not a folder' in errors[0]
+    assert out.read_text() == 'keep' and list(tmp_path.iterdir()) == [out]

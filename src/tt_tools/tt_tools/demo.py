@@ -55,6 +55,8 @@ def parse_args(argv):
         args.rate = 1.0 if args.source == 'video' else 0.15
     if args.balls < 1 or args.rate <= 0.0:
         parser.error('--balls must be >= 1 and --rate > 0')
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        parser.error(f'--out {args.out}: not a folder')
     plane_error = hit_plane_error(args.hit_plane_x)     # the prediction node's range
     if plane_error:
         parser.error(plane_error)
