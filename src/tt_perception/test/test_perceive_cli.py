@@ -56,6 +56,21 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
     assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
 
 
+def test_ctrl_c_is_one_line_exit_130_and_no_output(scene, tmp_path, capsys, monkeypatch):
+    # An interrupt while the frames are processed: no traceback, status 130, no output.
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames[:4], [truth])
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, 'run', interrupted)
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 130
+    said = capsys.readouterr()
+    assert said.err.endswith('tt-perceive: interrupted\n') and 'Traceback' not in said.err
+    assert not out.exists()
+
+
 def test_a_second_run_replaces_the_output_folder(scene, tmp_path, capsys):
     """An earlier run's tracks that this run does not write do not stay behind (a reader
     would take them as tracks of this run); the new folder has the umask's mode."""

@@ -193,6 +193,15 @@ def write_bag(path, estimates, frame_id):
 
 
 def main(argv=None):
+    """The command; Ctrl-C ends it with one line and exit status 130 (no traceback)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print('tt-perceive: interrupted', file=sys.stderr)
+        return 130
+
+
+def _main(argv=None):
     parser = argparse.ArgumentParser(
         prog='tt-perceive',
         description='Ball tracks (position, velocity, spin) from the video files or the bag of '

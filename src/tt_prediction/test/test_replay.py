@@ -442,3 +442,19 @@ def test_default_command_meets_issue_14_on_mpi_launcher(tmp_path):
     assert err['200']['median_mm'] <= 6.0
     assert err['300']['median_mm'] <= 25.0
     assert all(err[str(lead)]['missing'] == 0 for lead in LEADS_MS)
+
+
+def test_ctrl_c_is_one_line_exit_130_and_no_output(data, tmp_path, capsys, monkeypatch):
+    # An interrupt while the tracks replay (KeyboardInterrupt, as Ctrl-C raises it): no
+    # traceback, status 130 as a shell reports a SIGINT, nothing written.
+    from tt_prediction import tracks_cli
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(tracks_cli, 'replay_tracks', interrupted)
+    folder, _ = data
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out)]) == 130
+    said = capsys.readouterr()
+    assert said.err == 'tt-predict: interrupted\n' and said.out == ''
+    assert list(tmp_path.iterdir()) == []

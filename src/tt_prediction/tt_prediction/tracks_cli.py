@@ -116,6 +116,15 @@ def write_output(out_dir, replays, summary):
 
 
 def main(argv=None):
+    """The command; Ctrl-C ends it with one line and exit status 130 (no traceback)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print('tt-predict: interrupted', file=sys.stderr)
+        return 130
+
+
+def _main(argv=None):
     parser = argparse.ArgumentParser(       # the usage line names --tracks as an option
         prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Output format and measured numbers: see docs/prediction.md.')
