@@ -30,7 +30,7 @@ import sys
 
 import numpy as np
 from tt_prediction.ball import load_model
-from tt_prediction.staged import output_folder_error, staged_folder
+from tt_prediction.staged import interruptible, output_folder_error, staged_folder
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
@@ -193,12 +193,8 @@ def write_bag(path, estimates, frame_id):
 
 
 def main(argv=None):
-    """The command; Ctrl-C ends it with one line and exit status 130 (no traceback)."""
-    try:
-        return _main(argv)
-    except KeyboardInterrupt:
-        print('tt-perceive: interrupted', file=sys.stderr)
-        return 130
+    """The command (Ctrl-C: one line, exit status 130, :func:`interruptible`)."""
+    return interruptible('tt-perceive', _main, argv)
 
 
 def _main(argv=None):

@@ -8,7 +8,19 @@ step).
 import contextlib
 import os
 import shutil
+import sys
 import tempfile
+
+
+def interruptible(tool, body, argv=None):
+    """``body(argv)``, a command's work; Ctrl-C (KeyboardInterrupt) ends it with the line
+    ``<tool>: interrupted`` on stderr and exit status 130, as a shell reports a SIGINT, and
+    no traceback (a staged output is then not moved into place)."""
+    try:
+        return body(argv)
+    except KeyboardInterrupt:
+        print(f'{tool}: interrupted', file=sys.stderr)
+        return 130
 
 
 def output_folder_error(out, ours, tool):

@@ -27,7 +27,7 @@ from .cli import hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
-from .staged import output_folder_error, staged_folder
+from .staged import interruptible, output_folder_error, staged_folder
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
 
@@ -116,12 +116,8 @@ def write_output(out_dir, replays, summary):
 
 
 def main(argv=None):
-    """The command; Ctrl-C ends it with one line and exit status 130 (no traceback)."""
-    try:
-        return _main(argv)
-    except KeyboardInterrupt:
-        print('tt-predict: interrupted', file=sys.stderr)
-        return 130
+    """The command (Ctrl-C: one line, exit status 130, :func:`interruptible`)."""
+    return interruptible('tt-predict', _main, argv)
 
 
 def _main(argv=None):
