@@ -1,0 +1,92 @@
+"""Console scripts start through :func:`tt_ros.entry.run`: a Ctrl-C during their imports ends
+with one line and status 130, and each names the executable it is and a function that exists.
+"""
+
+import ast
+import configparser
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+SRC = pathlib.Path(__file__).resolve().parents[2]
+HEAVY = ('numpy', 'scipy', 'numba', 'cv2', 'rclpy', 'yaml')
+
+
+def console_scripts():
+    """(package dir, executable, 'module:function') of every console script in src/*."""
+    found = []
+    for cfg in sorted(SRC.glob('*/setup.cfg')):
+        parser = configparser.ConfigParser()
+        parser.read(cfg)
+        lines = parser.get('options.entry_points', 'console_scripts', fallback='')
+        for line in filter(None, (s.strip() for s in lines.splitlines())):
+            exe, _, target = (s.strip() for s in line.partition('='))
+            found.append((cfg.parent, exe, target))
+    return found
+
+
+NODE_AND_CLI_SCRIPTS = [s for s in console_scripts() if s[0].name != 'tt_tools']
+
+
+def python(code, tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path)] + sys.path))
+    return subprocess.Popen([sys.executable, '-c', code], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def test_ctrl_c_while_importing_is_one_line_and_status_130(tmp_path):
+    # The target announces that its import has begun, then blocks in it (as numba's would).
+    (tmp_path / 'slow_import.py').write_text(textwrap.dedent('''\
+        import sys, threading
+        print('importing', flush=True)
+        threading.Event().wait()
+        def main():
+            return 0
+    '''))
+    proc = python('import sys; from tt_ros.entry import run; '
+                  "sys.exit(run('slow_import:main', 'slow_tool'))", tmp_path)
+    assert proc.stdout.readline() == 'importing\n'
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    assert err == 'slow_tool: interrupted\n'
+
+
+def test_the_function_s_result_is_the_exit_status(tmp_path):
+    (tmp_path / 'quick.py').write_text('def main():\n    return 7\n')
+    proc = python("import sys; from tt_ros.entry import run; sys.exit(run('quick:main', 'q'))",
+                  tmp_path)
+    out, err = proc.communicate(timeout=30)
+    assert (proc.returncode, out, err) == (7, '', '')
+
+
+@pytest.mark.parametrize('package_dir, exe, target', NODE_AND_CLI_SCRIPTS,
+                         ids=[s[1] for s in NODE_AND_CLI_SCRIPTS])
+def test_console_script_runs_its_main_through_run(package_dir, exe, target):
+    module, _, function = target.partition(':')
+    assert module == f'{package_dir.name}.entry', f'{exe} does not start through entry.run'
+    entry = package_dir / package_dir.name / 'entry.py'
+    body = {f.name: f for f in ast.parse(entry.read_text()).body
+            if isinstance(f, ast.FunctionDef)}[function]
+    call = body.body[-1].value
+    assert isinstance(call, ast.Call) and call.func.id == 'run'
+    real, name = (ast.literal_eval(a) for a in call.args)
+    assert name == exe, 'the interrupted line must name the executable the user typed'
+    real_module, _, real_function = real.partition(':')
+    path = SRC / package_dir.name / (real_module.replace('.', '/') + '.py')
+    defined = {f.name for f in ast.parse(path.read_text()).body
+               if isinstance(f, ast.FunctionDef)}
+    assert real_function in defined, f'{real} does not exist'
+
+
+def test_entry_modules_import_nothing_heavy(tmp_path):
+    modules = sorted({t.partition(':')[0] for _, _, t in NODE_AND_CLI_SCRIPTS})
+    code = (f'import sys; import {", ".join(modules)}; '
+            f'print(sorted(m for m in {HEAVY!r} if m in sys.modules))')
+    out, err = python(code, tmp_path).communicate(timeout=60)
+    assert out.strip() == '[]', err
