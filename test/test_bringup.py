@@ -288,6 +288,16 @@ def test_bad_parameters_files_are_one_line_and_exit_2(tmp_path, text, words):
     assert len(lines) == 1 and lines[0].startswith(f'bringup: {path}: ') and words in lines[0]
 
 
+@pytest.mark.parametrize('missing, words', [(True, 'no such file'), (False, 'not a file')])
+def test_a_rig_that_is_no_file_is_one_line_and_exit_2(tmp_path, missing, words):
+    rig = tmp_path / 'rig.yaml' if missing else tmp_path
+    proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file',
+                           str(CONFIG / 'replay.yaml'), '--rig', str(rig)],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    assert proc.stderr == f'bringup: --rig {rig}: {words}\n'
+
+
 def test_shipped_configs_name_only_declared_parameters():
     from tt_perception.node import PARAMETERS as PERCEPTION
     from tt_prediction.node import PARAMETERS as PREDICTION

@@ -195,15 +195,18 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
 
 @pytest.mark.parametrize('args, code, expect', [
     (['--rig', '{tmp}/absent.yaml'], 2, 'absent.yaml: no such file'),
+    (['--rig', '{tmp}'], 2, ': not a file'),
+    (['--rig', '{tmp}/empty.yaml'], 2, 'empty.yaml: empty'),
     (['--rig', '{rig}'], 1, "source '/cam0/image_raw' is not a video file"),
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
     (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, 'already exists'),
-], ids=['missing rig', 'topics without a bag', 'missing bag', 'missing model',
-        'existing output bag'])
+], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
+        'missing model', 'existing output bag'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
     base, rig_path, _, _ = scene
     out = tmp_path / 'out'
+    (tmp_path / 'empty.yaml').write_text('')
     args = [a.format(tmp=tmp_path, rig=rig_path) for a in args] + ['--out', str(out)]
     assert cli.main(args) == code
     err = capsys.readouterr().err.strip().splitlines()

@@ -19,14 +19,13 @@ fit.
 
 import argparse
 import math
-import os
 import sys
 
 import cv2
 import numpy as np
 from tt_prediction.ball import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
 
-from .camera import CalibrationError, load_rig, read_yaml, save_rig
+from .camera import CalibrationError, file_error, load_rig, read_yaml, save_rig
 
 L, W = HALF_LENGTH, HALF_WIDTH
 TABLE_POINTS = {
@@ -106,17 +105,6 @@ def pose_from_corners(camera, corners, robot_end='near'):
     return best
 
 
-def _file_error(option, path):
-    """Why the file ``path`` given as ``option`` cannot be read, or ''."""
-    if not os.path.exists(path):
-        return f'{option} {path}: no such file'
-    if not os.path.isfile(path):
-        return f'{option} {path}: not a file'
-    if not os.access(path, os.R_OK):
-        return f'{option} {path}: cannot read: permission denied'
-    return ''
-
-
 def read_points(path):
     """The pixels of known table points in the YAML file ``path`` given as ``--points``:
     (names, pixels (n, 2)); raises CalibrationError naming the file."""
@@ -162,7 +150,7 @@ def main(argv=None):
             raise CalibrationError(f'rig {args.rig}: no camera named {args.camera!r}')
         cam = cams[0]
         # Checked first: OpenCV warns on stderr about a file it cannot open.
-        error = _file_error('--image', args.image)
+        error = file_error('--image', args.image)
         if error:
             raise CalibrationError(error)
         image = cv2.imread(args.image, cv2.IMREAD_COLOR)

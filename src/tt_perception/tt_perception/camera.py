@@ -89,17 +89,31 @@ class Camera:
         return self.to_camera(points)[:, 2] > 1e-3
 
 
+def file_error(what, path):
+    """Why the file ``path`` given as ``what`` cannot be read, or ''."""
+    if not os.path.exists(path):
+        return f'{what} {path}: no such file'
+    if not os.path.isfile(path):
+        return f'{what} {path}: not a file'
+    if not os.access(path, os.R_OK):
+        return f'{what} {path}: cannot read: permission denied'
+    return ''
+
+
 def read_yaml(path, what):
     """The mapping at the top of the YAML file ``path``; raises CalibrationError naming it as
-    ``what`` (no such file, not readable YAML, not a mapping)."""
-    if not os.path.isfile(path):
-        raise CalibrationError(f'{what} {path}: no such file')
+    ``what`` (no such file, a folder, not readable YAML, empty, not a mapping)."""
+    error = file_error(what, path)
+    if error:
+        raise CalibrationError(error)
     try:
         with open(path, encoding='utf-8') as f:
             data = yaml.safe_load(f)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise CalibrationError(f'{what} {path}: not readable YAML ({first})') from None
+    if data is None:
+        raise CalibrationError(f'{what} {path}: empty')
     if not isinstance(data, dict):
         raise CalibrationError(f'{what} {path}: expected a mapping at the top level')
     return data

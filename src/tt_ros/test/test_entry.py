@@ -41,13 +41,13 @@ def python(code, tmp_path):
 
 def test_ctrl_c_while_importing_is_one_line_and_status_130(tmp_path):
     # The target announces that its import has begun, then blocks in it (as numba's would).
-    (tmp_path / 'slow_import.py').write_text(textwrap.dedent('''\
+    (tmp_path / 'slow_import.py').write_text(textwrap.dedent("""\
         import sys, threading
         print('importing', flush=True)
         threading.Event().wait()
         def main():
             return 0
-    '''))
+    """))
     proc = python('import sys; from tt_ros.entry import run; '
                   "sys.exit(run('slow_import:main', 'slow_tool'))", tmp_path)
     assert proc.stdout.readline() == 'importing\n'

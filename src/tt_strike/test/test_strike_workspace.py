@@ -60,6 +60,19 @@ def test_bad_files_name_the_key_in_one_line(tmp_path, edit, key):
     assert key in text and '\n' not in text
 
 
+@pytest.mark.parametrize('text, reason', [
+    ('', ': empty'), ('# only a comment\n', ': empty'),
+    ('- workspace\n', ': the top level must be a mapping'),
+    ('workspace: 3\n', ": key 'workspace' must be a mapping"),
+])
+def test_a_file_that_is_no_mapping_says_so(tmp_path, text, reason):
+    path = tmp_path / 'ws.yaml'
+    path.write_text(text)
+    with pytest.raises(WorkspaceError) as err:
+        load_workspace(path)
+    assert str(err.value) == f'{path}{reason}'
+
+
 def test_negative_cylinder_radius(tmp_path):
     data = {'workspace': {'shape': 'cylinder', 'max_racket_speed': 6.0,
                           'min_time_before_hit': 0.1,

@@ -89,8 +89,11 @@ class Workspace:
 
 
 def _get(mapping, key, path):
+    if mapping is None and not path:
+        raise WorkspaceError('empty')
     if not isinstance(mapping, dict):
-        raise WorkspaceError(f"key '{path}' must be a mapping")
+        where = f"key '{path}'" if path else 'the top level'
+        raise WorkspaceError(f'{where} must be a mapping')
     if key not in mapping:
         raise WorkspaceError(f"missing key '{path}.{key}'" if path else f"missing key '{key}'")
     return mapping[key]

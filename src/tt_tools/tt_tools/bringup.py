@@ -407,7 +407,8 @@ def main(argv=None):
             if 'perception_node' not in nodes:
                 raise BringupError('--rig given but the file starts no perception_node')
             if not os.path.isfile(args.rig):
-                raise BringupError(f'--rig {args.rig}: no such file')
+                why = 'not a file' if os.path.exists(args.rig) else 'no such file'
+                raise BringupError(f'--rig {args.rig}: {why}')
             extra['perception_node'] = ['-p', f'rig_file:={os.path.abspath(args.rig)}']
         bringup = Bringup(args.params_file, nodes, extra, args.restart_delay,
                           args.max_restarts, args.stop_timeout)
