@@ -100,10 +100,17 @@ def evaluate(truths, outputs, params):
     return results
 
 
-def all_balls_seen(results):
-    """True when every ball got a perceived state, a prediction and a strike command."""
-    return all(r.states and r.prediction is not None and r.command is not None
-               for r in results)
+def balls_missed(results):
+    """What each ball lacked of a perceived state, a prediction and a strike command, as
+    short phrases (``'ball 3: no prediction'``); empty when every ball got all three."""
+    missed = []
+    for r in results:
+        lacks = [what for what, got in (('state', bool(r.states)),
+                                        ('prediction', r.prediction is not None),
+                                        ('strike command', r.command is not None)) if not got]
+        if lacks:
+            missed.append(f'ball {r.index}: no {", no ".join(lacks)}')
+    return missed
 
 
 def _fmt(value, spec):
