@@ -57,6 +57,18 @@ def test_ctrl_c_while_importing_is_one_line_and_status_130(tmp_path):
     assert err == 'slow_tool: interrupted\n'
 
 
+def test_a_node_interrupted_while_importing_stops_cleanly(tmp_path):
+    # As run_node ends on SIGINT: status 0, nothing said (bringup's Ctrl-C while it starts).
+    (tmp_path / 'slow_node.py').write_text(
+        "import threading\nprint('importing', flush=True)\nthreading.Event().wait()\n")
+    proc = python('import sys; from tt_ros.entry import run; '
+                  "sys.exit(run('slow_node:main', 'slow_node', node=True))", tmp_path)
+    assert proc.stdout.readline() == 'importing\n'
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert (proc.returncode, err) == (0, '')
+
+
 def test_the_function_s_result_is_the_exit_status(tmp_path):
     (tmp_path / 'quick.py').write_text('def main():\n    return 7\n')
     proc = python("import sys; from tt_ros.entry import run; sys.exit(run('quick:main', 'q'))",
@@ -78,6 +90,9 @@ def test_console_script_runs_its_main_through_run(package_dir, exe, target):
     real, name = (ast.literal_eval(a) for a in call.args)
     assert name == exe, 'the interrupted line must name the executable the user typed'
     real_module, _, real_function = real.partition(':')
+    node = {k.arg: ast.literal_eval(k.value) for k in call.keywords}.get('node', False)
+    assert node == real_module.endswith('.node'), 'a node stops cleanly, a command says so'
+
     path = SRC / package_dir.name / (real_module.replace('.', '/') + '.py')
     defined = {f.name for f in ast.parse(path.read_text()).body
                if isinstance(f, ast.FunctionDef)}
