@@ -9,6 +9,7 @@ import stat
 
 import numpy as np
 import pytest
+from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.cli import main
 from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
@@ -169,6 +170,21 @@ def test_a_bad_filter_config_is_one_line_exit_2_no_output(data, tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(config) in err[0] and what in err[0]
     assert not out.exists()
+
+
+def test_tracks_too_short_to_estimate_the_noise_take_the_default_noise(tmp_path, capsys):
+    # Six samples of a moving ball: no seven-sample window estimate_measurement_noise needs.
+    rng = np.random.default_rng(3)
+    t, p = _track(_states(1, rng)[0], rng, duration=6 / RATE)
+    _write(tmp_path / 'set', [('a.csv', t[:6], p[:6])])
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(tmp_path / 'set'), '--out', str(out)]) == 0
+    config = json.loads((out / 'summary.json').read_text())['filter_config']
+    default = FilterConfig()
+    assert (config['position_noise'], config['stamp_noise']) == (default.position_noise,
+                                                                 default.stamp_noise)
+    assert len(_rows(out / 'a.csv')[1]) == 6
+    assert capsys.readouterr().err.count('\n') == 1
 
 
 def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data, tmp_path,

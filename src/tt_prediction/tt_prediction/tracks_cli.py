@@ -51,7 +51,8 @@ def read_tracks(folder):
 def load_filter_config(path, tracks):
     """FilterConfig from a YAML mapping of its fields (``path``), or the defaults; a
     ``position_noise`` or ``stamp_noise`` of ``auto`` (the default) is estimated from the data
-    (:func:`tt_prediction.ball_filter.estimate_measurement_noise`)."""
+    (:func:`tt_prediction.ball_filter.estimate_measurement_noise`), or takes FilterConfig's
+    default where the tracks are too short for that (no 7 samples of a moving ball)."""
     data = {}
     if path:
         try:
@@ -73,6 +74,8 @@ def load_filter_config(path, tracks):
         clean = [(t[ok], p[ok]) for _, t, p, _ in tracks
                  for ok in [np.isfinite(t) & np.isfinite(p).all(axis=1)]]
         est_noise, est_stamp = estimate_measurement_noise(clean)
+        if not math.isfinite(est_noise):       # no 7 samples of a moving ball: the defaults
+            est_noise, est_stamp = FilterConfig.position_noise, FilterConfig.stamp_noise
         noise = est_noise if noise == 'auto' else noise
         stamp = est_stamp if stamp == 'auto' else stamp
     def typed(name, value):
@@ -88,7 +91,7 @@ def load_filter_config(path, tracks):
         config = FilterConfig(**{k: typed(k, v) for k, v in data.items()},
                               position_noise=float(noise), stamp_noise=float(stamp))
     except (TypeError, ValueError) as exc:
-        raise DataError(f'{path}: {exc}') from None
+        raise DataError(f'{path or "filter config"}: {exc}') from None
     return config
 
 
