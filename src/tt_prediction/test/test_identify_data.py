@@ -54,7 +54,8 @@ def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_pa
     track = 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))
     folder = _folder(tmp_path, {'a.csv': track})
     for out, what in ((folder, 'holds a.csv'), (tmp_path, 'holds data'),
-                      (folder / 'a.csv', 'not a folder')):
+                      (folder / 'a.csv', 'not a folder'),
+                      (folder / 'a.csv' / 'out', 'cannot write: Not a directory')):
         code, err = _run(capsys, [str(folder), '--out', str(out)])
         assert code == 2
         assert len(err) == 1 and str(out) in err[0] and what in err[0]

@@ -196,7 +196,9 @@ def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     note = tmp_path / 'note.txt'
     note.write_text('keep')
-    for out, what in ((folder, 'holds index.csv'), (note, 'not a folder')):
+    # A folder that cannot be made (under a file) is refused before the replay too.
+    for out, what in ((folder, 'holds index.csv'), (note, 'not a folder'),
+                      (note / 'out', 'cannot write: Not a directory')):
         assert main(['--tracks', str(folder), '--out', str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(out) in err[0] and what in err[0]

@@ -29,7 +29,7 @@ def output_folder_error(out, ours, tool):
     tool writes), so that an output given as the input's folder, the data's parent or a file
     by mistake is refused before any work rather than overwritten or replaced."""
     if not os.path.lexists(out):
-        return ''
+        return _creatable_error(out)
     if os.path.islink(out) or not os.path.isdir(out):
         return f'--out {out}: not a folder'
     try:
@@ -41,6 +41,21 @@ def output_folder_error(out, ours, tool):
     more = f' and {len(others) - 1} more' if len(others) > 1 else ''
     return (f'--out {out}: holds {others[0]}{more}, not written by {tool} (it would be '
             'overwritten or removed): give a new folder')
+
+
+def _creatable_error(out):
+    """Why the missing folder ``out`` could not be made, or '': a folder is made and removed
+    in its nearest existing ancestor (where :func:`staged_folder` would work), so that a
+    place that takes no folder (/proc, a read-only disk, a file as a parent) is refused
+    before minutes of work rather than at their end."""
+    ancestor = os.path.dirname(os.path.abspath(out))
+    while not os.path.lexists(ancestor):
+        ancestor = os.path.dirname(ancestor)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix='.tt-check-', dir=ancestor))
+    except OSError as exc:
+        return f'--out {out}: cannot write: {exc.strerror or exc}'
+    return ''
 
 
 @contextlib.contextmanager

@@ -75,12 +75,20 @@ def main(argv=None):
                           progress=progress)
         if progress:
             progress.close()
-        write_outputs(result, args.out, args.data)
     except (DataError, ValueError) as exc:
         print(f'tt-identify: {exc}', file=sys.stderr)
         return 2
     except OSError as exc:
         print(f'tt-identify: {exc.filename or args.out}: {exc.strerror or exc}',
+              file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('tt-identify: interrupted, nothing written', file=sys.stderr)
+        return 130
+    try:
+        write_outputs(result, args.out, args.data)
+    except OSError as exc:             # the staging folder's name would mean nothing to a user
+        print(f'tt-identify: --out {args.out}: cannot write: {exc.strerror or exc}',
               file=sys.stderr)
         return 2
     except KeyboardInterrupt:
