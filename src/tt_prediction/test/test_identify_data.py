@@ -111,6 +111,20 @@ def test_bag_of_point_stamped_loads_as_tracks(tmp_path):
     np.testing.assert_allclose(track.p, p)
 
 
+def test_a_topic_of_another_type_is_named_with_its_type(tmp_path):
+    def build(store):
+        Vector3 = store.types['geometry_msgs/msg/Vector3']
+        yield 1, Vector3(x=1.0, y=0.0, z=0.0)
+    bag = tmp_path / 'bag'
+    _write_bag(bag, '/ball/velocity', 'geometry_msgs/msg/Vector3', build)
+    with pytest.raises(DataError) as err:
+        load_bag(str(bag), '/ball/velocity')
+    assert str(err.value) == (f"{bag}: topic '/ball/velocity' is geometry_msgs/msg/Vector3, "
+                              'not tt_msgs/msg/BallState or geometry_msgs/msg/PointStamped')
+    with pytest.raises(DataError, match="no topic '/other' in the bag"):
+        load_bag(str(bag), '/other')
+
+
 def test_bag_of_ball_state_splits_tracks_by_id_and_marks_its_spin_estimated(tmp_path):
     from tt_prediction.identify.data import _bag_typestore
     store = _bag_typestore()

@@ -232,6 +232,10 @@ def load_bag(path, topic=None):
         if not conns:
             present = ', '.join(sorted({f'{c.topic} ({c.msgtype})'
                                         for c in reader.connections})) or 'none'
+            wrong = sorted({c.msgtype for c in reader.connections if c.topic == topic})
+            if wrong:
+                raise DataError(f"{path}: topic '{topic}' is {', '.join(wrong)}, not "
+                                f"{' or '.join(BAG_TYPES)}")
             want = f"topic '{topic}'" if topic else 'a BallState or PointStamped topic'
             raise DataError(f'{path}: no {want} in the bag (topics: {present})')
         if len({c.topic for c in conns}) > 1:
