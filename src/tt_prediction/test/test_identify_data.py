@@ -189,6 +189,12 @@ def test_bad_spin_source_is_one_line_naming_the_file(tmp_path, line, words):
     assert words in str(err.value) and '\n' not in str(err.value)
 
 
+def test_an_index_row_whose_file_is_missing_is_one_line_naming_it(tmp_path):
+    with pytest.raises(DataError) as err:
+        _folder_with_index(tmp_path / 'set', ['file,wx,wy,wz', 'a.csv,0,1,0', 'nope.csv,1,2,3'])
+    assert str(err.value) == f"{tmp_path / 'set' / 'index.csv'}: names nope.csv, not in the folder"
+
+
 def test_bag_without_the_topic_is_an_error(tmp_path, capsys):
     bag = tmp_path / 'bag'
 

@@ -168,7 +168,8 @@ def folder_tracks(folder):
         :func:`read_index` of the folder.
 
     Raises DataError (naming the folder) for one that is not a folder, cannot be listed or
-    holds no track file.
+    holds no track file, and (naming index.csv) for an index row whose file is not there: the
+    spin and label it gives would belong to no track, or a track file was lost.
     """
     if not os.path.isdir(folder):
         raise DataError(f'{folder}: not a folder of track CSV files')
@@ -178,7 +179,13 @@ def folder_tracks(folder):
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
         raise DataError(f'{folder}: no trajectory CSV files in the folder')
-    return files, read_index(folder)
+    index = read_index(folder)
+    missing = sorted(set(index) - set(files))
+    if missing:
+        more = f' and {len(missing) - 1} more' if len(missing) > 1 else ''
+        raise DataError(f'{os.path.join(folder, "index.csv")}: names {missing[0]}{more}, '
+                        'not in the folder')
+    return files, index
 
 
 def load_folder(folder):
