@@ -70,7 +70,7 @@ def param_node(graph):
 def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
     n = param_node
     (get, get_hidden, desc, dump, lst, lst_types, get_nope, get_no_node, set_count,
-     set_neg, set_ro, set_range, set_int) = run_all(
+     set_neg, set_ro, set_range, set_int, desc_one_nope) = run_all(
         graph,
         ('param', 'get', n, 'gain'),
         ('param', 'get', n, 'flags', '--hide-type'),
@@ -85,6 +85,7 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
         ('param', 'set', n, 'mode', 'slow'),
         ('param', 'set', n, 'gain', '2.0'),
         ('param', 'set', n, 'limits.low', '-2'),  # an integer for a double parameter
+        ('param', 'describe', n, 'gain', 'nope'),
     )
     assert get == (0, 'Double value is: 0.5\n', get[2])
     assert get_hidden[:2] == (0, '[True, False]\n')
@@ -115,6 +116,9 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
     assert every[every.index(f'{n}:') + 1:every.index(f'{n}:') + 4] == [
         '  count', '  flags', '  gain']
     assert get_nope[0] == 1 and error_lines(get_nope[2]) == [
+        f"ros2 param: node '{n}' has no parameter 'nope'"]
+    # One name not declared among several: that one is named, not all of them.
+    assert desc_one_nope[0] == 1 and error_lines(desc_one_nope[2]) == [
         f"ros2 param: node '{n}' has no parameter 'nope'"]
     assert get_no_node[0] == 1 and error_lines(get_no_node[2]) == [
         f"ros2 param: Node '{n}_absent' not found"]

@@ -142,9 +142,12 @@ def _per_name(cli, node_name, srv_type, field, names, args):
     if response is None:
         return None
     entries = getattr(response, field)
-    if len(entries) != len(names):  # rclpy answers nothing for undeclared ones
+    if len(entries) != len(names):
+        # rclpy answers nothing at all when one name is undeclared: ask for each to name it.
+        missing = [n for n in names if len(names) == 1 or not getattr(
+            _call(cli, client, srv_type.Request(names=[n]), args.timeout), field, [None])]
         raise ValueError(f"node '{node_name}' has no parameter "
-                         + ' or '.join(repr(n) for n in names))
+                         + ' or '.join(repr(n) for n in missing or names))
     return entries
 
 
