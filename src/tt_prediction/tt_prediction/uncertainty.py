@@ -50,6 +50,20 @@ class Uncertainty:
     hit_fraction: float
 
 
+def covariance_eigen(cov):
+    """Eigenvalues and eigenvectors of the symmetric part of the square matrix ``cov``
+    (:func:`numpy.linalg.eigh`); raises ValueError for one that is not finite or clearly not
+    positive semi-definite (an eigenvalue below -1e-9 of the largest's magnitude)."""
+    if not np.all(np.isfinite(cov)):
+        raise ValueError('covariance is not finite')
+    eigval, eigvec = np.linalg.eigh(0.5 * (cov + cov.T))
+    scale = max(float(np.abs(eigval).max()), 1e-300)
+    if eigval.min() < -1e-9 * scale:
+        raise ValueError(f'covariance is not positive semi-definite (eigenvalue '
+                         f'{eigval.min():.3g})')
+    return eigval, eigvec
+
+
 def sigma_points(mean, cov, kappa=KAPPA):
     """Unscented sigma points (2n+1, n) and weights (2n+1,) of N(mean, cov).
 
@@ -59,15 +73,7 @@ def sigma_points(mean, cov, kappa=KAPPA):
     """
     mean = np.asarray(mean, dtype=float)
     n = mean.shape[0]
-    cov = np.asarray(cov, dtype=float).reshape(n, n)
-    if not np.all(np.isfinite(cov)):
-        raise ValueError('covariance is not finite')
-    cov = 0.5 * (cov + cov.T)
-    eigval, eigvec = np.linalg.eigh(cov)
-    scale = max(float(np.abs(eigval).max()), 1e-300)
-    if eigval.min() < -1e-9 * scale:
-        raise ValueError(f'covariance is not positive semi-definite (eigenvalue '
-                         f'{eigval.min():.3g})')
+    eigval, eigvec = covariance_eigen(np.asarray(cov, dtype=float).reshape(n, n))
     root = eigvec * np.sqrt(np.clip(eigval, 0.0, None) * (n + kappa))
     points = np.empty((2 * n + 1, n))
     points[0] = mean

@@ -90,6 +90,9 @@ def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):
     ('{"t": 0, "p": [NaN, 0, 0.3], "v": [-5, 0, 1], "w": [0, 0, 0], "target_zone": 3}', ''),
     ('not json', 'JSON'),
     (dict(BALL, target_zone=3, covariance=[1.0] * 80), 'covariance'),
+    # All -1: eigenvalue -9 along (1, ..., 1), no variance can be negative.
+    (dict(BALL, target_zone=3, covariance=[-1.0] * 81),
+     'covariance is not positive semi-definite'),
 ])
 def test_bad_input_is_a_one_line_error(line, what, monkeypatch, capsys):
     code, out, err = run([dict(BALL, target_zone=1), line], monkeypatch, capsys)

@@ -30,6 +30,7 @@ import sys
 import numpy as np
 from tt_prediction.cli import InputError, hit_plane_error, parse_object, parse_state, read_input
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
+from tt_prediction.uncertainty import covariance_eigen
 
 from .hitpoint import choose
 from .incoming import hit_point
@@ -53,6 +54,10 @@ def parse_strike_line(text, lineno, radius):
         if not ok or not all(math.isfinite(c) for c in cov):
             raise InputError(f'line {lineno}: "covariance" must be 81 finite numbers (9x9)')
         cov = np.array(cov, dtype=float).reshape(9, 9)
+        try:
+            covariance_eigen(cov)
+        except ValueError as exc:
+            raise InputError(f'line {lineno}: {exc}') from None
     return t, np.array(state), zone, point, cov
 
 
