@@ -5,7 +5,7 @@ from tt_ros.entry import run
 
 
 def perception_node():
-    return run('tt_perception.node:main', 'perception_node', node=True)
+    return run('tt_perception.node:main', 'perception_node', quiet=True)
 
 
 def tt_perceive():

@@ -5,7 +5,7 @@ from tt_ros.entry import run
 
 
 def prediction_node():
-    return run('tt_prediction.node:main', 'prediction_node', node=True)
+    return run('tt_prediction.node:main', 'prediction_node', quiet=True)
 
 
 def tt_predict():

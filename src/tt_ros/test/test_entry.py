@@ -62,7 +62,7 @@ def test_a_node_interrupted_while_importing_stops_cleanly(tmp_path):
     (tmp_path / 'slow_node.py').write_text(
         "import threading\nprint('importing', flush=True)\nthreading.Event().wait()\n")
     proc = python('import sys; from tt_ros.entry import run; '
-                  "sys.exit(run('slow_node:main', 'slow_node', node=True))", tmp_path)
+                  "sys.exit(run('slow_node:main', 'slow_node', quiet=True))", tmp_path)
     assert proc.stdout.readline() == 'importing\n'
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
@@ -90,7 +90,7 @@ def test_console_script_runs_its_main_through_run(package_dir, exe, target):
     real, name = (ast.literal_eval(a) for a in call.args)
     assert name == exe, 'the interrupted line must name the executable the user typed'
     real_module, _, real_function = real.partition(':')
-    node = {k.arg: ast.literal_eval(k.value) for k in call.keywords}.get('node', False)
+    node = {k.arg: ast.literal_eval(k.value) for k in call.keywords}.get('quiet', False)
     assert node == real_module.endswith('.node'), 'a node stops cleanly, a command says so'
 
     path = SRC / package_dir.name / (real_module.replace('.', '/') + '.py')
@@ -105,3 +105,51 @@ def test_entry_modules_import_nothing_heavy(tmp_path):
             f'print(sorted(m for m in {HEAVY!r} if m in sys.modules))')
     out, err = python(code, tmp_path).communicate(timeout=60)
     assert out.strip() == '[]', err
+
+
+def _writer(tmp_path, body, stdout):
+    """A process whose console-script body is ``body`` (Python source of ``main``), stdout
+    to ``stdout``: (status, stderr)."""
+    (tmp_path / 'writer.py').write_text(body)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path)] + sys.path))
+    env.pop('PYTHONUNBUFFERED', None)         # stdout block-buffered, as a file's or a pipe's
+    proc = subprocess.run(
+        [sys.executable, '-c', "import sys; from tt_ros.entry import run; "
+                               "sys.exit(run('writer:main', 'writer'))"],
+        env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, timeout=60)
+    return proc.returncode, proc.stderr
+
+
+SMALL = 'def main():\n    print("a line")\n    return 0\n'
+LARGE = 'def main():\n    print("x" * 100000)\n    return 0\n'
+FAILED = """\
+import sys
+def main():
+    try:
+        print('a line', flush=True)
+    except OSError as exc:
+        print(f'writer: {exc.strerror}', file=sys.stderr)
+        return 2
+    return 0
+"""
+
+
+@pytest.mark.skipif(not os.path.exists('/dev/full'), reason='needs /dev/full')
+@pytest.mark.parametrize('body', [SMALL, LARGE], ids=['buffered till exit', 'written at once'])
+def test_output_to_a_full_disk_is_one_line_and_status_1(tmp_path, body):
+    with open('/dev/full', 'w') as full:
+        assert _writer(tmp_path, body, full) == (
+            1, 'writer: cannot write the output: No space left on device\n')
+
+
+@pytest.mark.skipif(not os.path.exists('/dev/full'), reason='needs /dev/full')
+def test_a_failure_already_reported_keeps_its_status_and_line(tmp_path):
+    with open('/dev/full', 'w') as full:
+        assert _writer(tmp_path, FAILED, full) == (2, 'writer: No space left on device\n')
+
+
+def test_a_reader_that_went_away_ends_it_quietly(tmp_path):
+    read, write = os.pipe()
+    os.close(read)                          # as `| head` once it has its lines
+    with os.fdopen(write, 'w') as pipe:
+        assert _writer(tmp_path, LARGE, pipe) == (0, '')

@@ -5,7 +5,7 @@ from tt_ros.entry import run
 
 
 def strike_node():
-    return run('tt_strike.node:main', 'strike_node', node=True)
+    return run('tt_strike.node:main', 'strike_node', quiet=True)
 
 
 def tt_strike():

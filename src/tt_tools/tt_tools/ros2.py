@@ -11,6 +11,8 @@ import importlib.util
 import os
 import sys
 
+from tt_ros.entry import finish_output
+
 from tt_tools import stop
 
 HANDOVER_ENV = 'TT_ROS2_NO_HANDOVER'
@@ -86,11 +88,7 @@ def main(argv=None):
         argv = sys.argv[1:]
         if argv[:1] != ['run']:
             _keep_stdout_for_output()
-    try:
-        return _main(argv)
-    except BrokenPipeError:  # the reader of our output has gone (``| head``): stop quietly
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    return finish_output(lambda: _main(argv), 'ros2')
 
 
 def _keep_stdout_for_output():
