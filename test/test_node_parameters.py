@@ -186,3 +186,21 @@ def test_a_parameter_given_without_ros_args_is_named_in_a_warning():
     assert lines[0].startswith('strike_node: warning: ignoring -p target_zone:=3')
     assert '--ros-args' in lines[0]
     assert lines[1].startswith('strike_node: ') and 'target_zone' in lines[1]
+
+
+def test_a_misspelt_parameter_is_named_in_a_warning():
+    # rclpy keeps an override of a name the node never declares without a word; the node
+    # names it. A bad value of a real one then stops it, so the test needs no running node.
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    proc = subprocess.run(['ros2', 'run', 'tt_prediction', 'prediction_node', '--ros-args',
+                           '-r', f'__ns:={ns}', '-p', 'stale_aftr_s:=1.0', '-p',
+                           'use_sim_time:=false', '-p', 'stale_after_s:=fast'],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
+    lines = _tt_lines(proc.stderr)
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 2, proc.stderr
+    assert lines[0].endswith("parameter 'stale_aftr_s' given but prediction_node has no such "
+                             'parameter: ignored (--help lists them)')
+    assert '[WARN]' in lines[0]
+    assert lines[1].startswith('prediction_node: ') and 'stale_after_s' in lines[1]

@@ -199,6 +199,15 @@ class Values(dict):
             raise AttributeError(name) from None
 
 
+def unknown_overrides(node, declared):
+    """Names given to ``node`` (``-p NAME:=VALUE``, a parameters file) that are neither in
+    ``declared`` nor rclpy's own (use_sim_time, qos_overrides.*): a misspelt name that rclpy
+    would ignore without a word. Sorted."""
+    given = getattr(node, '_parameter_overrides', {})    # rclpy keeps them there
+    return sorted(n for n in given if n not in declared and n != 'use_sim_time'
+                  and not n.startswith('qos_overrides.'))
+
+
 class Parameters:
     """The declared parameters of ``node`` (see the module docstring).
 
@@ -231,6 +240,10 @@ class Parameters:
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, ParameterDescriptor(
                 description=spec.description, dynamic_typing=True))
+        for name in unknown_overrides(node, self.specs):
+            node.get_logger().warning(
+                f"parameter '{name}' given but {node.get_name()} has no such parameter: "
+                'ignored (--help lists them)')
         for spec in specs:
             self.values[spec.name] = coerce(spec, node.get_parameter(spec.name).value)
         reason = check(dict(self.values)) if check is not None else None
