@@ -288,6 +288,15 @@ def test_bad_parameters_files_are_one_line_and_exit_2(tmp_path, text, words):
     assert len(lines) == 1 and lines[0].startswith(f'bringup: {path}: ') and words in lines[0]
 
 
+def test_an_empty_nodes_list_is_refused_not_taken_as_all():
+    proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file',
+                           str(CONFIG / 'replay.yaml'), '--nodes', ''],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith('bringup: --nodes : not among the nodes of ')
+    assert proc.stderr.count('\n') == 1
+
+
 @pytest.mark.parametrize('missing, words', [(True, 'no such file'), (False, 'not a file')])
 def test_a_rig_that_is_no_file_is_one_line_and_exit_2(tmp_path, missing, words):
     rig = tmp_path / 'rig.yaml' if missing else tmp_path

@@ -346,6 +346,14 @@ def test_truncated_bag_is_a_one_line_error(tmp_path, storage):
         assert err.count('\n') == 1 and 'truncated or corrupt' in err, err
 
 
+def test_play_from_past_the_end_is_one_line_and_plays_nothing(tmp_path):
+    bag = _small_bag(tmp_path / 'bag', 'mcap')           # 300 messages 10 ms apart: 2.99 s
+    rc, out, err = ros2('bag', 'play', str(bag), '--start-offset', '3.5')
+    assert (rc, out) == (1, '')
+    assert err == ('ros2 bag: --start-offset 3.5 s is past the end of the bag (2.99 s long): '
+                   'nothing to play\n')
+
+
 def test_foreign_paths_are_one_line_errors(tmp_path):
     random_file = tmp_path / 'noise.mcap'
     random_file.write_bytes(os.urandom(4096))

@@ -8,6 +8,7 @@ from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 
+from tt_tools.argtypes import non_negative_float, positive_float
 from tt_tools.introspect import import_message_type
 from tt_tools.rosutil import CliNode, absolute_name, qos_from_bag, qos_matching, qos_to_bag
 
@@ -105,14 +106,22 @@ def bag_play(args):
     topics = {absolute_name(t) for t in args.topics or []}
     reader = open_bag(args.bag)
     try:
+        length = (reader.end_time - reader.start_time) / 1e9
+        if args.start_offset > length:
+            raise BagError(f'--start-offset {args.start_offset:g} s is past the end of the bag '
+                           f'({length:.2f} s long): nothing to play')
         conns, classes = _playable(reader, topics)
         with CliNode('bag_play') as cli:
             pubs = {}
             for conn in conns:
                 qos = qos_from_bag(conn.ext.offered_qos_profiles, depth=args.qos_depth)
                 pubs[conn.id] = cli.node.create_publisher(classes[conn.id], conn.topic, qos)
-            if args.wait_for_subscribers and not cli.spin_until(
-                    lambda: all(p.get_subscription_count() > 0 for p in pubs.values())):
+            if args.wait_for_subscribers and not cli.wait_saying(
+                    lambda: all(p.get_subscription_count() > 0 for p in pubs.values()),
+                    lambda: 'waiting for a subscriber on every topic (--wait-for-subscribers; '
+                            'none yet on ' + ', '.join(sorted(
+                                p.topic_name for p in pubs.values()
+                                if p.get_subscription_count() == 0)) + ')'):
                 return 0
             if args.delay > 0:
                 cli.spin_until(timeout=args.delay)          # the delay, or a signal
@@ -174,12 +183,13 @@ def add_arguments(bag_sub):
 
     p = bag_sub.add_parser('play', help='replay a rosbag2 bag')
     p.add_argument('bag', help='bag directory')
-    p.add_argument('-r', '--rate', type=float, default=1.0, help='playback speed factor')
+    p.add_argument('-r', '--rate', type=positive_float, default=1.0,
+                   help='playback speed factor')
     p.add_argument('-l', '--loop', action='store_true', help='play again from the start')
     p.add_argument('--topics', nargs='+', help='replay only these topics')
-    p.add_argument('--start-offset', type=float, default=0.0,
+    p.add_argument('--start-offset', type=non_negative_float, default=0.0,
                    help='start this many seconds after the beginning of the bag')
-    p.add_argument('-d', '--delay', type=float, default=0.0,
+    p.add_argument('-d', '--delay', type=non_negative_float, default=0.0,
                    help='wait this many seconds before playing')
     p.add_argument('--wait-for-subscribers', action='store_true',
                    help='(tt) wait until every topic has a matched subscription')

@@ -395,7 +395,7 @@ def main(argv=None):
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
         nodes = nodes_in(args.params_file)
-        if args.nodes:
+        if args.nodes is not None:                    # '' names no node: refused too
             wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
             unknown = [n for n in wanted if n not in nodes]
             if unknown or not wanted:

@@ -18,6 +18,7 @@ from rcl_interfaces.srv import (
 from rclpy.parameter import get_parameter_value, parameter_value_to_python
 import yaml
 
+from tt_tools.argtypes import positive_float
 from tt_tools.output import say, write
 from tt_tools.rosutil import (
     LATE_NODE_S,
@@ -334,7 +335,7 @@ def add_arguments(sub):
     def common(p, node_required=True):
         if node_required:
             p.add_argument('node_name', help="node name, e.g. '/prediction_node'")
-        p.add_argument('--timeout', type=float, default=10.0,
+        p.add_argument('--timeout', type=positive_float, default=10.0,
                        help='seconds to wait for the parameter service and its answer '
                             '(default 10)')
         add_spin_time_argument(p)

@@ -25,6 +25,7 @@ from rosbags.interfaces import (
 )
 
 from tt_tools import stop
+from tt_tools.argtypes import positive_float
 from tt_tools.output import say
 
 SETTLE_MIN_S = 2.0
@@ -198,7 +199,7 @@ class CliNode:
 def add_spin_time_argument(parser):
     """``--spin-time S`` of the verbs that look at the graph."""
     parser.add_argument(
-        '--spin-time', type=float, default=None,
+        '--spin-time', type=positive_float, default=None,
         help='seconds to wait for discovery (default: until discovery has settled: the graph '
              f'unchanged for {SETTLE_QUIET_S:g} s, at least {SETTLE_MIN_S:g} s, at most '
              f'{SETTLE_MAX_S:g} s)')

@@ -12,6 +12,7 @@ from rclpy.duration import Duration
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
 
+from tt_tools.argtypes import non_negative_int, positive_float, positive_int
 from tt_tools.introspect import (
     dict_to_message,
     get_field,
@@ -317,7 +318,8 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('topic')
     p.add_argument('type', nargs='?', help="message type 'pkg/msg/Type' (default: from graph)")
     p.add_argument('--once', action='store_true', help='print one message and exit')
-    p.add_argument('--times', type=int, default=0, help='print N messages and exit')
+    p.add_argument('--times', type=non_negative_int, default=0,
+                   help='print N messages and exit (0: no limit)')
     p.add_argument('--field', help="print only this dotted field, e.g. 'position.x'")
     p.add_argument('--truncate-length', type=int, default=128,
                    help='cut arrays and strings longer than this (default 128)')
@@ -328,7 +330,7 @@ def add_arguments(topic_sub, node_sub):
     p = topic_sub.add_parser('hz', help='print the average publishing rate of a topic')
     p.add_argument('topic')
     p.add_argument('type', nargs='?', help='message type (default: from graph)')
-    p.add_argument('--window', '-w', type=int, default=10000,
+    p.add_argument('--window', '-w', type=positive_int, default=10000,
                    help='number of messages in the rolling window (default 10000)')
     p.set_defaults(func=topic_hz)
 
@@ -338,9 +340,11 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('values', nargs='?', default='{}',
                    help="field values as YAML, e.g. '{position: {x: 1.0}}' "
                         "(a Time field may be 'now')")
-    p.add_argument('-r', '--rate', type=float, default=1.0, help='publishing rate, Hz')
+    p.add_argument('-r', '--rate', type=positive_float, default=1.0,
+                   help='publishing rate, Hz')
     p.add_argument('-1', '--once', action='store_true', help='publish one message and exit')
-    p.add_argument('-t', '--times', type=int, default=0, help='publish N messages and exit')
+    p.add_argument('-t', '--times', type=non_negative_int, default=0,
+                   help='publish N messages and exit (0: no limit)')
     p.add_argument('-w', '--wait-matching-subscriptions', type=int, default=None,
                    help='wait for N matching subscriptions first (default 1 with --once or '
                         '--times, else 0)')
