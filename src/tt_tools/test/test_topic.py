@@ -116,6 +116,19 @@ def test_list_and_info_show_type_and_offered_qos(graph, topic):
     assert f'/{graph.node.get_name()}' in run('node', 'list').splitlines()
 
 
+@pytest.mark.parametrize('verb, given', [('echo', 'tt_msgs/msg/BallPrediction'),
+                                          ('hz', 'tt_msgs/BallPrediction')])
+def test_echo_or_hz_of_another_type_than_published_is_one_line_and_exit_1(graph, topic, verb,
+                                                                        given):
+    # A subscription of the type given would never match: said instead of waiting silently.
+    graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    proc = Ros2Process('topic', verb, topic, given)
+    graph.spin_until(lambda: proc.proc.poll() is not None, 60, f'ros2 topic {verb} to end')
+    assert proc.wait() == 1 and proc.stdout == ''
+    assert error_lines(proc.stderr) == [
+        f'ros2 topic: {topic} is published as tt_msgs/msg/BallState, not {given}']
+
+
 def test_info_on_an_unknown_topic_is_one_line_and_exit_1(topic):
     rc, out, err = ros2('topic', 'info', topic, '--spin-time', '0.5')
     assert rc == 1 and out == ''
