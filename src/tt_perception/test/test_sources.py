@@ -69,6 +69,24 @@ def test_scene_videos_are_read_back_camera_by_camera(tmp_path):
     assert all(abs(grey - (40 * (i // 2) + 20 * k)) <= 2 for i, (_, k, grey) in enumerate(got))
 
 
+def test_a_video_cut_short_is_named_with_the_frames_it_lacks(tmp_path):
+    # 20 MJPG frames per camera; cam0's file then cut: its header still declares 20.
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    rng = np.random.default_rng(0)
+    frames = [(None, k, rng.integers(0, 255, (48, 64, 3), np.uint8))
+              for n in range(20) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
+    whole = []
+    assert len(list(file_frames(rig, whole))) == 40 and whole == []
+    cam0 = tmp_path / 'video' / 'cam0.avi'
+    cam0.write_bytes(cam0.read_bytes()[:cam0.stat().st_size // 2])
+    notes = []
+    read = sum(k == 0 for _, k, _ in file_frames(rig, notes))
+    assert 0 < read < 19
+    assert notes == [f'camera cam0: {cam0}: video ended after {read} of the 20 frames its '
+                     'header declares (cut or corrupt?)']
+
+
 def test_absent_v4l2_device_is_reported_and_retried():
     src = V4L2Source('/dev/video_tt_absent', reopen_interval=0.0)
     with pytest.raises(OSError, match='V4L2 device cannot be opened'):

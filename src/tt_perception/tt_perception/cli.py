@@ -242,7 +242,8 @@ def _main(argv=None):
         pipeline = Pipeline(rig, params=params,
                             detector_config=DetectorConfig(colour=args.colour),
                             tracker_config=TrackerConfig(smooth=args.smooth))
-        frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig)
+        cut = []
+        frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig, cut)
         estimates, errors = run(frames, pipeline)
         if args.smooth:
             smoothed = pipeline.smoothed([e for _, e in estimates])
@@ -250,7 +251,7 @@ def _main(argv=None):
     except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
-    for message in errors.values():
+    for message in [*cut, *errors.values()]:
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
     try:
         names = write_tracks(args.out, estimates, 'tt-perceive')

@@ -71,6 +71,7 @@ class VideoFileSource(FrameSource):
         self.fps = float(fps)
         self.capture = None
         self.index = 0
+        self.declared = 0
 
     def open(self):
         path = self.path
@@ -91,7 +92,17 @@ class VideoFileSource(FrameSource):
         if not self.capture.isOpened():
             raise OSError(f'{path}: cannot be opened as a video or image sequence')
         self.index = 0
+        self.declared = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
         return self
+
+    def cut_short(self):
+        """After the end: one line when fewer frames were read than the file's header
+        declares (a cut or corrupt file), else ''. A frame of slack: some containers' counts
+        are estimates."""
+        if self.declared > 0 and self.index < self.declared - 1:
+            return (f'{self.path}: video ended after {self.index} of the {self.declared} '
+                    'frames its header declares (cut or corrupt?)')
+        return ''
 
     def read(self):
         """Next frame ``(t, frame)``; ``(None, None)`` at the end of the file."""
@@ -200,10 +211,11 @@ class V4L2Source(FrameSource):
             self.capture = None
 
 
-def file_frames(rig):
+def file_frames(rig, notes=None):
     """(t, camera_index, frame) of the rig's video files, one frame of each camera in turn at
     each frame index, ``t`` = index / fps on each camera's own clock. Raises OSError naming
-    the camera when a source is not a file or cannot be read.
+    the camera when a source is not a file or cannot be read. A video that ends before its
+    header's frame count adds a line naming the camera to the list ``notes``.
     """
     base = os.path.dirname(rig.path)
     sources = {}
@@ -220,7 +232,10 @@ def file_frames(rig):
             for k in sorted(sources):
                 t, frame = sources[k].read()
                 if frame is None:
-                    sources.pop(k).close()
+                    ended = sources.pop(k)
+                    ended.close()
+                    if notes is not None and ended.cut_short():
+                        notes.append(f'camera {rig.cameras[k].name}: {ended.cut_short()}')
                     continue
                 yield t, k, frame
     finally:
