@@ -354,6 +354,15 @@ def test_play_from_past_the_end_is_one_line_and_plays_nothing(tmp_path):
                    'nothing to play\n')
 
 
+def test_record_to_a_place_that_takes_no_bag_is_one_line(tmp_path):
+    note = tmp_path / 'note.txt'
+    note.write_text('keep')
+    rc, out, err = ros2('bag', 'record', '-o', str(note / 'bag'), '/ball/state')
+    assert (rc, out) == (1, '')
+    assert err == f"ros2 bag: output '{note / 'bag'}': cannot write: Not a directory\n"
+    assert note.read_text() == 'keep'
+
+
 def test_foreign_paths_are_one_line_errors(tmp_path):
     random_file = tmp_path / 'noise.mcap'
     random_file.write_bytes(os.urandom(4096))

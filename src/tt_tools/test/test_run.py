@@ -40,6 +40,9 @@ def test_lookup_follows_the_ament_prefix_path_in_order(tmp_path):
 @pytest.mark.parametrize('args, words', [
     (('no_such_package', 'node'), "Package 'no_such_package' not found"),
     (('tt_tools', 'no_such_executable'), "No executable 'no_such_executable'"),
+    (('--prefix', 'no_such_command -x', 'tt_tools', 'bringup'),
+     "--prefix 'no_such_command -x': no command 'no_such_command' on PATH"),
+    (('--prefix', '"unclosed', 'tt_tools', 'bringup'), 'No closing quotation'),
 ])
 def test_unknown_package_or_executable_is_one_line_and_exit_1(args, words):
     rc, out, err = ros2('run', *args)

@@ -35,7 +35,10 @@ def bag_record(args):
         raise BagError(f"output '{out}' already exists")
     with CliNode('bag_record') as cli:
         own = cli.node.get_name()
-        writer = BagWriter(out, args.storage)
+        try:
+            writer = BagWriter(out, args.storage)
+        except OSError as exc:            # /proc/x, a read-only disk, a file as the parent
+            raise BagError(f"output '{out}': cannot write: {exc.strerror or exc}") from None
         subscribed, skipped = {}, set()
 
         def subscribe(topic):

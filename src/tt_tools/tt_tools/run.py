@@ -2,6 +2,7 @@
 
 import os
 import shlex
+import shutil
 
 from tt_ros.index import package_prefix
 
@@ -44,5 +45,10 @@ def main(args):
     path = find_executable(args.package, args.executable)
     argv = [path, *args.argv]
     if args.prefix:
-        argv = [*shlex.split(args.prefix), *argv]
+        try:
+            argv = [*shlex.split(args.prefix), *argv]
+        except ValueError as exc:                   # an unclosed quote
+            raise RunError(f'--prefix {args.prefix!r}: {exc}') from None
+        if not argv[0] or not shutil.which(argv[0]):
+            raise RunError(f'--prefix {args.prefix!r}: no command {argv[0]!r} on PATH')
     os.execvp(argv[0], argv)
