@@ -50,6 +50,21 @@ def test_unknown_package_or_executable_is_one_line_and_exit_1(args, words):
     assert err.count('\n') == 1 and words in err
 
 
+def test_an_argument_too_many_is_reported_with_the_subcommand_usage():
+    rc, out, err = ros2('param', 'get', '/some_node', 'stale_after_s', 'hit_plane_x')
+    assert rc == 2 and out == ''
+    lines = err.strip().splitlines()
+    assert lines[0].startswith('usage: ros2 param get ')
+    assert lines[-1] == 'ros2 param get: error: unrecognized arguments: hit_plane_x'
+
+
+def test_an_invalid_topic_name_is_one_line_without_rcl_source_location():
+    rc, out, err = ros2('topic', 'echo', 'bad topic!')
+    assert rc == 1 and out == ''
+    assert err.startswith("ros2 topic: topic name '/bad topic!' is invalid: ")
+    assert err.count('\n') == 1 and '.c:' not in err
+
+
 def test_run_execs_the_installed_executable_with_its_arguments(tmp_path):
     prefix = _fake_prefix(tmp_path, 'demo_pkg', {'talker': 0o755})
     env = {'AMENT_PREFIX_PATH': str(prefix)}

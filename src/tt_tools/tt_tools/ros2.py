@@ -9,6 +9,7 @@ import argparse
 import importlib
 import importlib.util
 import os
+import re
 import sys
 
 from tt_ros.entry import finish_output
@@ -63,7 +64,18 @@ def build_parser(only_run=False):
 
     p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
     bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
+    _remember_parsers(parser)
     return parser
+
+
+def _remember_parsers(parser):
+    """Each (sub)command's parser as its ``_parser`` default, so that an argument too many
+    is reported with that command's usage (``ros2 param get``'s), not the top level's."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                sub.set_defaults(_parser=sub)
+                _remember_parsers(sub)
 
 
 def _run(args):
@@ -110,7 +122,10 @@ def _main(argv):
     from tt_tools.run import RunError
 
     only_run = argv[:1] == ['run']
-    args = build_parser(only_run=only_run).parse_args(argv)
+    parser = build_parser(only_run=only_run)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        getattr(args, '_parser', parser).error(f'unrecognized arguments: {" ".join(extra)}')
     if stop.requested:  # before ``run`` execs the executable (its handlers start afresh)
         return 0
     errors = (RunError, ValueError, OSError)
@@ -122,8 +137,9 @@ def _main(argv):
         return args.func(args)
     except BrokenPipeError:
         raise
-    except errors as exc:  # bad input: one line
-        print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
+    except errors as exc:  # bad input: one line (without rcl's source file and line)
+        print(f"ros2 {args.verb}: {re.sub(r', at [^ ]+:[0-9]+$', '', str(exc))}",
+              file=sys.stderr)
     except KeyError as exc:  # an unknown message field
         print(f'ros2 {args.verb}: {exc.args[0]}', file=sys.stderr)
     return 1
