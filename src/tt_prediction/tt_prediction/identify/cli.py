@@ -68,6 +68,7 @@ def main(argv=None):
         print(f'tt-identify: {out_error}', file=sys.stderr)
         return 2
     progress = _progress_factory(not args.no_progress)
+    writing = False
     try:
         base = load_model(args.model)
         tracks = load(args.data, args.topic)
@@ -75,21 +76,14 @@ def main(argv=None):
                           progress=progress)
         if progress:
             progress.close()
+        writing = True
+        write_outputs(result, args.out, args.data)
     except (DataError, ValueError) as exc:
         print(f'tt-identify: {exc}', file=sys.stderr)
         return 2
-    except OSError as exc:
-        print(f'tt-identify: {exc.filename or args.out}: {exc.strerror or exc}',
-              file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('tt-identify: interrupted, nothing written', file=sys.stderr)
-        return 130
-    try:
-        write_outputs(result, args.out, args.data)
-    except OSError as exc:             # the staging folder's name would mean nothing to a user
-        print(f'tt-identify: --out {args.out}: cannot write: {exc.strerror or exc}',
-              file=sys.stderr)
+    except OSError as exc:      # a write names --out: its staging folder means nothing to a user
+        where = f'--out {args.out}: cannot write' if writing else exc.filename or args.out
+        print(f'tt-identify: {where}: {exc.strerror or exc}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print('tt-identify: interrupted, nothing written', file=sys.stderr)
