@@ -183,8 +183,13 @@ def test_verbs_on_the_running_prediction_node(graph, procs, topic):
         (tinfo,) = run_all(graph, ('topic', 'info', prediction),
                            env={'TT_SETTLE_DEBUG': '1'})
         tries += 1
-    assert tinfo[0] == 0 and tinfo[1].splitlines() == expected, (
-        tries, tinfo, node.proc.poll(), node.stderr[-2000:])
+    if not (tinfo[0] == 0 and tinfo[1].splitlines() == expected):
+        # In full: an assertion's repr is cut by pytest, and this is what the next failure
+        # must show (how the last try's discovery settled, whether the node still runs).
+        pytest.fail(f'topic info after {tries} tries: exit {tinfo[0]}\n{tinfo[1]}'
+                    f'its stderr:\n{tinfo[2]}\nprediction_node exit status: '
+                    f'{node.proc.poll()}, its stderr ends:\n{node.stderr[-2000:]}',
+                    pytrace=False)
     assert get == (0, 'Double value is: 0.5\n', get[2])  # the documented default
     assert describe[0] == 0 and '  Type: double' in describe[1].splitlines()
     assert set_int[:2] == (0, 'Set parameter successful\n'), set_int[2]
