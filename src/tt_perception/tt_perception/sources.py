@@ -234,8 +234,9 @@ def file_frames(rig, notes=None):
                 if frame is None:
                     ended = sources.pop(k)
                     ended.close()
-                    if notes is not None and ended.cut_short():
-                        notes.append(f'camera {rig.cameras[k].name}: {ended.cut_short()}')
+                    short = ended.cut_short()
+                    if notes is not None and short:
+                        notes.append(f'camera {rig.cameras[k].name}: {short}')
                     continue
                 yield t, k, frame
     finally:

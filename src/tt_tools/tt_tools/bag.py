@@ -102,8 +102,6 @@ def _playable(reader, topics):
 
 
 def bag_play(args):
-    if args.rate <= 0:
-        raise BagError(f'--rate must be positive, got {args.rate}')
     if args.clock is not None and args.clock <= 0:
         raise BagError(f'--clock must be a positive rate in Hz, got {args.clock}')
     topics = {absolute_name(t) for t in args.topics or []}

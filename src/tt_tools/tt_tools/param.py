@@ -145,8 +145,11 @@ def _per_name(cli, node_name, srv_type, field, names, args):
     entries = getattr(response, field)
     if len(entries) != len(names):
         # rclpy answers nothing at all when one name is undeclared: ask for each to name it.
-        missing = [n for n in names if len(names) == 1 or not getattr(
-            _call(cli, client, srv_type.Request(names=[n]), args.timeout), field, [None])]
+        def answered(name):           # None: a signal came, taken as no news
+            alone = _call(cli, client, srv_type.Request(names=[name]), args.timeout)
+            return alone is None or len(getattr(alone, field)) == 1
+
+        missing = names if len(names) == 1 else [n for n in names if not answered(n)]
         raise ValueError(f"node '{node_name}' has no parameter "
                          + ' or '.join(repr(n) for n in missing or names))
     return entries

@@ -19,6 +19,7 @@ from tt_tools.introspect import (
     import_message_type,
     message_to_yaml,
     parse_yaml_values,
+    split_type,
 )
 from tt_tools.output import say, write
 from tt_tools.rate import format_stats, rate_stats
@@ -43,12 +44,6 @@ def _known_topics(cli, limit=8):
     return ', '.join(names[:limit]) + more if names else 'none'
 
 
-def _full_type(type_str):
-    """'pkg/msg/Type' of a type given as 'pkg/Type' or 'pkg/msg/Type'."""
-    parts = type_str.split('/')
-    return f'{parts[0]}/msg/{parts[1]}' if len(parts) == 2 else type_str
-
-
 def _wait_for_publishers(cli, topic, type_str):
     """Spin until ``topic`` has a publisher; return (message class, publisher infos) or None.
 
@@ -56,11 +51,11 @@ def _wait_for_publishers(cli, topic, type_str):
     closest name) and goes on waiting.
     """
     state = {}
-    wanted = _full_type(type_str) if type_str else None
+    wanted = split_type(type_str) if type_str else None
 
     def found():
         pubs = cli.node.get_publishers_info_by_topic(topic)
-        if wanted and pubs and all(_full_type(p.topic_type) != wanted for p in pubs):
+        if wanted and pubs and all(split_type(p.topic_type) != wanted for p in pubs):
             given = ', '.join(sorted({p.topic_type for p in pubs}))
             raise ValueError(f'{topic} is published as {given}, not {type_str}')
         if pubs:
