@@ -31,7 +31,7 @@ def _folder(tmp_path, files):
 
 @pytest.mark.parametrize('files, expect', [
     ({}, 'no trajectory CSV'),
-    ({'a.csv': 'time,x,y,z\n0,0,0,0.3\n0.01,0.1,0,0.3\n'}, 'a.csv: header must start'),
+    ({'a.csv': 'time,x,y,z\n0,0,0,0.3\n0.01,0.1,0,0.3\n'}, 'a.csv: header must name the columns'),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n0.01,abc,0,0.3\n'}, "a.csv: line 3, column 'x'"),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n'}, 'a.csv: 1 valid sample(s)'),
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,-0.1\n' for i in range(20)),
@@ -46,6 +46,24 @@ def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, file
     assert len(err) == 1 and expect in err[0] and 'Traceback' not in err[0]
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == ['data']   # no temp folder left
+
+
+def test_a_byte_order_mark_and_the_columns_in_another_order_read_the_same(tmp_path):
+    # A spreadsheet's UTF-8 export starts with a byte-order mark; other tools put an id or
+    # frame column first. The four named columns are what counts.
+    t = np.arange(20) * 0.01
+    plain = 't,x,y,z\n' + ''.join(f'{ti},{1.0 - 5 * ti},0.1,0.3\n' for ti in t)
+    other = ('\ufefff,z,y,x,t\n'
+             + ''.join(f'{i},0.3,0.1,{1.0 - 5 * ti},{ti}\n' for i, ti in enumerate(t)))
+    index = 'file,wx,wy,wz,label,source_id\na.csv,1,2,3,x,y\n'
+    (tmp_path / 'a').mkdir()
+    (tmp_path / 'b').mkdir()
+    a = load([str(_folder(tmp_path / 'a', {'a.csv': plain, 'index.csv': index}))])
+    b = load([str(_folder(tmp_path / 'b', {'a.csv': other, 'index.csv': '\ufeff' + index}))])
+    assert np.array_equal(a[0].t, t) and np.array_equal(b[0].t, t)
+    assert np.array_equal(a[0].p, b[0].p)
+    assert np.allclose(b[0].p[:, 0], 1.0 - 5 * t) and np.all(b[0].p[:, 1:] == (0.1, 0.3))
+    assert np.array_equal(b[0].spin, (1.0, 2.0, 3.0))
 
 
 def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys):

@@ -133,7 +133,7 @@ def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
 
 @pytest.mark.parametrize('content, what', [
     ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
-    ('a,b,c\n1,2,3\n', "header must start with 't,x,y,z'"),
+    ('a,b,c\n1,2,3\n', "header must name the columns 't,x,y,z'"),
     (b'\xff\xfe\x00bad', 'not a text CSV file'),
 ])
 def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, content, what):

@@ -74,7 +74,8 @@ def clean_samples(name, t, p):
 def _read_csv(path):
     """Rows of a CSV file as (header, list of rows); DataError when unreadable."""
     try:
-        with open(path, newline='') as f:
+        # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not a header's.
+        with open(path, newline='', encoding='utf-8-sig') as f:
             rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
     except OSError as exc:
         raise DataError(f'{path}: cannot read: {exc.strerror}') from None
@@ -86,20 +87,25 @@ def _read_csv(path):
 
 
 def read_track_csv(path):
-    """Read one trajectory CSV (header ``t,x,y,z``) into ``(t, p)``."""
+    """Read one trajectory CSV (header ``t,x,y,z``, then any other columns; the four may
+    come in any order) into ``(t, p)``."""
     header, rows = _read_csv(path)
-    if header[:4] != ['t', 'x', 'y', 'z']:
-        raise DataError(f"{path}: header must start with 't,x,y,z', got '{','.join(header)}'")
+    need = ('t', 'x', 'y', 'z')
+    if not set(need) <= set(header):
+        raise DataError(f"{path}: header must name the columns 't,x,y,z', "
+                        f"got '{','.join(header)}'")
+    cols = [header.index(name) for name in need]
     values = np.empty((len(rows), 4))
     for i, row in enumerate(rows):
-        if len(row) < 4:
-            raise DataError(f'{path}: line {i + 2} has {len(row)} columns, expected 4')
-        for j in range(4):
+        if len(row) <= max(cols):
+            raise DataError(f'{path}: line {i + 2} has {len(row)} columns, expected '
+                            f'{max(cols) + 1}')
+        for j, col in enumerate(cols):
             try:
-                values[i, j] = float(row[j])
+                values[i, j] = float(row[col])
             except ValueError:
-                raise DataError(f"{path}: line {i + 2}, column '{header[j]}': "
-                                f"'{row[j]}' is not a number") from None
+                raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
+                                f"'{row[col]}' is not a number") from None
     reason = position_error(values[:, 1:4], 'x, y, z')      # e.g. millimetres, not metres
     if reason:
         raise DataError(f'{path}: {reason}')
