@@ -135,6 +135,10 @@ def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
     ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
     ('a,b,c\n1,2,3\n', "header must name the columns 't,x,y,z'"),
     (b'\xff\xfe\x00bad', 'not a text CSV file'),
+    # Milliseconds: 150 Hz samples 6.7 ms apart, a ball at 4.5 m/s.
+    ('t,x,y,z\n' + ''.join(f'{6.7 * i},{1.0 - 0.03 * i},0,0.3\n' for i in range(10)),
+     'median step between samples 6.7: a ball track is sampled at tens to hundreds of Hz; '
+     'times are in seconds, not milliseconds'),
 ])
 def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, content, what):
     folder, tracks = data

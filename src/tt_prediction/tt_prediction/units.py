@@ -10,6 +10,10 @@ ROOM_HALF_EXTENT_M = 10.0
 RIG_MAX_TRANSLATION_M = 20.0
 """Largest distance of a camera centre from the table origin (norm of the rig's translation),
 m."""
+MAX_SAMPLE_STEP_S = 0.1
+"""Longest median step between a ball track's samples, s: a flight lasts about a second and
+is tracked at tens to hundreds of Hz, so a median step of more is almost surely times in
+milliseconds (or nonsense)."""
 
 
 def position_error(positions, field='p'):
@@ -37,6 +41,24 @@ def position_error(positions, field='p'):
     where = '' if p.shape[0] == 1 else f' (row {int(np.flatnonzero(big.any(axis=1))[0]) + 1})'
     return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
             f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres')
+
+
+def sample_time_error(times, field='t'):
+    """Why ``times`` (n,), a ball track's sample times, are not in seconds, or ''.
+
+    Judged on the median step between successive distinct finite times, against
+    :data:`MAX_SAMPLE_STEP_S`: ``'t: median step between samples 5.66: a ball track is
+    sampled at tens to hundreds of Hz; times are in seconds, not milliseconds'``.
+    """
+    t = np.asarray(times, dtype=float)
+    steps = np.diff(np.unique(t[np.isfinite(t)]))
+    if len(steps) == 0:
+        return ''
+    step = float(np.median(steps))
+    if not step > MAX_SAMPLE_STEP_S:
+        return ''
+    return (f'{field}: median step between samples {step:.6g}: a ball track is sampled at '
+            'tens to hundreds of Hz; times are in seconds, not milliseconds')
 
 
 def translation_error(translation, field='translation'):

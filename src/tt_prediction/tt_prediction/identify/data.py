@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-from ..units import position_error
+from ..units import position_error, sample_time_error
 
 
 class DataError(ValueError):
@@ -106,7 +106,8 @@ def read_track_csv(path):
             except ValueError:
                 raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
                                 f"'{row[col]}' is not a number") from None
-    reason = position_error(values[:, 1:4], 'x, y, z')      # e.g. millimetres, not metres
+    reason = (position_error(values[:, 1:4], 'x, y, z')     # e.g. millimetres, not metres
+              or sample_time_error(values[:, 0]))
     if reason:
         raise DataError(f'{path}: {reason}')
     return values[:, 0], values[:, 1:4]
