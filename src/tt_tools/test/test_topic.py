@@ -146,6 +146,16 @@ def test_pub_once_delivers_the_yaml_values(graph, procs, topic):
     assert got[0].header.frame_id == 'table'
 
 
+def test_pub_of_another_type_than_subscribed_is_one_line_and_exit_1(graph, topic):
+    # Waiting for a subscription that can never match is said as echo says it.
+    graph.node.create_subscription(BallState, topic, lambda m: None, QoSProfile(depth=10))
+    proc = Ros2Process('topic', 'pub', topic, 'std_msgs/msg/String', '{data: hi}', '--once')
+    graph.spin_until(lambda: proc.proc.poll() is not None, 60, 'ros2 topic pub to end')
+    assert proc.wait() == 1 and proc.stdout == ''
+    assert error_lines(proc.stderr) == [
+        f'ros2 topic: {topic} is subscribed as tt_msgs/msg/BallState, not std_msgs/msg/String']
+
+
 def test_pub_bad_values_fail_before_publishing(topic):
     rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{track_id: 1.5}')
     assert rc == 1 and out == ''

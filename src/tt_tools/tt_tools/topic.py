@@ -227,15 +227,24 @@ def topic_hz(args):
     return 0
 
 
-def _wait_for_subscriptions(cli, pub, topic, count, max_wait):
+def _wait_for_subscriptions(cli, pub, topic, type_str, count, max_wait):
     """Spin until ``pub`` has ``count`` matching subscriptions (True); says on stderr what it
     waits for when discovery settles without them. False on a signal or after ``max_wait``
-    s (with a one-line error)."""
+    s (with a one-line error). ValueError when the topic's subscriptions are all of another
+    type than ``type_str`` (they would never match)."""
+    wanted = split_type(type_str)
+
     def matched():
         return pub.get_subscription_count() >= count
 
     def bounded():
-        return matched() or time.monotonic() >= deadline
+        if matched():
+            return True
+        subs = cli.node.get_subscriptions_info_by_topic(topic)
+        if subs and all(split_type(s.topic_type) != wanted for s in subs):
+            given = ', '.join(sorted({s.topic_type for s in subs}))
+            raise ValueError(f'{topic} is subscribed as {given}, not {type_str}')
+        return time.monotonic() >= deadline
 
     deadline = time.monotonic() + (max_wait if max_wait is not None else float('inf'))
     limit = (f'up to {max_wait:g} s (--max-wait-time-secs)' if max_wait is not None
@@ -268,7 +277,7 @@ def topic_pub(args):
                          reliability=RELIABILITY[args.qos_reliability],
                          durability=DURABILITY[args.qos_durability])
         pub = cli.node.create_publisher(cls, topic, qos)
-        if wait_subs and not _wait_for_subscriptions(cli, pub, topic, wait_subs,
+        if wait_subs and not _wait_for_subscriptions(cli, pub, topic, args.type, wait_subs,
                                                      args.max_wait_time_secs):
             return 1 if not cli.stopped else 0
         write('publisher: beginning loop\n')
