@@ -201,13 +201,21 @@ def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data
     note = tmp_path / 'note.txt'
     note.write_text('keep')
     # A folder that cannot be made (under a file) is refused before the replay too.
-    for out, what in ((folder, 'holds index.csv'), (note, 'not a folder'),
+    for out, what in ((folder, 'holds 0000.csv and 2 more'), (note, 'not a folder'),
                       (note / 'out', 'cannot write: Not a directory')):
         assert main(['--tracks', str(folder), '--out', str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(out) in err[0] and what in err[0]
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
     assert note.read_text() == 'keep'
+    # A data set without index.csv (optional): its tracks, named as the rows would be, are
+    # told from rows by their header.
+    (folder / 'index.csv').unlink()
+    before.pop('index.csv')
+    assert main(['--tracks', str(folder), '--out', str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f'--out {folder}: holds ' in err[0] and 'not written by' in err[0]
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
     # An earlier replay's folder (rows and summary.json) is still a valid output.
     out = tmp_path / 'out'
     assert main(['--tracks', str(folder), '--out', str(out), '--no-textbook']) == 0

@@ -23,17 +23,20 @@ def interruptible(tool, body, argv=None):
         return 130
 
 
-def output_folder_error(out, ours, tool):
+def output_folder_error(out, ours, tool, csv_header=None):
     """Why ``out`` cannot take ``tool``'s output, or '': it must be missing, or a folder (not
     a link) whose files all match ``ours`` (a compiled regular expression of the names the
     tool writes), so that an output given as the input's folder, the data's parent or a file
-    by mistake is refused before any work rather than overwritten or replaced."""
+    by mistake is refused before any work rather than overwritten or replaced. With
+    ``csv_header`` (the tool's CSV header line), a CSV file must also begin with it: a name
+    alone does not tell a measured track from the tool's output."""
     if not os.path.lexists(out):
         return _creatable_error(out)
     if os.path.islink(out) or not os.path.isdir(out):
         return f'--out {out}: not a folder'
     try:
-        others = sorted(n for n in os.listdir(out) if not ours.fullmatch(n))
+        others = sorted(n for n in os.listdir(out)
+                        if not ours.fullmatch(n) or not _begins(out, n, csv_header))
     except OSError as exc:
         return f'--out {out}: cannot read: {exc.strerror}'
     if not others:
@@ -41,6 +44,15 @@ def output_folder_error(out, ours, tool):
     more = f' and {len(others) - 1} more' if len(others) > 1 else ''
     return (f'--out {out}: holds {others[0]}{more}, not written by {tool} (it would be '
             'overwritten or removed): give a new folder')
+
+
+def _begins(folder, name, csv_header):
+    """Whether the file ``name`` of ``folder`` is not a CSV or begins with ``csv_header``
+    (always, without one)."""
+    if csv_header is None or not name.endswith('.csv'):
+        return True
+    with open(os.path.join(folder, name), 'rb') as f:
+        return f.readline().rstrip(b'\r\n') == csv_header.encode()
 
 
 def _creatable_error(out):

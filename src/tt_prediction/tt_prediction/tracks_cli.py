@@ -148,7 +148,8 @@ def _main(argv=None):
     if plane_error:
         print(f'tt-predict: {plane_error}', file=sys.stderr)
         return 2
-    out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-predict --tracks')
+    out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-predict --tracks',
+                                    csv_header=','.join(COLUMNS))
     if out_error:
         print(f'tt-predict: {out_error}', file=sys.stderr)
         return 2
