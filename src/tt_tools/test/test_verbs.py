@@ -15,11 +15,13 @@ from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
+    ParameterType,
     SetParametersResult,
 )
 from rclpy.qos import QoSProfile
 from tt_ros.index import interface_file
 from tt_tools.introspect import import_message_type
+from tt_tools.param import parse_value
 from tt_tools.procs import ros_env
 import yaml
 
@@ -195,6 +197,16 @@ def test_verbs_on_the_running_prediction_node(graph, procs, topic):
     assert set_int[:2] == (0, 'Set parameter successful\n'), set_int[2]
     node.signal(signal.SIGINT)
     assert node.wait(timeout=90) == 0 and 'Traceback' not in node.stderr
+
+
+@pytest.mark.parametrize('text', ['99999999999999999999999', '-9223372036854775809',
+                                  '[1, 99999999999999999999999]'])
+def test_an_integer_beyond_64_bits_is_a_one_line_error_not_a_traceback(text):
+    # rclpy takes it into the message and fails to serialise it (OverflowError, then a
+    # SystemError from the C extension): refused when the value is read.
+    with pytest.raises(ValueError, match='an integer outside the 64-bit range'):
+        parse_value(text, ParameterType.PARAMETER_DOUBLE)
+    assert parse_value(str(2 ** 63 - 1)).integer_value == 2 ** 63 - 1
 
 
 def test_node_info_and_topic_type_of_an_absent_node_or_topic(topic):

@@ -228,7 +228,14 @@ def parse_value(text, declared_type=None):
     double, ``true`` bool, ``[1, 2]`` integer array, anything else a string), as ros2cli does;
     an integer (array) given for a ``declared_type`` double (array) becomes a double (array).
     """
-    value = get_parameter_value(text)
+    too_big = f"value '{text}': an integer outside the 64-bit range"
+    try:
+        value = get_parameter_value(text)
+    except OverflowError:                    # in an array
+        raise ValueError(too_big) from None
+    if not all(-2 ** 63 <= v < 2 ** 63
+               for v in [value.integer_value, *value.integer_array_value]):
+        raise ValueError(too_big)
     if (declared_type == ParameterType.PARAMETER_DOUBLE
             and value.type == ParameterType.PARAMETER_INTEGER):
         value.type, value.double_value = declared_type, float(value.integer_value)
