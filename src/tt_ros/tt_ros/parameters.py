@@ -297,6 +297,13 @@ class Parameters:
             reason = str(exc)
         if reason:
             self.node.get_logger().warning(f'parameter refused: {reason}')
+            # rclpy has already given the stored descriptor of a dynamically typed parameter
+            # the refused value's type (Node._apply_descriptor, before the callbacks): the
+            # kept value's type goes back, or `ros2 param describe` says what was refused.
+            for p in parameters:
+                if p.name in self.specs:
+                    self.node.describe_parameter(p.name).type = (
+                        self.node.get_parameter(p.name).type_.value)
             return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 

@@ -284,6 +284,13 @@ def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
             result, = node.set_parameters([Parameter('target_zone', value=0)])
             assert result.successful
             assert node.target[0] == 0 and list(node.target[1]) == [0.9, -0.2]
+            # A value of another type, refused, leaves the parameter's described type.
+            for name, value in (('target_zone', 2.5), ('target_point', True)):
+                kept = node.describe_parameter(name).type
+                result, = node.set_parameters([Parameter(name, value=value)])
+                assert not result.successful
+                assert node.describe_parameter(name).type == kept == (
+                    node.get_parameter(name).type_.value)
         finally:
             node.destroy_node()
     finally:
