@@ -194,7 +194,9 @@ def test_a_misspelt_parameter_is_named_in_a_warning():
     ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
     proc = subprocess.run(['ros2', 'run', 'tt_prediction', 'prediction_node', '--ros-args',
                            '-r', f'__ns:={ns}', '-p', 'stale_aftr_s:=1.0', '-p',
-                           'use_sim_time:=false', '-p', 'stale_after_s:=fast'],
+                           'use_sim_time:=false', '-p',  # rclpy's own, as param dump writes
+                           'start_type_description_service:=true', '-p',
+                           'stale_after_s:=fast'],
                           capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
                           stdin=subprocess.DEVNULL)
     lines = _tt_lines(proc.stderr)

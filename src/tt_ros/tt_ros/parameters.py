@@ -201,10 +201,12 @@ class Values(dict):
 
 def unknown_overrides(node, declared):
     """Names given to ``node`` (``-p NAME:=VALUE``, a parameters file) that are neither in
-    ``declared`` nor rclpy's own (use_sim_time, qos_overrides.*): a misspelt name that rclpy
-    would ignore without a word. Sorted."""
+    ``declared`` nor rclpy's own (those the node has declared already: use_sim_time,
+    start_type_description_service, as ``ros2 param dump`` writes them; qos_overrides.*,
+    declared with each publisher): a misspelt name that rclpy would ignore without a word.
+    Sorted."""
     given = getattr(node, '_parameter_overrides', {})    # rclpy keeps them there
-    return sorted(n for n in given if n not in declared and n != 'use_sim_time'
+    return sorted(n for n in given if n not in declared and not node.has_parameter(n)
                   and not n.startswith('qos_overrides.'))
 
 
