@@ -354,6 +354,24 @@ def test_play_from_past_the_end_is_one_line_and_plays_nothing(tmp_path):
                    'nothing to play\n')
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_play_of_a_bag_without_messages_is_one_line(tmp_path, storage):
+    # As record leaves it when nothing was published: a topic, no message.
+    writer = BagWriter(str(tmp_path / 'empty'), storage)
+    writer.add_topic('/ball/state', 'tt_msgs/msg/BallState')
+    writer.close()
+    rc, out, err = ros2('bag', 'play', str(tmp_path / 'empty'))
+    assert (rc, out) == (1, '')
+    assert err == f"ros2 bag: bag '{tmp_path / 'empty'}' holds no message: nothing to play\n"
+
+
+@pytest.mark.parametrize('rate', ['0', 'nan', '-1'])
+def test_play_clock_rate_that_is_not_a_rate_is_a_usage_error(tmp_path, rate):
+    bag = _small_bag(tmp_path / 'bag', 'mcap')
+    rc, out, err = ros2('bag', 'play', str(bag), '--clock', rate)
+    assert (rc, out) == (2, '') and f'{rate} is not a number > 0' in err
+
+
 def test_record_to_a_place_that_takes_no_bag_is_one_line(tmp_path):
     note = tmp_path / 'note.txt'
     note.write_text('keep')

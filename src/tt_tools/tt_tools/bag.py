@@ -102,11 +102,11 @@ def _playable(reader, topics):
 
 
 def bag_play(args):
-    if args.clock is not None and args.clock <= 0:
-        raise BagError(f'--clock must be a positive rate in Hz, got {args.clock}')
     topics = {absolute_name(t) for t in args.topics or []}
     reader = open_bag(args.bag)
     try:
+        if reader.message_count == 0:
+            raise BagError(f"bag '{args.bag}' holds no message: nothing to play")
         length = (reader.end_time - reader.start_time) / 1e9
         if args.start_offset > length:
             raise BagError(f'--start-offset {args.start_offset:g} s is past the end of the bag '
@@ -194,7 +194,8 @@ def add_arguments(bag_sub):
                    help='wait this many seconds before playing')
     p.add_argument('--wait-for-subscribers', action='store_true',
                    help='(tt) wait until every topic has a matched subscription')
-    p.add_argument('--clock', type=float, nargs='?', const=40.0, default=None, metavar='HZ',
+    p.add_argument('--clock', type=positive_float, nargs='?', const=40.0, default=None,
+                   metavar='HZ',
                    help='publish the bag time on /clock at HZ (default 40 when given)')
     p.add_argument('--qos-depth', type=int, default=100, help='publisher queue depth')
     p.set_defaults(func=bag_play)
