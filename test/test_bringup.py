@@ -297,6 +297,20 @@ def test_an_empty_nodes_list_is_refused_not_taken_as_all():
     assert proc.stderr.count('\n') == 1
 
 
+@pytest.mark.parametrize('option, value, meaning', [
+    ('--restart-delay', 'nan', 'a number >= 0'), ('--restart-delay', '-5', 'a number >= 0'),
+    ('--stop-timeout', 'nan', 'a number > 0'), ('--stop-timeout', '0', 'a number > 0'),
+    ('--max-restarts', '-1', 'an integer >= 0')])
+def test_a_time_or_count_outside_its_meaning_is_a_usage_error(option, value, meaning):
+    # A nan restart delay was taken, and a node that died was then never started again.
+    proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file',
+                           str(CONFIG / 'replay.yaml'), option, value],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].endswith(
+        f'argument {option}: {value} is not {meaning}')
+
+
 @pytest.mark.parametrize('missing, words', [(True, 'no such file'), (False, 'not a file')])
 def test_a_rig_that_is_no_file_is_one_line_and_exit_2(tmp_path, missing, words):
     rig = tmp_path / 'rig.yaml' if missing else tmp_path

@@ -42,6 +42,7 @@ from tt_ros.executor import NOT_PARAMS
 from tt_ros.shm import remove_dead_segments
 import yaml
 
+from .argtypes import non_negative_float, non_negative_int, positive_float
 from .procs import ends_with_parent, ros_env
 from .run import RunError, find_executable
 
@@ -379,15 +380,13 @@ def parse_args(argv):
     p.add_argument('--rig', help='rig file for perception_node (overrides rig_file)')
     p.add_argument('--show', action='store_true',
                    help='print one line per ball: prediction and strike command')
-    p.add_argument('--restart-delay', type=float, default=1.0,
+    p.add_argument('--restart-delay', type=non_negative_float, default=1.0,
                    help='seconds before a node that died is started again (default 1)')
-    p.add_argument('--max-restarts', type=int, default=5,
+    p.add_argument('--max-restarts', type=non_negative_int, default=5,
                    help='restarts of one node before the graph stops (default 5)')
-    p.add_argument('--stop-timeout', type=float, default=10.0,
+    p.add_argument('--stop-timeout', type=positive_float, default=10.0,
                    help='seconds a node has to exit after SIGINT (default 10)')
     args = p.parse_args(argv)
-    if args.restart_delay < 0 or args.max_restarts < 0 or args.stop_timeout <= 0:
-        p.error('--restart-delay and --max-restarts must be >= 0, --stop-timeout > 0')
     return args
 
 
