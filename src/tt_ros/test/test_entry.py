@@ -57,14 +57,16 @@ def test_ctrl_c_while_importing_is_one_line_and_status_130(tmp_path):
     assert err == 'slow_tool: interrupted\n'
 
 
-def test_a_node_interrupted_while_importing_stops_cleanly(tmp_path):
-    # As run_node ends on SIGINT: status 0, nothing said (bringup's Ctrl-C while it starts).
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_a_node_interrupted_while_importing_stops_cleanly(tmp_path, sig):
+    # As run_node ends on SIGINT or SIGTERM: status 0, nothing said (bringup's Ctrl-C while
+    # it starts; a SIGTERM killed a node still importing, status -15).
     (tmp_path / 'slow_node.py').write_text(
         "import threading\nprint('importing', flush=True)\nthreading.Event().wait()\n")
     proc = python('import sys; from tt_ros.entry import run; '
                   "sys.exit(run('slow_node:main', 'slow_node', quiet=True))", tmp_path)
     assert proc.stdout.readline() == 'importing\n'
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=30)
     assert (proc.returncode, err) == (0, '')
 

@@ -14,6 +14,7 @@ stay free of heavy imports.
 import errno
 import importlib
 import os
+import signal
 import sys
 
 INTERRUPTED_EXIT = 130
@@ -55,13 +56,20 @@ def _stdout_to_devnull():
     os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def run(target, name, quiet=False):
     """Import ``target`` (``'package.module:function'``), call the function and return its
     result (the exit status), through :func:`finish_output`. A KeyboardInterrupt before the
     function has taken over Ctrl-C (during the imports, say) returns 0 without a word when
     ``quiet`` (a node: it stopped before it started), else prints ``<name>: interrupted`` on
-    stderr and returns :data:`INTERRUPTED_EXIT`."""
+    stderr and returns :data:`INTERRUPTED_EXIT`. A node takes SIGTERM as SIGINT from the
+    start too (run_node does once it runs): bringup and service managers stop nodes with it."""
     module, _, function = target.partition(':')
+    if quiet:
+        signal.signal(signal.SIGTERM, _interrupt)
     try:
         return finish_output(getattr(importlib.import_module(module), function), name)
     except KeyboardInterrupt:
