@@ -223,8 +223,22 @@ def test_bag_without_the_topic_is_an_error(tmp_path, capsys):
     out = tmp_path / 'out'
     code, err = _run(capsys, [str(bag), '--out', str(out)])
     assert code != 0 and len(err) == 1
-    assert str(bag) in err[0] and 'no a BallState or PointStamped topic' in err[0]
+    assert str(bag) in err[0] and 'no BallState or PointStamped topic' in err[0]
     assert '/chatter' in err[0]
+    assert not out.exists()
+
+
+def test_a_bag_whose_recording_was_killed_is_named_so(tmp_path, capsys):
+    # SIGKILL leaves the storage file without metadata.yaml: a bag, not a track folder.
+    t = np.arange(0.0, 0.5, 1 / 150.0)
+    bag = tmp_path / 'bag'
+    _write_bag(bag, '/ball/position', 'geometry_msgs/msg/PointStamped',
+               _point_messages(t, np.column_stack([1.0 - 5.0 * t, 0 * t, 0.3 + 0 * t])))
+    (bag / 'metadata.yaml').unlink()
+    out = tmp_path / 'out'
+    code, err = _run(capsys, [str(bag), '--out', str(out)])
+    assert code == 2 and err == [f'tt-identify: {bag}: a bag without metadata.yaml (a '
+                                 'recording that did not end: killed?)']
     assert not out.exists()
 
 

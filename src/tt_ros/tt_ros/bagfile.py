@@ -124,6 +124,10 @@ def open_bag(path):
     if not os.path.isdir(path):
         raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml)")
     if not os.path.isfile(os.path.join(path, 'metadata.yaml')):
+        storage = sorted(f for f in os.listdir(path) if f.endswith(('.mcap', '.db3')))
+        if storage:
+            raise BagError(f"bag '{path}' is incomplete: {storage[0]} without metadata.yaml "
+                           '(a recording that did not end: killed?)')
         raise BagError(f"'{path}' is not a rosbag2 bag: no metadata.yaml in it")
     reader = Reader(path)
     try:

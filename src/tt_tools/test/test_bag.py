@@ -389,8 +389,13 @@ def test_foreign_paths_are_one_line_errors(tmp_path):
     fake = shutil.copytree(_small_bag(tmp_path / 'good', 'mcap'), tmp_path / 'fake')
     (storage_file,) = fake.glob('*.mcap')
     storage_file.write_bytes(os.urandom(4096))
+    # A recording killed (SIGKILL) before it wrote its metadata.yaml.
+    killed = shutil.copytree(_small_bag(tmp_path / 'whole', 'mcap'), tmp_path / 'killed')
+    (killed / 'metadata.yaml').unlink()
     cases = [(random_file, 'not a rosbag2 bag'), (empty_dir, 'no metadata.yaml'),
-             (tmp_path / 'missing', 'does not exist'), (fake, 'truncated or corrupt')]
+             (tmp_path / 'missing', 'does not exist'), (fake, 'truncated or corrupt'),
+             (killed, r'incomplete: whole\.mcap without metadata\.yaml \(a recording that '
+                      r'did not end: killed\?\)')]
     for path, words in cases:
         with pytest.raises(BagError, match=words):
             open_bag(str(path))

@@ -235,6 +235,9 @@ def load_bag(path, topic=None):
     messages are split by ``track_id``; PointStamped streams at gaps over TRACK_GAP.
     """
     from rosbags.highlevel import AnyReader
+    if os.path.isdir(path) and not os.path.isfile(os.path.join(path, 'metadata.yaml')):
+        raise DataError(f'{path}: a bag without metadata.yaml (a recording that did not end: '
+                        'killed?)')
     try:
         reader = AnyReader([pathlib.Path(path)], default_typestore=_bag_typestore())
         reader.open()
@@ -250,7 +253,7 @@ def load_bag(path, topic=None):
             if wrong:
                 raise DataError(f"{path}: topic '{topic}' is {', '.join(wrong)}, not "
                                 f"{' or '.join(BAG_TYPES)}")
-            want = f"topic '{topic}'" if topic else 'a BallState or PointStamped topic'
+            want = f"topic '{topic}'" if topic else 'BallState or PointStamped topic'
             raise DataError(f'{path}: no {want} in the bag (topics: {present})')
         if len({c.topic for c in conns}) > 1:
             raise DataError(f'{path}: several candidate topics, choose one with --topic')
@@ -297,7 +300,8 @@ def load(paths, topic=None):
     for path in paths:
         if not os.path.exists(path):
             raise DataError(f'{path}: no such file or folder')
-        is_bag = os.path.isfile(path) or os.path.exists(os.path.join(path, 'metadata.yaml'))
+        is_bag = os.path.isfile(path) or any(
+            f == 'metadata.yaml' or f.endswith(('.mcap', '.db3')) for f in os.listdir(path))
         tracks.extend(load_bag(path, topic) if is_bag else load_folder(path))
     return tracks
 
