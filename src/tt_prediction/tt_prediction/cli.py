@@ -20,7 +20,7 @@ import numpy as np
 
 from .ball import load_model
 from .predict import DEFAULT_HIT_PLANE_X, HIT_PLANE_X_RANGE, check_state, predict, predict_many
-from .units import ROOM_HALF_EXTENT_M, position_error
+from .units import MAX_TIME_S, ROOM_HALF_EXTENT_M, position_error, time_error
 
 FIELDS = (('t', 1), ('p', 3), ('v', 3), ('w', 3))
 BATCH_MIN = 16
@@ -66,7 +66,7 @@ def _fast_values(data):
 def parse_state(data, lineno, radius):
     """(t, state9) of one line's JSON object ``data``; raises InputError naming the line."""
     fast = _fast_values(data)
-    if fast is not None and math.isfinite(fast[0]):
+    if fast is not None and abs(fast[0]) <= MAX_TIME_S:         # finite, not nanoseconds
         reason = check_state(fast[1:], radius)
         if not reason and max(map(abs, fast[1:4])) <= ROOM_HALF_EXTENT_M:
             return fast[0], fast[1:]
@@ -84,7 +84,8 @@ def parse_state(data, lineno, radius):
         values.extend(float(c) for c in items)
     if not math.isfinite(values[0]):
         raise InputError(f'line {lineno}: "t" is not finite')
-    reason = position_error(values[1:4], '"p"') or check_state(values[1:], radius)
+    reason = (time_error(values[0], '"t"') or position_error(values[1:4], '"p"')
+              or check_state(values[1:], radius))
     if reason:
         raise InputError(f'line {lineno}: {reason}')
     return values[0], values[1:]

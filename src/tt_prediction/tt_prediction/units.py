@@ -10,6 +10,10 @@ ROOM_HALF_EXTENT_M = 10.0
 RIG_MAX_TRANSLATION_M = 20.0
 """Largest distance of a camera centre from the table origin (norm of the rig's translation),
 m."""
+MAX_TIME_S = 1e10
+"""Largest |t| of a sample or state, s (317 years: epoch seconds pass): beyond it a double no
+longer resolves the flight's microseconds (at 1e17 s, not even its seconds), so the time is
+almost surely in nanoseconds or nonsense."""
 MAX_SAMPLE_STEP_S = 0.1
 """Longest median step between a ball track's samples, s: a flight lasts about a second and
 is tracked at tens to hundreds of Hz, so a median step of more is almost surely times in
@@ -41,6 +45,18 @@ def position_error(positions, field='p'):
     where = '' if p.shape[0] == 1 else f' (row {int(np.flatnonzero(big.any(axis=1))[0]) + 1})'
     return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
             f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres')
+
+
+def time_error(times, field='t'):
+    """Why ``times`` (a number or (n,)) are not times in seconds a flight can be integrated
+    at, or '': ``'"t" = 1e+17: beyond 1e+10 s ...'`` (non-finite values are not judged)."""
+    t = np.asarray(times, dtype=float).reshape(-1)
+    big = np.abs(np.where(np.isfinite(t), t, 0.0)) > MAX_TIME_S
+    if not big.any():
+        return ''
+    return (f'{field} = {t[np.flatnonzero(big)[0]]:.6g}: beyond {MAX_TIME_S:g} s, where a '
+            "double no longer resolves a flight's microseconds: give seconds from a recent "
+            'origin (not nanoseconds)')
 
 
 def sample_time_error(times, field='t'):

@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-from ..units import position_error, sample_time_error
+from ..units import position_error, sample_time_error, time_error
 
 
 class DataError(ValueError):
@@ -107,7 +107,7 @@ def read_track_csv(path):
                 raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
                                 f"'{row[col]}' is not a number") from None
     reason = (position_error(values[:, 1:4], 'x, y, z')     # e.g. millimetres, not metres
-              or sample_time_error(values[:, 0]))
+              or time_error(values[:, 0]) or sample_time_error(values[:, 0]))
     if reason:
         raise DataError(f'{path}: {reason}')
     return values[:, 0], values[:, 1:4]
