@@ -30,8 +30,9 @@ test: build lint
 demo: build
 	@$(ENV) python -m tt_tools.demo
 
+# make bench BENCH='strike prediction' runs those only.
 bench: build
-	@$(ENV) python bench/run_all.py --out bench/results
+	@$(ENV) python bench/run_all.py --out bench/results $(if $(BENCH),--only $(BENCH))
 
 # One report per measured set (different launchers, tables and trackers); the hitting plane
 # is at x = -1.2 m because the recorded tracks end near the robot's end line (x = -1.37 m).

@@ -19,15 +19,20 @@ import traceback
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--out', default='bench/results', help='folder for the JSON files')
-    parser.add_argument('--only', nargs='*', help='bench names (without bench_) to run')
+    here = pathlib.Path(__file__).parent
+    names = [p.stem[len('bench_'):] for p in sorted(here.glob('bench_*.py'))]
+    parser.add_argument('--only', nargs='+', metavar='NAME',
+                        help=f'bench names to run (of {", ".join(names)})')
     args = parser.parse_args(argv)
+    unknown = sorted(set(args.only or ()) - set(names))
+    if unknown:
+        parser.error(f'--only: no bench {", ".join(unknown)} (there are {", ".join(names)})')
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    here = pathlib.Path(__file__).parent
     summary = {'machine': platform.platform(), 'python': sys.version.split()[0], 'benches': {}}
     ok = True
-    for path in sorted(here.glob('bench_*.py')):
-        name = path.stem[len('bench_'):]
+    for name in names:
+        path = here / f'bench_{name}.py'
         if args.only and name not in args.only:
             continue
         print(f'bench {name} ...', flush=True)
