@@ -123,10 +123,21 @@ def test_type_strings():
     ({'header': {'frame_id': 3}}, "'header.frame_id'"),
     ({'position': 2.0}, 'expected a mapping'),
     ({'position': {'x': '1.5'}}, "'position.x'"),
+    ({'position': {'x': 'e5'}}, "'position.x'"),
+    ({'track_id': '1e3'}, "'track_id'"),
 ])
 def test_bad_values_name_the_field(values, words):
     with pytest.raises(ValueError, match=words):
         dict_to_message(values, BallState)
+
+
+def test_exponent_notation_without_a_dot_is_a_float():
+    # PyYAML (YAML 1.1) reads 1e-6 as a string; the user means the number.
+    values = parse_yaml_values('{position: {x: 1e-6, y: -2E+1, z: .5e1}, covariance: [' +
+                               ', '.join(['1e-4'] * 81) + ']}')
+    msg = dict_to_message(values, BallState)
+    assert (msg.position.x, msg.position.y, msg.position.z) == (1e-6, -20.0, 5.0)
+    assert list(msg.covariance) == [1e-4] * 81
 
 
 def test_command_line_yaml():

@@ -7,6 +7,7 @@ Time/Duration are ordinary nested messages (``sec``, ``nanosec``) as in ``ros2 t
 """
 
 import importlib
+import re
 
 import numpy as np
 from rosidl_parser.definition import (
@@ -26,6 +27,8 @@ _INTEGER_RANGES = {
     'uint32': (0, 2**32), 'int64': (-2**63, 2**63), 'uint64': (0, 2**64),
 }
 _FLOAT_TYPES = {'float', 'double', 'long double'}
+_EXPONENT_FLOAT = re.compile(r'[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+')
+"""A number in exponent notation without YAML 1.1's required dot (``1e-6``)."""
 
 
 def split_type(type_str):
@@ -137,6 +140,10 @@ def _convert_basic(value, slot_type, where):
                 raise TypeError
             return int(value)
         if kind in _FLOAT_TYPES:
+            # YAML 1.1 (PyYAML) reads 1e-6 as a string (a float needs its dot: 1.0e-6);
+            # YAML 1.2 and JSON read it as the number it is.
+            if isinstance(value, str) and _EXPONENT_FLOAT.fullmatch(value.strip()):
+                return float(value)
             if isinstance(value, bool | str):
                 raise TypeError
             return float(value)
