@@ -87,6 +87,26 @@ def test_a_video_cut_short_is_named_with_the_frames_it_lacks(tmp_path):
                      'header declares (cut or corrupt?)']
 
 
+def test_a_video_of_another_size_or_rate_than_its_rig_is_named(tmp_path):
+    # 64x48 videos at 100 fps; a rig whose cam1 calibration is 128x96 (another camera's
+    # camera_info), then one whose fps is 150 (another camera setting).
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None)
+    rig = load_rig(video_rig)
+    rig.cameras[1].width, rig.cameras[1].height = 128, 96
+    with pytest.raises(OSError) as refused:
+        list(file_frames(rig))
+    assert str(refused.value) == (f"camera cam1: {tmp_path / 'video' / 'cam1.avi'} is 64x48, "
+                                  'its calibration (camera_info) 128x96')
+    rig = load_rig(video_rig)
+    rig.fps = 150.0
+    notes = []
+    assert len(list(file_frames(rig, notes))) == 6
+    assert notes == [f"camera cam{k}: {tmp_path / 'video' / f'cam{k}.avi'} is 100 fps, the "
+                     "rig's fps 150: its frames are timed at the rig's" for k in (0, 1)]
+
+
 def test_absent_v4l2_device_is_reported_and_retried():
     src = V4L2Source('/dev/video_tt_absent', reopen_interval=0.0)
     with pytest.raises(OSError, match='V4L2 device cannot be opened'):

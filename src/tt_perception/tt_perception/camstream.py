@@ -273,6 +273,10 @@ class PacedVideoSource:
             return cv2.imdecode(data.reshape(-1), cv2.IMREAD_COLOR)
         return data
 
+    def disagreement(self, cam, rig_fps):
+        """:meth:`tt_perception.sources.VideoFileSource.disagreement` of the opened file."""
+        return self._file.disagreement(cam, rig_fps)
+
     def close(self):
         if self._file is not None:
             self._file.close()

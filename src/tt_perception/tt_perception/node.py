@@ -260,6 +260,7 @@ class PerceptionNode(Node):
         for reader in self._readers:
             reader.start()
         if files:
+            self._said_waiting = False
             self._file_timer = self.create_timer(0.01, self._start_files, clock=self.steady)
         if devices or files:
             # The objects made so far (ROS, numba, the rig) live as long as the node: out of
@@ -337,7 +338,13 @@ class PerceptionNode(Node):
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
         ``wait_for_subscribers`` subscriptions of /ball/state are there."""
-        if self.count_subscribers(STATE_TOPIC) < self._p('wait_for_subscribers'):
+        have, want = self.count_subscribers(STATE_TOPIC), self._p('wait_for_subscribers')
+        if have < want:
+            if not self._said_waiting:
+                self._said_waiting = True
+                self.get_logger().info(
+                    f'video files wait for {want} subscription(s) of {STATE_TOPIC} '
+                    f'({have} now; parameter wait_for_subscribers)')
             return
         self._file_timer.cancel()
         base = os.path.dirname(self.rig.path)
@@ -352,6 +359,12 @@ class PerceptionNode(Node):
             try:
                 source = PacedVideoSource(path, fps, buffers=CAMERA_BUFFERS, stop=self._stop,
                                           start=start, rate=self._p('video_rate')).open()
+                error, warning = source.disagreement(cam, fps)
+                if warning:
+                    self.get_logger().warning(f'camera {cam.name}: {warning}')
+                if error:
+                    source.close()
+                    raise OSError(f'{error}: its frames are not used')
             except OSError as exc:
                 self.get_logger().error(f'camera {cam.name}: {exc}')
                 # Ended before its first frame: the other cameras are not held back for it.

@@ -95,6 +95,25 @@ class VideoFileSource(FrameSource):
         self.declared = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
         return self
 
+    def disagreement(self, cam, rig_fps):
+        """``(error, warning)`` of the opened file against its camera ``cam`` (its
+        calibration's image size) and the rig's ``rig_fps``, each '' when none: frames of
+        another size than the calibration's would be measured with another camera's
+        intrinsics (an error); a video file whose own rate differs by more than 1 % from the
+        rig's is timed by the rig's (a warning). An image sequence has no rate of its own."""
+        cap = self.capture
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        error = warning = ''
+        if w > 0 and h > 0 and (w, h) != (cam.width, cam.height):
+            error = (f'{self.path} is {w}x{h}, its calibration (camera_info) '
+                     f'{cam.width}x{cam.height}')
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        if (os.path.isfile(self.path) and fps > 0.0
+                and abs(fps - rig_fps) > 0.01 * rig_fps):
+            warning = (f"{self.path} is {fps:g} fps, the rig's fps {rig_fps:g}: its frames "
+                       "are timed at the rig's")
+        return error, warning
+
     def cut_short(self):
         """After the end: one line when fewer frames were read than the file's header
         declares (a cut or corrupt file), else ''. A frame of slack: some containers' counts
@@ -214,8 +233,10 @@ class V4L2Source(FrameSource):
 def file_frames(rig, notes=None):
     """(t, camera_index, frame) of the rig's video files, one frame of each camera in turn at
     each frame index, ``t`` = index / fps on each camera's own clock. Raises OSError naming
-    the camera when a source is not a file or cannot be read. A video that ends before its
-    header's frame count adds a line naming the camera to the list ``notes``.
+    the camera when a source is not a file or cannot be read, or its frames are not of its
+    calibration's size (:meth:`VideoFileSource.disagreement`). A video whose own rate is not
+    the rig's, or that ends before its header's frame count, adds a line naming the camera to
+    the list ``notes``.
     """
     base = os.path.dirname(rig.path)
     sources = {}
@@ -228,6 +249,11 @@ def file_frames(rig, notes=None):
                 sources[k] = VideoFileSource(path, rig.fps).open()
             except OSError as exc:
                 raise OSError(f'camera {cam.name}: {exc}') from None
+            error, warning = sources[k].disagreement(cam, rig.fps)
+            if error:
+                raise OSError(f'camera {cam.name}: {error}')
+            if warning and notes is not None:
+                notes.append(f'camera {cam.name}: {warning}')
         while sources:
             for k in sorted(sources):
                 t, frame = sources[k].read()
