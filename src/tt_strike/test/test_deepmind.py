@@ -1,6 +1,7 @@
 """The strike solver over a sample of measured ball states (DeepMind, CC BY 4.0; see
 data/deepmind_states/README.md): the issue's table on 100 of the 15,792 states."""
 
+import os
 import pathlib
 
 from judge_strokes import judge
@@ -95,6 +96,25 @@ def test_an_output_that_is_a_folder_is_refused_before_any_work(tmp_path, capsys,
     assert said.out == '' and said.err.count('\n') == 1
     assert option in said.err and 'a folder, not a file' in said.err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('option', ['--json', '--strokes'])
+@pytest.mark.parametrize('where, why', [('nodir/x/y.out', 'no folder'),
+                                        ('file/y.out', 'no folder'),
+                                        ('locked/y.out', 'not writable')])
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(tmp_path, capsys, option,
+                                                                     where, why):
+    # It used to be found out at the end, after the table: a FileNotFoundError traceback.
+    (tmp_path / 'file').write_text('')
+    (tmp_path / 'locked').mkdir(mode=0o500)
+    if why == 'not writable' and os.access(tmp_path / 'locked', os.W_OK):
+        pytest.skip('running as root: every folder is writable')
+    path = tmp_path / where
+    assert main(['--data', str(DATA), '--limit', '10', option, str(path)]) == 2
+    said = capsys.readouterr()
+    assert said.out == '' and said.err.count('\n') == 1
+    assert said.err.startswith(f'tt_strike.evaluate_deepmind: {option} {path}: {why}')
+    assert not path.exists()
 
 
 @pytest.mark.parametrize('args', [['--hit-plane-x', '-1.5', '--strokes', 'x.jsonl'],

@@ -92,12 +92,27 @@ def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):
     (dict(BALL, target_zone=3, covariance=[1.0] * 80), 'covariance'),
     # All -1: eigenvalue -9 along (1, ..., 1), no variance can be negative.
     (dict(BALL, target_zone=3, covariance=[-1.0] * 81),
-     'covariance is not positive semi-definite'),
+     '"covariance" is not positive semi-definite (eigenvalue -9)'),
+    # Not symmetric: it used to be symmetrised without a word.
+    (dict(BALL, target_zone=3, covariance=(np.eye(9) * 1e-6 + np.eye(9, k=1) * 5.0).ravel()
+          .tolist()), '"covariance" is not symmetric ('),
+    # A point is [x, y] (strike_node's target_point too): it used to take [x, y, z].
+    (dict(BALL, target_point=[0.7, 0, 1]), '"target_point" must be 2 numbers [x, y], got'),
+    (dict(BALL, target_point=[[0.7, 0.0]]), '"target_point" must be 2 numbers'),
+    (dict(BALL, target_point=[0.7, True]), '"target_point" must be 2 numbers'),
 ])
 def test_bad_input_is_a_one_line_error(line, what, monkeypatch, capsys):
     code, out, err = run([dict(BALL, target_zone=1), line], monkeypatch, capsys)
     assert code == 2 and out == []                 # nothing half-written
     assert err.startswith('tt-strike: line 2:') and err.count('\n') == 1 and what in err
+
+
+def test_a_covariance_symmetric_within_rounding_is_taken(monkeypatch, capsys):
+    cov = np.eye(9) * 1e-6
+    cov[0, 1], cov[1, 0] = 1e-7, 1e-7 * (1 + 1e-12)
+    code, out, err = run([dict(BALL, target_zone=5, covariance=cov.ravel().tolist())],
+                         monkeypatch, capsys)
+    assert code == 0 and err == '' and out[0]['status'] == 'ok'
 
 
 def test_bad_option(monkeypatch, capsys):

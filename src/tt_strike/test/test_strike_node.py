@@ -181,6 +181,45 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
         g.close()
 
 
+def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
+    # It used to be symmetrised and clipped without a word: a command with a made-up
+    # in-zone probability.
+    g = Graph()
+    reasons = []
+    drop = g.node._drop
+    g.node._drop = lambda why: (reasons.append(why), drop(why))
+    try:
+        bad = {
+            1: [1e-6, 5.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 1e-6],       # not symmetric
+            2: [1e-6, 2e-6, 0.0, 2e-6, 1e-6, 0.0, 0.0, 0.0, 1e-6],     # eigenvalue -1e-6
+            3: [math.nan] + [0.0] * 8,
+        }
+        for track, cov in bad.items():
+            msg = prediction_msg(track)
+            msg.hit_covariance = cov
+            g.pub.publish(msg)
+        g.spin_until(lambda: g.node.n_received == 3, 10.0, 'the three bad predictions')
+        assert g.node.n_dropped == 3 and g.commands == []
+        assert reasons[0].startswith('hit_covariance is not symmetric (')
+        assert reasons[1] == 'hit_covariance is not positive semi-definite (eigenvalue -1e-06)'
+        assert reasons[2] == 'hit_covariance is not finite'
+        # All zeros (unknown: the position taken as exact), and an asymmetry of rounding,
+        # are taken.
+        zeros, rounded = prediction_msg(4), prediction_msg(5)
+        zeros.hit_covariance = [0.0] * 9
+        cov = np.eye(3) * 4e-6
+        cov[0, 1], cov[1, 0] = 1e-6, 1e-6 * (1 + 1e-12)
+        rounded.hit_covariance = cov.ravel().tolist()
+        g.pub.publish(zeros)
+        g.pub.publish(rounded)
+        g.spin_until(lambda: len(g.commands) == 2, 20.0, 'two commands')
+        for cmd, msg in zip(g.commands, (zeros, rounded), strict=True):
+            check_command(cmd, msg, 5)
+        assert g.node.n_dropped == 3
+    finally:
+        g.close()
+
+
 def test_config_file_matches_the_declared_parameters():
     config = yaml.safe_load(CONFIG.read_text())['strike_node']['ros__parameters']
     g = Graph([Parameter(k, value=v) for k, v in config.items()])

@@ -16,7 +16,8 @@ Output (stdout), one line per input line:
      "ball_out": {v, w} | null, "landing": {t, p, zone} | null,
      "target": {zone, point}, "net_clearance", "margin", "residual", "in_zone_probability"}
 Every line is checked before anything is written: a bad line (not JSON, a missing or
-malformed field, NaN, a target zone outside 1..9, a target point off the opponent's half)
+malformed field, NaN, a target zone outside 1..9, a target point that is not 2 numbers or
+is off the opponent's half, a covariance not symmetric or not positive semi-definite)
 stops the command with a one-line reason naming the line, exit status 2; so does a bad
 workspace file (naming the key).
 """
@@ -30,10 +31,10 @@ import sys
 import numpy as np
 from tt_prediction.cli import InputError, hit_plane_error, parse_object, parse_state, read_input
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
-from tt_prediction.uncertainty import covariance_eigen
 
 from .hitpoint import choose
 from .incoming import hit_point
+from .robust import check_covariance
 from .solver import StrikeSettings, resolve_target, solve
 from .workspace import load_workspace
 
@@ -43,6 +44,11 @@ def parse_strike_line(text, lineno, radius):
     data = parse_object(text, lineno)
     t, state = parse_state(data, lineno, radius)
     zone, point = data.get('target_zone'), data.get('target_point')
+    if point is not None and not (
+            isinstance(point, list) and len(point) == 2
+            and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in point)):
+        raise InputError(f'line {lineno}: "target_point" must be 2 numbers [x, y], got '
+                         f'{json.dumps(point)}')
     try:
         resolve_target(zone, point)
     except ValueError as exc:
@@ -55,7 +61,7 @@ def parse_strike_line(text, lineno, radius):
             raise InputError(f'line {lineno}: "covariance" must be 81 finite numbers (9x9)')
         cov = np.array(cov, dtype=float).reshape(9, 9)
         try:
-            covariance_eigen(cov)
+            check_covariance(cov, '"covariance"')
         except ValueError as exc:
             raise InputError(f'line {lineno}: {exc}') from None
     return t, np.array(state), zone, point, cov

@@ -217,6 +217,23 @@ def markdown(rows):
     return '\n'.join(lines)
 
 
+def output_error(option, path):
+    """Why ``path`` cannot be written as the output file of ``option``, or '' (also for None,
+    an option not given). The files are written at the end of a run of minutes: checked up
+    front instead of found out then."""
+    if not path:
+        return ''
+    if os.path.isdir(path):
+        return f'{option} {path}: a folder, not a file'
+    parent = os.path.dirname(path) or '.'
+    if not os.path.isdir(parent):
+        return f'{option} {path}: no folder {parent}'
+    if not os.access(parent, os.W_OK | os.X_OK) or (
+            os.path.exists(path) and not os.access(path, os.W_OK)):
+        return f'{option} {path}: not writable'
+    return ''
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m tt_strike.evaluate_deepmind',
                                      description=__doc__.splitlines()[0])
@@ -247,9 +264,8 @@ def main(argv=None):
               positive_error('--net-clearance', args.net_clearance),    # as tt-strike
               '--limit must be 0 (all states) or more' if args.limit < 0 else '',
               '--monte-carlo must be 0 (none) or more' if args.monte_carlo < 0 else '']
-    errors += [f'{name} {value}: a folder, not a file' for name, value in
-               (('--json', args.json), ('--strokes', args.strokes))
-               if value and os.path.isdir(value)]
+    errors += [output_error(name, value) for name, value in
+               (('--json', args.json), ('--strokes', args.strokes))]
     for error in filter(None, errors):
         print(f'tt_strike.evaluate_deepmind: {error}', file=sys.stderr)
         return 2

@@ -10,8 +10,10 @@ status (infeasible, unreachable) and reason (so that a controller knows there is
 this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
 node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
 no such check, for replays; none either, with one warning, for hit times on another time base
-than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point or with
-non-finite numbers are dropped with a throttled warning: nothing is published for them. A bad
+than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point, with
+non-finite numbers or with a ``hit_covariance`` that is not symmetric or not positive
+semi-definite (all zeros: unknown, the position taken as exact) are dropped with a throttled
+warning: nothing is published for them. A bad
 workspace file stops the node at start with a one-line reason. At exit it logs one line of
 counts, with each of the latest tracks' predictions, commands and first command's status.
 """
@@ -39,7 +41,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 
 from .hitpoint import choose
-from .robust import noise_covariance
+from .robust import check_covariance, noise_covariance
 from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
 from .workspace import load_workspace
 
@@ -200,10 +202,8 @@ class StrikeNode(Node):
         spin stds as fractions of their magnitudes (parameters)."""
         cov = noise_covariance(state, 0.0, self.p.velocity_sigma_fraction,
                                self.p.spin_sigma_fraction)
-        pos = np.array(msg.hit_covariance, dtype=float).reshape(3, 3)
-        if not np.all(np.isfinite(pos)):
-            return None
-        cov[:3, :3] = 0.5 * (pos + pos.T)
+        pos = np.array(msg.hit_covariance, dtype=float).reshape(3, 3)   # checked: finite
+        cov[:3, :3] = 0.5 * (pos + pos.T)             # symmetric within rounding
         return cov
 
     def _probability_due(self, key, stamp_ns):
@@ -257,6 +257,12 @@ class StrikeNode(Node):
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
         if not np.all(np.isfinite(state)):
             self._drop('hit point, velocity or spin is not finite')
+            return
+        try:       # zeros (unknown): the position taken as exact, only v and w uncertain
+            check_covariance(np.array(msg.hit_covariance, dtype=float).reshape(3, 3),
+                             'hit_covariance')
+        except ValueError as exc:
+            self._drop(str(exc))
             return
         zone, point = self.target
         settings = self.settings

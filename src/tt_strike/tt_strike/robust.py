@@ -38,6 +38,7 @@ from tt_prediction.ball import (
     zone_bounds,
 )
 from tt_prediction.predict import predict_landing
+from tt_prediction.uncertainty import covariance_eigen
 
 _NJIT = {'cache': True, 'nogil': True}
 ENSEMBLE_SIZE = 1024
@@ -186,6 +187,26 @@ def aim_in_zone(hit_state, normal, racket_velocity, params, points, centre, zone
     res = minimize(cost, start, method='Nelder-Mead',
                    options={'xatol': 1e-3, 'fatol': 1e-4, 'maxiter': 200})
     return np.clip(res.x, lo, hi)
+
+
+SYMMETRY_TOLERANCE = 1e-9
+"""Largest |C - C^T| of a covariance C taken as symmetric, relative to its largest |C|."""
+
+
+def check_covariance(cov, name='covariance'):
+    """Check the square covariance ``cov`` as given by a user or message: raises ValueError
+    ('<name> is not finite', 'is not symmetric (...)' beyond :data:`SYMMETRY_TOLERANCE`,
+    'is not positive semi-definite (eigenvalue ...)', tt_prediction's covariance_eigen)."""
+    cov = np.asarray(cov, dtype=float)
+    if not np.all(np.isfinite(cov)):
+        raise ValueError(f'{name} is not finite')
+    asym = float(np.abs(cov - cov.T).max())
+    if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
+        raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
+    try:
+        covariance_eigen(cov)
+    except ValueError as exc:
+        raise ValueError(str(exc).replace('covariance', name, 1)) from None
 
 
 def noise_covariance(hit_state, sigma_position=0.002, velocity_fraction=0.02,
