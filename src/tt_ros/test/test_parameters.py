@@ -39,7 +39,7 @@ def test_accepted_values_take_the_parameters_kind(spec, value, expected):
     (STALE, float('nan'), 'stale_after_s: nan is not a number in [0, 60] s'),
     (ZONE, 12, 'target_zone: 12 is not an integer in [0, 9]'),
     (ZONE, 2.5, 'target_zone: 2.5 is not an integer in [0, 9]'),
-    (POINT, [1.0], 'target_point: [1.0] is not a list of 2 numbers m'),
+    (POINT, [1.0], 'target_point: [1.0] is not a list of 2 numbers (m)'),
     (COLOUR, 'red', "ball_colour: 'red' is not one of white, orange, any"),
     (FLAG, 1, 'uncertainty: 1 is not true or false'),
 ])

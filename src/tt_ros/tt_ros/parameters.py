@@ -96,8 +96,8 @@ class Param:
         return _kind_of(self.default)
 
     def expected(self):
-        """What the parameter accepts, in words: 'a number in [0, 60] s'."""
-        unit = f' {self.unit}' if self.unit else ''
+        """What the parameter accepts, in words: 'a number in [0, 60] s', 'a list of 2
+        numbers (m)'."""
         rng = ''
         if self.lo is not None and self.hi is not None:
             rng = f' in [{_num(self.lo)}, {_num(self.hi)}]'
@@ -105,6 +105,7 @@ class Param:
             rng = f' >= {_num(self.lo)}'
         elif self.hi is not None:
             rng = f' <= {_num(self.hi)}'
+        unit = '' if not self.unit else f' {self.unit}' if rng else f' ({self.unit})'
         kind = self.kind
         if kind == 'bool':
             return 'true or false'
