@@ -4,7 +4,7 @@ geometry or tt_prediction's integrator."""
 import numpy as np
 import pytest
 from tt_perception.camera import CalibrationError, load_rig
-from tt_perception.triangulate import triangulate
+from tt_perception.triangulate import dlt, refine, triangulate
 from tt_prediction.ball import ModelParams, rollout
 from tt_prediction.ball_filter import BallFilter
 import yaml
@@ -91,6 +91,73 @@ def _edit(path, fn):
     data = yaml.safe_load(path.read_text())
     fn(data)
     path.write_text(yaml.safe_dump(data))
+
+
+def _copy_pose(data, to, src):
+    """A camera block copied from another and renamed: camera ``to`` gets ``src``'s pose."""
+    for key in ('rotation', 'translation'):
+        data['cameras'][to][key] = list(data['cameras'][src][key])
+
+
+@pytest.mark.parametrize('cameras, expect', [
+    (2, 'cameras cam0 and cam1 are 0.000 m apart'),
+    (3, 'cameras cam1 and cam2 are 0.000 m apart'),
+], ids=['two cameras', 'three cameras'])
+def test_two_cameras_at_one_place_are_a_one_line_error(tmp_path, cameras, expect):
+    """Two cameras at one place see the ball along one ray: the rig is refused when loaded,
+    naming both (not a singular matrix in the first triangulation)."""
+    path = tmp_path / 'rig.yaml'
+    synth.make_rig(str(tmp_path))
+
+    def duplicate(d):
+        if cameras == 3:             # a third camera, then camera 1's block copied into it
+            d['cameras'].append(dict(d['cameras'][1], name='cam2', source='/cam2/image_raw'))
+        _copy_pose(d, cameras - 1, cameras - 2)
+    _edit(path, duplicate)
+    with pytest.raises(CalibrationError) as err:
+        load_rig(str(path), min_cameras=2)
+    assert str(err.value) == (f'rig {path}: {expect}: triangulation needs a baseline of at '
+                              'least 0.05 m')
+    # The copy moved along its t: its centre moves as far (C = -R^T t).
+    last = cameras - 1
+
+    def move(dx):
+        _edit(path, lambda d: d['cameras'][last]['translation'].__setitem__(
+            0, d['cameras'][last - 1]['translation'][0] + dx))
+    move(0.04)
+    with pytest.raises(CalibrationError, match='are 0.040 m apart'):
+        load_rig(str(path))
+    move(0.06)
+    assert len(load_rig(str(path)).cameras) == cameras
+
+
+def test_the_pose_command_takes_a_rig_whose_cameras_share_a_placeholder_pose(tmp_path):
+    """A new rig's cameras may all start at one pose until each is calibrated."""
+    import cv2
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(rig, 0))
+    _edit(tmp_path / 'rig.yaml', lambda d: _copy_pose(d, 0, 1))
+    with pytest.raises(CalibrationError, match='cam0 and cam1 are 0.000 m apart'):
+        load_rig(path)
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image)]) == 0
+    assert np.linalg.norm(load_rig(path).cameras[0].centre - rig.cameras[0].centre) < 0.03
+
+
+def test_coincident_cameras_triangulate_to_none():
+    """A singular system (two cameras at one place: one ray) gives None, not a point on the
+    ray with a huge covariance nor a LinAlgError; a third camera fixes the point again."""
+    rig = synth.demo_rig()
+    twin = synth.demo_rig().cameras[0]
+    twin.name = 'cam0_copy'
+    X = np.array([-0.5, 0.1, 0.3])
+    cams = [rig.cameras[0], twin, rig.cameras[1]]
+    obs = np.vstack([c.normalise(c.project(X)) for c in cams])
+    with pytest.raises(np.linalg.LinAlgError):
+        refine(cams[:2], obs[:2], dlt(cams[:2], obs[:2]))
+    assert triangulate(cams[:2], obs[:2]) is None
+    assert np.linalg.norm(triangulate(cams, obs)[0] - X) < 1e-7
 
 
 def test_filter_prediction_follows_the_model_through_a_bounce():

@@ -20,6 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
+import yaml
 
 from tt_msgs.msg import BallState
 from tt_perception import node as node_module
@@ -148,6 +149,29 @@ def test_missing_rig_file_publishes_nothing(graph, tmp_path):
     assert node.pipeline is None
     graph.executor.spin_once(timeout_sec=0.05)
     assert node.states_published == 0
+
+
+def test_rig_with_two_cameras_at_one_place_is_an_error_and_publishes_nothing(
+        graph, tmp_path, monkeypatch):
+    """A copied camera block: the rig error is logged (one line naming both cameras), as for
+    any bad rig, instead of 'frame not processed: LinAlgError' on every frame."""
+    rig_path = synth.make_rig(str(tmp_path))
+    rig = yaml.safe_load(open(rig_path))
+    for key in ('rotation', 'translation'):
+        rig['cameras'][1][key] = rig['cameras'][0][key]
+    yaml.safe_dump(rig, open(rig_path, 'w'))
+    said = []
+
+    class Logger:
+        def __getattr__(self, level):
+            return lambda message, **kwargs: said.append((level, message))
+    monkeypatch.setattr(PerceptionNode, 'get_logger', lambda self: Logger())
+    node = graph.add(PerceptionNode(context=graph.context, parameter_overrides=[
+        Parameter('rig_file', value=rig_path)]))
+    assert node.pipeline is None
+    errors = [m for level, m in said if level == 'error']
+    assert len(errors) == 1 and 'cameras cam0 and cam1 are 0.000 m apart' in errors[0]
+    assert '\n' not in errors[0]
 
 
 def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):

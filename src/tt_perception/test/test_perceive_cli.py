@@ -2,12 +2,15 @@
 contract: one CSV per track, columns t,x,y,z,vx,vy,vz,wx,wy,wz)."""
 
 import csv
+import errno
 import os
+import pathlib
 import stat
 
 import numpy as np
 import pytest
 from tt_perception.camera import load_rig
+import yaml
 
 from tt_perception import cli, synth
 
@@ -200,20 +203,59 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
     (['--rig', '{rig}'], 1, "source '/cam0/image_raw' is not a video file"),
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
-    (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, 'already exists'),
+    (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, '--out-bag {tmp}: already exists'),
+    (['--rig', '{rig}', '--out-bag', '{tmp}/dangling'], 2,
+     '--out-bag {tmp}/dangling: already exists'),
+    (['--rig', '{rig}', '--out-bag', '{tmp}/empty.yaml/states'], 2,
+     '--out-bag {tmp}/empty.yaml/states: cannot write: Not a directory'),
+    (['--rig', '{rig}', '--out-bag', '{tmp}/out/states'], 2, 'inside --out'),
+    (['--rig', '{dup}'], 2, 'cameras cam0 and cam1 are 0.000 m apart'),
 ], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
-        'missing model', 'existing output bag'])
+        'missing model', 'existing output bag', 'dangling link as output bag',
+        'output bag under a file', 'output bag inside --out', 'two cameras at one place'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
+    """Checked before any work (the rig's topics without --bag would fail later, exit 1)."""
     base, rig_path, _, _ = scene
     out = tmp_path / 'out'
     (tmp_path / 'empty.yaml').write_text('')
-    args = [a.format(tmp=tmp_path, rig=rig_path) for a in args] + ['--out', str(out)]
+    (tmp_path / 'dangling').symlink_to(tmp_path / 'nowhere')
+    dup = tmp_path / 'calib'
+    synth.make_rig(str(dup))
+    rig = yaml.safe_load((dup / 'rig.yaml').read_text())
+    for key in ('rotation', 'translation'):          # a camera block copied, renamed
+        rig['cameras'][1][key] = rig['cameras'][0][key]
+    (dup / 'rig.yaml').write_text(yaml.safe_dump(rig))
+    expect = expect.format(tmp=tmp_path)
+    args = [a.format(tmp=tmp_path, rig=rig_path, dup=dup / 'rig.yaml') for a in args]
+    args += ['--out', str(out)]
     assert cli.main(args) == code
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0]
     named = [a for a in args if str(tmp_path) in a and a != str(out)]
     assert all(err[0].count(a) == 1 for a in named)          # each path said once
     assert not out.exists()
+
+
+def test_a_bag_that_fails_at_the_end_leaves_nothing(scene, tmp_path, capsys, monkeypatch):
+    """A bag that cannot be written after the run (a full disk): one line naming --out-bag,
+    exit 1, and neither the bag nor the track folder (staged: moved in together) nor any
+    staging folder is left."""
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames[:40], [truth])
+
+    def full(path, estimates, frame_id):
+        os.mkdir(path)
+        (pathlib.Path(path) / 'states_0.mcap').write_bytes(b'partial')
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(cli, 'write_bag', full)
+    out, bag = tmp_path / 'out', tmp_path / 'states'
+    assert cli.main(['--rig', video_rig, '--out', str(out), '--out-bag', str(bag)]) == 1
+    said = capsys.readouterr()
+    err = said.err.splitlines()            # the notes of the run, then the error
+    assert err[-1] == f'tt-perceive: --out-bag {bag}: cannot write: No space left on device'
+    assert sum('--out-bag' in line for line in err) == 1
+    assert 'Traceback' not in said.err and said.out == ''
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['video']
 
 
 def velocity_errors(rows, truth, t_shift):

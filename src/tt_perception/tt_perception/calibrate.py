@@ -144,7 +144,7 @@ def main(argv=None):
         if not (math.isfinite(args.max_error) and args.max_error > 0.0):
             raise CalibrationError(f'--max-error must be a positive number of pixels, got '
                                    f'{args.max_error:g}')
-        rig = load_rig(args.rig)
+        rig = load_rig(args.rig, min_baseline=0.0)   # the poses may be placeholders, all alike
         cams = [c for c in rig.cameras if c.name == args.camera]
         if not cams:
             raise CalibrationError(f'rig {args.rig}: no camera named {args.camera!r}')

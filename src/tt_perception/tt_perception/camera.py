@@ -180,6 +180,26 @@ def save_camera_info(path, name, width, height, K, dist):
         yaml.safe_dump(data, f, sort_keys=False)
 
 
+MIN_BASELINE = 0.05
+"""Least distance between two cameras' optical centres of a rig, m. Two cameras at one place
+see the ball along one ray: no depth, a singular triangulation. 5 cm is far below any
+baseline that measures depth at the table (at 3 m, half a pixel of noise over 5 cm is ~0.2 m
+of depth; a table rig's cameras are a metre or more apart) and far above the rounding of a
+pose written out by hand, so it refuses a copy-pasted or mis-entered pose and nothing else."""
+
+
+def baseline_error(cameras, min_baseline=MIN_BASELINE):
+    """Why ``cameras`` cannot triangulate, or '': the first two whose optical centres
+    (C = -R^T t) are less than ``min_baseline`` (m) apart, with their distance."""
+    for i, a in enumerate(cameras):
+        for b in cameras[i + 1:]:
+            gap = float(np.linalg.norm(a.centre - b.centre))
+            if gap < min_baseline:
+                return (f'cameras {a.name} and {b.name} are {gap:.3f} m apart: triangulation '
+                        f'needs a baseline of at least {min_baseline:g} m')
+    return ''
+
+
 @dataclasses.dataclass
 class Rig:
     """The cameras of a rig file, in file order (camera 0 is the time reference)."""
@@ -190,11 +210,13 @@ class Rig:
     path: str = ''
 
 
-def load_rig(path, min_cameras=1):
+def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
     """Read and validate a rig file (DESIGN.md) and its camera_info files -> :class:`Rig`.
 
     Raises :class:`CalibrationError` with one line naming the file and the field at fault,
-    or when the rig has fewer than ``min_cameras`` cameras.
+    when the rig has fewer than ``min_cameras`` cameras, or when two cameras' optical centres
+    are less than ``min_baseline`` (m, :data:`MIN_BASELINE`; 0: not checked, for the pose
+    command, which sets the poses of a rig whose cameras may all start at one place) apart.
     """
     data = read_yaml(path, 'rig')
     base = os.path.dirname(os.path.abspath(path))
@@ -246,6 +268,9 @@ def load_rig(path, min_cameras=1):
     names = [c.name for c in cameras]
     if len(set(names)) != len(names):
         raise CalibrationError(f'rig {path}: camera names are not unique: {names}')
+    error = baseline_error(cameras, min_baseline)
+    if error:
+        raise CalibrationError(f'rig {path}: {error}')
     return Rig(cameras, fps, str(data.get('frame_id', 'table')), os.path.abspath(path))
 
 

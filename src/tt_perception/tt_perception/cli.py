@@ -12,9 +12,11 @@ it does not measure it, and tt-identify must not take it as measured); with
 (each from the frames up to it); with ``--smooth`` each is given all of its track's frames,
 the later ones too (:meth:`tt_perception.pipeline.Pipeline.smoothed`). The folder is written into a
 temporary folder that then takes the place of DIR, so nothing of an earlier run stays; an
-existing DIR must hold only such files (an earlier output), else it is refused. Bad input: one
-line on stderr, exit status 2 for the rig, calibration, model or ``--out``, 1 for the data;
-nothing is written then.
+existing DIR must hold only such files (an earlier output), else it is refused. The bag is
+written next to BAG and moved into place with the folder, so a failed run leaves neither.
+Bad input: one line on stderr, exit status 2 for the rig, calibration, model, ``--out`` or
+``--out-bag`` (which must be a new path that can be made, outside DIR), 1 for the data or a
+failure to write; nothing is written then.
 
 Video files have no common clock: a camera (other than camera 0) whose ``time_offset`` the
 rig leaves out gets it estimated from the ball first (:mod:`tt_perception.sync`, one extra
@@ -22,15 +24,23 @@ pass of detection over the files), reported on stderr.
 """
 
 import argparse
+import contextlib
 import csv
 import os
 import pathlib
 import re
+import shutil
 import sys
+import tempfile
 
 import numpy as np
 from tt_prediction.ball import load_model
-from tt_prediction.staged import interruptible, output_folder_error, staged_folder
+from tt_prediction.staged import (
+    creatable_error,
+    interruptible,
+    output_folder_error,
+    staged_folder,
+)
 
 from .camera import CalibrationError, load_rig
 from .detect import BallDetector, DetectorConfig
@@ -41,6 +51,10 @@ from .sync import estimate_offset
 
 class InputError(Exception):
     """Video files or bag that cannot be read."""
+
+
+class OutputError(Exception):
+    """An output that cannot be written (one line naming the option and the path)."""
 
 
 def bag_frames(rig, bag):
@@ -148,26 +162,101 @@ def run(frames, pipeline):
     return estimates, errors
 
 
-def write_tracks(out, estimates, label):
+def write_tracks(out, estimates, label, out_bag=None, frame_id='table'):
     """Write one CSV per track and index.csv into a temporary folder, then put it in the place
     of ``out`` (staged_folder: an earlier run's files do not stay, an error leaves ``out`` as
-    it was); returns the file names."""
+    it was); with ``out_bag`` also the bag (:func:`write_bag`, staged next to it and moved in
+    just before the folder, removed again if the folder's move fails). Returns the file
+    names; raises :class:`OutputError` (nothing written)."""
+    placed = []
+    try:
+        with staged_folder(out, 'tt-perceive', replace_folder=True) as tmp:
+            names = _write_track_files(tmp, estimates, label)
+            if out_bag:
+                from rosbags.rosbag2 import WriterError
+                from tt_ros.bagfile import BagError
+                with _staged_bag(out_bag) as bag_tmp:
+                    try:
+                        write_bag(bag_tmp, estimates, frame_id)
+                    except (OSError, BagError, WriterError) as exc:
+                        raise OutputError(f'--out-bag {out_bag}: cannot write: '
+                                          f'{_reason(exc)}') from None
+                placed.append(out_bag)
+    except BaseException as exc:    # the folder not moved in (Ctrl-C too): nor is the bag
+        for path in placed:
+            shutil.rmtree(path, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise OutputError(f'--out {out}: cannot write: {_reason(exc)}') from None
+        raise
+    return names
+
+
+def _reason(exc):
+    """The one-line reason of an error: an OSError's strerror, else its first line."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+@contextlib.contextmanager
+def _staged_bag(path):
+    """Yield a path next to ``path`` (same folder, so same disk) to write a new bag into; it
+    is moved to ``path`` when the block ends without an exception, else removed (as
+    :func:`tt_prediction.staged.staged_folder` does for a folder)."""
+    target = os.path.abspath(path)
+    parent = os.path.dirname(target)
+    try:
+        os.makedirs(parent, exist_ok=True)
+        holder = tempfile.mkdtemp(prefix='.tt-perceive-bag-', dir=parent)
+    except OSError as exc:
+        raise OutputError(f'--out-bag {path}: cannot write: {_reason(exc)}') from None
+    try:
+        tmp = os.path.join(holder, os.path.basename(target))   # the bag's files take its name
+        yield tmp
+        if os.path.lexists(target):          # made by someone else during the run
+            raise OutputError(f'--out-bag {path}: already exists (give a new bag)')
+        try:
+            os.rename(tmp, target)
+        except OSError as exc:
+            raise OutputError(f'--out-bag {path}: cannot write: {_reason(exc)}') from None
+    finally:
+        shutil.rmtree(holder, ignore_errors=True)
+
+
+def out_bag_error(out_bag, out):
+    """Why a new bag cannot be written at ``out_bag``, or '' (checked before any work, as
+    :func:`tt_prediction.staged.output_folder_error` checks ``--out``): it must not exist (not
+    even as a dangling link), must be outside the output folder ``out`` (which is replaced
+    whole) and not hold it, and a folder must be makeable in its nearest existing
+    ancestor."""
+    if not out_bag:
+        return '--out-bag: an empty path (give a new bag)'
+    if os.path.lexists(out_bag):
+        return f'--out-bag {out_bag}: already exists (give a new bag)'
+    bag, folder = os.path.realpath(out_bag), os.path.realpath(out)
+    if bag == folder or os.path.commonpath([bag, folder]) in (bag, folder):
+        return f'--out-bag {out_bag}: inside --out {out} or holding it (give another path)'
+    return creatable_error(out_bag, '--out-bag')
+
+
+def _write_track_files(tmp, estimates, label):
+    """Write the track CSVs and index.csv into the folder ``tmp``; returns the file names."""
     tracks = {}
     for t_ref, e in estimates:
         tracks.setdefault(e.track_id, []).append((t_ref + e.t, e.state))
     names = [f'track_{n:03d}.csv' for n in range(1, len(tracks) + 1)]
-    with staged_folder(out, 'tt-perceive', replace_folder=True) as tmp:
-        for name, track_id in zip(names, sorted(tracks), strict=True):
-            with open(os.path.join(tmp, name), 'w', newline='', encoding='utf-8') as f:
-                w = csv.writer(f)
-                w.writerow(['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])
-                for t, s in tracks[track_id]:
-                    w.writerow([f'{t:.6f}'] + [f'{v:.6f}' for v in s])
-        with open(os.path.join(tmp, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
+    for name, track_id in zip(names, sorted(tracks), strict=True):
+        with open(os.path.join(tmp, name), 'w', newline='', encoding='utf-8') as f:
             w = csv.writer(f)
-            w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source'])
-            for name, track_id in zip(names, sorted(tracks), strict=True):
-                w.writerow([name, '', '', '', label, track_id, 'estimated'])
+            w.writerow(['t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz'])
+            for t, s in tracks[track_id]:
+                w.writerow([f'{t:.6f}'] + [f'{v:.6f}' for v in s])
+    with open(os.path.join(tmp, 'index.csv'), 'w', newline='', encoding='utf-8') as f:
+        w = csv.writer(f)
+        w.writerow(['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source'])
+        for name, track_id in zip(names, sorted(tracks), strict=True):
+            w.writerow([name, '', '', '', label, track_id, 'estimated'])
     return names
 
 
@@ -215,11 +304,9 @@ def _main(argv=None):
                              '(fixed-interval smoother; default: as perception_node publishes '
                              'it, from the frames up to it)')
     args = parser.parse_args(argv)
-    if args.out_bag and os.path.exists(args.out_bag):
-        print(f'tt-perceive: --out-bag {args.out_bag}: already exists (give a new bag)',
-              file=sys.stderr)
-        return 2
     out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-perceive')
+    if not out_error and args.out_bag is not None:
+        out_error = out_bag_error(args.out_bag, args.out)
     if out_error:
         print(f'tt-perceive: {out_error}', file=sys.stderr)
         return 2
@@ -254,13 +341,10 @@ def _main(argv=None):
     for message in [*cut, *errors.values()]:
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
     try:
-        names = write_tracks(args.out, estimates, 'tt-perceive')
-    except OSError as exc:
-        print(f'tt-perceive: --out {args.out}: cannot write: {exc.strerror or exc}',
-              file=sys.stderr)
+        names = write_tracks(args.out, estimates, 'tt-perceive', args.out_bag, rig.frame_id)
+    except OutputError as exc:
+        print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
-    if args.out_bag:
-        write_bag(args.out_bag, estimates, rig.frame_id)
     print(f'tt-perceive: {len(names)} track(s), {len(estimates)} states -> {args.out}')
     return 0
 

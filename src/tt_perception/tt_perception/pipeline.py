@@ -540,5 +540,8 @@ class Pipeline:
                 + cfg.hidden_weight * obs[:, HIDDEN])
         weak[np.any(centres != obs[:, BLOB_XY], axis=1)] = 1.0
         if np.any(weak > 1.0):
-            X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)
+            try:
+                X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)
+            except np.linalg.LinAlgError:       # the rays fix no point (triangulate: None)
+                return None
         return X, cov

@@ -31,6 +31,21 @@ def dlt(cameras, normalised):
     return np.linalg.solve(A.T @ A, A.T @ b)
 
 
+MAX_CONDITION = 1e10
+"""Largest condition number of J^T W J (:func:`refine`) taken as fixing a point: two cameras
+a metre apart give under 10, a 1 cm baseline at 3 m ~5e5, two cameras at one place ~1e16
+(singular to working precision: a point anywhere on the ray)."""
+
+
+def _information(Jw):
+    """J^T W J (3, 3) of the weighted Jacobian ``Jw``; raises ``numpy.linalg.LinAlgError``
+    when it is singular to working precision (:data:`MAX_CONDITION`; NaN too)."""
+    info = Jw.T @ Jw
+    if not np.linalg.cond(info) < MAX_CONDITION:
+        raise np.linalg.LinAlgError('the rays fix no point (singular system)')
+    return info
+
+
 def _reprojection(R, t, f, normalised, X):
     """Pixel residuals (2N,) and their Jacobian (2N, 3) with respect to X."""
     Xc = R @ X + t
@@ -50,6 +65,8 @@ def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
 
     Returns ``(X, covariance (3, 3) m^2, residuals (N,) pixels)``. The covariance is
     (J^T W J)^-1 with J the Jacobian of the pixel projections and W = diag(1 / sigma^2).
+    Raises ``numpy.linalg.LinAlgError`` when the rays fix no point (J^T W J singular,
+    :data:`MAX_CONDITION`).
     """
     R, t, f = _stack(cameras)
     n = len(cameras)
@@ -58,11 +75,11 @@ def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
     for _ in range(iterations):
         r, J = _reprojection(R, t, f, normalised, X)
         Jw = J * w
-        X = X + np.linalg.solve(Jw.T @ Jw, Jw.T @ (r * w[:, 0]))
+        X = X + np.linalg.solve(_information(Jw), Jw.T @ (r * w[:, 0]))
     r, J = _reprojection(R, t, f, normalised, X)
     Jw = J * w
     residual = np.hypot(r[:n], r[n:])
-    return X, np.linalg.inv(Jw.T @ Jw), residual
+    return X, np.linalg.inv(_information(Jw)), residual
 
 
 def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
@@ -72,20 +89,22 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
     ``pixel_sigma``: a number or one per camera, pixels.
     The camera with the largest reprojection error above ``max_reprojection`` (pixels) is
     dropped while at least two remain. Returns ``(X (3,), cov (3, 3), residual (N,), used)``
-    with ``used`` the indices of the cameras kept, or None when no consistent pair exists or
-    the point is behind a camera.
+    with ``used`` the indices of the cameras kept, or None when no consistent pair exists,
+    the point is behind a camera or the rays fix no point (cameras at one place, parallel
+    rays: a singular system).
     """
     used = list(range(len(cameras)))
     normalised = np.asarray(normalised, dtype=float)
     sigmas = np.broadcast_to(np.asarray(pixel_sigma, dtype=float), (len(cameras),))
     while len(used) >= 2:
         cams = [cameras[i] for i in used]
-        X = dlt(cams, normalised[used])
-        if not np.all(np.isfinite(X)):
+        try:
+            X = dlt(cams, normalised[used])
+            if not np.all(np.isfinite(X)) or any((c.R @ X + c.t)[2] <= 0.05 for c in cams):
+                return None
+            X, cov, residual = refine(cams, normalised[used], X, sigmas[used])
+        except np.linalg.LinAlgError:
             return None
-        if any((c.R @ X + c.t)[2] <= 0.05 for c in cams):
-            return None
-        X, cov, residual = refine(cams, normalised[used], X, sigmas[used])
         worst = int(np.argmax(residual))
         if residual[worst] <= max_reprojection:
             return X, cov, residual, used

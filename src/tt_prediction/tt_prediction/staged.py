@@ -31,7 +31,7 @@ def output_folder_error(out, ours, tool, csv_header=None):
     ``csv_header`` (the tool's CSV header line), a CSV file must also begin with it: a name
     alone does not tell a measured track from the tool's output."""
     if not os.path.lexists(out):
-        return _creatable_error(out)
+        return creatable_error(out)
     if os.path.islink(out) or not os.path.isdir(out):
         return f'--out {out}: not a folder'
     try:
@@ -55,18 +55,18 @@ def _begins(folder, name, csv_header):
         return f.readline().rstrip(b'\r\n') == csv_header.encode()
 
 
-def _creatable_error(out):
-    """Why the missing folder ``out`` could not be made, or '': a folder is made and removed
-    in its nearest existing ancestor (where :func:`staged_folder` would work), so that a
-    place that takes no folder (/proc, a read-only disk, a file as a parent) is refused
-    before minutes of work rather than at their end."""
+def creatable_error(out, option='--out'):
+    """Why the missing folder ``out`` (given as ``option``) could not be made, or '': a
+    folder is made and removed in its nearest existing ancestor (where :func:`staged_folder`
+    would work), so that a place that takes no folder (/proc, a read-only disk, a file as a
+    parent) is refused before minutes of work rather than at their end."""
     ancestor = os.path.dirname(os.path.abspath(out))
     while not os.path.lexists(ancestor):
         ancestor = os.path.dirname(ancestor)
     try:
         os.rmdir(tempfile.mkdtemp(prefix='.tt-check-', dir=ancestor))
     except OSError as exc:
-        return f'--out {out}: cannot write: {exc.strerror or exc}'
+        return f'{option} {out}: cannot write: {exc.strerror or exc}'
     return ''
 
 
