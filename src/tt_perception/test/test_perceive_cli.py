@@ -194,6 +194,16 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
         assert abs(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - row[0]) < 1e-6
         assert np.allclose([msg.position.x, msg.spin.z], [row[1], row[9]], atol=1e-6)
         assert msg.track_id == 1 and msg.covariance.shape == (81,)
+    # A rig whose camera 1 reads a topic the bag lacks: no point can be made (it gave 0
+    # tracks and exit 0 without a word).
+    moved = tmp_path / 'moved.yaml'
+    moved.write_text(pathlib.Path(rig_path).read_text().replace('/cam1/image_raw',
+                                                                '/cam9/image_raw'))
+    for name in ('cam0.yaml', 'cam1.yaml'):
+        (tmp_path / name).write_text((pathlib.Path(rig_path).parent / name).read_text())
+    assert cli.main(['--rig', str(moved), '--out', str(tmp_path / 'out2'), '--bag',
+                     str(bag)]) == 1
+    assert not (tmp_path / 'out2').exists()
 
 
 @pytest.mark.parametrize('args, code, expect', [

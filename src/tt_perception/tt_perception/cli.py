@@ -57,9 +57,10 @@ class OutputError(Exception):
     """An output that cannot be written (one line naming the option and the path)."""
 
 
-def bag_frames(rig, bag):
+def bag_frames(rig, bag, notes=None):
     """(t, camera_index, frame) of the sensor_msgs/Image messages on the rig's image topics,
-    in the bag's order, ``t`` the header stamp (s)."""
+    in the bag's order, ``t`` the header stamp (s). InputError when fewer than two of the
+    rig's cameras have images in the bag; a camera without any adds a line to ``notes``."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
@@ -74,10 +75,16 @@ def bag_frames(rig, bag):
     try:
         conns = [c for c in reader.connections
                  if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image']
-        if not conns:
+        lacking = sorted(set(topics) - {c.topic for c in conns})
+        if lacking:
             present = ', '.join(sorted(c.topic for c in reader.connections)) or 'none'
-            raise InputError(f"{bag}: no sensor_msgs/Image on the rig's topics "
-                             f'{sorted(topics)} (topics: {present})')
+            names = ', '.join(f'{rig.cameras[topics[t]].name} ({t})' for t in lacking)
+            if len(topics) - len(lacking) < 2:     # a point needs two cameras
+                raise InputError(f'{bag}: no sensor_msgs/Image for camera(s) {names} '
+                                 f'(topics: {present})')
+            if notes is not None:
+                notes.append(f'{bag}: no sensor_msgs/Image for camera(s) {names}: the '
+                             'others triangulate alone')
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
@@ -330,7 +337,7 @@ def _main(argv=None):
                             detector_config=DetectorConfig(colour=args.colour),
                             tracker_config=TrackerConfig(smooth=args.smooth))
         cut = []
-        frames = bag_frames(rig, args.bag) if args.bag else file_frames(rig, cut)
+        frames = bag_frames(rig, args.bag, cut) if args.bag else file_frames(rig, cut)
         estimates, errors = run(frames, pipeline)
         if args.smooth:
             smoothed = pipeline.smoothed([e for _, e in estimates])
