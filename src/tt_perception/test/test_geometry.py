@@ -66,8 +66,13 @@ def test_rig_round_trip(tmp_path):
      'image_width/image_height missing'),
     (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=-1)), 'fps must be a positive'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_ofset=0.002)),
+     "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
+     'rotation, translation, time_offset)'),
+    (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'bad translation',
-        'bad camera matrix', 'no image size', 'broken yaml', 'bad fps'])
+        'bad camera matrix', 'no image size', 'broken yaml', 'bad fps', 'misspelt key',
+        'unknown rig key'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'
     synth.make_rig(str(tmp_path))

@@ -210,6 +210,20 @@ class Rig:
     path: str = ''
 
 
+RIG_KEYS = ('frame_id', 'fps', 'cameras')
+CAMERA_KEYS = ('name', 'camera_info', 'source', 'rotation', 'translation', 'time_offset')
+"""The keys of a rig file and of each of its cameras (DESIGN.md, "Data formats")."""
+
+
+def _known_keys(mapping, known, where):
+    """CalibrationError naming the first key of ``mapping`` not in ``known``: a misspelt
+    optional key (``time_ofset``) would otherwise be ignored without a word."""
+    unknown = [str(k) for k in mapping if k not in known]
+    if unknown:
+        raise CalibrationError(f"{where}: unknown key '{unknown[0]}' (known: "
+                               f"{', '.join(known)})")
+
+
 def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
     """Read and validate a rig file (DESIGN.md) and its camera_info files -> :class:`Rig`.
 
@@ -220,6 +234,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
     """
     data = read_yaml(path, 'rig')
     base = os.path.dirname(os.path.abspath(path))
+    _known_keys(data, RIG_KEYS, f'rig {path}')
     try:
         fps = float(data.get('fps', 0.0))
     except (TypeError, ValueError):
@@ -235,6 +250,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
         if not isinstance(entry, dict):
             raise CalibrationError(f'{where} is not a mapping')
         name = str(entry.get('name', f'cam{i}'))
+        _known_keys(entry, CAMERA_KEYS, f'{where} ({name})')
         if 'camera_info' not in entry:
             raise CalibrationError(f'{where} ({name}): camera_info missing')
         info = load_camera_info(os.path.join(base, str(entry['camera_info'])))
