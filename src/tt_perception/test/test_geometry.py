@@ -64,6 +64,9 @@ def test_rig_round_trip(tmp_path):
      'camera_matrix is not a pinhole matrix'),
     (lambda rig, info: _edit(info, lambda d: d.pop('image_width')),
      'image_width/image_height missing'),
+    (lambda rig, info: _edit(info, lambda d: d.pop('camera_matrix')), 'camera_matrix missing'),
+    (lambda rig, info: _edit(info, lambda d: d['camera_matrix']['data'].__setitem__(2, 2000)),
+     'principal point (2000, '),
     (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=-1)), 'fps must be a positive'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_ofset=0.002)),
@@ -71,7 +74,8 @@ def test_rig_round_trip(tmp_path):
      'rotation, translation, time_offset)'),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'bad translation',
-        'bad camera matrix', 'no image size', 'broken yaml', 'bad fps', 'misspelt key',
+        'bad camera matrix', 'no image size', 'no camera matrix', 'principal point off',
+        'broken yaml', 'bad fps', 'misspelt key',
         'unknown rig key'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'

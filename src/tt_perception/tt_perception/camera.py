@@ -122,6 +122,8 @@ def read_yaml(path, what):
 def _matrix(data, key, rows, cols, path):
     entry = data.get(key)
     values = entry.get('data') if isinstance(entry, dict) else entry
+    if values is None:
+        raise CalibrationError(f'camera_info {path}: {key} missing')
     try:
         array = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
@@ -151,6 +153,9 @@ def load_camera_info(path):
     if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1.0 or np.any(K[2, :2] != 0):
         raise CalibrationError(f'camera_info {path}: camera_matrix is not a pinhole matrix '
                                '(fx, fy > 0, last row 0 0 1)')
+    if not (0.0 <= K[0, 2] <= width and 0.0 <= K[1, 2] <= height):
+        raise CalibrationError(f'camera_info {path}: principal point ({K[0, 2]:g}, '
+                               f'{K[1, 2]:g}) outside the {width}x{height} image')
     model = data.get('distortion_model', 'plumb_bob')
     if model not in ('plumb_bob', 'rational_polynomial'):
         raise CalibrationError(f'camera_info {path}: distortion_model {model!r} not supported '
