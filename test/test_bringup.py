@@ -297,6 +297,35 @@ def test_an_empty_nodes_list_is_refused_not_taken_as_all():
     assert proc.stderr.count('\n') == 1
 
 
+def test_each_output_line_is_written_in_one_piece(monkeypatch):
+    # The children's pumps and bringup's own lines write from several threads: a line's
+    # text and its newline written apart let another thread's line in between (a node's
+    # 'ready' line and bringup's next one came out as one line, and a test missed 'ready').
+    from tt_tools import bringup
+
+    class Recorder:
+        def __init__(self):
+            self.writes = []
+
+        def write(self, text):
+            self.writes.append(text)
+
+        def flush(self):
+            pass
+
+    out = Recorder()
+    monkeypatch.setattr(bringup.sys, 'stdout', out)
+    threads = [threading.Thread(target=lambda k=k: [bringup.say(f'line {k}.{i}')
+                                                    for i in range(200)]) for k in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert len(out.writes) == 800
+    assert all(w.startswith('bringup: line ') and w.endswith('\n') and w.count('\n') == 1
+               for w in out.writes)
+
+
 @pytest.mark.parametrize('option, value, meaning', [
     ('--restart-delay', 'nan', 'a number >= 0'), ('--restart-delay', '-5', 'a number >= 0'),
     ('--stop-timeout', 'nan', 'a number > 0'), ('--stop-timeout', '0', 'a number > 0'),

@@ -82,8 +82,21 @@ class BringupError(Exception):
     """Bad input to bringup: one line."""
 
 
+_STDOUT = threading.Lock()
+"""Held while one line goes to stdout: the children's pumps and bringup's own lines come
+from several threads, and print() writes a line's text and its newline apart (a node's
+'ready' and bringup's next line ended up on one line)."""
+
+
+def emit(line):
+    """Write ``line`` and its newline to stdout in one piece, and flush."""
+    with _STDOUT:
+        sys.stdout.write(line + '\n')
+        sys.stdout.flush()
+
+
 def say(text):
-    print(f'bringup: {text}', flush=True)
+    emit(f'bringup: {text}')
 
 
 def nodes_in(params_file):
@@ -159,7 +172,7 @@ class Child:
                 else:
                     self.connected.discard(topic)
                 self.events.put(('input', self, proc))
-            print(f'[{self.name}] {line}', flush=True)
+            emit(f'[{self.name}] {line}')
         proc.wait()
         self.events.put(('exit', self, proc))
 
