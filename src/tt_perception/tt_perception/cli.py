@@ -175,7 +175,7 @@ def write_tracks(out, estimates, label, out_bag=None, frame_id='table'):
     it was); with ``out_bag`` also the bag (:func:`write_bag`, staged next to it and moved in
     just before the folder, removed again if the folder's move fails). Returns the file
     names; raises :class:`OutputError` (nothing written)."""
-    placed = []
+    bag_placed = False
     try:
         with staged_folder(out, 'tt-perceive', replace_folder=True) as tmp:
             names = _write_track_files(tmp, estimates, label)
@@ -188,10 +188,10 @@ def write_tracks(out, estimates, label, out_bag=None, frame_id='table'):
                     except (OSError, BagError, WriterError) as exc:
                         raise OutputError(f'--out-bag {out_bag}: cannot write: '
                                           f'{_reason(exc)}') from None
-                placed.append(out_bag)
+                bag_placed = True
     except BaseException as exc:    # the folder not moved in (Ctrl-C too): nor is the bag
-        for path in placed:
-            shutil.rmtree(path, ignore_errors=True)
+        if bag_placed:
+            shutil.rmtree(out_bag, ignore_errors=True)
         if isinstance(exc, OSError):
             raise OutputError(f'--out {out}: cannot write: {_reason(exc)}') from None
         raise

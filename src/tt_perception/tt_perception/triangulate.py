@@ -75,7 +75,7 @@ def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
     for _ in range(iterations):
         r, J = _reprojection(R, t, f, normalised, X)
         Jw = J * w
-        X = X + np.linalg.solve(_information(Jw), Jw.T @ (r * w[:, 0]))
+        X = X + np.linalg.solve(Jw.T @ Jw, Jw.T @ (r * w[:, 0]))   # checked below
     r, J = _reprojection(R, t, f, normalised, X)
     Jw = J * w
     residual = np.hypot(r[:n], r[n:])

@@ -50,16 +50,17 @@ class Uncertainty:
     hit_fraction: float
 
 
-def covariance_eigen(cov):
+def covariance_eigen(cov, name='covariance'):
     """Eigenvalues and eigenvectors of the symmetric part of the square matrix ``cov``
-    (:func:`numpy.linalg.eigh`); raises ValueError for one that is not finite or clearly not
-    positive semi-definite (an eigenvalue below -1e-9 of the largest's magnitude)."""
+    (:func:`numpy.linalg.eigh`); raises ValueError, naming the matrix ``name``, for one that
+    is not finite or clearly not positive semi-definite (an eigenvalue below -1e-9 of the
+    largest's magnitude)."""
     if not np.all(np.isfinite(cov)):
-        raise ValueError('covariance is not finite')
+        raise ValueError(f'{name} is not finite')
     eigval, eigvec = np.linalg.eigh(0.5 * (cov + cov.T))
     scale = max(float(np.abs(eigval).max()), 1e-300)
     if eigval.min() < -1e-9 * scale:
-        raise ValueError(f'covariance is not positive semi-definite (eigenvalue '
+        raise ValueError(f'{name} is not positive semi-definite (eigenvalue '
                          f'{eigval.min():.3g})')
     return eigval, eigvec
 

@@ -198,15 +198,10 @@ def check_covariance(cov, name='covariance'):
     ('<name> is not finite', 'is not symmetric (...)' beyond :data:`SYMMETRY_TOLERANCE`,
     'is not positive semi-definite (eigenvalue ...)', tt_prediction's covariance_eigen)."""
     cov = np.asarray(cov, dtype=float)
-    if not np.all(np.isfinite(cov)):
-        raise ValueError(f'{name} is not finite')
-    asym = float(np.abs(cov - cov.T).max())
+    asym = float(np.abs(cov - cov.T).max())     # NaN (not finite): left to covariance_eigen
     if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
         raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
-    try:
-        covariance_eigen(cov)
-    except ValueError as exc:
-        raise ValueError(str(exc).replace('covariance', name, 1)) from None
+    covariance_eigen(cov, name)
 
 
 def noise_covariance(hit_state, sigma_position=0.002, velocity_fraction=0.02,

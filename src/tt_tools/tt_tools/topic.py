@@ -44,6 +44,15 @@ def _known_topics(cli, limit=8):
     return ', '.join(names[:limit]) + more if names else 'none'
 
 
+def _other_types(infos, type_str):
+    """'A, B': the types of the endpoint ``infos`` when all differ from ``type_str`` (they
+    would never match it), else '' (none given, no endpoint, or one of its type)."""
+    wanted = split_type(type_str) if type_str else None
+    if wanted and infos and all(split_type(i.topic_type) != wanted for i in infos):
+        return ', '.join(sorted({i.topic_type for i in infos}))
+    return ''
+
+
 def _wait_for_publishers(cli, topic, type_str):
     """Spin until ``topic`` has a publisher; return (message class, publisher infos) or None.
 
@@ -51,12 +60,11 @@ def _wait_for_publishers(cli, topic, type_str):
     closest name) and goes on waiting.
     """
     state = {}
-    wanted = split_type(type_str) if type_str else None
 
     def found():
         pubs = cli.node.get_publishers_info_by_topic(topic)
-        if wanted and pubs and all(split_type(p.topic_type) != wanted for p in pubs):
-            given = ', '.join(sorted({p.topic_type for p in pubs}))
+        given = _other_types(pubs, type_str)
+        if given:
             raise ValueError(f'{topic} is published as {given}, not {type_str}')
         if pubs:
             state['pubs'] = pubs
@@ -232,17 +240,14 @@ def _wait_for_subscriptions(cli, pub, topic, type_str, count, max_wait):
     waits for when discovery settles without them. False on a signal or after ``max_wait``
     s (with a one-line error). ValueError when the topic's subscriptions are all of another
     type than ``type_str`` (they would never match)."""
-    wanted = split_type(type_str)
-
     def matched():
         return pub.get_subscription_count() >= count
 
     def bounded():
         if matched():
             return True
-        subs = cli.node.get_subscriptions_info_by_topic(topic)
-        if subs and all(split_type(s.topic_type) != wanted for s in subs):
-            given = ', '.join(sorted({s.topic_type for s in subs}))
+        given = _other_types(cli.node.get_subscriptions_info_by_topic(topic), type_str)
+        if given:
             raise ValueError(f'{topic} is subscribed as {given}, not {type_str}')
         return time.monotonic() >= deadline
 
