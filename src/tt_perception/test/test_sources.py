@@ -53,6 +53,15 @@ def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):
         VideoFileSource(str(tmp_path / 'absent.avi'), 100.0).open()
 
 
+def test_a_pattern_matching_no_image_is_one_line_without_ffmpeg_log(tmp_path, capfd):
+    # FFmpeg's image2 demuxer logs '[image2 @ 0x...] Could find no file ...' on the process's
+    # stderr before OpenCV says the capture is not open; the user is told once, by the error.
+    pattern = str(tmp_path / 'frame%04d.png')
+    with pytest.raises(OSError, match='cannot be opened as a video or image sequence'):
+        VideoFileSource(pattern, 100.0).open()
+    assert '[image2' not in capfd.readouterr().err
+
+
 def test_scene_videos_are_read_back_camera_by_camera(tmp_path):
     # write_scene's videos (synth.CameraVideos, MJPG) through file_frames: each camera's
     # frames in turn at each index, at index / fps; no truth given, no truth.csv.

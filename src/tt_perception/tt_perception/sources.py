@@ -88,6 +88,9 @@ class VideoFileSource(FrameSource):
                                     + os.path.splitext(names[0])[1])
         elif '%' not in path and not os.path.isfile(path):
             raise OSError(f'{path}: no such video file')
+        # FFmpeg's own log lines ('[image2 @ 0x...] Could find no file ...') would come before
+        # the one-line error below and say the same; quiet unless the user asked for them.
+        os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
         self.capture = cv2.VideoCapture(path)
         if not self.capture.isOpened():
             raise OSError(f'{path}: cannot be opened as a video or image sequence')
