@@ -1,6 +1,8 @@
 """Cameras, rig files, triangulation, the filter's model and the pose command, each against
 geometry or tt_prediction's integrator."""
 
+import os
+
 import numpy as np
 import pytest
 from tt_perception.camera import CalibrationError, load_rig
@@ -210,6 +212,32 @@ def test_pose_from_the_table_outline(tmp_path):
     assert np.linalg.norm(found.centre - true.centre) < 0.03
     angle = np.degrees(np.arccos((np.trace(found.R @ true.R.T) - 1) / 2))
     assert angle < 0.5
+
+
+def test_the_pose_command_changes_only_the_camera_s_pose_in_the_rig_file(tmp_path):
+    """A rig file is the user's: the pose command writes one camera's rotation and
+    translation and leaves the comments, the other camera and the key order as they were."""
+    import cv2
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(rig, 0))
+    data = yaml.safe_load(open(path))
+    data['cameras'][0]['translation'] = [0.0, 0.0, 3.0]
+    data['cameras'][1]['time_offset'] = 0.0005
+    text = ('# hall B, behind the robot\n'
+            + yaml.safe_dump(data, sort_keys=False).replace(
+                'cameras:', 'cameras:  # left, then right'))
+    open(path, 'w').write(text)
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image)]) == 0
+    after = open(path).read()
+    assert after.startswith('# hall B, behind the robot\n')
+    assert 'cameras:  # left, then right' in after
+    new = yaml.safe_load(after)
+    assert list(new) == list(data) and new['cameras'][1] == data['cameras'][1]
+    assert [k for k in new['cameras'][0]] == [k for k in data['cameras'][0]]
+    assert np.linalg.norm(load_rig(path).cameras[0].centre - rig.cameras[0].centre) < 0.03
+    assert not [n for n in os.listdir(tmp_path) if '.tmp' in n]
 
 
 def test_pose_from_named_points(tmp_path, capsys):

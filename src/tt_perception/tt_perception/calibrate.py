@@ -12,7 +12,8 @@ corners look the same turned by 180 degrees: the solution kept is the one whose 
 (x = -1.37) is nearer the camera (``--robot-end near``, a camera behind the robot) or farther
 (``far``). The pose is solved with SQPnP, refined by Levenberg-Marquardt, checked (RMS
 reprojection error at most ``--max-error`` pixels, camera above the table) and written into the
-rig file; the command prints the pose and the error. Errors: one line; exit status 2 for bad
+rig file (that camera's rotation and translation only: the file's comments and other entries
+are kept); the command prints the pose and the error. Errors: one line; exit status 2 for bad
 arguments or input files (rig, camera, image, points), 1 when no pose is found or it does not
 fit.
 """
@@ -25,7 +26,7 @@ import cv2
 import numpy as np
 from tt_prediction.ball import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
 
-from .camera import CalibrationError, file_error, load_rig, read_yaml, save_rig
+from .camera import CalibrationError, file_error, load_rig, read_yaml, set_camera_pose
 
 L, W = HALF_LENGTH, HALF_WIDTH
 TABLE_POINTS = {
@@ -145,10 +146,10 @@ def main(argv=None):
             raise CalibrationError(f'--max-error must be a positive number of pixels, got '
                                    f'{args.max_error:g}')
         rig = load_rig(args.rig, min_baseline=0.0)   # the poses may be placeholders, all alike
-        cams = [c for c in rig.cameras if c.name == args.camera]
-        if not cams:
+        index = next((i for i, c in enumerate(rig.cameras) if c.name == args.camera), None)
+        if index is None:
             raise CalibrationError(f'rig {args.rig}: no camera named {args.camera!r}')
-        cam = cams[0]
+        cam = rig.cameras[index]
         # Checked first: OpenCV warns on stderr about a file it cannot open.
         error = file_error('--image', args.image)
         if error:
@@ -176,8 +177,7 @@ def main(argv=None):
         if rms > args.max_error:
             raise CalibrationError(f'reprojection error {rms:.2f} px exceeds {args.max_error} '
                                    'px: the points do not fit the table')
-        cam.R, cam.t = R, t
-        save_rig(args.rig, rig)
+        set_camera_pose(args.rig, index, R, t)
     except (CalibrationError, OSError, ValueError, cv2.error) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f'tt_perception.calibrate: {first}', file=sys.stderr)

@@ -10,6 +10,7 @@ and the field.
 
 import dataclasses
 import os
+import shutil
 
 import cv2
 import numpy as np
@@ -293,6 +294,36 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
     if error:
         raise CalibrationError(f'rig {path}: {error}')
     return Rig(cameras, fps, str(data.get('frame_id', 'table')), os.path.abspath(path))
+
+
+def set_camera_pose(path, index, R, t):
+    """Write camera ``index``'s pose (R (3, 3), t (3,), table frame to camera) into the rig
+    file ``path``, leaving the rest of the file as it is: its comments, key order and other
+    cameras (ruamel.yaml's round trip). The file is replaced whole (a temporary file renamed
+    over it), so an interrupted write leaves the old rig."""
+    from ruamel.yaml import YAML
+    from ruamel.yaml.comments import CommentedSeq
+
+    yaml_rt = YAML()
+    yaml_rt.preserve_quotes = True
+    yaml_rt.width = 4096          # a pose on one line each (wrapped lines get trailing blanks)
+    with open(path, encoding='utf-8') as f:
+        data = yaml_rt.load(f)
+    entry = data['cameras'][index]
+    for key, values in (('rotation', np.asarray(R).ravel()), ('translation', t)):
+        seq = CommentedSeq(float(v) for v in values)
+        seq.fa.set_flow_style()
+        entry[key] = seq
+    target = os.path.realpath(path)       # a linked rig file stays a link
+    tmp = f'{target}.tmp-{os.getpid()}'
+    try:
+        with open(tmp, 'w', encoding='utf-8') as f:
+            yaml_rt.dump(data, f)
+        shutil.copymode(target, tmp)
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 def save_rig(path, rig):
