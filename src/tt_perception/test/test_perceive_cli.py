@@ -97,7 +97,8 @@ def test_a_second_run_replaces_the_output_folder(scene, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ['out', 'video']   # nothing staged
 
 
-def test_an_out_folder_with_other_files_is_refused_and_left_alone(scene, tmp_path, capsys):
+def test_an_out_folder_with_other_files_is_refused_and_left_alone(scene, tmp_path, capsys,
+                                                                  monkeypatch):
     """The output replaces the whole folder: a folder holding anything but an earlier output
     (here the rig and its calibration, given as --out by mistake) is refused before any
     work, one line, exit 2."""
@@ -108,6 +109,14 @@ def test_an_out_folder_with_other_files_is_refused_and_left_alone(scene, tmp_pat
     said = capsys.readouterr()
     err = said.err.strip().splitlines()
     assert said.out == '' and len(err) == 1 and f'--out {calib}' in err[0]
+    assert sorted(os.listdir(calib)) == before
+    # The same folder as the current one, by another name: an empty --out (an unset shell
+    # variable) or 'missing/..' (the tracks replaced the folder the command ran in).
+    monkeypatch.chdir(calib)
+    for out in ('', 'missing/..'):
+        assert cli.main(['--rig', rig_path, '--out', out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f'--out {out}' in err[0]
     assert sorted(os.listdir(calib)) == before
 
 

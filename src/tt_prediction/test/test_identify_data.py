@@ -66,17 +66,22 @@ def test_a_byte_order_mark_and_the_columns_in_another_order_read_the_same(tmp_pa
     assert np.array_equal(b[0].spin, (1.0, 2.0, 3.0))
 
 
-def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys):
+def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys,
+                                                                          monkeypatch):
     # The report replaces its folder as a whole: --out as the data folder, its parent or a
     # track file would delete the measured tracks. Refused (exit 2, one line), data intact.
+    # So is the current folder by another name: an empty --out (an unset shell variable) or
+    # 'missing/..' (the report went into the folder the command was run from, replacing it).
     track = 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))
     folder = _folder(tmp_path, {'a.csv': track})
+    monkeypatch.chdir(folder)
     for out, what in ((folder, 'holds a.csv'), (tmp_path, 'holds data'),
                       (folder / 'a.csv', 'not a folder'),
-                      (folder / 'a.csv' / 'out', 'cannot write: Not a directory')):
+                      (folder / 'a.csv' / 'out', 'cannot write: Not a directory'),
+                      ('', 'an empty path'), ('missing/..', 'holds a.csv')):
         code, err = _run(capsys, [str(folder), '--out', str(out)])
         assert code == 2
-        assert len(err) == 1 and str(out) in err[0] and what in err[0]
+        assert len(err) == 1 and f'--out {out}' in err[0] and what in err[0]
     assert (folder / 'a.csv').read_text() == track
     assert sorted(os.listdir(tmp_path)) == ['data']
 

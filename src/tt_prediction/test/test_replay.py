@@ -192,7 +192,7 @@ def test_tracks_too_short_to_estimate_the_noise_take_the_default_noise(tmp_path,
 
 
 def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data, tmp_path,
-                                                                          capsys):
+                                                                          capsys, monkeypatch):
     # The rows are named as the tracks: --out as the data set's own folder (or a copy of
     # it: its index.csv) would overwrite the measured CSVs; a file is not a folder.
     folder = tmp_path / 'set'
@@ -215,6 +215,14 @@ def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data
     assert main(['--tracks', str(folder), '--out', str(folder)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f'--out {folder}: holds ' in err[0] and 'not written by' in err[0]
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    # Nor by another name, run from inside it: an empty --out (an unset shell variable) or
+    # 'missing/..' is the current folder (the rows were written over the tracks).
+    monkeypatch.chdir(folder)
+    for out, what in (('', "--out '': an empty path"), ('missing/..', '--out missing/..: holds ')):
+        assert main(['--tracks', '.', '--out', out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and what in err[0]
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
     # An earlier replay's folder (rows and summary.json) is still a valid output.
     out = tmp_path / 'out'

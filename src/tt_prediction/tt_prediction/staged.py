@@ -29,14 +29,21 @@ def output_folder_error(out, ours, tool, csv_header=None):
     tool writes), so that an output given as the input's folder, the data's parent or a file
     by mistake is refused before any work rather than overwritten or replaced. With
     ``csv_header`` (the tool's CSV header line), a CSV file must also begin with it: a name
-    alone does not tell a measured track from the tool's output."""
-    if not os.path.lexists(out):
+    alone does not tell a measured track from the tool's output.
+
+    The folder judged is the one :func:`staged_folder` writes, ``os.path.abspath(out)``: an
+    empty ``out`` (an unset shell variable) is refused, and ``missing/..`` is the current
+    folder, as it would be written."""
+    if not out:
+        return "--out '': an empty path (give the output folder)"
+    path = os.path.abspath(out)
+    if not os.path.lexists(path):
         return creatable_error(out)
-    if os.path.islink(out) or not os.path.isdir(out):
+    if os.path.islink(path) or not os.path.isdir(path):
         return f'--out {out}: not a folder'
     try:
-        others = sorted(n for n in os.listdir(out)
-                        if not ours.fullmatch(n) or not _begins(out, n, csv_header))
+        others = sorted(n for n in os.listdir(path)
+                        if not ours.fullmatch(n) or not _begins(path, n, csv_header))
     except OSError as exc:
         return f'--out {out}: cannot read: {exc.strerror}'
     if not others:
