@@ -101,6 +101,9 @@ def test_implausible_model_file_is_refused_naming_file_and_field(capsys, tmp_pat
     # Nanoseconds: the flight cannot be integrated at such a time (it gave status timeout).
     ('{"t": 1.7e18, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0]}',
      '"t" = 1.7e+18: beyond 1e+10 s'),
+    # JSON integers have no size limit; a float has (OverflowError and a traceback).
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 1' + '0' * 330 + ', 0]}',
+     '"w" holds an integer too large'),
 ])
 def test_a_bad_line_is_a_one_line_error_naming_it_and_nothing_is_written(
         capsys, tmp_path, line, words):

@@ -60,7 +60,10 @@ def _fast_values(data):
     for c in values:
         if type(c) not in _NUMBER:
             return None
-    return [float(c) for c in values]
+    try:
+        return [float(c) for c in values]
+    except OverflowError:                   # an integer of hundreds of digits
+        return None
 
 
 def parse_state(data, lineno, radius):
@@ -81,7 +84,11 @@ def parse_state(data, lineno, radius):
                            for c in items)):
             what = 'a number' if size == 1 else f'an array of {size} numbers'
             raise InputError(f'line {lineno}: "{key}" must be {what}, got {value!r}')
-        values.extend(float(c) for c in items)
+        try:
+            values.extend(float(c) for c in items)
+        except OverflowError:
+            raise InputError(f'line {lineno}: "{key}" holds an integer too large for a '
+                             'number of metres, seconds or rad/s') from None
     if not math.isfinite(values[0]):
         raise InputError(f'line {lineno}: "t" is not finite')
     reason = (time_error(values[0], '"t"') or position_error(values[1:4], '"p"')

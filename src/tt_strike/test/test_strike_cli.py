@@ -89,6 +89,8 @@ def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):
     (dict(BALL), 'no target'),
     ('{"t": 0, "p": [NaN, 0, 0.3], "v": [-5, 0, 1], "w": [0, 0, 0], "target_zone": 3}', ''),
     ('not json', 'JSON'),
+    ('{"t": 0, "p": [1.6, 0.1, 0.3], "v": [-6, 0, 1.5], "w": [0, 1' + '0' * 330
+     + ', 0], "target_zone": 3}', '"w" holds an integer too large'),
     (dict(BALL, target_zone=3, covariance=[1.0] * 80), 'covariance'),
     # All -1: eigenvalue -9 along (1, ..., 1), no variance can be negative.
     (dict(BALL, target_zone=3, covariance=[-1.0] * 81),
