@@ -71,13 +71,22 @@ def test_rig_round_trip(tmp_path):
      'principal point (2000, '),
     (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=-1)), 'fps must be a positive'),
+    # Infinity passed 'fps > 0' and divided by zero later (a traceback in tt-perceive).
+    (lambda rig, info: _edit(rig, lambda d: d.update(fps=float('inf'))),
+     'fps must be a positive'),
+    # A nan offset, or one in milliseconds, found no ball without a word.
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_offset=float('nan'))),
+     'cameras[1] (cam1): time_offset nan s is not within +-1 s'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_offset=5.0)),
+     'time_offset 5 s is not within +-1 s (seconds, not milliseconds)'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_ofset=0.002)),
      "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
      'rotation, translation, time_offset)'),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'principal point off',
-        'broken yaml', 'bad fps', 'misspelt key',
+        'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
+        'misspelt key',
         'unknown rig key'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'

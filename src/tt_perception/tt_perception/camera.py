@@ -9,6 +9,7 @@ and the field.
 """
 
 import dataclasses
+import math
 import os
 import shutil
 
@@ -216,6 +217,10 @@ class Rig:
     path: str = ''
 
 
+MAX_TIME_OFFSET_S = 1.0
+"""Largest ``time_offset`` of a rig's camera, s: the span tt-perceive searches when it
+estimates one (:mod:`tt_perception.sync`); 5 (ms meant) found no ball, without a word."""
+
 RIG_KEYS = ('frame_id', 'fps', 'cameras')
 CAMERA_KEYS = ('name', 'camera_info', 'source', 'rotation', 'translation', 'time_offset')
 """The keys of a rig file and of each of its cameras (DESIGN.md, "Data formats")."""
@@ -245,7 +250,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
         fps = float(data.get('fps', 0.0))
     except (TypeError, ValueError):
         raise CalibrationError(f'rig {path}: fps is not a number') from None
-    if not fps > 0.0:
+    if not (math.isfinite(fps) and fps > 0.0):
         raise CalibrationError(f'rig {path}: fps must be a positive number')
     entries = data.get('cameras')
     if not isinstance(entries, list) or not entries:
@@ -280,6 +285,10 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
             except (TypeError, ValueError):
                 raise CalibrationError(f'{where} ({name}): time_offset is not a number') \
                     from None
+            if not abs(offset) <= MAX_TIME_OFFSET_S:     # nan too
+                raise CalibrationError(
+                    f'{where} ({name}): time_offset {offset:g} s is not within '
+                    f'+-{MAX_TIME_OFFSET_S:g} s (seconds, not milliseconds)')
         source = str(entry.get('source', ''))
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
                               R, t, source=source, time_offset=offset,

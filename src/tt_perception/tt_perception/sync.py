@@ -11,6 +11,7 @@ section search inside the best grid cell.
 
 import numpy as np
 
+from .camera import MAX_TIME_OFFSET_S
 from .triangulate import relative_pose
 
 
@@ -35,7 +36,7 @@ def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
     return float(np.median(dist))
 
 
-def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=1.0):
+def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_S):
     """Offset (s) of camera k's clock against camera 0's and its median epipolar distance.
 
     ``t0``, ``tk``: detection times (s, each camera's own clock), ``x0``, ``xk``: normalised
