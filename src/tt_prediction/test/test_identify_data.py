@@ -37,7 +37,13 @@ def _folder(tmp_path, files):
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,-0.1\n' for i in range(20)),
       'b.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,0.021\n' for i in range(20))},
      '0 usable trajectory(ies) after cleaning (2 loaded; data/a.csv: '),
-], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable'])
+    # Spin in rpm (index.csv's wx, wy, wz are rad/s): it fitted c_m at a fifteenth of its
+    # value, without a word.
+    ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20)),
+      'index.csv': 'file,wx,wy,wz\na.csv,0,3000,0\n'},
+     'index.csv: line 2: spin 3000 rad/s is above 1500 rad/s: not a table-tennis ball'),
+], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable',
+        'spin in rpm'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)
     out = tmp_path / 'out'

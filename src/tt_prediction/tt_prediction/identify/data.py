@@ -17,6 +17,7 @@ import pathlib
 
 import numpy as np
 
+from ..predict import MAX_SPIN
 from ..units import position_error, sample_time_error, time_error
 
 
@@ -143,6 +144,10 @@ def read_index(folder):
                                 ) from None
             if not np.all(np.isfinite(spin)):
                 raise DataError(f'{path}: line {i + 2}: spin {cells} is not finite')
+            if np.linalg.norm(spin) > MAX_SPIN:         # rpm or rps for rad/s: c_m fitted off
+                raise DataError(f'{path}: line {i + 2}: spin {np.linalg.norm(spin):.0f} rad/s '
+                                f'is above {MAX_SPIN:g} rad/s: not a table-tennis ball '
+                                '(wx, wy, wz are in rad/s)')
         source = row[source_col].strip().lower() if source_col is not None else ''
         if source and source not in SPIN_SOURCES:
             raise DataError(f"{path}: line {i + 2}: spin_source '{source}' is not one of "
