@@ -117,10 +117,19 @@ def test_a_covariance_symmetric_within_rounding_is_taken(monkeypatch, capsys):
     assert code == 0 and err == '' and out[0]['status'] == 'ok'
 
 
-def test_bad_option(monkeypatch, capsys):
-    code, out, err = run([dict(BALL, target_zone=1)], monkeypatch, capsys,
-                         ['--net-clearance', 'nan'])
-    assert code == 2 and out == [] and '--net-clearance' in err and err.count('\n') == 1
+@pytest.mark.parametrize('option, value, words', [
+    ('--net-clearance', 'nan', 'must be a number in [0.02, 1] m, got nan'),
+    # Millimetres: 'the ball does not come down within 3 s' (infeasible), exit 0.
+    ('--net-clearance', '200', 'must be a number in [0.02, 1] m, got 200'),
+    ('--max-racket-speed', '8000', 'must be a number in [0.1, 30] m/s, got 8000'),
+    ('--max-racket-speed', '0', 'must be a number in [0.1, 30] m/s, got 0'),
+])
+def test_an_option_outside_the_node_range_is_a_one_line_error(option, value, words,
+                                                              monkeypatch, capsys):
+    # strike_node's parameters of the same names have these ranges (tt-strike took any
+    # positive number).
+    code, out, err = run([dict(BALL, target_zone=1)], monkeypatch, capsys, [option, value])
+    assert code == 2 and out == [] and err == f'tt-strike: {option} {words}\n'
 
 
 @pytest.mark.parametrize('plane', ['5', '0.01', '-3.5', 'nan'])

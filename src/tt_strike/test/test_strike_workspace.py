@@ -50,6 +50,18 @@ def test_cylinder_contains_by_distance_to_its_axis(tmp_path):
     (lambda d: d['workspace'].update(shape='sphere'), 'workspace.shape'),
     (lambda d: d['workspace'].update(shape='cylinder'), 'workspace.cylinder'),
     (lambda d: d.pop('workspace'), 'workspace'),
+    # Millimetres and milliseconds gave 'unreachable' and 'too_late' statuses, and a
+    # misspelt key was ignored, each without a word.
+    (lambda d: d['workspace']['box'].update(x=[-2100, -1450]),
+     "'workspace.box.x' must be within [-10, 10] m, got -2100 (metres, not millimetres?)"),
+    (lambda d: d['workspace'].update(min_time_before_hit=150),
+     "'workspace.min_time_before_hit' must be within [0, 2] s"),
+    (lambda d: d['workspace'].update(max_racket_speed=8000),
+     "'workspace.max_racket_speed' must be within [0.1, 30] m/s, got 8000"),
+    (lambda d: d['workspace'].update(max_racket_sped=8.0),
+     "unknown key 'workspace.max_racket_sped'"),
+    (lambda d: d['workspace']['box'].update(w=[0, 1]), "unknown key 'workspace.box.w'"),
+    (lambda d: d.update(extra=1), "unknown key 'extra' (known: workspace)"),
 ])
 def test_bad_files_name_the_key_in_one_line(tmp_path, edit, key):
     data = yaml.safe_load(TEMPLATE.read_text())

@@ -35,7 +35,13 @@ from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 from .hitpoint import choose
 from .incoming import hit_point
 from .robust import check_covariance
-from .solver import StrikeSettings, resolve_target, solve
+from .solver import (
+    MAX_RACKET_SPEED_RANGE,
+    NET_CLEARANCE_RANGE,
+    StrikeSettings,
+    resolve_target,
+    solve,
+)
 from .workspace import load_workspace
 
 
@@ -67,12 +73,13 @@ def parse_strike_line(text, lineno, radius):
     return t, np.array(state), zone, point, cov
 
 
-def positive_error(option, value):
-    """Why ``value`` cannot be the value of ``option`` (a length or speed: finite and
-    positive), or '' (also for None, an option not given)."""
-    if value is None or (math.isfinite(value) and value > 0.0):
+def range_error(option, value, bounds, unit):
+    """Why ``value`` cannot be the value of ``option``, or '' (also for None, an option not
+    given): it must lie within ``bounds`` (lo, hi), strike_node's range of the parameter."""
+    lo, hi = bounds
+    if value is None or lo <= value <= hi:       # nan is outside
         return ''
-    return f'{option} must be finite and positive'
+    return f'{option} must be a number in [{lo:g}, {hi:g}] {unit}, got {value:g}'
 
 
 def _vec(a):
@@ -136,8 +143,9 @@ def main(argv=None):
                         help='aim where the in-zone probability is highest (needs covariance)')
     args = parser.parse_args(argv)
     errors = [hit_plane_error(args.hit_plane_x) if args.hit_plane_x is not None else '',
-              positive_error('--net-clearance', args.net_clearance),
-              positive_error('--max-racket-speed', args.max_racket_speed)]
+              range_error('--net-clearance', args.net_clearance, NET_CLEARANCE_RANGE, 'm'),
+              range_error('--max-racket-speed', args.max_racket_speed, MAX_RACKET_SPEED_RANGE,
+                          'm/s')]
     for error in filter(None, errors):
         print(f'tt-strike: {error}', file=sys.stderr)
         return 2

@@ -42,11 +42,11 @@ from tt_prediction.ball import load_model
 from tt_prediction.cli import hit_plane_error
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
-from .cli import positive_error
+from .cli import range_error
 from .hitpoint import choose
 from .incoming import hit_point
 from .robust import monte_carlo_in_zone, noise_covariance
-from .solver import StrikeSettings, solve
+from .solver import NET_CLEARANCE_RANGE, StrikeSettings, solve
 from .workspace import load_workspace
 
 DEFAULT_DATA = pathlib.Path(__file__).resolve().parents[3] / 'data' / 'deepmind_states'
@@ -261,7 +261,8 @@ def main(argv=None):
     if not plane and args.monte_carlo:
         parser.error('--monte-carlo checks the strokes at the plane: it needs --hit-plane-x')
     errors = [hit_plane_error(args.hit_plane_x) if plane else '',
-              positive_error('--net-clearance', args.net_clearance),    # as tt-strike
+              range_error('--net-clearance', args.net_clearance, NET_CLEARANCE_RANGE,
+                          'm'),                                         # as tt-strike
               '--limit must be 0 (all states) or more' if args.limit < 0 else '',
               '--monte-carlo must be 0 (none) or more' if args.monte_carlo < 0 else '']
     errors += [output_error(name, value) for name, value in

@@ -42,7 +42,14 @@ from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 
 from .hitpoint import choose
 from .robust import check_covariance, noise_covariance
-from .solver import StrikeSettings, StrikeSolution, resolve_target, solve
+from .solver import (
+    MAX_RACKET_SPEED_RANGE,
+    NET_CLEARANCE_RANGE,
+    StrikeSettings,
+    StrikeSolution,
+    resolve_target,
+    solve,
+)
 from .workspace import load_workspace
 
 _D = StrikeSettings()
@@ -52,9 +59,9 @@ PARAMETERS = (
     Param('target_point', [0.7, 0.0], "target landing point [x, y] on the opponent's half "
           '(when target_zone is 0)', 'm', length=2),
     Param('net_clearance', _D.net_clearance, 'free direction: gap between the ball and the '
-          'net top where it crosses x = 0', 'm', 0.02, 1.0),
+          'net top where it crosses x = 0', 'm', *NET_CLEARANCE_RANGE),
     Param('max_racket_speed', _D.max_racket_speed, 'racket speed limit at impact', 'm/s',
-          0.1, 30.0),
+          *MAX_RACKET_SPEED_RANGE),
     Param('reach_z_min', _D.reach_z[0], 'lowest ball centre the racket reaches', 'm',
           -0.76, 2.0),
     Param('reach_z_max', _D.reach_z[1], 'highest ball centre the racket reaches', 'm',

@@ -60,6 +60,13 @@ FORWARD_TOLERANCE = 5e-3
 """A solution whose forward check lands further than this from the aim point is rejected, m."""
 
 
+NET_CLEARANCE_RANGE = (0.02, 1.0)
+"""Allowed ``net_clearance``, m: strike_node's parameter, tt-strike's option."""
+MAX_RACKET_SPEED_RANGE = (0.1, 30.0)
+"""Allowed racket speed limit, m/s: strike_node's parameter, tt-strike's option and a
+workspace file's ``max_racket_speed`` (a smash's racket is below 30 m/s)."""
+
+
 @dataclasses.dataclass
 class StrikeSettings:
     """Choices and limits of the strike solver (the node's parameters of the same names)."""

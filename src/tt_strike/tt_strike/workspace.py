@@ -10,8 +10,10 @@ gives, in the table frame (MODEL.md), SI units:
       max_racket_speed: 8.0          # m/s at impact
       min_time_before_hit: 0.15      # s: the arm needs at least this long to get there
 
-A bad file (missing key, a size that is not positive, min not below max, NaN, a wrong type)
-raises :class:`WorkspaceError` with one line naming the key.
+A bad file (missing or unknown key, a size that is not positive, min not below max, NaN, a
+wrong type, a length beyond the room's 10 m (millimetres), a speed outside strike_node's
+max_racket_speed range, a time above 2 s (milliseconds)) raises :class:`WorkspaceError`
+with one line naming the key.
 """
 
 import dataclasses
@@ -19,8 +21,11 @@ import math
 import pathlib
 
 import numpy as np
+from tt_prediction.units import ROOM_HALF_EXTENT_M
 from tt_ros.index import package_prefix
 import yaml
+
+from .solver import MAX_RACKET_SPEED_RANGE
 
 
 def _template():
@@ -35,6 +40,10 @@ def _template():
 
 TEMPLATE = _template()
 """The template workspace (the default of ``workspace_file``)."""
+
+
+MIN_TIME_BEFORE_HIT_RANGE = (0.0, 2.0)
+"""Allowed ``min_time_before_hit``, s: a ball crosses the table in under a second."""
 
 
 class WorkspaceError(ValueError):
@@ -99,7 +108,18 @@ def _get(mapping, key, path):
     return mapping[key]
 
 
-def _number(value, key, positive=False, non_negative=False):
+def _known(mapping, known, path):
+    """WorkspaceError naming the first key of ``mapping`` not in ``known``: a misspelt key
+    would otherwise be ignored without a word."""
+    unknown = [str(k) for k in mapping if k not in known]
+    if unknown:
+        name = f'{path}.{unknown[0]}' if path else unknown[0]
+        raise WorkspaceError(f"unknown key '{name}' (known: {', '.join(known)})")
+
+
+def _number(value, key, positive=False, non_negative=False, bounds=None, unit='m'):
+    """The float of ``value`` (key ``key``); ``bounds``: (lo, hi) it must lie within, in
+    ``unit`` (a length: within the room, metres and not millimetres)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise WorkspaceError(f"key '{key}' must be a number, got {value!r}")
     value = float(value)
@@ -109,6 +129,11 @@ def _number(value, key, positive=False, non_negative=False):
         raise WorkspaceError(f"key '{key}' must be positive, got {value}")
     if non_negative and value < 0.0:
         raise WorkspaceError(f"key '{key}' must not be negative, got {value}")
+    lo, hi = bounds or (-ROOM_HALF_EXTENT_M, ROOM_HALF_EXTENT_M)
+    if not lo <= value <= hi:
+        raise WorkspaceError(f"key '{key}' must be within [{lo:g}, {hi:g}] {unit}, got "
+                             f'{value:g}' + (' (metres, not millimetres?)' if unit == 'm'
+                                             else ''))
     return value
 
 
@@ -125,13 +150,19 @@ def _pair(value, key, ordered=True):
 def parse_workspace(data):
     """A :class:`Workspace` from the parsed YAML (a dict holding 'workspace')."""
     ws = _get(data, 'workspace', '')
+    _known(data, ('workspace',), '')
     shape = _get(ws, 'shape', 'workspace')
     speed = _number(_get(ws, 'max_racket_speed', 'workspace'), 'workspace.max_racket_speed',
-                    positive=True)
+                    bounds=MAX_RACKET_SPEED_RANGE, unit='m/s')
     min_time = _number(_get(ws, 'min_time_before_hit', 'workspace'),
-                       'workspace.min_time_before_hit', non_negative=True)
+                       'workspace.min_time_before_hit', bounds=MIN_TIME_BEFORE_HIT_RANGE,
+                       unit='s (seconds, not milliseconds?)')
+    # Both shapes' keys may stay in a file: 'shape' picks one.
+    _known(ws, ('shape', 'box', 'cylinder', 'max_racket_speed', 'min_time_before_hit'),
+           'workspace')
     if shape == 'box':
         box = _get(ws, 'box', 'workspace')
+        _known(box, ('x', 'y', 'z'), 'workspace.box')
         return Workspace(
             'box', x=_pair(_get(box, 'x', 'workspace.box'), 'workspace.box.x'),
             y=_pair(_get(box, 'y', 'workspace.box'), 'workspace.box.y'),
@@ -139,6 +170,7 @@ def parse_workspace(data):
             max_racket_speed=speed, min_time_before_hit=min_time)
     if shape == 'cylinder':
         cyl = _get(ws, 'cylinder', 'workspace')
+        _known(cyl, ('centre', 'radius', 'z'), 'workspace.cylinder')
         return Workspace(
             'cylinder',
             centre=_pair(_get(cyl, 'centre', 'workspace.cylinder'), 'workspace.cylinder.centre',
