@@ -162,6 +162,13 @@ def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, conte
     ('position_noise: -1', 'position_noise must be >= 0'),
     ('accel_noise: -3', 'accel_noise must be >= 0'),
     ('bounce_transform: cubic', "bounce_transform must be 'linear' or 'unscented'"),
+    # These said only "could not convert string to float: 'abc'" or took 1 for 1.5.
+    ('spin_prior: abc', "spin_prior must be a number, got 'abc'"),
+    ('accel_noise: [1]', 'accel_noise must be a number, got [1]'),
+    ('max_rejects: 1.5', 'max_rejects must be a whole number, got 1.5'),
+    ('position_noise: loud', "position_noise must be a number, got 'loud'"),
+    ('spin_prior_mean: [0, 0, x]', 'spin_prior_mean must be a list of 3 numbers'),
+    ('bounce_transform: 3', 'bounce_transform must be a word, got 3'),
 ])
 def test_a_bad_filter_config_is_one_line_exit_2_no_output(data, tmp_path, capsys, setting,
                                                          what):
@@ -236,7 +243,8 @@ def test_a_spin_prior_mean_in_the_filter_config_is_the_spin_a_track_starts_with(
     along the velocity the filter starts from (the first rows' velocity)."""
     folder, tracks = data
     config = tmp_path / 'filter.yaml'
-    config.write_text('spin_prior_mean: [0, 0, -40]\nspin_prior: 1.0e-3\nspin_noise: 0\n')
+    # 1e-3 without a dot: PyYAML reads it as a string, which a number setting takes too.
+    config.write_text('spin_prior_mean: [0, 0, -40]\nspin_prior: 1e-3\nspin_noise: 0\n')
     out = tmp_path / 'out'
     assert main(['--tracks', str(folder), '--out', str(out), '--filter-config', str(config),
                  '--no-learn', '--no-textbook']) == 0

@@ -78,18 +78,41 @@ def load_filter_config(path, tracks):
             est_noise, est_stamp = FilterConfig.position_noise, FilterConfig.stamp_noise
         noise = est_noise if noise == 'auto' else noise
         stamp = est_stamp if stamp == 'auto' else stamp
+    def number(value):
+        """Whether ``value`` is a number; PyYAML reads 1e-3 (no dot) as a string."""
+        if isinstance(value, str):
+            try:
+                float(value)
+            except ValueError:
+                return False
+            return True
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+
     def typed(name, value):
+        """``value`` as the setting ``name`` takes it; ValueError naming the setting."""
         default = getattr(FilterConfig, name)
         if isinstance(default, tuple):
-            if not isinstance(value, list) or len(value) != len(default):
-                raise ValueError(f'{name} must be a list of {len(default)} numbers')
+            if (not isinstance(value, list) or len(value) != len(default)
+                    or not all(number(v) for v in value)):
+                raise ValueError(f'{name} must be a list of {len(default)} numbers, got '
+                                 f'{value!r}')
             return tuple(float(v) for v in value)
-        return (str(value) if isinstance(default, str) else
-                int(value) if isinstance(default, int) else float(value))
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise ValueError(f'{name} must be a word, got {value!r}')
+            return value
+        if isinstance(default, int):
+            if not (number(value) and float(value).is_integer()):
+                raise ValueError(f'{name} must be a whole number, got {value!r}')
+            return int(value)
+        if not number(value):                   # a float (or None: a float when given)
+            raise ValueError(f'{name} must be a number, got {value!r}')
+        return float(value)
 
     try:
         config = FilterConfig(**{k: typed(k, v) for k, v in data.items()},
-                              position_noise=float(noise), stamp_noise=float(stamp))
+                              position_noise=typed('position_noise', noise),
+                              stamp_noise=typed('stamp_noise', stamp))
     except (TypeError, ValueError) as exc:
         raise DataError(f'{path or "filter config"}: {exc}') from None
     return config
