@@ -42,12 +42,16 @@ def _folder(tmp_path, files):
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20)),
       'index.csv': 'file,wx,wy,wz\na.csv,0,3000,0\n'},
      'index.csv: line 2: spin 3000 rad/s is above 1500 rad/s: not a table-tennis ball'),
+    # A track file given for its folder was 'not a readable rosbag2 bag'.
+    ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))},
+     'data/a.csv: a track file; DATA is the folder of track CSV files'),
 ], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable',
-        'spin in rpm'])
+        'spin in rpm', 'a track file'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)
     out = tmp_path / 'out'
-    code, err = _run(capsys, [str(folder), '--out', str(out)])
+    given = folder / 'a.csv' if expect.endswith('CSV files') else folder
+    code, err = _run(capsys, [str(given), '--out', str(out)])
     assert code != 0
     assert len(err) == 1 and expect in err[0] and 'Traceback' not in err[0]
     assert not out.exists()

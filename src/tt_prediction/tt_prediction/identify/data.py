@@ -305,6 +305,9 @@ def load(paths, topic=None):
     for path in paths:
         if not os.path.exists(path):
             raise DataError(f'{path}: no such file or folder')
+        if os.path.isfile(path) and path.lower().endswith('.csv'):
+            raise DataError(f'{path}: a track file; DATA is the folder of track CSV files '
+                            '(with its index.csv) or a rosbag2 bag')
         is_bag = os.path.isfile(path) or any(
             f == 'metadata.yaml' or f.endswith(('.mcap', '.db3')) for f in os.listdir(path))
         tracks.extend(load_bag(path, topic) if is_bag else load_folder(path))
