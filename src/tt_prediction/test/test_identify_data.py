@@ -76,6 +76,18 @@ def test_a_byte_order_mark_and_the_columns_in_another_order_read_the_same(tmp_pa
     assert np.array_equal(b[0].spin, (1.0, 2.0, 3.0))
 
 
+def test_an_empty_cell_is_a_value_not_measured_and_its_row_is_dropped(tmp_path):
+    # pandas writes NaN as an empty cell; such a row counts as a non-finite one (it was
+    # refused: "'' is not a number").
+    t = np.arange(20) * 0.01
+    rows = [f'{ti},{1.0 - 5 * ti},0.1,0.3' for ti in t]
+    rows[7] = f'{t[7]},,0.1,0.3'
+    folder = _folder(tmp_path, {'a.csv': 't,x,y,z\n' + '\n'.join(rows) + '\n'})
+    track = load([str(folder)])[0]
+    assert len(track.t) == 19 and 0.07 not in track.t
+    assert track.notes['non_finite_rows'] == 1
+
+
 def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys,
                                                                           monkeypatch):
     # The report replaces its folder as a whole: --out as the data folder, its parent or a

@@ -133,6 +133,10 @@ def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
 
 @pytest.mark.parametrize('content, what', [
     ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
+    # A control character is shown escaped, not written raw to the terminal.
+    ('t,x,y,z\n0.0,1.0,0.0,a\x00b\n', "'a\\x00b' is not a number"),
+    # Two columns of one name: the first was taken without a word.
+    ('t,x,y,z,x\n0.0,1.0,0.0,0.3,2.0\n', "header names the column 'x' 2 times"),
     ('a,b,c\n1,2,3\n', "header must name the columns 't,x,y,z'"),
     (b'\xff\xfe\x00bad', 'not a text CSV file'),
     # Milliseconds: 150 Hz samples 6.7 ms apart, a ball at 4.5 m/s.

@@ -89,12 +89,17 @@ def _read_csv(path):
 
 def read_track_csv(path):
     """Read one trajectory CSV (header ``t,x,y,z``, then any other columns; the four may
-    come in any order) into ``(t, p)``."""
+    come in any order) into ``(t, p)``. An empty cell is a value not measured (NaN, as pandas
+    writes it): its row is dropped later with the other non-finite ones."""
     header, rows = _read_csv(path)
     need = ('t', 'x', 'y', 'z')
     if not set(need) <= set(header):
         raise DataError(f"{path}: header must name the columns 't,x,y,z', "
                         f"got '{','.join(header)}'")
+    twice = [name for name in need if header.count(name) > 1]
+    if twice:
+        raise DataError(f"{path}: header names the column '{twice[0]}' {header.count(twice[0])} "
+                        'times: which one is meant?')
     cols = [header.index(name) for name in need]
     values = np.empty((len(rows), 4))
     for i, row in enumerate(rows):
@@ -102,11 +107,12 @@ def read_track_csv(path):
             raise DataError(f'{path}: line {i + 2} has {len(row)} columns, expected '
                             f'{max(cols) + 1}')
         for j, col in enumerate(cols):
+            cell = row[col].strip()
             try:
-                values[i, j] = float(row[col])
+                values[i, j] = float(cell) if cell else math.nan
             except ValueError:
                 raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
-                                f"'{row[col]}' is not a number") from None
+                                f'{cell!r} is not a number') from None
     reason = (position_error(values[:, 1:4], 'x, y, z')     # e.g. millimetres, not metres
               or time_error(values[:, 0]) or sample_time_error(values[:, 0]))
     if reason:
