@@ -231,10 +231,12 @@ def test_bad_and_stale_states_publish_nothing(graph):
     assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == 2
 
 
-def test_a_bad_covariance_still_gives_the_prediction(graph):
+@pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9))], ids=['negative', 'all zeros'])
+def test_a_bad_covariance_still_gives_the_prediction(graph, cov):
+    # All zeros is a publisher's 'unknown' (BallState): propagated, it gave a hit covariance
+    # of 1e-32 m^2 that strike_node took as a known, exact position.
     t0 = T0
-    publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000,
-                                               cov=-np.eye(9)),
+    publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000, cov=cov),
                   lambda: graph.node.n_bad_covariance >= 1 and len(graph.predictions) >= 2,
                   'the covariance to be rejected')
     for out in graph.predictions:

@@ -310,6 +310,8 @@ class PredictionNode(Node):
         """Uncertainty worker: the track's zone probabilities and hit covariance."""
         track, state, cov, plane_x, bounced = request
         try:
+            if not np.any(cov):         # BallState's 'unknown', not an exactly known state
+                raise ValueError('all zeros (unknown)')
             track.uncertainty = predict_uncertainty(state, cov, self.packed, 0.0, plane_x,
                                                     bounced=bounced)
         except ValueError as exc:
