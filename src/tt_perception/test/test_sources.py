@@ -57,9 +57,11 @@ def test_a_pattern_matching_no_image_is_one_line_without_ffmpeg_log(tmp_path, ca
     # FFmpeg's image2 demuxer logs '[image2 @ 0x...] Could find no file ...' on the process's
     # stderr before OpenCV says the capture is not open; the user is told once, by the error.
     pattern = str(tmp_path / 'frame%04d.png')
-    with pytest.raises(OSError, match='cannot be opened as a video or image sequence'):
+    with pytest.raises(OSError, match='no image matches the pattern'):
         VideoFileSource(pattern, 100.0).open()
     assert '[image2' not in capfd.readouterr().err
+    cv2.imwrite(str(tmp_path / 'frame0003.png'), np.zeros((6, 8, 3), np.uint8))
+    assert VideoFileSource(pattern, 100.0).open().read()[1].shape == (6, 8, 3)
 
 
 def test_scene_videos_are_read_back_camera_by_camera(tmp_path):

@@ -63,6 +63,16 @@ class FrameSource:
         pass
 
 
+def _sequence_starts(pattern):
+    """Whether the printf pattern of an image sequence (``cam0/%06d.png``) names a file at
+    one of the indices 0 to 4, where FFmpeg's image2 reader looks for the first image; True
+    for a pattern Python cannot expand (left to FFmpeg)."""
+    try:
+        return any(os.path.isfile(pattern % i) for i in range(5))
+    except (TypeError, ValueError):
+        return True
+
+
 class VideoFileSource(FrameSource):
     """A video file or an image sequence (printf pattern or a directory of images)."""
 
@@ -88,9 +98,10 @@ class VideoFileSource(FrameSource):
                                     + os.path.splitext(names[0])[1])
         elif '%' not in path and not os.path.isfile(path):
             raise OSError(f'{path}: no such video file')
-        # FFmpeg's own log lines ('[image2 @ 0x...] Could find no file ...') would come before
-        # the one-line error below and say the same; quiet unless the user asked for them.
-        os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
+        elif '%' in path and not _sequence_starts(path):
+            # Checked here: FFmpeg would log '[image2 @ 0x...] Could find no file ...' on
+            # stderr before the one-line error below.
+            raise OSError(f'{path}: no image matches the pattern (first index 0 to 4)')
         self.capture = cv2.VideoCapture(path)
         if not self.capture.isOpened():
             raise OSError(f'{path}: cannot be opened as a video or image sequence')
