@@ -78,6 +78,7 @@ def load_filter_config(path, tracks):
             est_noise, est_stamp = FilterConfig.position_noise, FilterConfig.stamp_noise
         noise = est_noise if noise == 'auto' else noise
         stamp = est_stamp if stamp == 'auto' else stamp
+
     def number(value):
         """Whether ``value`` is a number; PyYAML reads 1e-3 (no dot) as a string."""
         if isinstance(value, str):

@@ -55,7 +55,8 @@ def test_cylinder_contains_by_distance_to_its_axis(tmp_path):
     (lambda d: d['workspace']['box'].update(x=[-2100, -1450]),
      "'workspace.box.x' must be within [-10, 10] m, got -2100 (metres, not millimetres?)"),
     (lambda d: d['workspace'].update(min_time_before_hit=150),
-     "'workspace.min_time_before_hit' must be within [0, 2] s"),
+     "'workspace.min_time_before_hit' must be within [0, 2] s, got 150 (seconds, not "
+     'milliseconds?)'),
     (lambda d: d['workspace'].update(max_racket_speed=8000),
      "'workspace.max_racket_speed' must be within [0.1, 30] m/s, got 8000"),
     (lambda d: d['workspace'].update(max_racket_sped=8.0),

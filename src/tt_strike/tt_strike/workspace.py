@@ -117,9 +117,12 @@ def _known(mapping, known, path):
         raise WorkspaceError(f"unknown key '{name}' (known: {', '.join(known)})")
 
 
-def _number(value, key, positive=False, non_negative=False, bounds=None, unit='m'):
+_UNIT_HINTS = {'m': ' (metres, not millimetres?)', 's': ' (seconds, not milliseconds?)'}
+
+
+def _number(value, key, positive=False, bounds=None, unit='m'):
     """The float of ``value`` (key ``key``); ``bounds``: (lo, hi) it must lie within, in
-    ``unit`` (a length: within the room, metres and not millimetres)."""
+    ``unit`` (default: a length within the room)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise WorkspaceError(f"key '{key}' must be a number, got {value!r}")
     value = float(value)
@@ -127,13 +130,11 @@ def _number(value, key, positive=False, non_negative=False, bounds=None, unit='m
         raise WorkspaceError(f"key '{key}' is not a finite number: {value}")
     if positive and value <= 0.0:
         raise WorkspaceError(f"key '{key}' must be positive, got {value}")
-    if non_negative and value < 0.0:
-        raise WorkspaceError(f"key '{key}' must not be negative, got {value}")
     lo, hi = bounds or (-ROOM_HALF_EXTENT_M, ROOM_HALF_EXTENT_M)
     if not lo <= value <= hi:
+        hint = _UNIT_HINTS.get(unit, '') if abs(value) > hi else ''   # a thousand times
         raise WorkspaceError(f"key '{key}' must be within [{lo:g}, {hi:g}] {unit}, got "
-                             f'{value:g}' + (' (metres, not millimetres?)' if unit == 'm'
-                                             else ''))
+                             f'{value:g}{hint}')
     return value
 
 
@@ -156,7 +157,7 @@ def parse_workspace(data):
                     bounds=MAX_RACKET_SPEED_RANGE, unit='m/s')
     min_time = _number(_get(ws, 'min_time_before_hit', 'workspace'),
                        'workspace.min_time_before_hit', bounds=MIN_TIME_BEFORE_HIT_RANGE,
-                       unit='s (seconds, not milliseconds?)')
+                       unit='s')
     # Both shapes' keys may stay in a file: 'shape' picks one.
     _known(ws, ('shape', 'box', 'cylinder', 'max_racket_speed', 'min_time_before_hit'),
            'workspace')
