@@ -213,22 +213,44 @@ def test_bad_and_stale_states_publish_nothing(graph):
         graph.state([1.0, 0.0, 0.3, 0, 0, 0, 0, 0, 0]),               # at rest
         graph.state(GOOD, stamp_ns=T0 - stale_ns - 1_000),            # older than stale_after_s
         graph.state(GOOD, stamp_ns=T0 - 3 * stale_ns),
+        # More than MAX_LEAD_S (1 s) ahead of the clock: the clocks disagree (such a state
+        # was predicted and struck 100 s ahead).
+        graph.state(GOOD, stamp_ns=T0 + 1_000_001_000, track_id=4),
     ]
-    # As old as stale_after_s, not older: kept; and a state stamped at the clock's time.
+    # As old as stale_after_s, not older: kept; and a state stamped at the clock's time; and
+    # one 1 s ahead.
     good = [graph.state(GOOD, stamp_ns=T0 - stale_ns + 1_000, track_id=2),
-            graph.state(GOOD, track_id=3)]
+            graph.state(GOOD, track_id=3),
+            graph.state(GOOD, stamp_ns=T0 + 999_999_000, track_id=5)]
     for k, msg in enumerate(bad + good):     # one at a time: the QoS keeps the last 5 only
         graph.pub.publish(msg)
         graph.spin_until(lambda k=k: graph.node.n_received == k + 1, 10.0, f'state {k}')
-    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'the good states')
+    graph.spin_until(lambda: len(graph.predictions) == len(good), 10.0, 'the good states')
     # Messages of one publisher arrive in order: anything for the bad ones would come first.
     assert [p.header.stamp for p in graph.predictions] == [m.header.stamp for m in good]
-    assert graph.node.n_dropped == len(bad) and graph.node.n_predicted == 2
+    assert graph.node.n_dropped == len(bad) and graph.node.n_predicted == len(good)
     # The clock moves on: the same state is now too old.
     graph.set_clock(T0 + stale_ns)
     graph.pub.publish(good[0])
-    graph.spin_until(lambda: graph.node.n_received == len(bad) + 3, 10.0, 'the late state')
-    assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == 2
+    graph.spin_until(lambda: graph.node.n_received == len(bad + good) + 1, 10.0,
+                     'the late state')
+    assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == len(good)
+
+
+def test_a_track_id_used_again_by_a_later_ball_is_a_new_track(graph):
+    # perception_node numbers its tracks from 1 again when it restarts: the node remembered
+    # the first ball's bounce as past and predicted the new ball as after it (double_bounce,
+    # no hit point: no stroke). The same state 2 s later gives the same prediction.
+    first = graph.state(GOOD)
+    graph.pub.publish(first)
+    graph.spin_until(lambda: len(graph.predictions) == 1, 10.0, 'the first prediction')
+    graph.set_clock(T0 + 2_000_000_000)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + 2_000_000_000))
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'the second prediction')
+    a, b = graph.predictions
+    assert a.status == b.status == 'ok' and a.hit_valid and b.hit_valid
+    assert ns(b.hit_time) - ns(a.hit_time) == 2_000_000_000
+    assert (b.hit_point.y, b.hit_point.z) == (a.hit_point.y, a.hit_point.z)
 
 
 @pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9))], ids=['negative', 'all zeros'])

@@ -41,6 +41,14 @@ STATE_QUEUE_DEPTH = 100
 """States kept for the callback (best effort): a replay publishes in bursts."""
 MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each)."""
+MAX_LEAD_S = 1.0
+"""A state stamped further ahead of the node clock is dropped (with stale_after_s > 0), s:
+its clock and the node's disagree, and the hit time it gives would be as far off."""
+TRACK_GAP_S = 1.0
+"""A state of a remembered track id stamped this much after the track's last state (or
+before it) starts the track afresh, s: it is another ball (perception restarted, its ids
+from 1 again; a replay started over). Perception ends a track after 0.2 s without the ball;
+a ball flies from the opponent's racket to the robot's in under a second."""
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -58,7 +66,8 @@ PARAMETERS = (
           'predictions each); in between the last result of the track is reused; 0: every '
           'state', 'Hz', 0.0, 2000.0),
     Param('stale_after_s', 0.5, 'drop states whose stamp is older than this against the node '
-          'clock (the clock of the recording with use_sim_time); 0: never drop', 's',
+          'clock (the clock of the recording with use_sim_time), or more than 1 s ahead of it; '
+          '0: never drop', 's',
           0.0, 60.0),
     Param('path_rate_hz', 10.0, 'highest rate of /ball/predicted_path (and markers); 0: every '
           'state (built in a worker thread: a busy worker skips states)', 'Hz', 0.0, 2000.0),
@@ -71,13 +80,14 @@ PARAMETERS = (
 class _Track:
     """What the node remembers of one track: its predicted bounce and last uncertainty."""
 
-    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns')
+    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns')
 
     def __init__(self):
         self.bounce = None
         self.bounce_ns = None
         self.uncertainty = None
         self.uncertainty_ns = None
+        self.last_ns = None
 
 
 class _LatestWorker:
@@ -199,19 +209,30 @@ class PredictionNode(Node):
         now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
         if now_ns:          # 0: use_sim_time and no /clock yet, nothing to compare with
             age = (now_ns - stamp_ns) * 1e-9
-            if self.time_base(stamp_ns * 1e-9, now_ns * 1e-9) and age > stale:
-                self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
-                return
+            if self.time_base(stamp_ns * 1e-9, now_ns * 1e-9):
+                if age > stale:
+                    self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
+                    return
+                if -age > MAX_LEAD_S:
+                    self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
+                               f'{MAX_LEAD_S:g} s): the clocks disagree')
+                    return
         p, v, w = msg.position, msg.velocity, msg.spin
         if max(abs(p.x), abs(p.y), abs(p.z)) > ROOM_HALF_EXTENT_M:
             self._drop(position_error((p.x, p.y, p.z), 'position'))
             return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
         track = self.tracks.get(msg.track_id)
+        # The longest gap between two states of one track: TRACK_GAP_S, or max_rate_hz's.
+        gap_ns = (TRACK_GAP_S + (1.0 / self.p.max_rate_hz if self.p.max_rate_hz else 0.0)) * 1e9
+        if track is not None and not 0 <= stamp_ns - track.last_ns <= gap_ns:
+            del self.tracks[msg.track_id]           # another ball under a used id
+            track = None
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:
                 self.tracks.pop(next(iter(self.tracks)))
             track = self.tracks[msg.track_id] = _Track()
+        track.last_ns = stamp_ns
         plane_x = self.p.hit_plane_x
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
