@@ -198,11 +198,17 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
             msg = prediction_msg(track)
             msg.hit_covariance = cov
             g.pub.publish(msg)
-        g.spin_until(lambda: g.node.n_received == 3, 10.0, 'the three bad predictions')
-        assert g.node.n_dropped == 3 and g.commands == []
+        # A hit before the state it was predicted from (hit_time 0 was struck 'ok', and the
+        # time-base warning blamed the stamp).
+        early = prediction_msg(6)
+        early.hit_time.sec, early.hit_time.nanosec = 0, 0
+        g.pub.publish(early)
+        g.spin_until(lambda: g.node.n_received == 4, 10.0, 'the four bad predictions')
+        assert g.node.n_dropped == 4 and g.commands == []
         assert reasons[0].startswith('hit_covariance is not symmetric (')
         assert reasons[1] == 'hit_covariance is not positive semi-definite (eigenvalue -1e-06)'
         assert reasons[2] == 'hit_covariance is not finite'
+        assert reasons[3] == 'hit_time precedes header.stamp (the state it was predicted from)'
         # All zeros (unknown: the position taken as exact), and an asymmetry of rounding,
         # are taken.
         zeros, rounded = prediction_msg(4), prediction_msg(5)
@@ -215,7 +221,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         g.spin_until(lambda: len(g.commands) == 2, 20.0, 'two commands')
         for cmd, msg in zip(g.commands, (zeros, rounded), strict=True):
             check_command(cmd, msg, 5)
-        assert g.node.n_dropped == 3
+        assert g.node.n_dropped == 4
     finally:
         g.close()
 

@@ -265,6 +265,9 @@ class StrikeNode(Node):
         if not np.all(np.isfinite(state)):
             self._drop('hit point, velocity or spin is not finite')
             return
+        if to_ns(msg.hit_time) < to_ns(msg.header.stamp):
+            self._drop('hit_time precedes header.stamp (the state it was predicted from)')
+            return
         try:       # zeros (unknown): the position taken as exact, only v and w uncertain
             check_covariance(np.array(msg.hit_covariance, dtype=float).reshape(3, 3),
                              'hit_covariance')
