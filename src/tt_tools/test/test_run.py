@@ -65,6 +65,22 @@ def test_an_invalid_topic_name_is_one_line_without_rcl_source_location():
     assert err.count('\n') == 1 and '.c:' not in err
 
 
+@pytest.mark.parametrize('argv, line', [
+    # These were tracebacks (rclpy's InvalidTopicNameException, InvalidServiceNameException).
+    (['topic', 'pub', '/ball/state/', 'tt_msgs/msg/BallState', '{}', '--once', '-w', '0'],
+     "ros2 topic: Invalid topic name: topic name must not end with a forward slash: "
+     "'/ball/state/'"),
+    (['param', 'list', 'bad node'],
+     "ros2 param: node name 'bad node' is invalid: a name must not contain characters other "
+     "than alphanumerics, '_', or '/'"),
+    (['param', 'get', '/x//y', 'foo'],
+     "ros2 param: node name '/x//y' is invalid: a name must not contain repeated '/'"),
+])
+def test_an_invalid_node_or_topic_name_is_one_line(argv, line):
+    rc, out, err = ros2(*argv)
+    assert (rc, out, err) == (1, '', line + '\n')
+
+
 def test_run_execs_the_installed_executable_with_its_arguments(tmp_path):
     prefix = _fake_prefix(tmp_path, 'demo_pkg', {'talker': 0o755})
     env = {'AMENT_PREFIX_PATH': str(prefix)}

@@ -23,7 +23,7 @@ from tt_tools.output import say, write
 from tt_tools.rosutil import (
     LATE_NODE_S,
     CliNode,
-    absolute_name,
+    absolute_node_name,
     add_spin_time_argument,
     node_names,
 )
@@ -162,7 +162,7 @@ def _describe(cli, node_name, names, args):
 def param_list(args):
     with CliNode('param_list') as cli:
         if args.node_name:
-            nodes = [absolute_name(args.node_name)]
+            nodes = [absolute_node_name(args.node_name)]
             clients = {nodes[0]: _client(cli, nodes[0], ListParameters, args)}
             if clients[nodes[0]] is None:
                 return 0
@@ -210,7 +210,7 @@ def format_value(value):
 
 
 def param_get(args):
-    node_name = absolute_name(args.node_name)
+    node_name = absolute_node_name(args.node_name)
     with CliNode('param_get') as cli:
         values = _get_values(cli, node_name, [args.parameter_name], args)
     if values is None:
@@ -247,7 +247,7 @@ def parse_value(text, declared_type=None):
 
 
 def param_set(args):
-    node_name = absolute_name(args.node_name)
+    node_name = absolute_node_name(args.node_name)
     pairs = args.params_and_values
     if len(pairs) % 2:
         raise ValueError('parameters must be given as name value pairs: '
@@ -299,7 +299,7 @@ def format_descriptor(descriptor):
 
 
 def param_describe(args):
-    node_name = absolute_name(args.node_name)
+    node_name = absolute_node_name(args.node_name)
     with CliNode('param_describe') as cli:
         descriptors = _describe(cli, node_name, args.parameter_names, args)
     if descriptors is None:
@@ -322,7 +322,7 @@ def nest(names_values):
 
 
 def param_dump(args):
-    node_name = absolute_name(args.node_name)
+    node_name = absolute_node_name(args.node_name)
     with CliNode('param_dump') as cli:
         client = _client(cli, node_name, ListParameters, args)
         if client is None:

@@ -118,6 +118,14 @@ def _keep_stdout_for_output():
     sys.stdout = os.fdopen(out, 'w', buffering=1, encoding=sys.stdout.encoding or 'utf-8')
 
 
+def _one_line(exc):
+    """``exc``'s message on one line: rcl's source file and line left out; a name check's
+    three lines (what is wrong, the name, a caret under the fault) as 'what: name'."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip() and ln.strip() != '^']
+    text = ': '.join([lines[0].rstrip(':'), *lines[1:2]]) if lines else type(exc).__name__
+    return re.sub(r', at [^ ]+:[0-9]+$', '', text)
+
+
 def _main(argv):
     from tt_tools.run import RunError
 
@@ -130,16 +138,16 @@ def _main(argv):
         return 0
     errors = (RunError, ValueError, OSError)
     if not only_run:  # ``ros2 run`` raises no BagError: it skips importing rosbags (0.15 s)
+        from rclpy.exceptions import NameValidationException
         from tt_ros.bagfile import BagError
 
-        errors += (BagError,)
+        errors += (BagError, NameValidationException)
     try:
         return args.func(args)
     except BrokenPipeError:
         raise
     except errors as exc:  # bad input: one line (without rcl's source file and line)
-        print(f"ros2 {args.verb}: {re.sub(r', at [^ ]+:[0-9]+$', '', str(exc))}",
-              file=sys.stderr)
+        print(f'ros2 {args.verb}: {_one_line(exc)}', file=sys.stderr)
     except KeyError as exc:  # an unknown message field
         print(f'ros2 {args.verb}: {exc.args[0]}', file=sys.stderr)
     return 1

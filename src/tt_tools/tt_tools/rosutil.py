@@ -216,6 +216,21 @@ def absolute_name(name):
 
 
 
+def absolute_node_name(name):
+    """:func:`absolute_name` of a node's name from the command line; ValueError (one line)
+    for one no node can have (a node's full name follows a topic name's rules)."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+
+    full = absolute_name(name)
+    try:
+        validate_full_topic_name(full)
+    except InvalidTopicNameException as exc:
+        why = str(exc).splitlines()[0].split(': ', 1)[-1].replace('topic name', 'a name')
+        raise ValueError(f"node name '{name}' is invalid: {why.rstrip(':')}") from None
+    return full
+
+
 def node_full_name(name, ns):
     """``'/ns/name'`` of a node ``name`` in namespace ``ns`` (``'/name'`` in ``'/'``)."""
     return f'{ns.rstrip("/")}/{name}'
