@@ -29,14 +29,16 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidTopicNameException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
 from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
-from tt_ros.executor import run_node
+from tt_ros.executor import StartupError, run_node
 from tt_ros.messages import set_time, set_xyz
 from tt_ros.parameters import Param, Parameters
 
@@ -188,22 +190,28 @@ class PerceptionNode(Node):
         return self.p[name]
 
     def _setup(self):
+        """The rig, model and sources; StartupError (one line, exit 2, as the other nodes) for
+        an empty or bad rig_file, a bad model_file or a topic name no ROS topic can have."""
         rig_file = self._p('rig_file')
         if not rig_file:
-            self.get_logger().error('parameter rig_file is empty: no cameras, no state')
-            return
+            raise StartupError('rig_file is empty: give the rig (-p rig_file:=RIG.yaml, or '
+                               'bringup --rig RIG.yaml)')
         try:
             rig = load_rig(rig_file, min_cameras=2)
         except CalibrationError as exc:
-            self.get_logger().error(f'{exc}; no state will be published')
-            return
+            raise StartupError(str(exc)) from None
         try:
             params = load_model(self._p('model_file') or None)
         except Exception as exc:       # the model loader's own errors (file, YAML, values)
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            self.get_logger().error(f'model_file {self._p("model_file")}: {first}; no state '
-                                    'will be published')
-            return
+            raise StartupError(f'model_file: {first}') from None
+        for cam in rig.cameras:
+            if source_kind(cam.source) == 'topic':
+                _check_topic(cam.source, f'rig {rig_file}: camera {cam.name}: source '
+                             f'{cam.source!r} is no video file, image sequence or V4L2 device '
+                             'and')
+        if self._p('measured_spin_topic'):
+            _check_topic(self._p('measured_spin_topic'), 'measured_spin_topic')
         colour = self._p('ball_colour')
         detector = DetectorConfig(
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
@@ -507,6 +515,15 @@ class PerceptionNode(Node):
                 thread.join(timeout=2.0)
         self._exit.close()
         return super().destroy_node()
+
+
+def _check_topic(name, what):
+    """StartupError '<what> is not a valid topic name: <why>' for a name no topic can have."""
+    try:
+        validate_full_topic_name(name if name.startswith('/') else '/' + name)
+    except InvalidTopicNameException as exc:
+        why = str(exc).splitlines()[0].split(': ', 1)[-1].rstrip(':')
+        raise StartupError(f'{what} is not a valid topic name: {why}') from None
 
 
 def main(args=None):

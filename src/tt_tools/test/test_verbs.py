@@ -2,6 +2,7 @@
 what they wait for, a closed pipe, and list/info under load: each verb against live nodes."""
 
 import os
+import pathlib
 import signal
 import subprocess
 import sys
@@ -272,6 +273,19 @@ def test_pkg_executables():
     rc, out, _ = ros2('pkg', 'executables')
     assert rc == 0 and {'tt_tools ros2', 'tt_strike strike_node'} <= set(out.splitlines())
     rc, out, err = ros2('pkg', 'executables', 'no_such_pkg')
+    assert rc == 1 and error_lines(err) == ["ros2 pkg: Package 'no_such_pkg' not found"]
+
+
+def test_pkg_prefix_finds_the_shipped_configs():
+    # The shipped configs' own comments name $(ros2 pkg prefix tt_tools)/share/...: the verb
+    # was missing ('invalid choice').
+    rc, out, err = ros2('pkg', 'prefix', 'tt_tools')
+    assert rc == 0, err
+    config = pathlib.Path(out.strip(), 'share', 'tt_tools', 'config')
+    assert (config / 'robot.yaml').is_file() and (config / 'replay.yaml').is_file()
+    rc, share, _ = ros2('pkg', 'prefix', '--share', 'tt_tools')
+    assert rc == 0 and share.strip() == str(config.parent)
+    rc, out, err = ros2('pkg', 'prefix', 'no_such_pkg')
     assert rc == 1 and error_lines(err) == ["ros2 pkg: Package 'no_such_pkg' not found"]
 
 

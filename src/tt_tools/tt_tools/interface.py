@@ -9,7 +9,7 @@ type, that type's definition indented by one tab per level (without its comments
 import os
 
 from rosidl_adapter.parser import parse_message_string
-from tt_ros.index import interface_file, packages
+from tt_ros.index import interface_file, package_prefix, packages
 
 from tt_tools.output import write
 from tt_tools.run import RunError, executables
@@ -92,13 +92,24 @@ def pkg_executables(args):
     return 0
 
 
+def pkg_prefix(args):
+    """``ros2 pkg prefix PACKAGE``: the install prefix of an indexed package (``--share``:
+    its share folder), as ros2cli prints it."""
+    prefix = package_prefix(args.package)
+    if prefix is None:
+        raise ValueError(f"Package '{args.package}' not found")
+    write((os.path.join(prefix, 'share', args.package) if args.share else prefix) + '\n')
+    return 0
+
+
 def pkg_list(args):
     write(''.join(name + '\n' for name in packages()))
     return 0
 
 
 def add_arguments(interface_sub, pkg_sub):
-    """Register ``interface show`` and ``pkg executables | list`` on argparse sub-parsers."""
+    """Register ``interface show`` and ``pkg executables | list | prefix`` on argparse
+    sub-parsers."""
     p = interface_sub.add_parser('show', help='print the definition of a msg, srv or action')
     p.add_argument('type', help="interface name, e.g. 'tt_msgs/msg/BallState'")
     group = p.add_mutually_exclusive_group()
@@ -114,3 +125,8 @@ def add_arguments(interface_sub, pkg_sub):
 
     p = pkg_sub.add_parser('list', help='print the packages of the ament index')
     p.set_defaults(func=pkg_list)
+
+    p = pkg_sub.add_parser('prefix', help='print the install prefix of a package')
+    p.add_argument('package', help='the package, e.g. tt_tools')
+    p.add_argument('--share', action='store_true', help='its share folder instead')
+    p.set_defaults(func=pkg_prefix)
