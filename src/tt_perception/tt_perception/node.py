@@ -29,10 +29,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidTopicNameException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.validate_full_topic_name import validate_full_topic_name
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
@@ -40,6 +38,7 @@ from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.executor import StartupError, run_node
 from tt_ros.messages import set_time, set_xyz
+from tt_ros.names import name_error
 from tt_ros.parameters import Param, Parameters
 
 from tt_msgs.msg import BallState
@@ -519,11 +518,9 @@ class PerceptionNode(Node):
 
 def _check_topic(name, what):
     """StartupError '<what> is not a valid topic name: <why>' for a name no topic can have."""
-    try:
-        validate_full_topic_name(name if name.startswith('/') else '/' + name)
-    except InvalidTopicNameException as exc:
-        why = str(exc).splitlines()[0].split(': ', 1)[-1].rstrip(':')
-        raise StartupError(f'{what} is not a valid topic name: {why}') from None
+    error = name_error(name)
+    if error:
+        raise StartupError(f'{what} is not a valid topic name: {error}')
 
 
 def main(args=None):

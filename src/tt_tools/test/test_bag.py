@@ -381,6 +381,16 @@ def test_record_to_a_place_that_takes_no_bag_is_one_line(tmp_path):
     assert note.read_text() == 'keep'
 
 
+def test_record_of_an_invalid_topic_name_makes_no_bag(tmp_path):
+    # The bag was made first (metadata.yaml and an empty .mcap left), so that the same -o
+    # given again, with the name mended, was refused: 'already exists'.
+    out = tmp_path / 'recz'
+    rc, stdout, err = ros2('bag', 'record', '-o', str(out), 'ball state')
+    assert (rc, stdout) == (1, '') and not out.exists()
+    assert err == ("ros2 bag: topic name '/ball state' is invalid: a name must not contain "
+                   "characters other than alphanumerics, '_', or '/'\n")
+
+
 def test_foreign_paths_are_one_line_errors(tmp_path):
     random_file = tmp_path / 'noise.mcap'
     random_file.write_bytes(os.urandom(4096))

@@ -7,6 +7,7 @@ import time
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
+from tt_ros.names import name_error
 
 from tt_tools.argtypes import non_negative_float, positive_float
 from tt_tools.introspect import import_message_type
@@ -29,6 +30,10 @@ def bag_info(args):
 def bag_record(args):
     if not args.all and not args.topics:
         raise BagError('give the topics to record, or -a for all')
+    for topic in args.topics:      # before the bag is made: no empty bag left behind
+        if name_error(topic):
+            raise BagError(f"topic name '{absolute_name(topic)}' is invalid: "
+                           f'{name_error(topic)}')
     wanted = {absolute_name(t) for t in args.topics}
     out = args.output or default_bag_name()
     if os.path.exists(out):

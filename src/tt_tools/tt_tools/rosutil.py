@@ -23,6 +23,7 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
+from tt_ros.names import name_error
 
 from tt_tools import stop
 from tt_tools.argtypes import positive_float
@@ -218,17 +219,11 @@ def absolute_name(name):
 
 def absolute_node_name(name):
     """:func:`absolute_name` of a node's name from the command line; ValueError (one line)
-    for one no node can have (a node's full name follows a topic name's rules)."""
-    from rclpy.exceptions import InvalidTopicNameException
-    from rclpy.validate_full_topic_name import validate_full_topic_name
-
-    full = absolute_name(name)
-    try:
-        validate_full_topic_name(full)
-    except InvalidTopicNameException as exc:
-        why = str(exc).splitlines()[0].split(': ', 1)[-1].replace('topic name', 'a name')
-        raise ValueError(f"node name '{name}' is invalid: {why.rstrip(':')}") from None
-    return full
+    for one no node can have."""
+    error = name_error(name)
+    if error:
+        raise ValueError(f"node name '{name}' is invalid: {error}")
+    return absolute_name(name)
 
 
 def node_full_name(name, ns):
