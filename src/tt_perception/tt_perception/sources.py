@@ -171,6 +171,11 @@ class V4L2Source(FrameSource):
         self._clock_offset = time.time() - time.monotonic()
 
     def open(self):
+        path = f'/dev/video{self.device}' if isinstance(self.device, int) else self.device
+        if not os.path.exists(path):
+            # Checked first: OpenCV logs its own warning for an absent device at every try
+            # (twice a second while the device is away).
+            raise OSError(f'{self.device}: no such V4L2 device')
         cap = cv2.VideoCapture(self.device, cv2.CAP_V4L2)
         if not cap.isOpened():
             cap.release()
