@@ -149,12 +149,23 @@ def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
     ({'rig_file': 'RIG', 'measured_spin_topic': 'bad topic'},
      'measured_spin_topic is not a valid topic name: '),
     ({'rig_file': 'RIG', 'model_file': '/absent/model.yaml'}, 'model_file: /absent/model.yaml'),
+    # Killed the camera thread once a device opened ('VideoWriter_fourcc() takes at most 4
+    # arguments').
+    ({'rig_file': 'RIG', 'device_fourcc': 'TOOLONG'}, "device_fourcc 'TOOLONG' is not 4 "),
+    # Stamped the frames 2 s apart a second of video: prediction dropped them as stale.
+    ({'rig_file': 'VIDEO', 'video_clock': 'wall', 'video_rate': 0.5},
+     "video_clock 'wall' needs video_rate 1: at 0.5x"),
 ])
 def test_a_bad_rig_model_or_topic_stops_the_node_at_start(graph, tmp_path, overrides, words):
     # As prediction_node and strike_node do (one line, exit 2 under ros2 run, and bringup
     # stops the graph): it logged an error, said 'ready' and exited 0 without a state.
     rig_path = synth.make_rig(str(tmp_path))
-    values = [Parameter(k, value=rig_path if v == 'RIG' else v) for k, v in overrides.items()]
+    if overrides.get('rig_file') == 'VIDEO':          # a rig of video files
+        small = synth.make_rig(str(tmp_path / 'small'), 64, 48, 100.0)
+        frames = [(None, k, np.zeros((48, 64, 3), np.uint8)) for _ in range(2) for k in (0, 1)]
+        rig_path = synth.write_scene(str(tmp_path / 'video'), small, frames, None)
+    values = [Parameter(k, value=rig_path if v in ('RIG', 'VIDEO') else v)
+              for k, v in overrides.items()]
     with pytest.raises(StartupError, match=words):
         PerceptionNode(context=graph.context, parameter_overrides=values)
 

@@ -108,11 +108,13 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      0.05, 60),
     ('device_width', 640, 'V4L2 frame width', 'pixels', 16, 8192),
     ('device_height', 480, 'V4L2 frame height', 'pixels', 16, 8192),
-    ('device_fourcc', 'MJPG', 'V4L2 pixel format (FOURCC, e.g. MJPG or YUYV)'),
+    ('device_fourcc', 'MJPG', "V4L2 pixel format (FOURCC: 4 characters, e.g. MJPG or YUYV; "
+     "empty: the driver's)"),
     ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
      -1, 100000),
     ('video_clock', 'video', "Stamps of video-file frames: 'video' (s from the first frame) or "
-     "'wall' (the wall-clock time the paced frame is exposed, as a live camera's)", '', None,
+     "'wall' (the wall-clock time the paced frame is exposed, as a live camera's; needs "
+     'video_rate 1)', '', None,
      None, ('video', 'wall')),
     ('frame_queue', 8, 'Frames queued per camera for processing; beyond, the oldest is '
      'dropped (counted)', '', 2, 1000),
@@ -211,6 +213,15 @@ class PerceptionNode(Node):
                              'and')
         if self._p('measured_spin_topic'):
             _check_topic(self._p('measured_spin_topic'), 'measured_spin_topic')
+        fourcc = self._p('device_fourcc')
+        if fourcc and (len(fourcc) != 4 or not fourcc.isascii()):
+            raise StartupError(f"device_fourcc '{fourcc}' is not 4 characters (e.g. MJPG, "
+                               "YUYV; empty: the driver's format)")
+        if (self._p('video_clock') == 'wall' and self._p('video_rate') != 1.0
+                and any(source_kind(c.source) == 'file' for c in rig.cameras)):
+            raise StartupError(f"video_clock 'wall' needs video_rate 1: at "
+                               f"{self._p('video_rate'):g}x the wall clock would stretch the "
+                               "ball's flight (video_clock 'video' keeps the video's time)")
         colour = self._p('ball_colour')
         detector = DetectorConfig(
             diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
