@@ -81,6 +81,17 @@ def test_an_invalid_node_or_topic_name_is_one_line(argv, line):
     assert (rc, out, err) == (1, '', line + '\n')
 
 
+@pytest.mark.parametrize('argv', [['bag', 'record', '--qos-depth', '-2', '/x'],
+                                  ['bag', 'play', '--qos-depth', '0', 'bag'],
+                                  ['topic', 'echo', '--qos-depth', '0', '/x']])
+def test_a_queue_depth_below_one_is_a_usage_error(argv):
+    # -2 was taken by bag record (rclpy then raised, or kept nothing).
+    rc, out, err = ros2(*argv)
+    assert (rc, out) == (2, '')
+    assert err.strip().splitlines()[-1].endswith(
+        f'argument --qos-depth: {argv[3]} is not an integer >= 1')
+
+
 def test_run_execs_the_installed_executable_with_its_arguments(tmp_path):
     prefix = _fake_prefix(tmp_path, 'demo_pkg', {'talker': 0o755})
     env = {'AMENT_PREFIX_PATH': str(prefix)}

@@ -9,7 +9,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 from tt_ros.names import name_error
 
-from tt_tools.argtypes import non_negative_float, positive_float
+from tt_tools.argtypes import non_negative_float, positive_float, positive_int
 from tt_tools.introspect import import_message_type
 from tt_tools.rosutil import CliNode, absolute_name, qos_from_bag, qos_matching, qos_to_bag
 
@@ -183,7 +183,7 @@ def add_arguments(bag_sub):
     p.add_argument('-o', '--output', help='bag directory (default rosbag2_<date>-<time>)')
     p.add_argument('-s', '--storage', choices=sorted(STORAGES), default='mcap',
                    help='storage format (default mcap)')
-    p.add_argument('--qos-depth', type=int, default=None,
+    p.add_argument('--qos-depth', type=positive_int, default=None,
                    help='subscription history depth (default: keep all, nothing dropped)')
     p.set_defaults(func=bag_record)
 
@@ -202,7 +202,7 @@ def add_arguments(bag_sub):
     p.add_argument('--clock', type=positive_float, nargs='?', const=40.0, default=None,
                    metavar='HZ',
                    help='publish the bag time on /clock at HZ (default 40 when given)')
-    p.add_argument('--qos-depth', type=int, default=100, help='publisher queue depth')
+    p.add_argument('--qos-depth', type=positive_int, default=100, help='publisher queue depth')
     p.set_defaults(func=bag_play)
 
     p = bag_sub.add_parser('info', help='summary of a rosbag2 bag')

@@ -315,7 +315,7 @@ def add_arguments(topic_sub, node_sub):
                        default=durability_default,
                        help='QoS durability (default: match the publishers)'
                        if durability_default is None else 'QoS durability')
-        p.add_argument('--qos-depth', type=int, default=10, help='QoS history depth')
+        p.add_argument('--qos-depth', type=positive_int, default=10, help='QoS history depth')
 
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
