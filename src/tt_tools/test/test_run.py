@@ -81,6 +81,14 @@ def test_an_invalid_node_or_topic_name_is_one_line(argv, line):
     assert (rc, out, err) == (1, '', line + '\n')
 
 
+def test_run_without_an_executable_names_only_what_is_missing():
+    # It said 'required: executable, argv', though nothing need follow the executable.
+    rc, out, err = ros2('run', 'tt_prediction')
+    assert (rc, out) == (2, '')
+    assert err.strip().splitlines()[-1] == ('ros2 run: error: the following arguments are '
+                                            'required: executable')
+
+
 @pytest.mark.parametrize('argv', [['bag', 'record', '--qos-depth', '-2', '/x'],
                                   ['bag', 'play', '--qos-depth', '0', 'bag'],
                                   ['topic', 'echo', '--qos-depth', '0', '/x']])

@@ -40,8 +40,11 @@ def build_parser(only_run=False):
     p.add_argument('--prefix', help="prefix command, e.g. 'gdb -ex run --args'")
     p.add_argument('package')
     p.add_argument('executable')
+    # Nothing need follow the executable: argparse (before 3.13) counts a missing REMAINDER
+    # as a missing argument ('required: executable, argv').
     p.add_argument('argv', nargs=argparse.REMAINDER,
-                   help='arguments for the executable (including --ros-args ...)')
+                   help='arguments for the executable (including --ros-args ...)'
+                   ).required = False
     p.set_defaults(func=_run)
     if only_run:
         return parser
