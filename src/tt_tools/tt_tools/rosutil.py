@@ -216,7 +216,6 @@ def absolute_name(name):
     return name if name.startswith('/') else '/' + name
 
 
-
 def absolute_node_name(name):
     """:func:`absolute_name` of a node's name from the command line; ValueError (one line)
     for one no node can have."""
