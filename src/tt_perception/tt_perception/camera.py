@@ -9,12 +9,13 @@ and the field.
 """
 
 import dataclasses
+import io
 import math
 import os
-import shutil
 
 import cv2
 import numpy as np
+from tt_prediction.staged import replace_file
 from tt_prediction.units import translation_error
 import yaml
 
@@ -323,16 +324,9 @@ def set_camera_pose(path, index, R, t):
         seq = CommentedSeq(float(v) for v in values)
         seq.fa.set_flow_style()
         entry[key] = seq
-    target = os.path.realpath(path)       # a linked rig file stays a link
-    tmp = f'{target}.tmp-{os.getpid()}'
-    try:
-        with open(tmp, 'w', encoding='utf-8') as f:
-            yaml_rt.dump(data, f)
-        shutil.copymode(target, tmp)
-        os.replace(tmp, target)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    text = io.StringIO()
+    yaml_rt.dump(data, text)
+    replace_file(path, text.getvalue())
 
 
 def save_rig(path, rig):

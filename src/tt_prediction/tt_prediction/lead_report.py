@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interact
 from .ball import load_model  # noqa: E402
 from .cli import hit_plane_error  # noqa: E402
 from .replay import LEADS_MS, replay_tracks  # noqa: E402
+from .staged import replace_file  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
 
 
@@ -108,13 +109,6 @@ SECTION_BEGIN = '<!-- lead_time: written by tt_prediction.lead_report -->'
 SECTION_END = '<!-- /lead_time -->'
 
 
-def _atomic_write(path, text):
-    tmp = path + '.tmp'
-    with open(tmp, 'w') as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def report_section(result):
     """The markdown section for report.md: table, plot and a link to lead_time.md."""
     return (f'{SECTION_BEGIN}\n## Hit-point error against lead time\n\n'
@@ -133,7 +127,7 @@ def embed_in_report(report_path, section):
         text = text[:begin] + section + text[end + len(SECTION_END):].lstrip('\n')
     else:
         text = text.rstrip('\n') + '\n\n' + section
-    _atomic_write(report_path, text)
+    replace_file(report_path, text)
 
 
 def write(result, folder):
@@ -141,10 +135,10 @@ def write(result, folder):
     ``folder``/report.md when tt-identify wrote one there."""
     os.makedirs(folder, exist_ok=True)
     plot(result, os.path.join(folder, 'lead_time.png'))
-    _atomic_write(os.path.join(folder, 'lead_time.md'),
+    replace_file(os.path.join(folder, 'lead_time.md'),
                   '# Hit-point error against lead time\n\n' + table(result)
                   + '\n\n![lead time](lead_time.png)\n')
-    _atomic_write(os.path.join(folder, 'lead_time.json'), json.dumps(result, indent=2))
+    replace_file(os.path.join(folder, 'lead_time.json'), json.dumps(result, indent=2))
     report = os.path.join(folder, 'report.md')
     if os.path.isfile(report):
         embed_in_report(report, report_section(result))

@@ -1,8 +1,9 @@
 """Folders of output written all at once: a failed or interrupted run leaves nothing behind.
 
 Used by tt-identify (the report), tt-predict --tracks (the replay rows) and tt-perceive (the
-tracks); standard library only (tempfile and rename: no installable library does this one
-step).
+tracks); single files (a rig's calibrated pose, the lead-time report) by
+:func:`replace_file`; standard library only (tempfile and rename: no installable library
+does this one step).
 """
 
 import contextlib
@@ -75,6 +76,23 @@ def creatable_error(out, option='--out'):
     except OSError as exc:
         return f'{option} {out}: cannot write: {exc.strerror or exc}'
     return ''
+
+
+def replace_file(path, text):
+    """Write ``text`` to the file ``path`` all at once: into a temporary file beside it, then
+    renamed over it, so that an interrupted write leaves the old file. A link is followed (it
+    stays a link) and an existing file's mode is kept."""
+    target = os.path.realpath(path)
+    tmp = f'{target}.tmp-{os.getpid()}'
+    try:
+        with open(tmp, 'w', encoding='utf-8') as f:
+            f.write(text)
+        if os.path.exists(target):
+            shutil.copymode(target, tmp)
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 @contextlib.contextmanager

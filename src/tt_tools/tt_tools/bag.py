@@ -31,9 +31,9 @@ def bag_record(args):
     if not args.all and not args.topics:
         raise BagError('give the topics to record, or -a for all')
     for topic in args.topics:      # before the bag is made: no empty bag left behind
-        if name_error(topic):
-            raise BagError(f"topic name '{absolute_name(topic)}' is invalid: "
-                           f'{name_error(topic)}')
+        error = name_error(topic)
+        if error:
+            raise BagError(f"topic name '{absolute_name(topic)}' is invalid: {error}")
     wanted = {absolute_name(t) for t in args.topics}
     out = args.output or default_bag_name()
     if os.path.exists(out):
