@@ -374,6 +374,39 @@ def test_shipped_configs_name_only_declared_parameters():
     assert replay['perception_node']['ros__parameters']['publish_clock'] is True
 
 
+def test_show_waits_for_its_subscriptions_before_the_next_node_starts(monkeypatch):
+    # --show's subscriptions are inputs like a node's: until each one has the running node
+    # that publishes it, bringup does not start the next node (a video's first ball would
+    # go by unshown); a topic whose publishing node does not run is not waited for.
+    from tt_ros.testing import Graph
+
+    from tt_msgs.msg import StrikeCommand
+    from tt_tools import bringup
+
+    domain = unique_domain()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    show = bringup.Show()
+    graph = Graph(domain_id=domain)
+    try:
+        supervisor = bringup.Bringup(str(CONFIG / 'robot.yaml'), ['strike_node'])
+        supervisor.show = show
+        strike = supervisor.children[0]
+        strike.proc = object()                      # "running": only its name is looked at
+        strike.connected = set()
+        assert show.unconnected({'strike_node'}) == ['/strike/command']
+        assert supervisor._unconnected() == ["--show's /strike/command"]
+        assert show.unconnected({'perception_node'}) == []
+        node = graph.create_node('strike_stand_in')
+        node.create_publisher(StrikeCommand, '/strike/command', 10)
+        graph.spin_until(lambda: not show.unconnected({'strike_node'}), 30.0,
+                         "--show's /strike/command connected")
+        assert supervisor._unconnected() == []
+        assert show.unconnected({'strike_node', 'prediction_node'}) == ['/ball/prediction']
+    finally:
+        graph.close()
+        show.close()
+
+
 @pytest.mark.slow
 def test_replay_config_on_a_rig_of_video_files_strikes_every_ball(tmp_path):
     from tt_perception.camera import load_rig

@@ -21,7 +21,9 @@ prefixed with its name.
   one node also stop the graph (exit 1). The shared memory that a node killed by a signal
   leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then (:mod:`tt_ros.shm`),
   with one line.
-- ``--show`` prints one line per ball (track): the prediction and the strike command.
+- ``--show`` prints one line per ball (track): the prediction and the strike command. Its
+  subscriptions count as inputs too: the next node starts once they are connected to the
+  running nodes that publish them (a video's first ball would not be shown).
 
 The shipped files (``share/tt_tools/config``): ``robot.yaml`` (live cameras) and
 ``replay.yaml`` (video files or bags: video time on /clock, the other nodes on it).
@@ -62,6 +64,11 @@ INPUTS = {
     'prediction_node': ('/ball/state', 'perception_node'),
 }
 """Node -> (its input topic, the node that publishes it)."""
+SHOWN = {
+    '/ball/prediction': 'prediction_node',
+    '/strike/command': 'strike_node',
+}
+"""``--show``'s topics -> the node that publishes each."""
 INPUT_LINE = re.compile(r'\]: (/\S+): (connected|no publisher left)')
 """A node's log line when its input gets its first publisher or loses its last
 (tt_ros.connections)."""
@@ -190,6 +197,7 @@ class Bringup:
     def __init__(self, params_file, nodes, extra_args=None, restart_delay=1.0,
                  max_restarts=5, stop_timeout=10.0, env=None):
         self.events = queue.Queue()
+        self.show = None            # --show's Show: its subscriptions are waited for as inputs
         self.restart_delay = restart_delay
         self.max_restarts = max_restarts
         self.stop_timeout = stop_timeout
@@ -256,6 +264,8 @@ class Bringup:
             topic, producer = INPUTS.get(child.name, (None, None))
             if producer in running and topic not in child.connected:
                 late.append(f"{child.name}'s {topic}")
+        if self.show is not None:
+            late += [f"--show's {topic}" for topic in self.show.unconnected(running)]
         return late
 
     def _exited(self, child, proc):
@@ -338,10 +348,12 @@ class Show:
         self.node = rclpy.create_node('bringup_show', context=self.context)
         self.last_prediction = {}
         self.shown = set()
-        self.node.create_subscription(BallPrediction, '/ball/prediction', self._prediction,
-                                      QoSProfile(depth=100))
-        self.node.create_subscription(StrikeCommand, '/strike/command', self._command,
-                                      QoSProfile(depth=100))
+        self.subscriptions = {
+            '/ball/prediction': self.node.create_subscription(
+                BallPrediction, '/ball/prediction', self._prediction, QoSProfile(depth=100)),
+            '/strike/command': self.node.create_subscription(
+                StrikeCommand, '/strike/command', self._command, QoSProfile(depth=100)),
+        }
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -359,6 +371,12 @@ class Show:
                 if error != last_error:         # shown once in a row, and spinning goes on
                     say(f'--show: {error}')
                 last_error = error
+
+    def unconnected(self, running):
+        """The topics (:data:`SHOWN`) whose publishing node is among ``running`` but which
+        have no publisher matched yet."""
+        return [topic for topic, producer in SHOWN.items()
+                if producer in running and self.subscriptions[topic].get_publisher_count() == 0]
 
     def _prediction(self, msg):
         self.last_prediction[msg.track_id] = msg
@@ -429,7 +447,7 @@ def main(argv=None):
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, bringup.request_stop)
-    show = Show() if args.show else None
+    show = bringup.show = Show() if args.show else None
     try:
         return bringup.run()
     finally:
