@@ -8,6 +8,7 @@ sleeps.
 """
 
 import os
+import signal
 import subprocess
 import uuid
 
@@ -15,7 +16,7 @@ import pytest
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from tt_ros.testing import Graph
+from tt_ros.testing import Graph, unique_domain
 from tt_tools.procs import ProcessGroup, ros_env
 
 pytestmark = pytest.mark.graph
@@ -206,3 +207,43 @@ def test_a_misspelt_parameter_is_named_in_a_warning():
                              'parameter: ignored (--help lists them)')
     assert '[WARN]' in lines[0]
     assert lines[1].startswith('prediction_node: ') and 'stale_after_s' in lines[1]
+
+
+@pytest.mark.parametrize('section, namespaced, unused', [
+    ('other_node', False, True),            # a file written for another node
+    ('prediction_node', True, True),        # a plain name is the root namespace's node only
+    ('/**/prediction_node', True, False),   # rcl's wildcards: any namespace
+    ('/**', True, False),
+    ('/*/prediction_node', True, False),
+])
+def test_a_params_file_with_no_section_for_the_node_is_named_in_a_warning(tmp_path, section,
+                                                                          namespaced, unused):
+    # rcl sets nothing from a parameters file none of whose sections names the node, without
+    # a word: the node started on its defaults. It says so, and runs.
+    path = tmp_path / 'params.yaml'
+    path.write_text(f'{section}:\n  ros__parameters:\n    stale_after_s: 0.25\n')
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}' if namespaced else '/'
+    proc = subprocess.Popen(['ros2', 'run', 'tt_prediction', 'prediction_node', '--ros-args',
+                             '-r', f'__ns:={ns}', '--params-file', str(path)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env=ros_env({'ROS_DOMAIN_ID': str(unique_domain())}),
+                            stdin=subprocess.DEVNULL)
+    try:
+        lines = []
+        for line in proc.stderr:            # until the node says it is ready (or ends)
+            lines.append(line.rstrip())
+            if line.rstrip().endswith(']: ready'):
+                break
+        proc.send_signal(signal.SIGINT)
+        proc.wait(TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, '\n'.join(lines)
+    warned = [ln for ln in lines if 'has no section for' in ln]
+    if unused:
+        assert len(warned) == 1 and '[WARN]' in warned[0], '\n'.join(lines)
+        assert f'--params-file {path} (its sections: /{section})' in warned[0]
+        assert '/prediction_node: nothing set from it' in warned[0]
+    else:
+        assert warned == [], '\n'.join(lines)

@@ -91,6 +91,43 @@ def _params_files(argv):
     return paths
 
 
+def _sections(data, prefix=''):
+    """The node paths ('/ns/name', wildcards kept) of a parameters file's sections: the keys,
+    nested namespaces joined, whose mapping holds ``ros__parameters``."""
+    for key, value in data.items():
+        if isinstance(value, dict):
+            path = f"{prefix}/{str(key).strip('/')}"
+            if 'ros__parameters' in value:
+                yield path
+            yield from _sections(value, path)
+
+
+def _section_matches(section, node_path):
+    """Whether the section ``section`` applies to the node ``node_path`` ('/ns/name'):
+    rcl's wildcards, ``*`` for one name and ``**`` for any number of names."""
+    wildcards = {'*': '/[^/]+', '**': '(?:/[^/]+)*'}
+    regex = ''.join(wildcards.get(token, '/' + re.escape(token))
+                    for token in section.strip('/').split('/'))
+    return re.fullmatch(regex, node_path) is not None
+
+
+def unused_params_files(args, node_path):
+    """'<path> (its sections: ...)' for each readable ``--params-file`` in the ROS
+    arguments of ``args`` that has no section for the node ``node_path``: rcl sets nothing
+    from it, without a word (a file written for another node name or namespace)."""
+    unused = []
+    for path in _params_files(args):
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f)
+        except (OSError, yaml.YAMLError):
+            continue
+        sections = list(_sections(data)) if isinstance(data, dict) else []
+        if not any(_section_matches(s, node_path) for s in sections):
+            unused.append(f'{path} (its sections: {", ".join(sections) or "none"})')
+    return unused
+
+
 def check_ros_args(args=None):
     """Raise :class:`StartupError` with one line if rcl cannot use the ROS arguments of
     ``args`` (None: ``sys.argv``): a ``--params-file`` that cannot be read, is not YAML or is
@@ -189,9 +226,10 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     rclpy ignores, are named in a warning on stderr.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
+    argv = list(sys.argv if args is None else args)
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
     try:
-        rest = check_ros_args(args)
+        rest = check_ros_args(argv)
     except StartupError as exc:
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         raise SystemExit(STARTUP_EXIT) from None
@@ -214,6 +252,10 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     with _StopOnSignal() as signals:
         try:
             node = make_node()
+            for unused in unused_params_files(argv, node.get_fully_qualified_name()):
+                node.get_logger().warning(f'--params-file {unused} has no section for '
+                                          f'{node.get_fully_qualified_name()}: nothing set '
+                                          "from it ('/**/NAME:' is NAME in any namespace)")
             executor.add_node(node)
             node.get_logger().info(READY)
             while not signals.stop.is_set() and rclpy.ok():
