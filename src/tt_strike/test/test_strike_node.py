@@ -285,6 +285,37 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
         g.close()
 
 
+def test_each_ball_keeps_the_hit_time_chosen_for_it():
+    # The same prediction of one ball, decided as the (simulated) clock runs on at 150 Hz:
+    # rows become too soon and drop out, and the winner used to move on 10 ms every few
+    # predictions. The node sends one hit time per ball, then too_late once it is closer
+    # than min_time_before_hit (the arm is on its way); another ball chooses afresh.
+    g = Graph()
+    try:
+        msg = prediction_msg(3)
+        hit_t = seconds(msg.hit_time)
+        n = 0
+        for k in range(150):
+            now = hit_t - 0.5 + k / 150.0      # from 0.5 s before the prediction's plane
+            g.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(now * 1e9)))
+            g.pub.publish(msg)
+            n += 1
+            g.spin_until(lambda n=n: len(g.commands) + g.node.n_too_late == n, 20.0,
+                         f'prediction {n} answered')
+            if g.node.n_too_late:
+                break
+        assert g.node.n_too_late == 1 and len(g.commands) == n - 1 > 30
+        assert {seconds(c.hit_time) for c in g.commands} == {seconds(g.commands[0].hit_time)}
+        check_command(g.commands[0], msg, 5)
+        assert seconds(g.commands[0].hit_time) - now < WORKSPACE.min_time_before_hit + 1e-6
+        g.pub.publish(prediction_msg(4))
+        g.spin_until(lambda: len(g.commands) == n, 20.0, "another ball's command")
+        assert g.commands[-1].track_id == 4 and g.commands[-1].feasible
+        assert seconds(g.commands[-1].hit_time) - now >= WORKSPACE.min_time_before_hit
+    finally:
+        g.close()
+
+
 def test_bad_workspace_file_stops_the_node(tmp_path):
     bad = tmp_path / 'ws.yaml'
     bad.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1]}, '

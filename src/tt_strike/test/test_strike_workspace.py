@@ -128,6 +128,35 @@ def test_unreachable_and_too_late_have_reasons():
     assert late.status == 'too_late', late.reason
 
 
+def test_a_ball_keeps_its_hit_time_from_one_prediction_to_the_next():
+    # The same flight predicted at 150 Hz: each decision drops the rows that became too soon,
+    # and the hit point chosen among the rest moved on by 10 ms every few frames, 0.22 s in
+    # all (an arm following the commands would chase it). Kept, the hit time is chosen once;
+    # once it is closer than min_time_before_hit, the arm is on its way: too_late, kept.
+    ws = load_workspace()
+    keep, chosen = None, []
+    for k in range(200):
+        now = k / 150.0
+        plan = choose(BALL, PARAMS, ws, now=now, target_zone=5, keep_t=keep)
+        if plan.status != 'ok':
+            break
+        keep = plan.hit.t
+        chosen.append(plan.hit)
+    assert plan.status == 'too_late' and 'kept' in plan.reason, plan.reason
+    assert keep - now < ws.min_time_before_hit <= keep - (now - 1 / 150.0)
+    assert len(chosen) > 50
+    assert {h.t for h in chosen} == {chosen[0].t}
+    np.testing.assert_allclose([h.p for h in chosen], [chosen[0].p] * len(chosen), atol=1e-9)
+    # The kept hit is the flight's own state at that time (interpolated between 10 ms rows).
+    at = predict(BALL, PARAMS, hit_plane_x=chosen[0].p[0]).hit
+    assert at.t == pytest.approx(chosen[0].t, abs=1e-4)
+    np.testing.assert_allclose(at.p, chosen[0].p, atol=2e-4)
+    # A kept time the path no longer reaches (the prediction changed) is chosen afresh.
+    fresh = choose(BALL, PARAMS, ws, target_zone=5)
+    gone = choose(BALL, PARAMS, ws, target_zone=5, keep_t=5.0)
+    assert gone.status == 'ok' and gone.hit.t == fresh.hit.t
+
+
 def test_racket_speed_limit_of_the_workspace():
     weak = Workspace('box', x=(-2.1, -1.45), y=(-0.9, 0.9), z=(-0.25, 0.75),
                      max_racket_speed=0.2)

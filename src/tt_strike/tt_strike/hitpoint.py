@@ -14,6 +14,16 @@ in-zone probability wins: linearised (:func:`tt_strike.robust.linear_in_zone_pro
 7 flights) under the given incoming covariance, or under the default noise (2 mm,
 2 % of the speed, 10 % of the spin) without one; ties go to the slower racket.
 
+A ball's hit point is chosen again on each of its predictions, 150-500 times a second. Its
+candidates shift with every new prediction and with ``now`` (the rows too soon drop out),
+and their scores are often level: the winner moved by up to 0.46 m and 0.18 s from one
+prediction to the next (the demo's balls), and an arm following the commands would swing
+back and forth. So the hit time chosen last for the ball (``keep_t``) is kept: the path's
+state at that time (interpolated between its rows) is a candidate too, and it is left only
+for a candidate whose score is more than SWITCH_MARGIN higher, or when it is no longer
+within reach or feasible. Once it is closer than ``min_time_before_hit`` the arm is on its
+way: the status is too_late, not a new hit point further on.
+
 Statuses: ok; no_hit_point (no bounce on the robot's half: the prediction's status and
 reason); unreachable (the path never comes within reach, or no solution puts the racket
 centre inside the workspace); too_late (within reach only sooner than min_time_before_hit);
@@ -31,7 +41,9 @@ from .robust import linear_in_zone_probability, noise_covariance
 from .solver import StrikeSettings, StrikeSolution, resolve_target, scored_zone, solve
 
 MAX_CANDIDATES = 4
-"""Most hit points solved per ball."""
+"""Most hit points solved per ball (besides the kept one)."""
+SWITCH_MARGIN = 0.05
+"""In-zone probability by which another candidate must beat the kept hit time."""
 EDGE_RETRY_CLEARANCE = (0.2, 0.4)
 """Net clearances added, m, to retry a stroke whose ball meets the table's edge."""
 
@@ -60,8 +72,17 @@ def _hit_from_row(row):
     return Hit(float(row[0]), row[1:4].copy(), row[4:7].copy(), row[7:10].copy())
 
 
+def _row_at(rows, t):
+    """The row [t, p, v, w] at time ``t`` interpolated between ``rows`` (10 ms apart, so
+    within about 0.03 mm of the flight), or None outside them."""
+    times = rows[:, 0]
+    if rows.shape[0] == 0 or not times[0] <= t <= times[-1]:
+        return None
+    return np.array([np.interp(t, times, column) for column in rows.T])
+
+
 def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None,
-           settings=None, now=None, covariance=None, serve=False, bounced=False):
+           settings=None, now=None, covariance=None, serve=False, bounced=False, keep_t=None):
     """Choose the hit point along the trajectory and solve the stroke there.
 
     ``state`` (9,) the incoming ball at time ``t0`` (s); ``workspace`` a
@@ -70,7 +91,9 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
     ``covariance`` (9x9) of the ball at the hit point, optional (also used for the chosen
     solution's in-zone probability); ``serve``: the first bounce on the opponent's half is
     part of the path; ``bounced``: the ball has already bounced on the robot's half (the
-    state is after it, e.g. a BallPrediction's hit point). Returns a :class:`StrikePlan`.
+    state is after it, e.g. a BallPrediction's hit point); ``keep_t`` (s) the hit time chosen
+    for this ball before, kept unless a candidate beats it by SWITCH_MARGIN (module doc).
+    Returns a :class:`StrikePlan`.
     """
     settings = settings or StrikeSettings()
     settings = dataclasses.replace(settings, reach_z=(-math.inf, math.inf), reach_y=math.inf,
@@ -104,13 +127,23 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
         return StrikePlan('too_late', f'within reach only until {reach[-1, 0] - now:.3f} s '
                           f'from now, below min_time_before_hit '
                           f'{workspace.min_time_before_hit:.3f} s', prediction=pred)
+    if keep_t is not None and keep_t - now < workspace.min_time_before_hit:
+        return StrikePlan('too_late', f'the hit chosen for this ball comes in {keep_t - now:.3f}'
+                          f' s, below min_time_before_hit {workspace.min_time_before_hit:.3f} '
+                          's: kept', prediction=pred)
     reach = reach[soon]
+    kept = _row_at(rows, keep_t) if keep_t is not None else None
+    if kept is not None and not workspace.contains(kept[1:4], margin=r):
+        kept = None
     if reach.shape[0] > MAX_CANDIDATES:
         pick = np.unique(np.round(np.linspace(0, reach.shape[0] - 1, MAX_CANDIDATES)))
         reach = reach[pick.astype(int)]
+    if kept is not None:
+        reach = np.vstack([kept, reach])
     best, best_key, first_reason, outside = None, None, '', 0
+    kept_best = None
     guess = None
-    for row in reach:
+    for i, row in enumerate(reach):
         s_hit = row[1:10]
         sol = solve(s_hit, params, target_zone=target_zone, target_point=target_point,
                     settings=settings, guess=guess)
@@ -136,6 +169,10 @@ def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None
         key = (round(score, 3), -float(np.linalg.norm(sol.racket_velocity)))
         if best_key is None or key > best_key:
             best, best_key = (row, sol, score), key
+        if kept is not None and i == 0:
+            kept_best = (row, sol, score)
+    if kept_best is not None and best[2] <= kept_best[2] + SWITCH_MARGIN:
+        best = kept_best
     n = reach.shape[0]
     if best is None:
         if outside:

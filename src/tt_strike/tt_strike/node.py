@@ -2,7 +2,8 @@
 
 The ROS glue around :mod:`tt_strike.hitpoint` and :mod:`tt_strike.solver`: parameters, QoS,
 message conversion. From the prediction's hit point (after the bounce) the ball is flown on
-through the robot's reach (``workspace_file``) and the hit point is chosen along that path
+through the robot's reach (``workspace_file``) and the hit point is chosen along that path,
+once per ball: its hit time is kept from one prediction to the next (tt_strike.hitpoint)
 (``use_hit_plane``: the prediction's hit point itself, the old behaviour). Every BallPrediction
 with a valid hit point gives one StrikeCommand stamped with the prediction's stamp, carrying
 the chosen hit time and point and the racket centre: feasible, or ``feasible = false`` with the
@@ -135,6 +136,8 @@ class TrackTally:
     """Status of the first command ('' before one)."""
     ok: bool = False
     """A command with a feasible stroke was sent."""
+    hit_t: float = None
+    """The hit time of the last feasible stroke, s (kept: tt_strike.hitpoint)."""
 
 
 class StrikeNode(Node):
@@ -302,12 +305,14 @@ class StrikeNode(Node):
             status, reason = sol.status, sol.reason
         else:
             plan = choose(state, self.params, ws, t0=hit_t, now=now, settings=settings,
-                          covariance=cov, bounced=True, **target)
+                          covariance=cov, bounced=True, keep_t=tally.hit_t, **target)
             if plan.status == 'too_late':
                 self._too_late(plan.reason)
                 return
             hit, sol = plan.hit, plan.solution
             status, reason = plan.status, plan.reason
+            if plan.feasible:
+                tally.hit_t = hit.t
             if sol is None:
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if cov is not None and sol.feasible:
