@@ -279,7 +279,7 @@ def write_bag(path, estimates, frame_id):
     from .node import STATE_TOPIC, ball_state_message
     writer = BagWriter(path)
     try:
-        conn = writer.add_topic(STATE_TOPIC, 'tt_msgs/msg/BallState')
+        conn = writer.add_topic('/' + STATE_TOPIC, 'tt_msgs/msg/BallState')
         for t_ref, e in estimates:
             msg = ball_state_message(e, t_ref, frame_id)
             ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

@@ -60,7 +60,9 @@ from .detect import DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import camera_info_topic, image_to_bgr, source_kind
 
-STATE_TOPIC = '/ball/state'
+STATE_TOPIC = 'ball/state'
+"""The ball states' topic, relative to the node's namespace (/ball/state in the root one,
+the name of tt-perceive's bags)."""
 DIAGNOSTICS_TOPIC = '/diagnostics'
 CAMERAS_DIAGNOSTIC = 'perception_node: cameras'
 """Name of the status on /diagnostics with the counts of the in-process cameras (frames read,
@@ -293,7 +295,8 @@ class PerceptionNode(Node):
             self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
-        self.get_logger().info(f'rig {rig.path}: {names}; publishing {STATE_TOPIC}')
+        self.get_logger().info(f'rig {rig.path}: {names}; publishing '
+                               f'{self.publisher.topic_name}')
 
     # --- frames in ---------------------------------------------------------------------
 
@@ -356,12 +359,13 @@ class PerceptionNode(Node):
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
         ``wait_for_subscribers`` subscriptions of /ball/state are there."""
-        have, want = self.count_subscribers(STATE_TOPIC), self._p('wait_for_subscribers')
+        topic = self.publisher.topic_name
+        have, want = self.count_subscribers(topic), self._p('wait_for_subscribers')
         if have < want:
             if not self._said_waiting:
                 self._said_waiting = True
                 self.get_logger().info(
-                    f'video files wait for {want} subscription(s) of {STATE_TOPIC} '
+                    f'video files wait for {want} subscription(s) of {topic} '
                     f'({have} now; parameter wait_for_subscribers)')
             return
         self._file_timer.cancel()

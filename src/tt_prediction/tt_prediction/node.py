@@ -159,14 +159,15 @@ class PredictionNode(Node):
         self.time_base = TimeBaseCheck(self.get_logger().warning)
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = self.create_publisher(BallPrediction, '/ball/prediction', reliable)
-        self.pub_path = self.create_publisher(Path, '/ball/predicted_path', reliable)
-        self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
+        # Names relative to the node's namespace (/ball/prediction in the root one).
+        self.pub = self.create_publisher(BallPrediction, 'ball/prediction', reliable)
+        self.pub_path = self.create_publisher(Path, 'ball/predicted_path', reliable)
+        self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.sub = subscribe_input(self, BallState, '/ball/state', self.on_state, states_qos)
+        self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos)
         self.get_logger().info(
-            f'predicting /ball/state -> /ball/prediction, hitting plane x = '
+            f'predicting {self.sub.topic_name} -> {self.pub.topic_name}, hitting plane x = '
             f'{self.p.hit_plane_x:.3f} m, model '
             f'{self.p.model_file or "nominal"}')
 

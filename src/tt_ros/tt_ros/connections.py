@@ -34,7 +34,9 @@ def input_events(node, topic):
 def subscribe_input(node, msg_type, topic, callback, qos):
     """``node.create_subscription(msg_type, topic, callback, qos)`` with :func:`input_events`;
     without them, and a warning, on a middleware that has no matched events (bringup then
-    waits its limit for the line)."""
+    waits its limit for the line). The lines name the topic as resolved: namespace and
+    remapping applied."""
+    topic = node.resolve_topic_name(topic)
     try:
         return node.create_subscription(msg_type, topic, callback, qos,
                                         event_callbacks=input_events(node, topic))

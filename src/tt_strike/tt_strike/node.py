@@ -166,14 +166,15 @@ class StrikeNode(Node):
         self.time_base = TimeBaseCheck(self.get_logger().warning)
         self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = self.create_publisher(StrikeCommand, '/strike/command', reliable)
-        self.pub_markers = self.create_publisher(MarkerArray, '/tt/markers', reliable)
-        self.sub = subscribe_input(self, BallPrediction, '/ball/prediction',
+        # Names relative to the node's namespace (/strike/command in the root one).
+        self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
+        self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
+        self.sub = subscribe_input(self, BallPrediction, 'ball/prediction',
                                    self.on_prediction, reliable)
-        self.sub_target = self.create_subscription(StrikeTarget, '/strike/target',
+        self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
-        self.get_logger().info(f'striking /ball/prediction -> /strike/command, target '
-                               f'{self._target_text()}')
+        self.get_logger().info(f'striking {self.sub.topic_name} -> {self.pub.topic_name}, '
+                               f'target {self._target_text()}')
 
     # --- target and parameters ---------------------------------------------------------
 
@@ -197,7 +198,7 @@ class StrikeNode(Node):
         try:
             self.target = _target_from(msg.zone, [msg.point.x, msg.point.y])
         except ValueError as exc:
-            self.get_logger().warning(f'/strike/target ignored: {exc}')
+            self.get_logger().warning(f'{self.sub_target.topic_name} ignored: {exc}')
             return
         self.get_logger().info(f'target {self._target_text()} (from /strike/target)')
 
