@@ -132,6 +132,8 @@ def test_target_topic_and_parameter_change_the_zone():
         target.zone = 9
         g.pub_target.publish(target)
         g.spin_until(lambda: g.node.target[0] == 9, 10.0, 'the target from the topic')
+        # The parameter shows the target in use (ros2 param get, dump).
+        assert g.node.get_parameter('target_zone').value == 9
         bad = StrikeTarget()
         bad.zone = 10                                    # ignored with a warning
         g.pub_target.publish(bad)
@@ -139,6 +141,7 @@ def test_target_topic_and_parameter_change_the_zone():
         g.pub.publish(msg)                               # after bad: same reliable queue
         g.spin_until(lambda: g.commands, 20.0, 'a command')
         check_command(g.commands[0], msg, 9)
+        assert g.node.get_parameter('target_zone').value == 9
         result = g.node.set_parameters_atomically([
             Parameter('target_zone', value=0), Parameter('target_point', value=[-0.3, 0.0])])
         assert not result.successful                     # point on the robot's half
@@ -151,6 +154,18 @@ def test_target_topic_and_parameter_change_the_zone():
         cmd = g.commands[1]
         assert cmd.target_zone == 0 and cmd.feasible
         assert math.hypot(cmd.landing_point.x - 0.9, cmd.landing_point.y + 0.2) < 5e-3
+        # A point from the topic, then one on the robot's half (ignored: the old one stays).
+        for x in (0.5, -0.5):
+            point = StrikeTarget()
+            point.point.x, point.point.y = x, 0.3
+            g.pub_target.publish(point)
+        g.spin_until(lambda: g.node.target[1][0] == 0.5, 10.0,
+                     'the point from the topic')
+        g.pub.publish(prediction_msg(3))               # after both: same reliable queue
+        g.spin_until(lambda: len(g.commands) == 3, 20.0, 'a third command')
+        assert g.node.get_parameter('target_zone').value == 0
+        assert list(g.node.get_parameter('target_point').value) == [0.5, 0.3]
+        assert g.commands[2].target_point.x == 0.5
     finally:
         g.close()
 

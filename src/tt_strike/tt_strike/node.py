@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import Hit
@@ -195,12 +196,15 @@ class StrikeNode(Node):
                 self.get_logger().info(f'target {self._target_text()}')
 
     def on_target(self, msg):
-        try:
-            self.target = _target_from(msg.zone, [msg.point.x, msg.point.y])
-        except ValueError as exc:
-            self.get_logger().warning(f'{self.sub_target.topic_name} ignored: {exc}')
-            return
-        self.get_logger().info(f'target {self._target_text()} (from /strike/target)')
+        """A target from the topic sets the parameters target_zone (and target_point for
+        zone 0), checked as ``ros2 param set`` is: ``ros2 param get`` and ``dump`` show the
+        target in use."""
+        values = [Parameter('target_zone', value=int(msg.zone))]
+        if not msg.zone:
+            values.append(Parameter('target_point', value=[msg.point.x, msg.point.y]))
+        result = self.set_parameters_atomically(values)
+        if not result.successful:
+            self.get_logger().warning(f'{self.sub_target.topic_name} ignored: {result.reason}')
 
     # --- predictions --------------------------------------------------------------------
 
