@@ -78,6 +78,48 @@ def test_non_numeric_model_value_is_named(tmp_path):
         ball.load_model(str(path))
 
 
+def _complete_model(tmp_path, edit):
+    """A model file as tt-identify writes it (every field), changed by ``edit(data)``."""
+    data = ball.ModelParams().to_dict()
+    edit(data)
+    path = tmp_path / 'model.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+@pytest.mark.parametrize('edit, words', [
+    # A ball parameter left out was the nominal one without a word (an identified c_d of
+    # 0.45 dropped by a hand edit predicted with 0.54).
+    (lambda d: d['ball'].pop('c_d'), 'ball parameter(s) missing: c_d '),
+    (lambda d: d.clear(), 'ball parameter(s) missing: mass, radius'),
+    # YAML's yes/true were 1.0 and a string of digits a wind of (1, 2, 3) m/s.
+    (lambda d: d['ball'].update(c_d=True), 'c_d must be a number, got True'),
+    (lambda d: d['ball'].update(e_t='0.9'), "e_t must be a number, got '0.9'"),
+    (lambda d: d['effects'].update(wind='123'), "wind must be a list of three numbers, got "
+                                                "'123'"),
+    (lambda d: d['effects'].update(wind=[0.0, True, 0.0]), 'wind must be a list of three'),
+    (lambda d: d['ball'].update(wind=d['effects'].pop('wind')),
+     "wind belongs under 'effects', not 'ball'"),
+    (lambda d: d['effects'].update(c_m=d['ball'].pop('c_m')),
+     "c_m belongs under 'ball', not 'effects'"),
+])
+def test_a_model_file_with_a_field_left_out_or_of_the_wrong_kind_is_refused(tmp_path, edit,
+                                                                            words):
+    path = _complete_model(tmp_path, edit)
+    with pytest.raises(ValueError) as err:
+        ball.load_model(str(path))
+    assert str(err.value).startswith(f'{path}: model file: ') and words in str(err.value)
+    assert '\n' not in str(err.value)
+
+
+def test_an_effect_left_out_is_not_applied(tmp_path):
+    # Files of fewer effects (an older tt-identify) load: a missing effect is 0, off.
+    path = _complete_model(tmp_path, lambda d: d['effects'].clear())
+    assert ball.load_model(str(path)) == ball.ModelParams()
+    path = _complete_model(tmp_path, lambda d: d['ball'].update(c_d=0.45))
+    assert ball.load_model(str(path)).c_d == 0.45
+
+
 def _rebound(v, w, params):
     return ball.table_rebound(np.asarray(v, float), np.asarray(w, float), params)
 

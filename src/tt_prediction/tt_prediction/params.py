@@ -390,8 +390,12 @@ class ModelParams:
 
     @classmethod
     def from_dict(cls, data):
-        """Build from :meth:`to_dict` output (or a flat dict); unknown keys and values
-        outside the plausible ranges of :data:`FIELDS` are errors (ValueError, one line)."""
+        """Build from :meth:`to_dict` output (or a flat dict); raises ValueError (one line)
+        for unknown keys, a parameter in the other block than its own, a value that is not
+        a number (a boolean or a string is not one; wind: a list of three), values outside
+        the plausible ranges of :data:`FIELDS`, and a ball parameter left out (each is
+        required: a missing c_d was the nominal one without a word). An effect left out is
+        0, not applied."""
         if not isinstance(data, dict):
             raise ValueError('model file must hold a mapping')
         flat = {}
@@ -399,6 +403,11 @@ class ModelParams:
             if key in ('ball', 'effects'):
                 if not isinstance(value, dict):
                     raise ValueError(f"model file: '{key}' must be a mapping")
+                for name in value:
+                    if name in FIELD and (name in EFFECT_FIELDS) != (key == 'effects'):
+                        raise ValueError(f"model file: {name} belongs under "
+                                         f"'{'effects' if key == 'ball' else 'ball'}', not "
+                                         f"'{key}'")
                 flat.update(value)
             elif key in ('meta', 'selected_effects'):
                 continue
@@ -409,12 +418,7 @@ class ModelParams:
             raise ValueError(f'model file: unknown parameter(s) {", ".join(unknown)}')
         kwargs = {}
         for key, value in flat.items():
-            try:
-                kwargs[key] = tuple(float(v) for v in value) if key == 'wind' \
-                    else float(value)
-            except (TypeError, ValueError):
-                raise ValueError(f'model file: {key} must be a number'
-                                 f'{" list" if key == "wind" else ""}, got {value!r}') from None
+            kwargs[key] = _model_number(key, value)
         try:
             params = cls(**kwargs)
         except (TypeError, ValueError) as exc:
@@ -422,6 +426,10 @@ class ModelParams:
         problem = params.implausible()
         if problem:
             raise ValueError(f'model file: {problem}')
+        missing = [f.name for f in FIELDS if not f.effect and f.name not in flat]
+        if missing:
+            raise ValueError(f'model file: ball parameter(s) missing: {", ".join(missing)} '
+                             '(each is required; tt-identify writes them all)')
         return params
 
     def save(self, path, meta=None):
@@ -447,6 +455,24 @@ class ModelParams:
             return cls.from_dict(data)
         except ValueError as exc:
             raise ValueError(f'{path}: {exc}') from None
+
+
+def _model_number(key, value):
+    """A model file's ``value`` of ``key`` as a float (a tuple of three for wind);
+    ValueError naming it for anything else (YAML's true, a string, a list elsewhere)."""
+    def number(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError
+        return float(v)
+    try:
+        if key == 'wind':
+            if not isinstance(value, (list, tuple)):
+                raise ValueError
+            return tuple(number(v) for v in value)
+        return number(value)
+    except ValueError:
+        kind = 'a list of three numbers' if key == 'wind' else 'a number'
+        raise ValueError(f'model file: {key} must be {kind}, got {value!r}') from None
 
 
 def load_model(path=None):
