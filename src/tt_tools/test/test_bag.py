@@ -189,19 +189,18 @@ class _FakeTime:
         self.now = end
 
 
-@pytest.mark.parametrize('rate, clock_hz', [(2.0, 50.0), (0.5, 10.0)])
-def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypatch, rate,
-                                                              clock_hz):
-    # The player in this process on a fake clock: message k goes out (stamp_k - first) / rate
-    # after the start, and /clock carries first + elapsed * rate, on the player's timer at
-    # clock_hz: checked exactly, with no wall-clock time in the test.
-    out, topics, _ = recorded
+def _play_on_fake_time(monkeypatch, argv, stop=None):
+    """Run ``bag play`` in this process on a fake clock (:class:`_FakeTime`); returns the
+    start time and [(time, topic, message)] of everything published. ``stop(published)``:
+    the player is stopped (as by a signal) once it is true."""
     fake = _FakeTime()
     published = []
 
     def spin_until(self, condition=lambda: False, timeout=None, step=0.1):
         if timeout is not None and timeout > 0:
             fake.advance(timeout)
+        if stop is not None and stop(published):
+            self.stopped = True
         return bool(condition())
 
     def create_timer(self, period, callback, *args, **kwargs):
@@ -214,9 +213,24 @@ def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypat
                         lambda self, msg: published.append((fake.now, self.topic_name, msg)))
     parser = argparse.ArgumentParser()
     bag_verbs.add_arguments(parser.add_subparsers())
-    args = parser.parse_args(['play', str(out), '--rate', str(rate), '--clock', str(clock_hz)])
     start = fake.now
-    assert bag_verbs.bag_play(args) == 0
+    assert bag_verbs.bag_play(parser.parse_args(['play', *argv])) == 0
+    return start, published
+
+
+def _clock_ns(msg):
+    return msg.clock.sec * 10**9 + msg.clock.nanosec
+
+
+@pytest.mark.parametrize('rate, clock_hz', [(2.0, 50.0), (0.5, 10.0)])
+def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypatch, rate,
+                                                              clock_hz):
+    # The player in this process on a fake clock: message k goes out (stamp_k - first) / rate
+    # after the start, and /clock carries first + elapsed * rate, on the player's timer at
+    # clock_hz: checked exactly, with no wall-clock time in the test.
+    out, topics, _ = recorded
+    start, published = _play_on_fake_time(
+        monkeypatch, [str(out), '--rate', str(rate), '--clock', str(clock_hz)])
     bag = _bag_messages(out)
     first = min(t for msgs in bag.values() for t, _ in msgs)
     expected = sorted((t, topic, raw) for topic, msgs in bag.items() for t, raw in msgs)
@@ -225,14 +239,35 @@ def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypat
                                                           expected]
     for (t_pub, _, _), (stamp, _, _) in zip(played, expected, strict=True):
         assert t_pub - start == pytest.approx((stamp - first) / 1e9 / rate, abs=1e-9)
-    clocks = [(t, msg.clock.sec * 10**9 + msg.clock.nanosec) for t, topic, msg in published
-              if topic == '/clock']
-    # One /clock per period of clock_hz until the last message, each with the bag time.
+    clocks = [(t, _clock_ns(msg)) for t, topic, msg in published if topic == '/clock']
+    # The bag's start at once, before the first message (a node on /clock would otherwise
+    # take it before it has a time), then one /clock per period of clock_hz until the last
+    # message, each with the bag time.
+    assert next(topic for _, topic, _ in published if topic == '/clock' or topic in bag) == \
+        '/clock'
     span = (expected[-1][0] - first) / 1e9 / rate
-    assert len(clocks) == int(span * clock_hz + 1e-9)
-    for k, (t, ns) in enumerate(clocks, start=1):
+    assert len(clocks) == 1 + int(span * clock_hz + 1e-9)
+    for k, (t, ns) in enumerate(clocks):
         assert t - start == pytest.approx(k / clock_hz, abs=1e-9)
         assert ns - first == pytest.approx(k / clock_hz * rate * 1e9, abs=2)
+
+
+def test_play_loop_puts_the_clock_back_before_each_pass(recorded, monkeypatch):
+    # --loop --clock: /clock jumps back to the bag's start before a pass's first message.
+    # It kept the end of the pass before until its timer's next tick, and a node on /clock
+    # dropped the pass's first states as stale by the bag's length.
+    out, _, _ = recorded
+    bag = _bag_messages(out)
+    n = sum(len(msgs) for msgs in bag.values())
+    first = min(t for msgs in bag.values() for t, _ in msgs)
+    _, published = _play_on_fake_time(
+        monkeypatch, [str(out), '--loop', '--clock', '10'],
+        stop=lambda published: sum(topic in bag for _, topic, _ in published) > n + 2)
+    topics = [topic for _, topic, _ in published]
+    second_pass = [k for k, topic in enumerate(topics) if topic in bag][n]
+    clocks_before = [_clock_ns(m) for _, topic, m in published[:second_pass]
+                     if topic == '/clock']
+    assert clocks_before[-1] == first and max(clocks_before) > first
 
 
 def test_play_selected_topics_from_an_offset(recorded, graph, procs):

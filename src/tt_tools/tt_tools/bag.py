@@ -136,12 +136,18 @@ def bag_play(args):
             first = reader.start_time + int(args.start_offset * 1e9)
             # Bag time now = first + (monotonic time since t0) * rate.
             state = {'t0': time.monotonic()}
+            tick = None
             if args.clock is not None:
-                _publish_clock(cli, args.clock,
-                               lambda: first + int((time.monotonic() - state['t0'])
-                                                   * args.rate * 1e9))
+                tick = _publish_clock(cli, args.clock,
+                                      lambda: first + int((time.monotonic() - state['t0'])
+                                                          * args.rate * 1e9))
             while not cli.stopped:
                 state['t0'] = time.monotonic()
+                if tick is not None:
+                    # The pass's start on /clock before its first message: after --loop's
+                    # jump back, the timer's last tick was the previous pass's end, and
+                    # the first messages were stale by the bag's length.
+                    tick()
                 played = 0
                 for conn, stamp, data in reader.messages(connections=conns, start=first):
                     due = state['t0'] + (stamp - first) / 1e9 / args.rate
@@ -160,7 +166,8 @@ def bag_play(args):
 
 
 def _publish_clock(cli, rate_hz, bag_time_ns):
-    """Publish rosgraph_msgs/Clock on /clock at ``rate_hz`` with the bag time (ClockQoS)."""
+    """Publish rosgraph_msgs/Clock on /clock at ``rate_hz`` with the bag time (ClockQoS);
+    returns the function that publishes it once, now."""
     from rosgraph_msgs.msg import Clock
 
     pub = cli.node.create_publisher(
@@ -173,6 +180,7 @@ def _publish_clock(cli, rate_hz, bag_time_ns):
         pub.publish(msg)
 
     cli.node.create_timer(1.0 / rate_hz, tick)
+    return tick
 
 
 def add_arguments(bag_sub):
