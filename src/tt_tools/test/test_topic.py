@@ -116,6 +116,24 @@ def test_list_and_info_show_type_and_offered_qos(graph, topic):
     assert f'/{graph.node.get_name()}' in run('node', 'list').splitlines()
 
 
+def test_node_list_warns_of_nodes_that_share_a_name(graph):
+    # Two strike_nodes started by mistake were listed once and without a word, while both
+    # commanded the arm.
+    import rclpy
+
+    twin = rclpy.create_node(graph.node.get_name(), context=graph.context)
+    try:
+        proc = Ros2Process('node', 'list', '--spin-time', '5')
+        graph.spin_until(lambda: proc.proc.poll() is not None, 60, 'ros2 node list')
+        assert proc.wait() == 0, proc.stderr
+        assert proc.stdout.splitlines().count(f'/{graph.node.get_name()}') == 1
+        assert [line for line in error_lines(proc.stderr) if 'WARNING' in line] == [
+            f'WARNING: nodes in the graph share an exact name: /{graph.node.get_name()} (2); '
+            'their topics, services and parameters are not told apart']
+    finally:
+        twin.destroy_node()
+
+
 @pytest.mark.parametrize('verb, given', [('echo', 'tt_msgs/msg/BallPrediction'),
                                           ('hz', 'tt_msgs/BallPrediction')])
 def test_echo_or_hz_of_another_type_than_published_is_one_line_and_exit_1(graph, topic, verb,

@@ -95,6 +95,14 @@ def node_list(args):
     with CliNode('node_list') as cli:
         cli.settle(args.spin_time)
         names = node_names(cli, hidden=args.all)
+        counts = collections.Counter(node_full_name(name, ns) for name, ns
+                                     in cli.node.get_node_names_and_namespaces())
+    shared = [f'{name} ({counts[name]})' for name in names if counts[name] > 1]
+    if shared:
+        # Listed once like any other; two strike_nodes command the arm both, and a parameter
+        # set reaches either (ros2cli warns too).
+        say(f'WARNING: nodes in the graph share an exact name: {", ".join(shared)}; '
+            'their topics, services and parameters are not told apart')
     for name in names:
         write(name + '\n')
     return 0
