@@ -209,6 +209,27 @@ def test_a_misspelt_parameter_is_named_in_a_warning():
     assert lines[1].startswith('prediction_node: ') and 'stale_after_s' in lines[1]
 
 
+def test_another_nodes_parameter_in_a_shared_section_is_not_taken_for_a_misspelt_one(
+        tmp_path):
+    # One /** section for the whole graph holds every node's parameters: prediction_node
+    # named strike_node's target_zone (and each node every other's) as misspelt, burying a
+    # real misspelling. Those of a section naming the node, and -p, are still named.
+    path = tmp_path / 'graph.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    target_zone: 8\n    hit_plane_x: -1.2\n'
+                    '/**/prediction_node:\n  ros__parameters:\n    stale_aftr_s: 1.0\n')
+    ns = f'/ptest_{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    proc = subprocess.run(['ros2', 'run', 'tt_prediction', 'prediction_node', '--ros-args',
+                           '-r', f'__ns:={ns}', '--params-file', str(path), '-p',
+                           'max_racket_speed:=5.0', '-p', 'stale_after_s:=fast'],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
+    lines = _tt_lines(proc.stderr)
+    assert proc.returncode == 2, proc.stderr
+    warned = sorted(line.split("parameter '")[1].split("'")[0] for line in lines
+                    if 'has no such parameter' in line)
+    assert warned == ['max_racket_speed', 'stale_aftr_s'], proc.stderr
+
+
 @pytest.mark.parametrize('section, namespaced, unused', [
     ('other_node', False, True),            # a file written for another node
     ('prediction_node', True, True),        # a plain name is the root namespace's node only

@@ -92,14 +92,23 @@ def _params_files(argv):
 
 
 def _sections(data, prefix=''):
-    """The node paths ('/ns/name', wildcards kept) of a parameters file's sections: the keys,
-    nested namespaces joined, whose mapping holds ``ros__parameters``."""
+    """(node path, its ros__parameters) of each section of a parameters file's mapping: the
+    node paths ('/ns/name', wildcards kept) join nested namespaces."""
     for key, value in data.items():
         if isinstance(value, dict):
             path = f"{prefix}/{str(key).strip('/')}"
             if 'ros__parameters' in value:
-                yield path
+                yield path, value['ros__parameters']
             yield from _sections(value, path)
+
+
+def _names(params, prefix=''):
+    """The parameter names of a ros__parameters mapping (nested ones joined with '.')."""
+    for key, value in (params.items() if isinstance(params, dict) else ()):
+        if isinstance(value, dict):
+            yield from _names(value, f'{prefix}{key}.')
+        else:
+            yield f'{prefix}{key}'
 
 
 def _section_matches(section, node_path):
@@ -111,21 +120,47 @@ def _section_matches(section, node_path):
     return re.fullmatch(regex, node_path) is not None
 
 
-def unused_params_files(args, node_path):
-    """'<path> (its sections: ...)' for each readable ``--params-file`` in the ROS
-    arguments of ``args`` that has no section for the node ``node_path``: rcl sets nothing
-    from it, without a word (a file written for another node name or namespace)."""
-    unused = []
+def _params_file_sections(args):
+    """(path, [(node path, ros__parameters)]) of each readable ``--params-file`` in the ROS
+    arguments of ``args`` (rcl judges the others)."""
     for path in _params_files(args):
         try:
             with open(path) as f:
                 data = yaml.safe_load(f)
         except (OSError, yaml.YAMLError):
             continue
-        sections = list(_sections(data)) if isinstance(data, dict) else []
-        if not any(_section_matches(s, node_path) for s in sections):
-            unused.append(f'{path} (its sections: {", ".join(sections) or "none"})')
+        yield path, list(_sections(data)) if isinstance(data, dict) else []
+
+
+def unused_params_files(args, node_path):
+    """'<path> (its sections: ...)' for each readable ``--params-file`` in the ROS
+    arguments of ``args`` that has no section for the node ``node_path``: rcl sets nothing
+    from it, without a word (a file written for another node name or namespace)."""
+    unused = []
+    for path, sections in _params_file_sections(args):
+        if not any(_section_matches(section, node_path) for section, _ in sections):
+            names = ', '.join(section for section, _ in sections) or 'none'
+            unused.append(f'{path} (its sections: {names})')
     return unused
+
+
+def shared_parameter_names(args, node_path):
+    """The parameter names that only sections of no node name (``/**:``, ``/robot1/*:``) of
+    the ``--params-file`` files in ``args`` give the node ``node_path``: such a section is
+    shared by design with other nodes, whose parameters it holds too. Names that a section
+    naming the node (``prediction_node:``, ``/**/prediction_node:``) or ``-p`` gives are
+    not among them."""
+    shared, own = set(), set()
+    for _, sections in _params_file_sections(args):
+        for section, params in sections:
+            if _section_matches(section, node_path):
+                named = section.rsplit('/', 1)[-1] not in ('*', '**')
+                (own if named else shared).update(_names(params))
+    argv = list(args)
+    for i, arg in enumerate(argv[:-1]):
+        if arg in ('-p', '--param'):
+            own.add(argv[i + 1].split(':=', 1)[0])
+    return shared - own
 
 
 def check_ros_args(args=None):

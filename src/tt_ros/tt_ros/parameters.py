@@ -21,6 +21,7 @@ Validation itself (:func:`coerce`) is pure; only :class:`Parameters` touches rcl
 
 from dataclasses import dataclass
 import math
+import sys
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -30,7 +31,7 @@ from rcl_interfaces.msg import (
 )
 from rclpy.parameter import Parameter
 
-from .executor import StartupError
+from .executor import StartupError, shared_parameter_names
 
 
 class ParameterError(StartupError):
@@ -243,7 +244,10 @@ class Parameters:
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, ParameterDescriptor(
                 description=spec.description, dynamic_typing=True))
+        shared = shared_parameter_names(sys.argv, node.get_fully_qualified_name())
         for name in unknown_overrides(node, self.specs):
+            if name in shared:      # a /** section's parameter of another node
+                continue
             node.get_logger().warning(
                 f"parameter '{name}' given but {node.get_name()} has no such parameter: "
                 'ignored (--help lists them)')
