@@ -150,7 +150,7 @@ def test_a_ball_keeps_its_hit_time_from_one_prediction_to_the_next():
     # The kept hit is the flight's own state at that time (interpolated between 10 ms rows).
     at = predict(BALL, PARAMS, hit_plane_x=chosen[0].p[0]).hit
     assert at.t == pytest.approx(chosen[0].t, abs=1e-4)
-    np.testing.assert_allclose(at.p, chosen[0].p, atol=2e-4)
+    np.testing.assert_allclose(at.p, chosen[0].p, atol=2e-5)
     # A kept time the path no longer reaches (the prediction changed) is chosen afresh.
     fresh = choose(BALL, PARAMS, ws, target_zone=5)
     gone = choose(BALL, PARAMS, ws, target_zone=5, keep_t=5.0)

@@ -73,12 +73,21 @@ def _hit_from_row(row):
 
 
 def _row_at(rows, t):
-    """The row [t, p, v, w] at time ``t`` interpolated between ``rows`` (10 ms apart, so
-    within about 0.03 mm of the flight), or None outside them."""
+    """The row [t, p, v, w] at time ``t`` between two of ``rows`` (10 ms apart), or None
+    outside them: the position on the cubic through both rows' positions and velocities
+    (cubic Hermite: within microns of the flight), velocity and spin linear."""
     times = rows[:, 0]
     if rows.shape[0] == 0 or not times[0] <= t <= times[-1]:
         return None
-    return np.array([np.interp(t, times, column) for column in rows.T])
+    k = min(int(np.searchsorted(times, t, side='right')), rows.shape[0] - 1)
+    a, b = rows[max(k - 1, 0)], rows[k]
+    h = b[0] - a[0]
+    s = (t - a[0]) / h if h > 0.0 else 0.0
+    row = a + s * (b - a)
+    row[0] = t
+    row[1:4] = ((2 * s**3 - 3 * s**2 + 1) * a[1:4] + (s**3 - 2 * s**2 + s) * h * a[4:7]
+                + (3 * s**2 - 2 * s**3) * b[1:4] + (s**3 - s**2) * h * b[4:7])
+    return row
 
 
 def choose(state, params, workspace, t0=0.0, target_zone=None, target_point=None,
