@@ -71,6 +71,11 @@ class Globals:
         if values is None:
             values = [self.default(n) for n in self.names]
         self.values = np.array(values, dtype=float)
+        self.accepted_steps = None
+        """Steps a pooled fit that returned these globals accepted (None: not fitted)."""
+        self.blocking = []
+        """Names of the tracks whose cost rose at the most damped step a pooled fit
+        tried last without accepting it (those that held the globals in place)."""
 
     def default(self, name):
         """Starting value of a global: the base model's, or 0 for the measurement model."""
@@ -274,7 +279,10 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
     stops short. ``max_nfev``: at most this many Jacobians; the fit stops earlier when an
     accepted step lowers the cost by less than ``ftol`` (relative). ``fit_globals=False``
     keeps the globals fixed: every track's state is then fitted alone, accepted track by
-    track, and a converged track is not evaluated again.
+    track, and a converged track is not evaluated again. The returned globals carry the
+    number of steps accepted (``accepted_steps``) and, when the last step was refused, the
+    tracks whose cost rose even at its smallest trial (``blocking``): a fit of the globals
+    that accepted no step has not moved from its start.
     """
     lo, hi = globals_.bounds()
     n_g = len(globals_.names) if fit_globals else 0        # number of free globals
@@ -292,6 +300,7 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
     costs = np.array([_robust_cost(r) for r in res])
     lam, lam_g = np.full(len(tracks), 1e-3), 1e-3
     active = np.ones(len(tracks), dtype=bool)     # tracks still moving (fixed globals only)
+    accepted, blocking = 0, []
     for _ in range(max_nfev):
         if not active.any():
             break
@@ -334,7 +343,11 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
                     gv, P, k, lam_g = g_new, P_new, k_new, max(lam_g / 3.0, 1e-9)
                     for i in pending:
                         xs[i], res[i], costs[i] = trial[i]
+                    accepted, blocking = accepted + 1, []
                     break
+                rise = sorted(((trial[i][2] - costs[i], i) for i in pending
+                               if trial[i][2] > costs[i]), reverse=True)
+                blocking = [tracks[i].name for _, i in rise]
                 lam_g *= 4.0
                 continue
             for i in pending[~worse]:           # independent tracks: each on its own
@@ -351,7 +364,10 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
             active[pending] = False
         if n_g and drop < ftol:
             break
-    return globals_.with_values(gv), xs
+    out = globals_.with_values(gv)
+    if n_g:
+        out.accepted_steps, out.blocking = accepted, blocking
+    return out, xs
 
 
 def fit_pooled_restarted(tracks, globals_, states, max_nfev=40):
@@ -365,7 +381,11 @@ def fit_pooled_restarted(tracks, globals_, states, max_nfev=40):
     if all(tr.spin is not None for tr in tracks):
         return g, states
     states = fit_starts(tracks, g, max_nfev, current=states)
-    return fit_pooled(tracks, g, states, max_nfev=max_nfev)
+    g2, states = fit_pooled(tracks, g, states, max_nfev=max_nfev)
+    if g.accepted_steps is not None:
+        g2.accepted_steps += g.accepted_steps
+        g2.blocking = g2.blocking or g.blocking
+    return g2, states
 
 
 def fit_each(tracks, globals_, states, names):

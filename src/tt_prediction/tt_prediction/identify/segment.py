@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 
+from ..ball import HALF_LENGTH, HALF_WIDTH
 from .data import Track
 
 OUTLIER_DISTANCE = 0.02
@@ -139,7 +140,9 @@ def segment(track, radius=0.02):
 
     Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track;
     a ball below the table surface ends it; a contact away from the table (racket, net: the
-    velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it.
+    velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it;
+    so does a bounce located off the table's outline (the model's ball bounces only with its
+    centre over the table: such a bounce is data in another frame, or an edge ball).
     Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left.
     """
     notes = dict(track.notes)
@@ -173,6 +176,11 @@ def segment(track, radius=0.02):
         if b is None or b.v_out[2] <= ROLL_SPEED:
             # No clear rebound: too few samples after the contact, or a ball that skids.
             end, why = i, 'samples_from_unresolved_bounce'
+            break
+        if abs(b.p[0]) > HALF_LENGTH or abs(b.p[1]) > HALF_WIDTH:
+            # The model's ball would fall past the edge here: its fit would sit on the edge,
+            # where the least change of the state switches the bounce on and off.
+            end, why = i, 'samples_from_bounce_off_table'
             break
         bounces.append(b)
     low = z < radius + ROLL_HEIGHT
