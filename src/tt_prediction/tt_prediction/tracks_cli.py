@@ -25,6 +25,7 @@ from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
 from .cli import hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
+from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, replay_tracks
 from .staged import interruptible, output_folder_error, staged_folder
@@ -184,9 +185,12 @@ def _main(argv=None):
     except ValueError as exc:                  # DataError is a ValueError
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
+    warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params.radius,
+                              args.hit_plane_x)
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
                                      learn=not args.no_learn)
+    summary['warnings'] = warnings
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
     try:
@@ -194,6 +198,8 @@ def _main(argv=None):
     except OSError as exc:
         print(f'tt-predict: {args.out}: cannot write: {exc.strerror}', file=sys.stderr)
         return 2
+    for warning in warnings:
+        print(f'tt-predict: warning: {warning}', file=sys.stderr)
     print(f'tt-predict: wrote {args.out} ({_outcome(summary)})', file=sys.stderr)
     return 0
 

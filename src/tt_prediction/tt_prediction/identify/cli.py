@@ -88,6 +88,8 @@ def main(argv=None):
     except KeyboardInterrupt:
         print('tt-identify: interrupted, nothing written', file=sys.stderr)
         return 130
+    for warning in result.get('warnings', []):
+        print(f'tt-identify: warning: {warning}', file=sys.stderr)
     if result.get('selection_note'):
         print(f"tt-identify: {result['selection_note']}", file=sys.stderr)
     print(f'tt-identify: wrote {args.out} (selected effects: '

@@ -18,6 +18,7 @@ from . import diagnose, evaluate, fitting
 from .blas import blas_threads
 from .data import DataError
 from .effects import LIBRARY, applicable, too_small
+from .frame import frame_warnings
 from .segment import segment
 
 PENALTY_PER_PARAM = 0.02
@@ -100,14 +101,19 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
 
 def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     base = base or ModelParams()
+    warnings = frame_warnings([(tr.name, tr.t, tr.p) for tr in tracks], base.radius,
+                              hit_plane_x)
     prepared, dropped, notes = prepare(tracks, base.radius)
     if len(prepared) < 2:
         first = next(iter(dropped.items()), None)
         why = f'; {first[0]}: {first[1]}' if first else ''
+        hint = f'; {warnings[0]}' if warnings else ''
         raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
-                        f'({len(tracks)} loaded{why}); identification needs at least 2')
+                        f'({len(tracks)} loaded{why}); identification needs at least 2{hint}')
     folds = int(min(folds, len(prepared)))
     g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
+    start = fitting.Globals(base, g_base.names)
+    stuck_by = g_base.blocking if not g_base.accepted_steps else None
     fold_of = evaluate.fold_ids(len(prepared), folds)
 
     n_bounces = int(sum(tr.n_bounces for tr in prepared))
@@ -127,6 +133,9 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         best = _refit(prepared, best, fold_of, max_nfev, tick)
         if round_ == 0:
             base_rms, base_folds, g_base, base_states = best[1:]
+            if stuck_by is not None and np.array_equal(g_base.values, start.values):
+                warnings.append(stuck_warning(start, g_base.blocking or stuck_by,
+                                              len(prepared)))
         results = []
         for e in pool:
             entry, fit = _test_effect(prepared, e, best, fold_of, max_nfev, tick)
@@ -187,6 +196,7 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
         'effects_tested': tested,
         'selected_effects': current,
         'selection_note': small,
+        'warnings': warnings,
         'dropped_for_prediction': dropped_effects,
         'selection_rule': (f'greedy forward; an effect is kept when its relative gain in '
                            f'held-out fit RMS ({folds}-fold, by trajectory) exceeds '
@@ -202,6 +212,18 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
                         'pred_before': before_tracks, 'pred_after': after_tracks,
                         'rebound': rebound_after}
     return result
+
+
+def stuck_warning(start, blocking, n_tracks):
+    """One line: the pooled fit accepted no step, its parameters are its start's."""
+    names = ', '.join(blocking[:3]) + (f' and {len(blocking) - 3} more'
+                                       if len(blocking) > 3 else '')
+    why = (f'; the fit of {len(blocking)} of {n_tracks} tracks ({names}) got worse at the '
+           'smallest step (a jump: e.g. a model ball landing on the edge of the table)'
+           if blocking else '')
+    values = ', '.join(f'{k} = {v:g}' for k, v in start.as_dict().items())
+    return (f'the pooled fit did not move from its start ({values}): no step lowered the '
+            f'cost of all tracks together{why}; the pooled parameters are not identified')
 
 
 def _refit(prepared, current, fold_of, max_nfev, tick):

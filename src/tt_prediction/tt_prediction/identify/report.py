@@ -47,13 +47,15 @@ def markdown(r):
     """The human-readable report (tables of errors, parameters, effects, plots)."""
     d, b, f = r['data'], r['baseline'], r['final']
     lines = ['# tt-identify report', '',
-             f"Sources: {', '.join(r['sources'])}", '',
-             '## Data', '',
-             f"{d['tracks_used']} of {d['tracks_loaded']} tracks used, {d['samples_used']} "
-             f"samples, {d['bounces']} table bounces located; spin measured: "
-             f"{'yes' if d['spin_measured'] else 'no'}"
-             + (f" ({d['tracks_spin_estimated']} tracks with estimated spin, not used as "
-                'measured)' if d.get('tracks_spin_estimated') else '') + '.', '']
+             f"Sources: {', '.join(r['sources'])}", '']
+    for warning in r.get('warnings', []):
+        lines += [f'**Warning:** {warning}', '']
+    lines += ['## Data', '',
+              f"{d['tracks_used']} of {d['tracks_loaded']} tracks used, {d['samples_used']} "
+              f"samples, {d['bounces']} table bounces located; spin measured: "
+              f"{'yes' if d['spin_measured'] else 'no'}"
+              + (f" ({d['tracks_spin_estimated']} tracks with estimated spin, not used as "
+                 'measured)' if d.get('tracks_spin_estimated') else '') + '.', '']
     if d['samples_dropped']:
         lines += ['| samples dropped | count |', '|---|---|']
         lines += [f'| {k} | {v} |' for k, v in d['samples_dropped'].items()]

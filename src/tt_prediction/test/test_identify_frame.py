@@ -1,0 +1,123 @@
+"""Tracks that are not in the table frame, and a pooled fit that cannot move.
+
+The table frame puts the ball's centre at z = radius when it bounces, inside the table's
+outline (|x| <= 1.37 m, |y| <= 0.7625 m), gravity along -z and the robot at x < 0. Tracks
+in another frame must not be turned silently into a model (or a replay without any hit
+error): each command says in one line what does not fit the frame. A pooled fit that
+accepted no step is its start, not an identified model, and must say so.
+"""
+
+import numpy as np
+import pytest
+from tt_prediction.ball import HALF_LENGTH, rollout
+from tt_prediction.identify import fitting
+from tt_prediction.identify import segment as segment_module
+from tt_prediction.identify.data import Track
+from tt_prediction.identify.frame import frame_warnings
+from tt_prediction.identify.pipeline import identify, prepare
+from tt_prediction.identify.segment import segment
+from tt_prediction.identify.synthetic import launch_states, make_tracks
+from tt_prediction.params import ModelParams
+from tt_prediction.tracks_cli import main as tracks_main
+
+TRUE = ModelParams(c_d=0.45, e_t=0.88)
+
+
+def _beyond_the_end(n, seed):
+    """Synthetic tracks moved along x so that each one's first bounce is 5 cm past the
+    opponent's end of the table (origin at the table's end, not its centre), with the true
+    bounce times."""
+    states = launch_states(n, np.random.default_rng(seed))
+    tracks, times = [], []
+    for tr, s0 in zip(make_tracks(n, TRUE, seed=seed, states=states), states, strict=True):
+        events, _ = rollout(s0, TRUE, stop_at_plane=False, stop_at_net=False, max_bounces=1)
+        assert events[0].kind == 'bounce'
+        p = tr.p.copy()
+        p[:, 0] += HALF_LENGTH + 0.05 - events[0].state[0]
+        tracks.append(Track(tr.name, tr.t, p, tr.spin))
+        times.append(events[0].t)
+    return tracks, times
+
+
+def test_a_bounce_off_the_table_ends_the_track_before_it():
+    # The model's ball bounces only over the table: past the edge it falls to the floor. A
+    # track kept through such a bounce can only be fitted with the model ball on the edge.
+    tracks, times = _beyond_the_end(3, seed=7)
+    for tr, t_bounce in zip(tracks, times, strict=True):
+        seg, bounces = segment(tr)
+        assert bounces == []
+        assert seg.t[-1] < t_bounce
+        assert seg.notes['samples_from_bounce_off_table'] > 0
+
+
+def test_tracks_bouncing_off_the_table_do_not_freeze_the_pooled_fit():
+    # Kept through their bounce past the end (as before), no step of the pooled fit lowered
+    # the cost of all tracks: the "fit" was the nominal model exactly.
+    tracks, _ = _beyond_the_end(3, seed=7)
+    result = identify(tracks, folds=2)
+    c_d = result['paper_style']['pooled']['c_d']
+    assert abs(c_d - TRUE.c_d) < 0.02        # the nominal 0.54 is 0.09 away
+    assert not any('did not move' in w for w in result['warnings'])
+
+
+def test_a_pooled_fit_that_accepts_no_step_says_so(monkeypatch):
+    # Tracks whose model ball must land on the table's edge (segmentation told not to cut
+    # them): the least change of a state switches the bounce off, every step is refused.
+    monkeypatch.setattr(segment_module, 'HALF_LENGTH', np.inf)
+    tracks, _ = _beyond_the_end(3, seed=7)
+    prepared, _, _ = prepare(tracks, TRUE.radius)
+    start = fitting.Globals(ModelParams(), ['c_d', 'e_t'])
+    g, _ = fitting.fit_pooled(prepared, start, fitting.fit_starts(prepared, start))
+    assert g.accepted_steps == 0
+    np.testing.assert_array_equal(g.values, start.values)
+    assert set(g.blocking) <= {tr.name for tr in prepared} and g.blocking
+    result = identify(tracks, folds=2)
+    stuck = [w for w in result['warnings'] if 'did not move from its start' in w]
+    assert len(stuck) == 1 and 'not identified' in stuck[0]
+    # A fit that moves reports its steps and no warning of this kind.
+    prepared, _, _ = prepare(make_tracks(3, TRUE, seed=7), TRUE.radius)
+    g, _ = fitting.fit_pooled(prepared, start, fitting.fit_starts(prepared, start))
+    assert g.accepted_steps > 0
+
+
+def _named(tracks):
+    return [(tr.name, tr.t, tr.p) for tr in tracks]
+
+
+def _moved(tracks, fn):
+    return [(tr.name, tr.t, fn(tr.p.copy())) for tr in tracks]
+
+
+def test_tracks_in_the_table_frame_raise_no_frame_warning():
+    tracks = make_tracks(6, TRUE, seed=3)
+    assert frame_warnings(_named(tracks), TRUE.radius, -1.5) == []
+
+
+@pytest.mark.parametrize('change, words', [
+    (lambda p: p + [0.0, 0.0, 0.74], 'none on the table'),          # table surface at 0.74
+    (lambda p: p * [1.0, 1.0, -1.0], 'the balls fall along +z'),    # z down
+    (lambda p: p[:, [0, 2, 1]], 'the balls fall along -y'),         # y up (and z across)
+    (lambda p: p * [-1.0, 1.0, 1.0], 'no track crosses the hitting plane x = -1.5 m'),
+    (lambda p: p + [HALF_LENGTH, 0.0, 0.0], 'bounce at table height off the table'),
+], ids=['z offset', 'z down', 'y up', 'mirrored', 'origin at the end'])
+def test_tracks_in_another_frame_are_named_in_a_warning(change, words):
+    tracks = make_tracks(6, TRUE, seed=3)
+    warnings = frame_warnings(_moved(tracks, change), TRUE.radius, -1.5)
+    assert any(words in w for w in warnings), warnings
+    assert all('\n' not in w and 'table frame' in w for w in warnings)
+
+
+def test_tt_predict_tracks_warns_of_tracks_in_another_frame(tmp_path, capsys):
+    folder = tmp_path / 'zoff'
+    folder.mkdir()
+    for i, tr in enumerate(make_tracks(2, TRUE, seed=3)):
+        rows = np.column_stack([tr.t, tr.p + [0.0, 0.0, 0.74]])
+        np.savetxt(folder / f'{i:04d}.csv', rows, delimiter=',', header='t,x,y,z',
+                   comments='', fmt='%.6f')
+    code = tracks_main(['--tracks', str(folder), '--out', str(tmp_path / 'out'),
+                        '--no-textbook', '--no-learn'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 0
+    assert err[-1].startswith('tt-predict: wrote')
+    assert all(line.startswith('tt-predict: warning:') for line in err[:-1])
+    assert any('none on the table' in line for line in err[:-1])

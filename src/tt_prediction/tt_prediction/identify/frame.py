@@ -1,0 +1,111 @@
+"""Whether measured tracks look like they are in the table frame; one-line warnings if not.
+
+The table frame: origin at the table centre on its surface, x along the table towards the
+opponent (the robot at x < 0), z up. Data in another frame load and fit without an error
+(positions are only numbers) but give a meaningless model or no hit-plane error at all, so
+tt-identify and tt-predict --tracks check what physics fixes in that frame:
+
+- gravity: a ball in flight accelerates down, along -z, by about g (drag and the Magnus
+  force add a few m/s^2 either way);
+- the table's surface: a ball that turns upwards (a contact) near a bounce height is on the
+  table at z = ball radius; if no upward turn of any track is there, the surface is not
+  at z = 0;
+- the table's outline: a table bounce has the ball's centre over the table (|x| <= 1.37 m,
+  |y| <= 0.7625 m), give or take a ball radius for an edge ball;
+- the hitting plane: some track should cross x = hit_plane_x, on the robot's side.
+"""
+
+import numpy as np
+
+from ..ball import HALF_LENGTH, HALF_WIDTH
+
+FRAME = 'the table frame (origin at the table centre on its surface, robot at x < 0, z up)'
+GRAVITY = 9.81
+"""m/s^2; the median flight acceleration along z must be below -GRAVITY / 2."""
+ACC_WINDOW = 0.1
+"""Length of the pieces of track whose acceleration is fitted (a parabola), s."""
+TURN_WINDOW = 0.1
+"""An upward turn: the lowest sample within this time either side, the ball at least two
+radii higher on both sides within it, s."""
+BOUNCE_BAND = 0.05
+"""An upward turn within this of z = radius is a table bounce, m (segment.BOUNCE_HEIGHT)."""
+
+
+def _finite_sorted(t, p):
+    """The finite samples of a track as read, in time order."""
+    ok = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+    order = np.argsort(t[ok], kind='stable')
+    return t[ok][order], p[ok][order]
+
+
+def flight_acceleration(tracks):
+    """Median acceleration (3,) of parabolas fitted to ACC_WINDOW pieces of the tracks
+    ``[(t, p)]`` (a bounce or hit spoils only the pieces it falls in), m/s^2; None when no
+    piece has 8 samples."""
+    accs = []
+    for t, p in tracks:
+        t, p = _finite_sorted(t, p)
+        start = 0
+        while start < len(t):
+            end = int(np.searchsorted(t, t[start] + ACC_WINDOW))
+            if end - start >= 8:
+                accs.append(2.0 * np.polyfit(t[start:end] - t[start], p[start:end], 2)[0])
+            start = max(end, start + 1)
+    return np.median(accs, axis=0) if accs else None
+
+
+def upward_turns(t, p, radius):
+    """Positions (k, 3) where the ball turns upwards: the lowest sample within TURN_WINDOW
+    either side, with the ball at least two radii higher on both sides within that time."""
+    t, p = _finite_sorted(t, p)
+    z, out = p[:, 2], []
+    for i in range(1, len(t) - 1):
+        lo = int(np.searchsorted(t, t[i] - TURN_WINDOW))
+        hi = int(np.searchsorted(t, t[i] + TURN_WINDOW, side='right'))
+        if lo == i or hi == i + 1 or z[i] > z[lo:hi].min() \
+                or z[lo:i].max() < z[i] + 2 * radius \
+                or z[i + 1:hi].max() < z[i] + 2 * radius:
+            continue
+        out.append(p[i])
+    return np.array(out).reshape(-1, 3)
+
+
+def frame_warnings(tracks, radius, hit_plane_x, plane_option='--hit-plane-x'):
+    """One-line warnings for tracks ``[(name, t, p)]`` that do not look like the table frame
+    (module docstring); [] when they do."""
+    out = []
+    n = len(tracks)
+    acc = flight_acceleration([(t, p) for _, t, p in tracks])
+    if acc is not None and acc[2] > -0.5 * GRAVITY:
+        axis = int(np.argmax(np.abs(acc)))
+        down = '-+'[int(acc[axis] > 0)] + 'xyz'[axis]
+        out.append(f'the balls fall along {down}, not -z: median flight acceleration '
+                   f'({acc[0]:.1f}, {acc[1]:.1f}, {acc[2]:.1f}) m/s^2 where gravity gives '
+                   f'about (0, 0, -{GRAVITY:.1f}); are the tracks in {FRAME}?')
+    turns = [(name, upward_turns(t, p, radius)) for name, t, p in tracks]
+    turning = [(name, q) for name, q in turns if len(q)]
+    z_all = np.concatenate([q[:, 2] for _, q in turning]) if turning else np.zeros(0)
+    at_table = np.abs(z_all - radius) <= BOUNCE_BAND
+    if len(turning) >= max(1, n / 2) and not at_table.any():
+        out.append(f'{len(turning)} of {n} tracks turn upwards (a contact) at z = '
+                   f'{np.median(z_all):.2f} m (median) and none on the table, where the ball '
+                   f'centre is at z = {radius:g} m: are the tracks in {FRAME}?')
+    off = []
+    for name, q in turning:
+        bounce = q[np.abs(q[:, 2] - radius) <= BOUNCE_BAND]
+        beyond = (np.abs(bounce[:, 0]) > HALF_LENGTH + radius) \
+            | (np.abs(bounce[:, 1]) > HALF_WIDTH + radius)
+        if beyond.any():
+            off.append((name, bounce[beyond][0]))
+    if off:
+        name, q = off[0]
+        out.append(f'{len(off)} of {n} tracks bounce at table height off the table (e.g. '
+                   f'{name} at x = {q[0]:.2f} m, y = {q[1]:.2f} m; the table is |x| <= '
+                   f'{HALF_LENGTH:g} m, |y| <= {HALF_WIDTH:g} m): are the tracks in {FRAME}?')
+    xs = [p[np.isfinite(p[:, 0]), 0] for _, _, p in tracks]
+    xs = [x for x in xs if len(x)]
+    if xs and not any(np.any(np.diff(np.sign(x - hit_plane_x))) for x in xs):
+        out.append(f'no track crosses the hitting plane x = {hit_plane_x:g} m (the tracks '
+                   f'span x = {min(x.min() for x in xs):.2f} to {max(x.max() for x in xs):.2f}'
+                   f' m): are the tracks in {FRAME}, and is {plane_option} right?')
+    return out
