@@ -120,7 +120,7 @@ def load_filter_config(path, tracks):
     return config
 
 
-OUTPUT_FILE = re.compile(r'(?!index\.csv$).+\.csv|summary\.json')
+OUTPUT_FILE = re.compile(r'(?!index\.csv$).+\.csv|summary\.json', re.IGNORECASE)
 """The files tt-predict --tracks writes: one CSV per track (not a data set's index.csv) and
 summary.json."""
 

@@ -192,7 +192,9 @@ def folder_tracks(folder):
     if not os.path.isdir(folder):
         raise DataError(f'{folder}: not a folder of track CSV files')
     try:
-        files = sorted(f for f in os.listdir(folder) if f.endswith('.csv') and f != 'index.csv')
+        # .csv in any case (a .CSV from another system is a track file too).
+        files = sorted(f for f in os.listdir(folder)
+                       if f.lower().endswith('.csv') and f.lower() != 'index.csv')
     except OSError as exc:
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
@@ -307,17 +309,42 @@ def _tracks_from_stream(path, rows):
 
 def load(paths, topic=None):
     """Tracks of every DATA argument (trajectory folder or bag); DataError on bad input."""
-    tracks = []
+    tracks, seen = [], {}
     for path in paths:
         if not os.path.exists(path):
             raise DataError(f'{path}: no such file or folder')
+        real = os.path.realpath(path)
+        if real in seen:
+            raise DataError(f'{path}: given twice (as {seen[real]}): its tracks would count '
+                            'twice')
+        seen[real] = path
         if os.path.isfile(path) and path.lower().endswith('.csv'):
             raise DataError(f'{path}: a track file; DATA is the folder of track CSV files '
                             '(with its index.csv) or a rosbag2 bag')
         is_bag = os.path.isfile(path) or any(
             f == 'metadata.yaml' or f.endswith(('.mcap', '.db3')) for f in os.listdir(path))
-        tracks.extend(load_bag(path, topic) if is_bag else load_folder(path))
-    return tracks
+        tracks.append(load_bag(path, topic) if is_bag else load_folder(path))
+    given = [os.path.abspath(path) for path in seen.values()]
+    labels = source_labels(given)
+    for path, group in zip(given, tracks, strict=True):      # unique names across sources
+        base = os.path.basename(os.path.normpath(path))
+        for tr in group:
+            tr.name = labels[path] + tr.name[len(base):]
+    return [tr for group in tracks for tr in group]
+
+
+def source_labels(paths):
+    """{absolute path: its shortest trailing part that no other of ``paths`` shares}: the
+    base name, or more of the path where two sources have the same base name."""
+    parts = {p: pathlib.PurePath(os.path.normpath(p)).parts for p in paths}
+    labels = {}
+    for p in paths:
+        for k in range(1, len(parts[p]) + 1):
+            label = '/'.join(parts[p][-k:])
+            if not any(o != p and '/'.join(parts[o][-k:]) == label for o in paths):
+                break
+        labels[p] = label
+    return labels
 
 
 def nominal_rate(tracks):
