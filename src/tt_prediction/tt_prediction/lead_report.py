@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interact
 
 from .ball import load_model  # noqa: E402
 from .cli import hit_plane_error  # noqa: E402
+from .predict import DEFAULT_HIT_PLANE_X  # noqa: E402
 from .replay import LEADS_MS, replay_tracks  # noqa: E402
 from .staged import replace_file  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
@@ -156,8 +157,10 @@ def main(argv=None):
     parser.add_argument('--out', required=True, metavar='FOLDER',
                         help="folder for lead_time.png, .md and .json; tt-identify's "
                              'report.md there gets the section')
-    parser.add_argument('--hit-plane-x', type=float, default=-1.2, metavar='X',
-                        help='hitting plane x, m (default: %(default)s)')
+    parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X, metavar='X',
+                        help="hitting plane x, m (default: %(default)s, tt-identify's and "
+                             "tt-predict's; make report gives -1.2, which the MPI sets' "
+                             'tracks cross)')
     parser.add_argument('--filter-config', metavar='FILE',
                         help='YAML of FilterConfig fields (default: defaults, position noise '
                              'estimated from the data)')
