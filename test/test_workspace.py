@@ -5,6 +5,7 @@ import pathlib
 import subprocess
 import sys
 import sysconfig
+import xml.etree.ElementTree as ET
 
 import numpy
 import pytest
@@ -101,3 +102,15 @@ def test_ball_state_covariance_is_9x9():
     msgs = pytest.importorskip('tt_msgs.msg')
     assert msgs.BallState.get_fields_and_field_types()['covariance'] == 'double[81]'
     assert os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST'
+
+
+@pytest.mark.parametrize('command, package', [
+    (['tt-predict'], 'tt_prediction'), (['tt-predict', '--tracks', 'x'], 'tt_prediction'),
+    (['tt-identify'], 'tt_prediction'), (['tt-strike'], 'tt_strike'),
+    (['tt-perceive'], 'tt_perception')])
+def test_each_command_names_its_version_from_package_xml(command, package):
+    # `--version` was an unrecognised argument (exit 2) in every command.
+    xml = ET.parse(TOP / 'src' / package / 'package.xml').getroot()
+    proc = subprocess.run([*command, '--version'], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == f'{command[0]} {xml.findtext("version")}\n'

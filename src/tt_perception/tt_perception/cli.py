@@ -35,6 +35,7 @@ import tempfile
 
 import numpy as np
 from tt_prediction.ball import load_model
+from tt_prediction.cli import add_version
 from tt_prediction.staged import (
     creatable_error,
     interruptible,
@@ -298,6 +299,7 @@ def _main(argv=None):
         prog='tt-perceive',
         description='Ball tracks (position, velocity, spin) from the video files or the bag of '
                     'a camera rig.')
+    add_version(parser, 'tt_perception')
     parser.add_argument('--rig', required=True, help='rig file (DESIGN.md)')
     parser.add_argument('--out', required=True, help='output trajectory folder')
     parser.add_argument('--bag', help="rosbag2 bag with sensor_msgs/Image on the rig's topics")

@@ -134,6 +134,17 @@ def read_input(model_file, input_file, parse):
         raise InputError(f'{where}{exc}') from None
 
 
+def add_version(parser, package='tt_prediction'):
+    """``--version`` on ``parser``: the program's name and its package's installed version
+    (package.xml's, through setup.cfg)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        number = version(package)
+    except PackageNotFoundError:
+        number = 'unknown (not installed)'
+    parser.add_argument('--version', action='version', version=f'%(prog)s {number}')
+
+
 def hit_plane_error(value):
     """Why ``value`` cannot be a ``--hit-plane-x``, or '': it must be finite and inside
     HIT_PLANE_X_RANGE, the range of the prediction node's ``hit_plane_x`` parameter too."""
@@ -164,6 +175,7 @@ def main(argv=None):
         prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Input and output formats: see docs/prediction.md. Replay of measured tracks: '
                'tt-predict --tracks DIR --out OUT (tt-predict --tracks DIR -h).')
+    add_version(parser)
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')

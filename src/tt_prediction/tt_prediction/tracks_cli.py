@@ -23,7 +23,7 @@ import yaml
 
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
-from .cli import hit_plane_error
+from .cli import add_version, hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
@@ -152,6 +152,7 @@ def _main(argv=None):
     parser = argparse.ArgumentParser(       # the usage line names --tracks as an option
         prog='tt-predict', description=__doc__.splitlines()[0],
         epilog='Output format and measured numbers: see docs/prediction.md.')
+    add_version(parser)
     parser.add_argument('--tracks', metavar='DIR', required=True,
                         help='data set: track CSVs t,x,y,z and index.csv')
     parser.add_argument('--out', metavar='OUT', required=True, help='output folder')

@@ -29,7 +29,14 @@ import math
 import sys
 
 import numpy as np
-from tt_prediction.cli import InputError, hit_plane_error, parse_object, parse_state, read_input
+from tt_prediction.cli import (
+    InputError,
+    add_version,
+    hit_plane_error,
+    parse_object,
+    parse_state,
+    read_input,
+)
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
 from .hitpoint import choose
@@ -123,6 +130,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(
         prog='tt-strike', description=__doc__.splitlines()[0],
         epilog="Input and output formats and the solver's choices: see docs/strike.md.")
+    add_version(parser, 'tt_strike')
     parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')

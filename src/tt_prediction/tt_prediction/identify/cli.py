@@ -10,7 +10,7 @@ import re
 import sys
 
 from ..ball import load_model
-from ..cli import hit_plane_error
+from ..cli import add_version, hit_plane_error
 from ..staged import output_folder_error
 from .data import DataError, load
 from .pipeline import identify
@@ -45,6 +45,7 @@ REPORT_FILE = re.compile('|'.join(map(re.escape, ('report.json', 'report.md', 'm
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='tt-identify',
                                      description=__doc__.splitlines()[0].replace('``', ''))
+    add_version(parser)
     parser.add_argument('data', nargs='+', metavar='DATA',
                         help='trajectory folder or rosbag2 bag')
     parser.add_argument('--out', required=True, metavar='DIR', help='output folder')
