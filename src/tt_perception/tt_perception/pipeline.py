@@ -150,7 +150,17 @@ def ball_image(cam, position, velocity, radius, exposure):
 
 
 class Matcher:
-    """Groups detections of all cameras at the instants of camera 0's frames."""
+    """Groups detections of all cameras at the instants of camera 0's frames.
+
+    The frames come in the order they arrive, their times on camera 0's clock. A camera whose
+    clock is out of step with camera 0's by more than a frame (``time_offset``) delivers its
+    frame of an instant that much later or earlier than camera 0 does (video files are read
+    frame n of each camera in turn, cameras deliver at exposure): camera 0's frames wait for a
+    camera's next frame ``max_wait`` periods plus how far that camera's frames lagged camera
+    0's when it last delivered one, and frames are kept until camera 0 has been matched past
+    them. (A camera 8 frames out of step lost every state: its frames were given up after
+    3 periods, or pruned by the time of the camera ahead.)
+    """
 
     def __init__(self, n_cameras, frame_period, tolerance=None, max_wait=3):
         self.n = n_cameras
@@ -160,12 +170,15 @@ class Matcher:
         self.frames = [collections.deque() for _ in range(n_cameras)]
         self.pending = collections.deque()
         self.latest = [-np.inf] * n_cameras
+        self.lag = [0.0] * n_cameras    # how far camera k's last frame came after camera 0's
 
     def add(self, k, t, detections):
         """Add camera ``k``'s frame at ``t`` with its detections (a list of
         :func:`detection_row`); returns the groups now complete: ``(t, [per-camera list])``."""
         self.frames[k].append((t, detections))
         self.latest[k] = max(self.latest[k], t)
+        if k > 0 and np.isfinite(self.latest[0]):
+            self.lag[k] = max(0.0, self.latest[0] - t)
         if k == 0:
             self.pending.append(t)
         out = []
@@ -192,7 +205,7 @@ class Matcher:
             if before and after and after[0][0] - before[-1][0] <= 2.5 * self.period:
                 group.append(self._interpolate(before[-1], after[0], t0))
                 continue
-            if not after and self.latest[0] - t0 < self.max_wait:
+            if not after and self.latest[0] - t0 < self.max_wait + self.lag[k]:
                 return None                   # camera k's next frame is still to come
             group.append([])
         return group
@@ -213,7 +226,9 @@ class Matcher:
         return out
 
     def _prune(self):
-        oldest = self.pending[0] if self.pending else max(self.latest)
+        # Camera 0's next instant is after its latest frame: a camera ahead of it keeps its
+        # frames until then.
+        oldest = self.pending[0] if self.pending else self.latest[0]
         for frames in self.frames:
             while len(frames) > 2 and frames[1][0] < oldest - self.period:
                 frames.popleft()
