@@ -184,7 +184,7 @@ def test_a_camera_frames_out_of_step_read_frame_by_frame_keeps_every_state(frame
     by_index = {}
     for t, k, frame in frames:          # on each camera's own clock: frame n at n / fps
         by_index.setdefault(k, []).append((t - (offset if k else 0.0), k, frame))
-    read = [item for pair in zip(*by_index.values()) for item in pair]
+    read = [item for pair in zip(*by_index.values(), strict=False) for item in pair]
     rig.cameras[1].time_offset = -offset        # its clock minus camera 0's
     estimates, _ = run(rig, read)
     assert len(in_step) > 60
