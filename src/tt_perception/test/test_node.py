@@ -155,16 +155,22 @@ def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
     # Stamped the frames 2 s apart a second of video: prediction dropped them as stale.
     ({'rig_file': 'VIDEO', 'video_clock': 'wall', 'video_rate': 0.5},
      "video_clock 'wall' needs video_rate 1: at 0.5x"),
+    # Logged an error, said 'ready' and ran on one camera (no state, no exit).
+    ({'rig_file': 'VIDEO_MISSING'}, r'camera cam1: .*/nope\.avi: no such video file$'),
 ])
 def test_a_bad_rig_model_or_topic_stops_the_node_at_start(graph, tmp_path, overrides, words):
     # As prediction_node and strike_node do (one line, exit 2 under ros2 run, and bringup
     # stops the graph): it logged an error, said 'ready' and exited 0 without a state.
     rig_path = synth.make_rig(str(tmp_path))
-    if overrides.get('rig_file') == 'VIDEO':          # a rig of video files
+    if overrides.get('rig_file', '').startswith('VIDEO'):          # a rig of video files
         small = synth.make_rig(str(tmp_path / 'small'), 64, 48, 100.0)
         frames = [(None, k, np.zeros((48, 64, 3), np.uint8)) for _ in range(2) for k in (0, 1)]
         rig_path = synth.write_scene(str(tmp_path / 'video'), small, frames, None)
-    values = [Parameter(k, value=rig_path if v in ('RIG', 'VIDEO') else v)
+        if overrides['rig_file'] == 'VIDEO_MISSING':
+            rig = yaml.safe_load(open(rig_path))
+            rig['cameras'][1]['source'] = 'nope.avi'
+            yaml.safe_dump(rig, open(rig_path, 'w'))
+    values = [Parameter(k, value=rig_path if v in ('RIG', 'VIDEO', 'VIDEO_MISSING') else v)
               for k, v in overrides.items()]
     with pytest.raises(StartupError, match=words):
         PerceptionNode(context=graph.context, parameter_overrides=values)
@@ -242,7 +248,9 @@ def test_blas_threads_are_restored_when_the_node_is_destroyed(graph, tmp_path, m
 
     monkeypatch.setattr(node_module, 'blas_threads', blas_threads)
     ctx = graph.context
-    rig_path = synth.make_rig(str(tmp_path), sources=['cam0.avi', 'cam1.avi'])
+    small = synth.make_rig(str(tmp_path / 'small'), 64, 48, 100.0)
+    frames = [(None, k, np.zeros((48, 64, 3), np.uint8)) for _ in range(2) for k in (0, 1)]
+    rig_path = synth.write_scene(str(tmp_path / 'video'), small, frames, None)
     node = PerceptionNode(context=ctx, parameter_overrides=[
         Parameter('rig_file', value=rig_path)])
     assert events == [('limit', 1)]
@@ -278,8 +286,9 @@ def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
 
 def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, tmp_path):
     # Lossless reading (video_rate 0) waits for every camera's next frame to keep time order;
-    # a camera whose file is missing has ended before its first frame and is not waited for:
-    # every frame of the other file is processed and the node says the files have ended.
+    # a camera whose file went missing after the start-up check (which refuses a missing file)
+    # has ended before its first frame and is not waited for: every frame of the other file
+    # is processed and the node says the files have ended.
     ctx, add = graph.context, graph.add
     rig_path = synth.make_rig(str(tmp_path / 'calib'))
     frames, truth = synth.render_balls(load_rig(rig_path), [synth.incoming_ball()], [0.0],
@@ -287,10 +296,10 @@ def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, 
     frames = list(frames)
     video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
                                   time_offset=0.0)
-    os.remove(tmp_path / 'video' / 'cam1.avi')
     node = add(PerceptionNode(context=ctx, parameter_overrides=[
         Parameter('rig_file', value=video_rig), Parameter('video_rate', value=0.0),
         Parameter('frame_queue', value=2)]))
+    os.remove(tmp_path / 'video' / 'cam1.avi')   # before the files start: on a spin
     graph.spin_until(lambda: node._ended >= {0, 1}, 60.0, 'both video files to end')
     assert node.frames_received == sum(1 for _, k, _ in frames if k == 0)
 

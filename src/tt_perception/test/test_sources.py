@@ -24,6 +24,15 @@ def test_source_kind(source, kind):
     assert source_kind(source) == kind
 
 
+def test_a_folder_of_images_is_looked_for_beside_the_rig(tmp_path, monkeypatch):
+    # 'cam0_frames' (no trailing slash) beside the rig was a topic when the rig was used from
+    # another directory: tt-perceive refused it, perception_node waited for images for ever.
+    (tmp_path / 'rig' / 'cam0_frames').mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    assert source_kind('cam0_frames') == 'topic'
+    assert source_kind('cam0_frames', str(tmp_path / 'rig')) == 'file'
+
+
 def test_image_encodings_become_the_same_bgr():
     rng = np.random.default_rng(1)
     bgr = rng.integers(0, 255, (4, 5, 3), dtype=np.uint8)

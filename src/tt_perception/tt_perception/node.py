@@ -58,7 +58,13 @@ from .camstream import (
 )
 from .detect import DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import camera_info_topic, image_to_bgr, source_kind
+from .sources import (
+    camera_info_topic,
+    file_source_error,
+    file_source_path,
+    image_to_bgr,
+    source_kind,
+)
 
 STATE_TOPIC = 'ball/state'
 """The ball states' topic, relative to the node's namespace (/ball/state in the root one,
@@ -208,11 +214,17 @@ class PerceptionNode(Node):
         except Exception as exc:       # the model loader's own errors (file, YAML, values)
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise StartupError(f'model_file: {first}') from None
+        base = os.path.dirname(rig.path)
         for cam in rig.cameras:
-            if source_kind(cam.source) == 'topic':
+            kind = source_kind(cam.source, base)
+            if kind == 'topic':
                 _check_topic(cam.source, f'rig {rig_file}: camera {cam.name}: source '
                              f'{cam.source!r} is no video file, image sequence or V4L2 device '
                              'and')
+            elif kind == 'file':        # missing, unreadable, frames of another size
+                error = file_source_error(rig, cam)
+                if error:
+                    raise StartupError(f'rig {rig_file}: camera {cam.name}: {error}')
         if self._p('measured_spin_topic'):
             _check_topic(self._p('measured_spin_topic'), 'measured_spin_topic')
         fourcc = self._p('device_fourcc')
@@ -220,7 +232,7 @@ class PerceptionNode(Node):
             raise StartupError(f"device_fourcc '{fourcc}' is not 4 characters (e.g. MJPG, "
                                "YUYV; empty: the driver's format)")
         if (self._p('video_clock') == 'wall' and self._p('video_rate') != 1.0
-                and any(source_kind(c.source) == 'file' for c in rig.cameras)):
+                and any(source_kind(c.source, base) == 'file' for c in rig.cameras)):
             raise StartupError(f"video_clock 'wall' needs video_rate 1: at "
                                f"{self._p('video_rate'):g}x the wall clock would stretch the "
                                "ball's flight (video_clock 'video' keeps the video's time)")
@@ -242,7 +254,7 @@ class PerceptionNode(Node):
         warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame
         files, devices = [], []
         for k, cam in enumerate(rig.cameras):
-            kind = source_kind(cam.source)
+            kind = source_kind(cam.source, os.path.dirname(rig.path))
             if kind == 'topic':
                 self.create_subscription(Image, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),
@@ -369,7 +381,6 @@ class PerceptionNode(Node):
                     f'({have} now; parameter wait_for_subscribers)')
             return
         self._file_timer.cancel()
-        base = os.path.dirname(self.rig.path)
         # Frame 0 of every file 20 ms from now, on the camera threads' clock.
         start = MonotonicClock.now() + 0.02
         self._video_start = time.time() + (start - MonotonicClock.now())
@@ -377,9 +388,9 @@ class PerceptionNode(Node):
         readers = []
         for k in self._files:
             cam = self.rig.cameras[k]
-            path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
             try:
-                source = PacedVideoSource(path, fps, buffers=CAMERA_BUFFERS, stop=self._stop,
+                source = PacedVideoSource(file_source_path(self.rig, cam), fps,
+                                          buffers=CAMERA_BUFFERS, stop=self._stop,
                                           start=start, rate=self._p('video_rate')).open()
                 error, warning = source.disagreement(cam, fps)
                 if warning:

@@ -30,15 +30,37 @@ SOURCE_KINDS = ('v4l2', 'file', 'topic')
 VIDEO_EXTENSIONS = ('.avi', '.mp4', '.mkv', '.mov', '.webm', '.png', '.jpg', '.jpeg', '.bmp')
 
 
-def source_kind(source):
-    """'v4l2', 'file' or 'topic' for a rig camera's ``source`` string."""
+def source_kind(source, base=''):
+    """'v4l2', 'file' or 'topic' for a rig camera's ``source`` string; ``base``: the rig
+    file's folder, which a relative folder of images is in (it was looked for in the
+    current directory: the rig's 'cam0_frames' was taken for a topic from elsewhere)."""
     s = str(source).strip()
     if s.startswith('/dev/') or s.isdigit():
         return 'v4l2'
     if ('%' in s or s.endswith('/') or os.path.splitext(s)[1].lower() in VIDEO_EXTENSIONS
-            or os.path.isdir(s)):
+            or os.path.isdir(os.path.join(base, s))):
         return 'file'
     return 'topic'
+
+
+def file_source_path(rig, cam):
+    """The path of camera ``cam``'s video file or image sequence: its source, relative to
+    the folder of the rig file ``rig``."""
+    return os.path.join(os.path.dirname(rig.path), cam.source)
+
+
+def file_source_error(rig, cam):
+    """Why camera ``cam``'s video file cannot be used ('<path>: no such video file', frames
+    not of its calibration's size, ...), or None; the file is opened and closed again."""
+    try:
+        source = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
+    except OSError as exc:
+        return str(exc)
+    try:
+        error, _ = source.disagreement(cam, rig.fps)
+    finally:
+        source.close()
+    return error or None
 
 
 def camera_info_topic(image_topic):
@@ -261,11 +283,10 @@ def file_frames(rig, notes=None):
     sources = {}
     try:
         for k, cam in enumerate(rig.cameras):
-            if source_kind(cam.source) != 'file':
+            if source_kind(cam.source, base) != 'file':
                 raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file')
-            path = cam.source if os.path.isabs(cam.source) else os.path.join(base, cam.source)
             try:
-                sources[k] = VideoFileSource(path, rig.fps).open()
+                sources[k] = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
             except OSError as exc:
                 raise OSError(f'camera {cam.name}: {exc}') from None
             error, warning = sources[k].disagreement(cam, rig.fps)
