@@ -60,6 +60,10 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: info.unlink(), 'cam0.yaml: no such file'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(rotation=[1] * 9)),
      'rotation is not a rotation matrix'),
+    # A pose copied to 3 decimals was refused without saying how far off it was.
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(rotation=[
+        round(v, 3) for v in d['cameras'][0]['rotation']])),
+     'off I, det R = 1.00038 (tolerance 0.0001; numbers rounded to 3 decimals'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(translation=['a', 0, 0])),
      'cameras[1] (cam1): rotation needs 9 numbers and translation 3'),
     (lambda rig, info: _edit(info, lambda d: d['camera_matrix'].update(data=[0] * 9)),
@@ -83,7 +87,8 @@ def test_rig_round_trip(tmp_path):
      "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
      'rotation, translation, time_offset)'),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
-], ids=['missing rig', 'missing camera_info', 'bad rotation', 'bad translation',
+], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
+        'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'principal point off',
         'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
         'misspelt key',

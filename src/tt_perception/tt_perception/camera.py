@@ -30,6 +30,8 @@ class CalibrationError(ValueError):
 
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)
 """Iteration criteria of the undistortion: at most 20 iterations or a step below 1e-9."""
+ROTATION_TOLERANCE = 1e-4
+"""Largest entry of R R^T - I, and of det R - 1, of a rig pose's rotation."""
 
 
 @dataclasses.dataclass
@@ -276,9 +278,13 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
             raise CalibrationError(f'{where} ({name}): pose has a non-finite number')
         if translation_error(t):
             raise CalibrationError(f'{where} ({name}): {translation_error(t)}')
-        if (np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R) - 1.0) > 1e-4):
-            raise CalibrationError(f'{where} ({name}): rotation is not a rotation matrix '
-                                   '(R R^T = I, det R = 1)')
+        off, det = np.abs(R @ R.T - np.eye(3)).max(), np.linalg.det(R)
+        if off > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+            raise CalibrationError(
+                f'{where} ({name}): rotation is not a rotation matrix (R R^T = I, det R = 1): '
+                f'R R^T is up to {off:.1g} off I, det R = {det:.6g} (tolerance '
+                f'{ROTATION_TOLERANCE:g}; numbers rounded to 3 decimals are 1e-3 off: give '
+                'at least 5)')
         offset = entry.get('time_offset')
         if offset is not None:
             try:
