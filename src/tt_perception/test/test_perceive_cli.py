@@ -59,6 +59,28 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
     assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
 
 
+@pytest.mark.parametrize('edit', ['transposed', 'none'])
+def test_poses_whose_rays_never_meet_are_named_in_a_warning(scene, tmp_path, capsys, edit):
+    # A rig with a rotation transposed (a camera-to-table pose) saw the ball in both cameras
+    # in every frame and gave '0 track(s)', exit 0, without a word.
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth])
+    if edit == 'transposed':
+        rig = yaml.safe_load(open(video_rig))
+        rig['cameras'][1]['rotation'] = np.array(rig['cameras'][1]['rotation']).reshape(
+            3, 3).T.ravel().tolist()
+        yaml.safe_dump(rig, open(video_rig, 'w'))
+    assert cli.main(['--rig', video_rig, '--out', str(tmp_path / 'out')]) == 0
+    err = capsys.readouterr().err
+    warned = [line for line in err.splitlines() if 'their rays met' in line]
+    if edit == 'transposed':
+        assert len(warned) == 1 and warned[0].startswith('tt-perceive: warning: two cameras '
+                                                         'or more saw a ball at ')
+        assert 'x_cam = R x_table + t' in warned[0]
+    else:
+        assert warned == [], err
+
+
 def test_ctrl_c_is_one_line_exit_130_and_no_output(scene, tmp_path, capsys, monkeypatch):
     # An interrupt while the frames are processed: no traceback, status 130, no output.
     base, rig_path, frames, truth = scene

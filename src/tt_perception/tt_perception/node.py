@@ -437,6 +437,9 @@ class PerceptionNode(Node):
                         f'end of the video files: {self.frames_received} frames, '
                         f'{self.states_published} states, {self.drops.pairs} frame pairs '
                         'dropped')
+                    geometry = self.pipeline.geometry_warning()
+                    if geometry:
+                        self.get_logger().warning(geometry)
                 continue
             # Exposure times on the wall clock: live stamps are; video times start at the
             # files' start.

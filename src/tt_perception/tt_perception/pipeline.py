@@ -418,6 +418,8 @@ class Pipeline:
         self.config = self.tracker.config
         self.offsets = [c.time_offset or 0.0 for c in self.cameras]
         self.last_error = None
+        self.seen_by_two = 0        # instants with detections in two cameras or more
+        self.triangulated = 0       # ... of which a point passed the gates
 
     def detect(self, t, k, frame, snapshot=LIVE):
         """Detections in camera ``k``'s frame stamped ``t`` (s, its own clock), for
@@ -453,8 +455,23 @@ class Pipeline:
             self.tracker.advance(t0)
             # A confirmed track takes only the fitted points: no triangulation of the blobs'.
             points = self._points(group, blobs=not self.tracker.confirmed)
+            self.seen_by_two += sum(1 for dets in group if dets) >= 2
+            self.triangulated += bool(points)
             out += self.tracker.add(t0, points)
         return out
+
+    def geometry_warning(self):
+        """One line when the cameras saw a ball together at many instants (20 or more) but
+        almost never (under a tenth) did their rays meet within ``max_reprojection``: a pose
+        in another convention, a transposed rotation or a wrong ``time_offset``, which gave
+        no track without a word; else None."""
+        if self.seen_by_two < 20 or self.triangulated >= 0.1 * self.seen_by_two:
+            return None
+        return (f'two cameras or more saw a ball at {self.seen_by_two} instants but their rays '
+                f'met (within max_reprojection {self.config.max_reprojection:g} px) at only '
+                f"{self.triangulated}: check the rig's poses (rotation and translation take "
+                'table points into the camera frame: x_cam = R x_table + t) and each '
+                "camera's time_offset (its clock minus camera 0's)")
 
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
