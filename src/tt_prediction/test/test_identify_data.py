@@ -240,6 +240,14 @@ def test_an_index_row_whose_file_is_missing_is_one_line_naming_it(tmp_path):
     assert str(err.value) == f"{tmp_path / 'set' / 'index.csv'}: names nope.csv, not in the folder"
 
 
+def test_a_file_named_by_two_index_rows_is_one_line_naming_it(tmp_path):
+    # The last row won without a word (a measured spin replaced by another).
+    with pytest.raises(DataError) as err:
+        _folder_with_index(tmp_path / 'set', ['file,wx,wy,wz', 'a.csv,0,1,0', 'a.csv,0,2,0'])
+    assert str(err.value) == (f"{tmp_path / 'set' / 'index.csv'}: line 3: a.csv is named by "
+                              'an earlier row too')
+
+
 def test_bag_without_the_topic_is_an_error(tmp_path, capsys):
     bag = tmp_path / 'bag'
 

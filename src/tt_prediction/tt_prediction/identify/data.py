@@ -165,7 +165,10 @@ def read_index(folder):
         if source == 'estimated':
             spin = None
         label = row[label_col].strip() if label_col is not None else ''
-        index[row[0].strip()] = (spin, label, source)
+        name = row[0].strip()
+        if name in index:           # the last row won, without a word
+            raise DataError(f'{path}: line {i + 2}: {name} is named by an earlier row too')
+        index[name] = (spin, label, source)
     return index
 
 
