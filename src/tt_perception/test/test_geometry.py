@@ -87,12 +87,15 @@ def test_rig_round_trip(tmp_path):
      "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
      'rotation, translation, time_offset)'),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
+    # Published states in 'world', each dropped by prediction_node ("is not 'table'").
+    (lambda rig, info: _edit(rig, lambda d: d.update(frame_id='world')),
+     "frame_id 'world': the poses are in the table frame (MODEL.md), frame_id 'table'"),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
         'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'principal point off',
         'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
         'misspelt key',
-        'unknown rig key'])
+        'unknown rig key', 'frame not the table'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'
     synth.make_rig(str(tmp_path))

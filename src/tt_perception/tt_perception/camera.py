@@ -309,7 +309,11 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
     error = baseline_error(cameras, min_baseline)
     if error:
         raise CalibrationError(f'rig {path}: {error}')
-    return Rig(cameras, fps, str(data.get('frame_id', 'table')), os.path.abspath(path))
+    frame_id = data.get('frame_id', 'table')
+    if frame_id != 'table':         # states in it were dropped by prediction_node, each one
+        raise CalibrationError(f"rig {path}: frame_id {frame_id!r}: the poses are in the "
+                               "table frame (MODEL.md), frame_id 'table'")
+    return Rig(cameras, fps, frame_id, os.path.abspath(path))
 
 
 def set_camera_pose(path, index, R, t):
