@@ -44,6 +44,18 @@ def test_folders_with_the_same_base_name_give_distinct_track_names(tmp_path):
     assert [tr.name for tr in load([str(a)])] == ['sim/0000.csv']
 
 
+@pytest.mark.parametrize('cwd, given', [('sim', '.'), ('sim', './'), ('.', 'sim/../sim'),
+                                       ('sim', '../sim')])
+def test_a_folder_given_as_a_relative_path_names_its_tracks_by_its_own_name(tmp_path,
+                                                                             monkeypatch,
+                                                                             cwd, given):
+    # '.' named 0000.csv and 1000.csv both 'sim000.csv' (the name cut at the length of the
+    # folder's absolute name).
+    _folder(tmp_path / 'sim', ['0000.csv', '1000.csv'])
+    monkeypatch.chdir(tmp_path / cwd)
+    assert [tr.name for tr in load([given])] == ['sim/0000.csv', 'sim/1000.csv']
+
+
 def test_upper_case_csv_files_are_track_files_in_both_readers(tmp_path):
     names = ['0000.CSV', '0001.csv', '0002.Csv']
     plain = _folder(tmp_path / 'plain', names)

@@ -330,9 +330,8 @@ def load(paths, topic=None):
     given = [os.path.abspath(path) for path in seen.values()]
     labels = source_labels(given)
     for path, group in zip(given, tracks, strict=True):      # unique names across sources
-        base = os.path.basename(os.path.normpath(path))
-        for tr in group:
-            tr.name = labels[path] + tr.name[len(base):]
+        for tr in group:            # '<folder as given>/<file>': the folder's label instead
+            tr.name = f"{labels[path]}/{tr.name.split('/', 1)[1]}"
     return [tr for group in tracks for tr in group]
 
 
