@@ -35,12 +35,13 @@ def subscribe_input(node, msg_type, topic, callback, qos):
     """``node.create_subscription(msg_type, topic, callback, qos)`` with :func:`input_events`;
     without them, and a warning, on a middleware that has no matched events (bringup then
     waits its limit for the line). The lines name the topic as resolved: namespace and
-    remapping applied."""
-    topic = node.resolve_topic_name(topic)
+    remapping applied (the subscription is made with ``topic`` as given: rcl remaps it once).
+    """
+    name = node.resolve_topic_name(topic)
     try:
         return node.create_subscription(msg_type, topic, callback, qos,
-                                        event_callbacks=input_events(node, topic))
+                                        event_callbacks=input_events(node, name))
     except UnsupportedEventTypeError:
-        node.get_logger().warning(f'{topic}: this middleware does not report matched '
+        node.get_logger().warning(f'{name}: this middleware does not report matched '
                                   'publishers; no connected line')
         return node.create_subscription(msg_type, topic, callback, qos)
