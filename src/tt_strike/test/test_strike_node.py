@@ -327,6 +327,17 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
         g.spin_until(lambda: len(g.commands) == n, 20.0, "another ball's command")
         assert g.commands[-1].track_id == 4 and g.commands[-1].feasible
         assert seconds(g.commands[-1].hit_time) - now >= WORKSPACE.min_time_before_hit
+        # Track 3 again 100 s later: another ball under a used id (perception restarted and
+        # numbers from 1 again). Its kept time, 100 s past, made every one 'too_late'.
+        later = prediction_msg(3)
+        later.header.stamp.sec += 100
+        later.hit_time.sec += 100
+        g.node.get_clock().set_ros_time_override(rclpy.time.Time(
+            nanoseconds=round((hit_t + 99.5) * 1e9)))
+        g.pub.publish(later)
+        g.spin_until(lambda: len(g.commands) == n + 1, 20.0, "the new ball's command")
+        assert g.commands[-1].track_id == 3 and g.commands[-1].feasible
+        assert g.node.n_too_late == 1
     finally:
         g.close()
 

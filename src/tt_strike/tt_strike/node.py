@@ -123,6 +123,10 @@ def check_parameters(values):
 
 TALLIED_TRACKS = 20
 """Tracks whose counts the exit summary lists (the latest)."""
+NEW_BALL_GAP_S = 1.0
+"""A prediction stamped this long after its track's kept hit time, or before the track's
+last prediction, is of another ball under a used id (perception numbers its tracks from 1
+again when it restarts; prediction_node's TRACK_GAP_S): its hit time is chosen afresh."""
 
 
 @dataclasses.dataclass
@@ -139,6 +143,8 @@ class TrackTally:
     """A command with a feasible stroke was sent."""
     hit_t: float = None
     """The hit time of the last feasible stroke, s (kept: tt_strike.hitpoint)."""
+    stamp: float = -math.inf
+    """The stamp of the track's last prediction, s."""
 
 
 class StrikeNode(Node):
@@ -291,6 +297,11 @@ class StrikeNode(Node):
                 settings.aim_inside_zone or self._probability_due(key, stamp_ns)):
             cov = self._covariance(msg, state)
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
+        stamp = stamp_ns * 1e-9
+        if tally.hit_t is not None and (stamp > tally.hit_t + NEW_BALL_GAP_S
+                                        or stamp < tally.stamp):
+            tally.hit_t = None          # another ball under a used id: nothing kept
+        tally.stamp = stamp
         now = self.get_clock().now().nanoseconds * 1e-9
         if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
             now = -math.inf                          # no hit-time check: not comparable
