@@ -7,6 +7,7 @@ from tt_perception.detect import DetectorConfig
 from tt_perception.pipeline import (
     BLOB_XY,
     XY,
+    Matcher,
     Pipeline,
     Tracker,
     TrackerConfig,
@@ -193,6 +194,16 @@ def test_a_camera_frames_out_of_step_read_frame_by_frame_keeps_every_state(frame
     assert len(pairs) == len(estimates)
     err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in pairs])
     assert np.sqrt(np.mean(err ** 2)) <= 2e-3
+
+
+def test_a_camera_alone_keeps_a_bounded_backlog():
+    # Camera 0 silent (unplugged), camera 1 running: its frames were kept for ever (20,000
+    # frames, 20,000 entries), waiting for camera 0 to be matched past them.
+    matcher = Matcher(2, 1 / 150.0)
+    for n in range(20000):
+        assert matcher.add(1, n / 150.0, []) == []
+    # Its clock may be up to a second either way of camera 0's: that much is kept, no more.
+    assert 300 < len(matcher.frames[1]) < 400
 
 
 HALL_EXPOSURE = 2e-3

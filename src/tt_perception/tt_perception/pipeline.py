@@ -34,6 +34,7 @@ import numpy as np
 from tt_prediction.ball import ModelParams
 from tt_prediction.ball_filter import BallFilter, FilterConfig, smooth
 
+from .camera import MAX_TIME_OFFSET_S
 from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
 
@@ -167,8 +168,11 @@ class Matcher:
         self.period = frame_period
         self.tol = tolerance if tolerance is not None else 0.1 * frame_period
         self.max_wait = max_wait * frame_period
-        self.frames = [collections.deque() for _ in range(n_cameras)]
-        self.pending = collections.deque()
+        # Frames kept per camera: a clock up to MAX_TIME_OFFSET_S either way of camera 0's,
+        # and the wait; bounded while camera 0 sends nothing (none was matched past them).
+        keep = int(np.ceil((2.0 * MAX_TIME_OFFSET_S + self.max_wait) / frame_period)) + 4
+        self.frames = [collections.deque(maxlen=keep) for _ in range(n_cameras)]
+        self.pending = collections.deque(maxlen=keep)
         self.latest = [-np.inf] * n_cameras
         self.lag = [0.0] * n_cameras    # how far camera k's last frame came after camera 0's
 
