@@ -214,9 +214,8 @@ class PerceptionNode(Node):
         except Exception as exc:       # the model loader's own errors (file, YAML, values)
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise StartupError(f'model_file: {first}') from None
-        base = os.path.dirname(rig.path)
-        for cam in rig.cameras:
-            kind = source_kind(cam.source, base)
+        kinds = [source_kind(cam.source, os.path.dirname(rig.path)) for cam in rig.cameras]
+        for cam, kind in zip(rig.cameras, kinds, strict=True):
             if kind == 'topic':
                 _check_topic(cam.source, f'rig {rig_file}: camera {cam.name}: source '
                              f'{cam.source!r} is no video file, image sequence or V4L2 device '
@@ -232,7 +231,7 @@ class PerceptionNode(Node):
             raise StartupError(f"device_fourcc '{fourcc}' is not 4 characters (e.g. MJPG, "
                                "YUYV; empty: the driver's format)")
         if (self._p('video_clock') == 'wall' and self._p('video_rate') != 1.0
-                and any(source_kind(c.source, base) == 'file' for c in rig.cameras)):
+                and 'file' in kinds):
             raise StartupError(f"video_clock 'wall' needs video_rate 1: at "
                                f"{self._p('video_rate'):g}x the wall clock would stretch the "
                                "ball's flight (video_clock 'video' keeps the video's time)")
@@ -253,8 +252,7 @@ class PerceptionNode(Node):
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
         warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame
         files, devices = [], []
-        for k, cam in enumerate(rig.cameras):
-            kind = source_kind(cam.source, os.path.dirname(rig.path))
+        for k, (cam, kind) in enumerate(zip(rig.cameras, kinds, strict=True)):
             if kind == 'topic':
                 self.create_subscription(Image, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),

@@ -90,7 +90,7 @@ def _moved(tracks, fn):
 
 def test_tracks_in_the_table_frame_raise_no_frame_warning():
     tracks = make_tracks(6, TRUE, seed=3)
-    assert frame_warnings(_named(tracks), TRUE.radius, -1.5) == []
+    assert frame_warnings(_named(tracks), TRUE, -1.5) == []
 
 
 @pytest.mark.parametrize('change, words', [
@@ -102,7 +102,7 @@ def test_tracks_in_the_table_frame_raise_no_frame_warning():
 ], ids=['z offset', 'z down', 'y up', 'mirrored', 'origin at the end'])
 def test_tracks_in_another_frame_are_named_in_a_warning(change, words):
     tracks = make_tracks(6, TRUE, seed=3)
-    warnings = frame_warnings(_moved(tracks, change), TRUE.radius, -1.5)
+    warnings = frame_warnings(_moved(tracks, change), TRUE, -1.5)
     assert any(words in w for w in warnings), warnings
     assert all('\n' not in w and 'table frame' in w for w in warnings)
 

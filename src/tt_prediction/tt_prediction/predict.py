@@ -255,8 +255,9 @@ def solid_gap(x, y, z, r):
 
 
 @njit(cache=True, nogil=True)
-def _hermite(s, s1, h, u, i):
-    """Coordinate i of the cubic Hermite position between states s and s1 (step h) at u."""
+def hermite_position(s, s1, h, u, i):
+    """Coordinate i of the cubic Hermite position between states s and s1 (step h) at u: the
+    cubic through both positions and velocities (u in [0, 1])."""
     u2 = u * u
     u3 = u2 * u
     return ((2.0 * u3 - 3.0 * u2 + 1.0) * s[i] + (u3 - 2.0 * u2 + u) * h * s[3 + i]
@@ -359,8 +360,9 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                     if j == _SUBSTEPS:
                         g, kg = solid_gap(s1[0], s1[1], s1[2], r)
                     else:
-                        g, kg = solid_gap(_hermite(s, s1, h, u, 0), _hermite(s, s1, h, u, 1),
-                                          _hermite(s, s1, h, u, 2), r)
+                        g, kg = solid_gap(hermite_position(s, s1, h, u, 0),
+                                          hermite_position(s, s1, h, u, 1),
+                                          hermite_position(s, s1, h, u, 2), r)
                     if g <= 0.0 and (g_prev > 0.0 or j > 1):
                         lo, hi = u_prev * h, u * h
                         for _ in range(_BISECT):

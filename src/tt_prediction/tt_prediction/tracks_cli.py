@@ -186,7 +186,7 @@ def _main(argv=None):
     except ValueError as exc:                  # DataError is a ValueError
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
-    warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params.radius,
+    warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params,
                               args.hit_plane_x)
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,

@@ -34,7 +34,7 @@ import dataclasses
 import math
 
 import numpy as np
-from tt_prediction.predict import Hit, predict
+from tt_prediction.predict import Hit, hermite_position, predict
 
 from .incoming import hit_point
 from .robust import linear_in_zone_probability, noise_covariance
@@ -75,7 +75,7 @@ def _hit_from_row(row):
 def _row_at(rows, t):
     """The row [t, p, v, w] at time ``t`` between two of ``rows`` (10 ms apart), or None
     outside them: the position on the cubic through both rows' positions and velocities
-    (cubic Hermite: within microns of the flight), velocity and spin linear."""
+    (``predict.hermite_position``: within microns of the flight), velocity and spin linear."""
     times = rows[:, 0]
     if rows.shape[0] == 0 or not times[0] <= t <= times[-1]:
         return None
@@ -85,8 +85,7 @@ def _row_at(rows, t):
     s = (t - a[0]) / h if h > 0.0 else 0.0
     row = a + s * (b - a)
     row[0] = t
-    row[1:4] = ((2 * s**3 - 3 * s**2 + 1) * a[1:4] + (s**3 - 2 * s**2 + s) * h * a[4:7]
-                + (3 * s**2 - 2 * s**3) * b[1:4] + (s**3 - s**2) * h * b[4:7])
+    row[1:4] = [hermite_position(a[1:10], b[1:10], h, s, i) for i in range(3)]
     return row
 
 

@@ -18,17 +18,14 @@ tt-identify and tt-predict --tracks check what physics fixes in that frame:
 import numpy as np
 
 from ..ball import HALF_LENGTH, HALF_WIDTH
+from .segment import BOUNCE_HEIGHT
 
 FRAME = 'the table frame (origin at the table centre on its surface, robot at x < 0, z up)'
-GRAVITY = 9.81
-"""m/s^2; the median flight acceleration along z must be below -GRAVITY / 2."""
 ACC_WINDOW = 0.1
 """Length of the pieces of track whose acceleration is fitted (a parabola), s."""
 TURN_WINDOW = 0.1
 """An upward turn: the lowest sample within this time either side, the ball at least two
 radii higher on both sides within it, s."""
-BOUNCE_BAND = 0.05
-"""An upward turn within this of z = radius is a table bounce, m (segment.BOUNCE_HEIGHT)."""
 
 
 def _finite_sorted(t, p):
@@ -70,29 +67,32 @@ def upward_turns(t, p, radius):
     return np.array(out).reshape(-1, 3)
 
 
-def frame_warnings(tracks, radius, hit_plane_x, plane_option='--hit-plane-x'):
+def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
     """One-line warnings for tracks ``[(name, t, p)]`` that do not look like the table frame
-    (module docstring); [] when they do."""
+    (module docstring) of a ball ``params`` (ModelParams: its radius and gravity); [] when
+    they do. The median flight acceleration along z must be below -g / 2, an upward turn
+    within segment.BOUNCE_HEIGHT of z = r is a table bounce."""
+    radius, gravity = params.radius, params.gravity
     out = []
     n = len(tracks)
     acc = flight_acceleration([(t, p) for _, t, p in tracks])
-    if acc is not None and acc[2] > -0.5 * GRAVITY:
+    if acc is not None and acc[2] > -0.5 * gravity:
         axis = int(np.argmax(np.abs(acc)))
         down = '-+'[int(acc[axis] > 0)] + 'xyz'[axis]
         out.append(f'the balls fall along {down}, not -z: median flight acceleration '
                    f'({acc[0]:.1f}, {acc[1]:.1f}, {acc[2]:.1f}) m/s^2 where gravity gives '
-                   f'about (0, 0, -{GRAVITY:.1f}); are the tracks in {FRAME}?')
+                   f'about (0, 0, -{gravity:.1f}); are the tracks in {FRAME}?')
     turns = [(name, upward_turns(t, p, radius)) for name, t, p in tracks]
     turning = [(name, q) for name, q in turns if len(q)]
     z_all = np.concatenate([q[:, 2] for _, q in turning]) if turning else np.zeros(0)
-    at_table = np.abs(z_all - radius) <= BOUNCE_BAND
+    at_table = np.abs(z_all - radius) <= BOUNCE_HEIGHT
     if len(turning) >= max(1, n / 2) and not at_table.any():
         out.append(f'{len(turning)} of {n} tracks turn upwards (a contact) at z = '
                    f'{np.median(z_all):.2f} m (median) and none on the table, where the ball '
                    f'centre is at z = {radius:g} m: are the tracks in {FRAME}?')
     off = []
     for name, q in turning:
-        bounce = q[np.abs(q[:, 2] - radius) <= BOUNCE_BAND]
+        bounce = q[np.abs(q[:, 2] - radius) <= BOUNCE_HEIGHT]
         beyond = (np.abs(bounce[:, 0]) > HALF_LENGTH + radius) \
             | (np.abs(bounce[:, 1]) > HALF_WIDTH + radius)
         if beyond.any():

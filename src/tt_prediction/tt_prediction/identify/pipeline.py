@@ -101,7 +101,7 @@ def identify(tracks, base=None, folds=5, hit_plane_x=-1.5, progress=None, max_nf
 
 def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     base = base or ModelParams()
-    warnings = frame_warnings([(tr.name, tr.t, tr.p) for tr in tracks], base.radius,
+    warnings = frame_warnings([(tr.name, tr.t, tr.p) for tr in tracks], base,
                               hit_plane_x)
     prepared, dropped, notes = prepare(tracks, base.radius)
     if len(prepared) < 2:
