@@ -187,7 +187,8 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
         assert cmd.reason.startswith('racket speed') and 'limit 0.2 m/s' in cmd.reason
         # The exit summary says which balls came and what was sent for each.
         counts, times, tracks = g.node.work_summary().split('; ', 2)
-        assert counts == '3 predictions, 1 commands, 2 dropped, 0 too late'
+        assert counts == ('3 predictions, 1 commands, 2 dropped, 0 too late, 0 after their '
+                          'stroke was sent')
         assert re.fullmatch(r'callback median [\d.]+ ms, p99 [\d.]+ ms, max [\d.]+ ms '
                             r'\(last 3\)', times), times
         assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
@@ -277,11 +278,14 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
         cmd = g.commands[0]
         assert cmd.status == 'ok' and cmd.hit_time == msg.hit_time
         assert cmd.hit_point == msg.hit_point
-        # Simulated clock 0.1 s before the hit (min_time_before_hit 0.15 s): not sent.
+        # Simulated clock 0.1 s before the hit (min_time_before_hit 0.15 s): not sent. For
+        # ball 5, struck already, the arm is on its way (not a warning); ball 6 is too late.
         g.node.get_clock().set_ros_time_override(rclpy.time.Time(seconds=100.5))
+        g.pub.publish(prediction_msg(5))
+        g.spin_until(lambda: g.node.n_committed == 1, 20.0, 'the count after the stroke')
         g.pub.publish(prediction_msg(6))
         g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
-        assert len(g.commands) == 1 and g.node.n_received == 2
+        assert len(g.commands) == 1 and g.node.n_received == 3 and g.node.n_committed == 1
     finally:
         g.close()
     # Along the path: decided 0.149 s before the ball leaves the reach (grown by r).
@@ -303,8 +307,9 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
 def test_each_ball_keeps_the_hit_time_chosen_for_it():
     # The same prediction of one ball, decided as the (simulated) clock runs on at 150 Hz:
     # rows become too soon and drop out, and the winner used to move on 10 ms every few
-    # predictions. The node sends one hit time per ball, then too_late once it is closer
-    # than min_time_before_hit (the arm is on its way); another ball chooses afresh.
+    # predictions. The node sends one hit time per ball, then nothing once it is closer
+    # than min_time_before_hit (the arm is on its way: counted, not a too-late warning as
+    # it was for every ball of the demo); another ball chooses afresh.
     g = Graph()
     try:
         msg = prediction_msg(3)
@@ -315,11 +320,11 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
             g.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(now * 1e9)))
             g.pub.publish(msg)
             n += 1
-            g.spin_until(lambda n=n: len(g.commands) + g.node.n_too_late == n, 20.0,
+            g.spin_until(lambda n=n: len(g.commands) + g.node.n_committed == n, 20.0,
                          f'prediction {n} answered')
-            if g.node.n_too_late:
+            if g.node.n_committed:
                 break
-        assert g.node.n_too_late == 1 and len(g.commands) == n - 1 > 30
+        assert g.node.n_too_late == 0 and len(g.commands) == n - 1 > 30
         assert {seconds(c.hit_time) for c in g.commands} == {seconds(g.commands[0].hit_time)}
         check_command(g.commands[0], msg, 5)
         assert seconds(g.commands[0].hit_time) - now < WORKSPACE.min_time_before_hit + 1e-6
@@ -337,7 +342,7 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
         g.pub.publish(later)
         g.spin_until(lambda: len(g.commands) == n + 1, 20.0, "the new ball's command")
         assert g.commands[-1].track_id == 3 and g.commands[-1].feasible
-        assert g.node.n_too_late == 1
+        assert (g.node.n_committed, g.node.n_too_late) == (1, 0)
     finally:
         g.close()
 

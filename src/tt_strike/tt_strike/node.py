@@ -11,7 +11,9 @@ status (infeasible, unreachable) and reason (so that a controller knows there is
 this ball). A strike whose hit time is past or closer than ``min_time_before_hit`` by the
 node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
 no such check, for replays; none either, with one warning, for hit times on another time base
-than the node clock, :mod:`tt_ros.timebase`). Predictions without a hit point, with
+than the node clock, :mod:`tt_ros.timebase`); once a ball's feasible stroke was sent and its
+hit comes that close, the arm is on its way: its further predictions are counted
+(``n_committed``), not warned of. Predictions without a hit point, with
 non-finite numbers or with a ``hit_covariance`` that is not symmetric or not positive
 semi-definite (all zeros: unknown, the position taken as exact) are dropped with a throttled
 warning: nothing is published for them. A bad
@@ -167,7 +169,7 @@ class StrikeNode(Node):
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
         choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
-        self.n_commands = self.n_dropped = self.n_too_late = 0
+        self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -252,7 +254,8 @@ class StrikeNode(Node):
                            for i, t in self.tracks.items())
         times = self.work.latest_ms()
         return (f'{self.n_received} predictions, {self.n_commands} commands, '
-                f'{self.n_dropped} dropped, {self.n_too_late} too late; callback median '
+                f'{self.n_dropped} dropped, {self.n_too_late} too late, {self.n_committed} '
+                f'after their stroke was sent; callback median '
                 f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
                 f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
                 f"first command's status; {ok} with an ok stroke): {tracks}")
@@ -314,16 +317,18 @@ class StrikeNode(Node):
         if self.p.use_hit_plane:
             hit = Hit(hit_t, state[:3], state[3:6], state[6:9])
             if hit_t - now < ws.min_time_before_hit:
-                self._too_late(f'hit in {hit_t - now:.3f} s, below min_time_before_hit '
-                               f'{ws.min_time_before_hit:.3f} s')
+                self._too_late(tally, f'hit in {hit_t - now:.3f} s, below '
+                               f'min_time_before_hit {ws.min_time_before_hit:.3f} s')
                 return
             sol = solve(state, self.params, settings=settings, covariance=cov, **target)
             status, reason = sol.status, sol.reason
+            if sol.feasible:
+                tally.hit_t = hit_t
         else:
             plan = choose(state, self.params, ws, t0=hit_t, now=now, settings=settings,
                           covariance=cov, bounced=True, keep_t=tally.hit_t, **target)
             if plan.status == 'too_late':
-                self._too_late(plan.reason)
+                self._too_late(tally, plan.reason)
                 return
             hit, sol = plan.hit, plan.solution
             status, reason = plan.status, plan.reason
@@ -347,8 +352,12 @@ class StrikeNode(Node):
         if self.p.publish_markers and sol.normal is not None:
             self.pub_markers.publish(self._markers(msg, sol))
 
-    def _too_late(self, why):
-        """A strike too close to its hit time: not sent, counted and logged."""
+    def _too_late(self, tally, why):
+        """A strike too close to its hit time: not sent. Counted and logged, unless a feasible
+        stroke was sent for this ball (``tally``): then the arm is on its way, as it should."""
+        if tally.hit_t is not None:
+            self.n_committed += 1
+            return
         self.n_too_late += 1
         self.get_logger().warning(f'strike not sent, too late ({self.n_too_late} so far): '
                                   f'{why}', throttle_duration_sec=1.0)
