@@ -8,6 +8,7 @@ fitted to the samples before and after the contact meet, not the lowest sample.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -16,18 +17,26 @@ from .data import Track
 
 OUTLIER_DISTANCE = 0.02
 """A sample farther than this from the time-interpolated midpoint of its neighbours is an
-outlier, m (noise is ~2 mm, a bounce or a racket hit bends the path by < 1.5 cm at 150 Hz)."""
+outlier, m (noise is ~2 mm; a racket hit bends the path by < 1.5 cm at 150 Hz). A table
+contact bends it by up to (|vz_in| + vz_out) dt / 2, 3 cm at 100 Hz: a sample below both
+neighbours, near the table and displaced along z alone, is a bounce, not an outlier."""
 MAX_GAP = 0.15
 """A gap in the samples longer than this ends the track, s."""
 BOUNCE_HEIGHT = 0.05
 """A bounce is a minimum of z lower than this above the contact height (ball centre), m."""
 CONTACT_WINDOW = 0.06
 """Samples within this time of a contact are used to fit the flight on each side, s."""
+SPLIT_WINDOW = 0.01
+"""The contact is looked for between samples within this time of the lowest one, s (at
+500 Hz noise can put a sample just after the contact lower than the one before it)."""
+GRAVITY = 9.81
+"""m/s^2: a ball leaving the table at vz cannot touch it again before about 2 vz / g."""
 HIT_TURN = 0.5
 """A contact away from the table (racket, net, hand) turns the velocity: the cosine between
 the velocities fitted before and after it falls below this."""
-ROLL_SAMPLES = 8
-"""This many consecutive samples within ROLL_HEIGHT of the contact height is rolling."""
+ROLL_DURATION = 0.05
+"""Longer than this within ROLL_HEIGHT of the contact height is rolling, s (a rebound at
+ROLL_SPEED spends ~0.08 s there, one at 1 m/s ~0.024 s)."""
 ROLL_HEIGHT = 0.012
 """Height band above the contact height in which a ball is taken to roll, m."""
 ROLL_SPEED = 0.3
@@ -38,12 +47,15 @@ MIN_DURATION = 0.2
 
 @dataclasses.dataclass
 class Bounce:
-    """A table bounce located in the data: time (s), contact point (3,), velocities (3,)."""
+    """A table bounce located in the data: time (s), contact point (3,), velocities (3,),
+    and the standard errors of the normal velocities v_in[2], v_out[2] from their fits'
+    residuals (m/s; None where not known)."""
 
     t: float
     p: np.ndarray
     v_in: np.ndarray
     v_out: np.ndarray
+    vz_sd: tuple = None
 
 
 def _count(notes, key, n=1):
@@ -51,8 +63,10 @@ def _count(notes, key, n=1):
         notes[key] = notes.get(key, 0) + int(n)
 
 
-def drop_outliers(t, p, notes):
-    """Remove samples far from the midpoint of their neighbours (interpolated in time)."""
+def drop_outliers(t, p, notes, radius=0.02):
+    """Remove samples far from the midpoint of their neighbours (interpolated in time); a
+    sample below both neighbours near the table, off their midpoint along z only, is a
+    bounce's contact and is kept (``radius``: the ball's, m)."""
     keep = np.ones(len(t), dtype=bool)
     for _ in range(2):
         idx = np.flatnonzero(keep)
@@ -61,8 +75,12 @@ def drop_outliers(t, p, notes):
         tt, pp = t[idx], p[idx]
         w = ((tt[1:-1] - tt[:-2]) / (tt[2:] - tt[:-2]))[:, None]
         mid = (1.0 - w) * pp[:-2] + w * pp[2:]
-        dist = np.linalg.norm(pp[1:-1] - mid, axis=1)
-        bad = np.flatnonzero(dist > OUTLIER_DISTANCE) + 1
+        off = pp[1:-1] - mid
+        dist = np.linalg.norm(off, axis=1)
+        z = pp[:, 2]
+        contact = ((z[1:-1] < radius + BOUNCE_HEIGHT) & (z[1:-1] < z[:-2]) & (z[1:-1] < z[2:])
+                   & (np.hypot(off[:, 0], off[:, 1]) <= OUTLIER_DISTANCE))
+        bad = np.flatnonzero((dist > OUTLIER_DISTANCE) & ~contact) + 1
         # An outlier also displaces its neighbours' midpoints: drop only the local worst.
         worst = [i for i in bad if dist[i - 1] >= max(dist[max(i - 2, 0)],
                                                       dist[min(i, len(dist) - 1)])]
@@ -90,16 +108,30 @@ def _side_fit(t, p, sel, t_ref):
     return fits, sse
 
 
+def _slope_sds(t, p, sides, t_ref, fits_z, tb):
+    """Standard errors of the quadratic z fits' slopes at tb (s from t_ref) on each side of
+    a contact, m/s: their residual variance, pooled over both sides (a few samples per side
+    at 100 Hz estimate it poorly), through (A^T A)^-1."""
+    designs = [np.vander(t[sel] - t_ref, 3) for sel in sides]
+    sse = sum(float(np.sum((a @ f - p[sel, 2]) ** 2))
+              for a, f, sel in zip(designs, fits_z, sides, strict=True))
+    var = sse / max(sum(len(a) for a in designs) - 6, 1)
+    d = np.array([2.0 * tb, 1.0, 0.0])
+    return tuple(math.sqrt(var * d @ np.linalg.pinv(a.T @ a) @ d) for a in designs)
+
+
 def locate_bounce(t, p, i):
     """Bounce near the z-minimum sample i: the meeting point of the two flights, or None.
 
-    The minimum sample belongs to the side that fits it better; the bounce time is the root
-    of z_before(t) - z_after(t) between the last sample before and the first after contact.
+    The contact lies between two samples within SPLIT_WINDOW of sample i: the split whose
+    two flights fit best; the bounce time is the root of z_before(t) - z_after(t) between
+    the last sample before and the first after contact.
     """
     t_ref = t[i]
     near = np.abs(t - t_ref) <= CONTACT_WINDOW
     best = None
-    for split in (i, i + 1):        # sample i ends the flight before, or starts the one after
+    window = np.flatnonzero(np.abs(t - t_ref) <= SPLIT_WINDOW)
+    for split in range(max(window[0], 1), min(window[-1] + 1, len(t) - 1) + 1):
         before = near & (np.arange(len(t)) < split)
         after = near & (np.arange(len(t)) >= split)
         fb, sb = _side_fit(t, p, before, t_ref)
@@ -107,9 +139,10 @@ def locate_bounce(t, p, i):
         if fb is None or fa is None:
             continue
         lo, hi = t[split - 1] - t_ref, t[split] - t_ref
+        slack = 0.25 * (hi - lo)    # a contact within noise of a sample: either side of it
         roots = np.roots(fb[2] - fa[2])
         roots = roots[np.isreal(roots)].real
-        roots = roots[(roots >= lo - 1e-9) & (roots <= hi + 1e-9)]
+        roots = roots[(roots >= lo - slack) & (roots <= hi + slack)]
         if len(roots) == 0 or (best is not None and sb + sa >= best[0]):
             continue
         tb = float(roots[0])
@@ -118,7 +151,8 @@ def locate_bounce(t, p, i):
         v_in = np.array([fb[0][0], fb[1][0], 2 * fb[2][0] * tb + fb[2][1]])
         v_out = np.array([fa[0][0], fa[1][0], 2 * fa[2][0] * tb + fa[2][1]])
         if v_in[2] < 0.0 < v_out[2]:
-            best = (sb + sa, Bounce(t_ref + tb, pos, v_in, v_out))
+            sd = _slope_sds(t, p, (before, after), t_ref, (fb[2], fa[2]), tb)
+            best = (sb + sa, Bounce(t_ref + tb, pos, v_in, v_out, sd))
     return None if best is None else best[1]
 
 
@@ -135,6 +169,20 @@ def _turn_cosines(t, p, half=6):
     return cos
 
 
+def _first_rolling(t, low):
+    """Index of the first sample of the first run of ``low`` samples lasting over
+    ROLL_DURATION, or None."""
+    start = None
+    for i, is_low in enumerate(low):
+        if not is_low:
+            start = None
+        elif start is None:
+            start = i
+        elif t[i] - t[start] > ROLL_DURATION:
+            return start
+    return None
+
+
 def segment(track, radius=0.02):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
@@ -146,7 +194,7 @@ def segment(track, radius=0.02):
     Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left.
     """
     notes = dict(track.notes)
-    t, p = drop_outliers(track.t, track.p, notes)
+    t, p = drop_outliers(track.t, track.p, notes, radius)
     gaps = np.flatnonzero(np.diff(t) > MAX_GAP)
     if len(gaps):
         _count(notes, 'samples_after_gap', len(t) - gaps[0] - 1)
@@ -168,10 +216,15 @@ def segment(track, radius=0.02):
         return None, f'{len(t)} samples left after cleaning'
     bounces = []
     z = p[:, 2]
+    # A contact is the lowest sample within SPLIT_WINDOW; noise at high rates makes other
+    # local minima beside it, and after a bounce the ball is away for about 2 vz_out / g.
     minima = [i for i in range(1, len(t) - 1)
-              if z[i] <= z[i - 1] and z[i] < z[i + 1] and z[i] < radius + BOUNCE_HEIGHT]
+              if z[i] <= z[i - 1] and z[i] < z[i + 1] and z[i] < radius + BOUNCE_HEIGHT
+              and z[i] <= z[np.abs(t - t[i]) <= SPLIT_WINDOW].min()]
     end, why = len(t), 'samples_rolling'
     for i in minima:
+        if bounces and t[i] < bounces[-1].t + bounces[-1].v_out[2] / GRAVITY:
+            continue
         b = locate_bounce(t, p, i)
         if b is None or b.v_out[2] <= ROLL_SPEED:
             # No clear rebound: too few samples after the contact, or a ball that skids.
@@ -183,11 +236,9 @@ def segment(track, radius=0.02):
             end, why = i, 'samples_from_bounce_off_table'
             break
         bounces.append(b)
-    low = z < radius + ROLL_HEIGHT
-    run = np.convolve(low, np.ones(ROLL_SAMPLES, dtype=int), 'valid')
-    rolling = np.flatnonzero(run == ROLL_SAMPLES)
-    if len(rolling) and rolling[0] < end:
-        end, why = int(rolling[0]), 'samples_rolling'
+    rolling = _first_rolling(t, z < radius + ROLL_HEIGHT)
+    if rolling is not None and rolling < end:
+        end, why = rolling, 'samples_rolling'
     if end < len(t):
         _count(notes, why, len(t) - end)
         t, p = t[:end], p[:end]
