@@ -212,7 +212,7 @@ def _ground_truth(name, t, p, params, plane_x):
         return tc, pc, [], None
     seg, bounces = segment(Track(name, tc, pc, None, '', notes), params.radius)
     if seg is None:
-        tt, pp = drop_outliers(tc, pc, {})
+        tt, pp = drop_outliers(tc, pc, {}, params.radius)
         return tt, pp, [], None
     times = [(b.t, b.p[0]) for b in bounces]
     return seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x)
@@ -314,14 +314,16 @@ MIN_IMPACT_SPEED = 0.5
 
 def restitution_observation(rp, params):
     """The table restitution e_t (eqs. 1-6) that explains a finished track's bounce on the
-    robot's half, or None.
+    robot's half, and its standard error: ``(e_t, sd)`` (sd None where the bounce has no
+    fit errors), or None.
 
     Measured from the data alone: the located bounce's normal velocities (quadratic fits on
     each side of the contact, :func:`tt_prediction.identify.segment.locate_bounce`) give
-    -v_z'/v_z. What ``params``' effects add to e_t at this bounce (impact speed, spin: eqs.
-    1-6 as :func:`tt_prediction.ball.table_rebound_inplace` has them, with the measured
-    incoming velocity and the filter's last spin before the contact) is taken off, so the
-    value is the model's e_t for this bounce.
+    -v_z'/v_z, and their fits' standard errors its own. What ``params``' effects add to e_t
+    at this bounce (impact speed, spin: eqs. 1-6 as
+    :func:`tt_prediction.ball.table_rebound_inplace` has them, with the measured incoming
+    velocity and the filter's last spin before the contact) is taken off, so the value is
+    the model's e_t for this bounce.
     """
     b = rp.robot_bounce
     if b is None or b.v_in[2] > -MIN_IMPACT_SPEED or b.v_out[2] <= 0.0:
@@ -332,7 +334,10 @@ def restitution_observation(rp, params):
     out = contact.copy()
     table_rebound_inplace(out, params.packed())
     effects = -out[5] / contact[5] - params.e_t
-    return float(-b.v_out[2] / b.v_in[2] - effects)
+    # The ratio's error as if e ~ 1: weighed by the measured ratio, high values would count
+    # less than low ones (a bias of -0.02 on 100 Hz bounces).
+    sd = None if b.vz_sd is None else math.hypot(*b.vz_sd) / -b.v_in[2]
+    return float(-b.v_out[2] / b.v_in[2] - effects), sd
 
 
 class RestitutionLearner:
@@ -340,23 +345,35 @@ class RestitutionLearner:
 
     Tables and balls differ (the ITTF's table test asks for a bounce of about 23 cm from
     30 cm, e ~ 0.88; the MPI sets' bounces show 0.94), and 0.03 less of it moves the median
-    hit error at a 300 ms lead from 23 to 40 mm (measured on mpi_launcher). Each
-    finished track adds the e_t its own bounce shows (:func:`restitution_observation`); the
-    learned value is their median (robust to a bounce fitted across a racket hit or a table
-    edge), clipped to e_t's declared range, once ``min_tracks`` tracks were seen; the
-    model's own value before.
+    hit error at a 300 ms lead from 23 to 40 mm (measured on mpi_launcher). Each finished
+    track adds the e_t its own bounce shows and that value's standard error
+    (:func:`restitution_observation`). The learned value weighs them by their precision
+    with the model's own e_t as a prior of sd ``prior_sd`` (the tables' spread): a bounce
+    at 100 Hz with 2 mm noise measures e_t to about 0.1, at 500 Hz to 0.03, and a few of
+    the former must not move it far. A value more than ``reject`` standard deviations from
+    the weighted median (a bounce fitted across a racket hit or a table edge) is left out;
+    the result is held to e_t's declared range.
     """
 
-    def __init__(self, generic, min_tracks=5, bounds=FIELD['e_t'].bounds):
+    def __init__(self, generic, prior_sd=0.03, default_sd=0.05, spread=0.01, reject=3.0,
+                 bounds=FIELD['e_t'].bounds):
         self.generic = float(generic)
-        self.min_tracks = int(min_tracks)
+        self.prior_sd = float(prior_sd)
+        self.default_sd = float(default_sd)     # a value without its own standard error
+        self.spread = float(spread)             # bounce to bounce, beyond the fits' errors
+        self.reject = float(reject)
         self.bounds = bounds
-        self._e = []
+        self._e, self._var = [], []
 
-    def observe(self, e_t):
-        """Add one track's e_t (or None: the track showed none)."""
-        if e_t is not None and math.isfinite(e_t):
+    def observe(self, observation):
+        """Add one track's ``(e_t, sd)`` (sd None: ``default_sd``), or None (none shown)."""
+        if observation is None:
+            return
+        e_t, sd = observation
+        sd = self.default_sd if sd is None or not math.isfinite(sd) else sd
+        if math.isfinite(e_t):
             self._e.append(float(e_t))
+            self._var.append(sd * sd + self.spread ** 2)
 
     @property
     def count(self):
@@ -366,9 +383,17 @@ class RestitutionLearner:
     @property
     def value(self):
         """The learned e_t."""
-        if len(self._e) < self.min_tracks:
+        if not self._e:
             return self.generic
-        return min(max(float(np.median(self._e)), self.bounds[0]), self.bounds[1])
+        e = np.array(self._e + [self.generic])
+        w = 1.0 / np.array(self._var + [self.prior_sd ** 2])
+        order = np.argsort(e)
+        cum = np.cumsum(w[order])
+        centre = e[order][np.searchsorted(cum, 0.5 * cum[-1])]      # weighted median
+        keep = np.abs(e - centre) <= self.reject / np.sqrt(w)
+        keep[-1] = True                                            # the prior
+        value = float(np.sum(w[keep] * e[keep]) / np.sum(w[keep]))
+        return min(max(value, self.bounds[0]), self.bounds[1])
 
     def params(self, base):
         """``base`` (ModelParams) with the learned e_t."""
@@ -558,8 +583,9 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
                                for rp in replays},
         }
         summary['restitution_learned'] = {
-            'rule': 'causal: each track uses the median e_t of the bounces before it '
-                    f"(the model's e_t = {params.e_t} until {restitution.min_tracks} tracks)",
+            'rule': 'causal: each track uses the e_t of the bounces before it, weighed by '
+                    f"their precision with the model's e_t = {params.e_t} as a prior of sd "
+                    f'{restitution.prior_sd}',
             'final': round(restitution.value, 4),
             'tracks_informing': restitution.count,
             'per_track': {rp.name: round(rp.e_t, 4) for rp in replays},
