@@ -78,8 +78,8 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
     per_track = fitting.fit_each(prepared, g_base, states,
                                  ['c_d', 'c_m'] if has_spin else ['c_d'])
     paper = {'c_d': _mean_std(per_track[:, 0])}
-    if has_spin:
-        paper['c_m'] = _mean_std(per_track[:, 1])
+    if has_spin:        # a track without measured spin fits C_M times its own free spin
+        paper['c_m'] = _mean_std(per_track[[tr.spin is not None for tr in prepared], 1])
     else:
         spins = np.array([np.linalg.norm(x[6:9]) for x in states])
         paper['c_m'] = {'fixed': base.c_m, 'note': (

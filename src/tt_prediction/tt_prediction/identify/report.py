@@ -67,8 +67,8 @@ def markdown(r):
               f"Per trajectory: C_D = {p['c_d']['mean']:.3f} ± {p['c_d']['std']:.3f} "
               f"(n = {p['c_d']['n']}); paper 0.54 ± 0.074."]
     if 'mean' in p['c_m']:
-        lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f}; paper "
-                     f'0.069 ± 0.029.')
+        lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f} (n = "
+                     f"{p['c_m']['n']}, the tracks with measured spin); paper 0.069 ± 0.029.")
     else:
         lines.append(f"C_M fixed at {p['c_m']['fixed']}: {p['c_m']['note']}. Fitted |ω| = "
                      f"{p['spin_abs_rad_s']['mean']:.0f} ± {p['spin_abs_rad_s']['std']:.0f}"
