@@ -76,6 +76,47 @@ def test_eq7_inverse_reproduces_the_outgoing_velocity():
         np.testing.assert_allclose(v, v_out, atol=1e-9)
 
 
+def test_eq7_inverse_when_the_rubber_alone_turns_the_ball():
+    """v_out - (1 - K_v) v_in across the spin and shorter than K_v r |w| (a ball on the centre
+    line spinning about y only, sent back along it): alpha = a.n is 0, which divided by
+    zero and crashed tt-strike and strike_node. Both mirror normals give v_out (eq. 7
+    forward, tt_prediction's racket_rebound); near it the solution is continuous."""
+    k_v = PARAMS.k_p / PARAMS.mass
+    c = k_v * PARAMS.radius
+    v_in = np.array([-4.0, 0.0, -1.0])
+    w_in = np.array([0.0, 500.0, 0.0])
+    # a = c (w x n) for a normal leaning 0.3 along y: |a| < c |w|, a across w.
+    lean = np.array([0.9, 0.3, 0.0]) + np.array([0.0, 0.0, 1.0]) * math.sqrt(1 - 0.9 ** 2
+                                                                              - 0.3 ** 2)
+    a = c * np.cross(w_in, lean)
+    assert a @ w_in == 0.0 and np.linalg.norm(a) < c * np.linalg.norm(w_in)
+    v_out = a + (1.0 - k_v) * v_in
+    normal, rv = racket_for_outgoing(v_in, w_in, v_out, PARAMS)
+    assert np.all(np.isfinite(normal)) and np.linalg.norm(normal) == pytest.approx(1.0)
+    assert abs(normal[1]) == pytest.approx(0.3, abs=1e-9)
+    v, _ = racket_rebound(v_in, w_in, normal, rv, PARAMS)
+    np.testing.assert_allclose(v, v_out, atol=1e-9)
+    for tilt in (1e-9, -1e-9):                       # a hair along w: one of the two
+        near, _ = racket_for_outgoing(v_in, w_in, v_out + [0.0, tilt, 0.0], PARAMS)
+        assert min(np.linalg.norm(near - normal), np.linalg.norm(near - normal * [1, -1, 1])) \
+            < 1e-5
+
+
+def test_a_ball_on_the_centre_line_with_heavy_spin_gets_a_status_not_a_crash():
+    # A new user's scan: 22 of 156 such balls raised ZeroDivisionError (exit 1).
+    for w_y in (-500.0, 450.0, 500.0, 600.0):
+        for zone in (2, 5, 8):
+            s = np.array([1.2, 0.0, 0.3, -5.0, 0.0, 1.2, 0.0, w_y, 0.0])
+            pred = hit_point(s, PARAMS)
+            if pred.status != 'ok':
+                continue
+            sol = solve(pred.hit.state, PARAMS, target_zone=zone)
+            assert sol.status in ('ok', 'infeasible'), sol.reason
+            if sol.feasible:
+                landing, clearance = fly(pred.hit.state, sol.normal, sol.racket_velocity)
+                assert zone_of(landing[0], landing[1]) == (zone, 1) and clearance > 0.0
+
+
 def test_eq7_inverse_without_spin_is_the_velocity_difference_direction():
     # Without spin, eq. 7's tangential rows leave P_n [v_out - (1 - K_v) v_in] = 0.
     k_v = PARAMS.k_p / PARAMS.mass

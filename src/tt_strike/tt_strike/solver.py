@@ -173,10 +173,18 @@ def _racket_for_outgoing(v_in, w_in, v_out, P, normal):
     wa = wx * ax + wy * ay + wz * az
     a_par2 = wa * wa / w2 if w2 > 0.0 else 0.0
     b = k - a2
-    q = 0.5 * (-b + math.sqrt(b * b + 4.0 * a_par2 * k))     # alpha^2
+    root = math.sqrt(b * b + 4.0 * a_par2 * k)
+    # alpha^2, the quadratic's positive root (written without cancellation when b > 0)
+    q = 2.0 * a_par2 * k / (b + root) if b > 0.0 else 0.5 * (root - b)
     alpha = math.sqrt(q)
     den = q + k
-    f = c * c / alpha * wa
+    if alpha > 0.0:
+        f = c * c / alpha * wa
+    else:
+        # a across w with |a| < c |w| (a ball on the centre line spinning about y only): the
+        # rubber alone turns it, alpha = 0, and n leans sqrt(b / k) along w, either way (the
+        # limit of c^2 wa / alpha as wa -> 0+; the two are mirror images).
+        f = c * math.sqrt(b)
     normal[0] = (alpha * ax - c * (wy * az - wz * ay) + f * wx) / den
     normal[1] = (alpha * ay - c * (wz * ax - wx * az) + f * wy) / den
     normal[2] = (alpha * az - c * (wx * ay - wy * ax) + f * wz) / den
