@@ -59,6 +59,8 @@ def test_every_field_has_a_unit_and_a_plausible_range_holding_its_default():
     ('radius', 20, 'radius = 20 m is outside the plausible range 0.015..0.025 m'),
     ('mass', 2.7, 'mass = 2.7 kg'),
     ('e_t', 1.3, 'e_t = 1.3'),
+    # Inside k_p's range but over 0.8 m: the rubber would add energy (a user's file, x4.2).
+    ('k_p', 0.0045, 'k_p = 0.0045 kg is above 0.8 m = 0.00216 kg'),
 ])
 def test_implausible_model_file_is_one_line_naming_file_and_field(tmp_path, field, value,
                                                                   words):

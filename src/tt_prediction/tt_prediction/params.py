@@ -377,6 +377,12 @@ class ModelParams:
                     unit = '' if f.unit == '1' else f' {f.unit}'
                     return (f'{f.name} = {_fmt(v)}{unit} is outside the plausible range '
                             f'{_fmt(lo)}..{_fmt(hi)}{unit} ({what})')
+        # Eq. 7 with I = (2/3) m r^2 multiplies the contact point's tangential velocity by
+        # 1 - 2.5 K_v: beyond K_v = 0.8 the rubber would give the ball energy.
+        if self.k_p > 0.8 * self.mass:
+            return (f'k_p = {_fmt(self.k_p)} kg is above 0.8 m = {_fmt(0.8 * self.mass)} kg: '
+                    f'eq. 7 would multiply the contact velocity by 1 - 2.5 k_p / m = '
+                    f'{1.0 - 2.5 * self.k_p / self.mass:.2f}, giving the ball energy')
         return ''
 
     def to_dict(self):
