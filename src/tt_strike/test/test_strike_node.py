@@ -402,3 +402,21 @@ def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
             node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_start_up_names_the_reach_and_the_racket_speed_limit_that_applies(tmp_path):
+    # A user's workspace file said 1.0 m/s and max_racket_speed 8.0 (ros2 param get: 8.0):
+    # the limit is the lower, 1.0, and nothing at start-up said so.
+    slow = tmp_path / 'ws.yaml'
+    slow.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1], '
+                    'z: [0.0, 0.8]}, max_racket_speed: 1.0, min_time_before_hit: 0.15}\n')
+    g = Graph([Parameter('workspace_file', value=str(slow)),
+               Parameter('max_racket_speed', value=8.0)])
+    try:
+        text = g.node._reach_text()
+        assert text.endswith(f'({slow}), racket speed limit 1.0 m/s'), text
+        assert text.startswith('reach box x [-2.10, -1.45]')
+        g.node.set_parameters([Parameter('max_racket_speed', value=0.5)])
+        assert g.node._reach_text().endswith('limit 0.5 m/s')
+    finally:
+        g.close()

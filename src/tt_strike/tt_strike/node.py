@@ -64,7 +64,8 @@ PARAMETERS = (
           '(when target_zone is 0)', 'm', length=2),
     Param('net_clearance', _D.net_clearance, 'free direction: gap between the ball and the '
           'net top where it crosses x = 0', 'm', *NET_CLEARANCE_RANGE),
-    Param('max_racket_speed', _D.max_racket_speed, 'racket speed limit at impact', 'm/s',
+    Param('max_racket_speed', _D.max_racket_speed, 'racket speed limit at impact (along the '
+          "path, the lower of this and workspace_file's max_racket_speed)", 'm/s',
           *MAX_RACKET_SPEED_RANGE),
     Param('reach_z_min', _D.reach_z[0], 'lowest ball centre the racket reaches', 'm',
           -0.76, 2.0),
@@ -183,13 +184,21 @@ class StrikeNode(Node):
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.get_logger().info(f'striking {self.sub.topic_name} -> {self.pub.topic_name}, '
-                               f'target {self._target_text()}')
+                               f'target {self._target_text()}, {self._reach_text()}')
 
     # --- target and parameters ---------------------------------------------------------
 
     def _target_text(self):
         zone, point = self.target
         return f'zone {zone}' if zone else f'point ({point[0]:.3f}, {point[1]:.3f}) m'
+
+    def _reach_text(self):
+        limit = self.settings.max_racket_speed
+        if self.p.use_hit_plane:
+            return f'at the hitting plane, racket speed limit {limit:.1f} m/s'
+        limit = min(limit, self.workspace.max_racket_speed)
+        return (f'reach {self.workspace.describe()} ({self.p.workspace_file or "default"}), '
+                f'racket speed limit {limit:.1f} m/s')
 
     def _apply(self, v, changed):
         """Parameters set: the solver settings, and the target when it changed."""
