@@ -548,3 +548,30 @@ def test_ctrl_c_is_one_line_exit_130_and_no_output(data, tmp_path, capsys, monke
     said = capsys.readouterr()
     assert said.err == 'tt-predict: interrupted\n' and said.out == ''
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_track_left_out_of_the_score_says_why(data):
+    """A user's tracks without a measured crossing were left out of the hit error silently:
+    summary.json names each with its reason (data ending before the bounce or before the
+    plane, or no sample between the bounce and the plane)."""
+    from tt_prediction.replay import no_crossing_reason, replay_track
+    _, tracks = data
+    name, t, p = tracks[0]
+    full = replay_track(name, t, p, ModelParams(), hit_plane_x=PLANE)
+    assert full.crossing is not None and no_crossing_reason(full, PLANE) == ''
+    bounce = full.robot_bounce.t
+    crossing = full.crossing[0]
+
+    def reason(keep, plane=PLANE):
+        rp = replay_track(name, t[keep], p[keep], ModelParams(), hit_plane_x=plane)
+        return no_crossing_reason(rp, plane)
+
+    assert reason(t < bounce - 0.01).startswith("no bounce located on the robot's half")
+    assert reason(t < crossing - 0.02).startswith('ends at x = ')
+    # A plane 10 cm past the bounce, and the samples between them lost (the tracker lost the
+    # ball near the table for 30 ms).
+    near = full.robot_bounce.p[0] - 0.1
+    gap = (t > bounce + 0.001) & (p[:, 0] > near - 0.02)
+    why = reason(~gap, near)
+    assert why.startswith('no sample between its bounce at t = ') and why.endswith(' m)')
+    assert abs(float(why.split(' t = ')[1].split(' s ')[0]) - bounce) < 0.005

@@ -218,6 +218,24 @@ def _ground_truth(name, t, p, params, plane_x):
     return seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x)
 
 
+def no_crossing_reason(rp, plane_x):
+    """Why track replay ``rp`` has no measured crossing of x = plane_x (one line), or ''."""
+    if rp.crossing is not None:
+        return ''
+    if not len(rp.t):
+        return 'no valid samples'
+    robot = [tb for tb, xb in rp.bounce_times if xb < 0.0]
+    if not robot:
+        return (f"no bounce located on the robot's half (the cleaned track ends at t = "
+                f'{rp.t[-1]:.3f} s, x = {rp.p[-1, 0]:.2f} m)')
+    x = rp.p[rp.t > robot[0], 0]
+    if not len(x) or np.all(x > plane_x):
+        end = x.min() if len(x) else rp.p[-1, 0]
+        return f'ends at x = {end:.2f} m after its bounce at t = {robot[0]:.3f} s'
+    return (f'no sample between its bounce at t = {robot[0]:.3f} s and the plane (the first '
+            f'after it is at x = {x[0]:.2f} m)')
+
+
 def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
                  spin=None):
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
@@ -558,6 +576,8 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
         'leads_ms': list(leads_ms),
         'tracks': len(replays),
         'tracks_with_crossing': sum(rp.crossing is not None for rp in replays),
+        'tracks_without_crossing': {rp.name: no_crossing_reason(rp, hit_plane_x)
+                                    for rp in replays if rp.crossing is None},
         'samples': int(sum(len(rp.rows) for rp in replays)),
         'filter_config': dataclasses.asdict(config),
         'hit_error': errors['filter'],

@@ -214,7 +214,10 @@ def _outcome(summary):
 
     leads = '/'.join(str(lead) for lead in summary['leads_ms'])
     line = (f"{summary['tracks']} tracks, {summary['tracks_with_crossing']} with a measured "
-            f"crossing; median hit error at {leads} ms: {medians(summary['hit_error'])} mm")
+            'crossing')
+    if summary['tracks_without_crossing']:
+        line += ' (why not the others: tracks_without_crossing in summary.json)'
+    line += f"; median hit error at {leads} ms: {medians(summary['hit_error'])} mm"
     if 'textbook_hit_error' in summary:
         line += f", textbook {medians(summary['textbook_hit_error'])} mm"
     return line
