@@ -363,7 +363,8 @@ def test_bad_workspace_file_stops_the_node(tmp_path):
 
 def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
     def off_half(x, y):
-        return f"target_point ({x:.3f}, {y:.3f}) m is not on the opponent's half"
+        return (f"target_point ({x:.3f}, {y:.3f}) m is not inside the opponent's half "
+                '(0 < x < 1.37 m, |y| < 0.7625 m)')
 
     context = rclpy.context.Context()
     rclpy.init(context=context)
@@ -381,7 +382,9 @@ def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
             assert node.target[0] == 5
             # At run time, while target_zone is 5: the set of target_point fails with the
             # reason, and the point keeps its value.
-            for x, y in ((-0.5, 0.0), (5.5, 0.0)):
+            # The far corner, on both edges (a user's target: 'ok', zone 7, but a ball whose
+            # centre comes down there hits the edge).
+            for x, y in ((-0.5, 0.0), (5.5, 0.0), (1.37, 0.7625), (0.9, -0.7625)):
                 result, = node.set_parameters([Parameter('target_point', value=[x, y])])
                 assert not result.successful and result.reason == off_half(x, y)
                 assert list(node.get_parameter('target_point').value) == [0.7, 0.0]

@@ -403,7 +403,8 @@ def matrix_to_quaternion(rot):
 def resolve_target(target_zone=None, target_point=None):
     """Target as ``(zone, point (x, y))``; raises ValueError naming what is wrong.
 
-    A zone 1..9 means its centre on the opponent's half; a point must lie on that half.
+    A zone 1..9 means its centre on the opponent's half; a point must lie inside that half,
+    off its edges (a ball whose centre comes down on an edge does not bounce on the table).
     """
     if target_zone is not None and target_point is not None:
         raise ValueError('give target_zone or target_point, not both')
@@ -418,8 +419,9 @@ def resolve_target(target_zone=None, target_point=None):
     if point.shape[0] not in (2, 3) or not np.all(np.isfinite(point)):
         raise ValueError(f'target_point must be 2 finite numbers [x, y], got {target_point!r}')
     x, y = point[0], point[1]
-    if not (0.0 < x <= HALF_LENGTH and abs(y) <= HALF_WIDTH):
-        raise ValueError(f"target_point ({x:.3f}, {y:.3f}) m is not on the opponent's half")
+    if not (0.0 < x < HALF_LENGTH and abs(y) < HALF_WIDTH):
+        raise ValueError(f"target_point ({x:.3f}, {y:.3f}) m is not inside the opponent's "
+                         f'half (0 < x < {HALF_LENGTH} m, |y| < {HALF_WIDTH} m)')
     return 0, point[:2].copy()
 
 
