@@ -388,6 +388,13 @@ def fit_pooled_restarted(tracks, globals_, states, max_nfev=40):
     return g2, states
 
 
+def pooled_cost(tracks, globals_, states):
+    """The pooled fit's robust cost: soft-L1 over every track's residuals, m^2."""
+    P = globals_.packed()
+    return sum(_robust_cost(track_residual(x, tr, P, globals_.spin_scale))
+               for tr, x in zip(tracks, states, strict=True))
+
+
 def fit_each(tracks, globals_, states, names):
     """Per-trajectory fit (the paper's eq. 9 done track by track): the globals ``names``
     and the track's state, the other globals fixed. Returns an array (n_tracks, len(names)).
