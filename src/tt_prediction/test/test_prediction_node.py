@@ -253,6 +253,45 @@ def test_a_track_id_used_again_by_a_later_ball_is_a_new_track(graph):
     assert (b.hit_point.y, b.hit_point.z) == (a.hit_point.y, a.hit_point.z)
 
 
+def test_a_ball_thrown_again_under_the_same_id_within_the_gap_is_a_new_track(graph):
+    # A user's stream: ball 5 for 0.4 s (past its bounce), 0.6 s without it, then a new ball
+    # 5 from the far end. Within TRACK_GAP_S, the node kept the first ball's bounce as past:
+    # every prediction of the second was double_bounce, no hit point, no stroke.
+    first = predict(GOOD)
+    t_last = first.bounce.t + 0.05
+    _, samples = rollout(np.array(GOOD), ModelParams(), sample_times=[t_last])
+    graph.pub.publish(graph.state(GOOD, track_id=5))
+    graph.spin_until(lambda: len(graph.predictions) == 1, 10.0, 'the first prediction')
+    graph.pub.publish(graph.state(samples[0], stamp_ns=T0 + round(t_last * 1e9), track_id=5))
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'past the bounce')
+    again = T0 + round((t_last + 0.6) * 1e9)
+    graph.set_clock(again)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=again, track_id=5))
+    graph.spin_until(lambda: len(graph.predictions) == 3, 10.0, 'the new ball')
+    a, _, b = graph.predictions
+    assert b.status == 'ok' and b.hit_valid and b.bounce_valid
+    assert ns(b.hit_time) - ns(a.hit_time) == again - T0
+
+
+def test_the_track_forgotten_first_is_the_one_updated_longest_ago():
+    # Nine ids, the first updated all along: it kept its remembered bounce (it was the
+    # oldest created, and forgotten when the ninth came).
+    from tt_prediction.node import MAX_TRACKS
+    g = Graph()
+    try:
+        g.pub.publish(g.state(GOOD, track_id=1))
+        g.spin_until(lambda: len(g.predictions) == 1, 10.0, 'the first prediction')
+        remembered = g.node.tracks[1]
+        for k in range(2, MAX_TRACKS + 2):
+            g.pub.publish(g.state(GOOD, stamp_ns=T0 + k * 1_000_000, track_id=k))
+            g.pub.publish(g.state(GOOD, stamp_ns=T0 + k * 1_000_000, track_id=1))
+            g.spin_until(lambda k=k: len(g.predictions) == 2 * k - 1, 10.0, f'track {k}')
+        assert g.node.tracks.get(1) is remembered and 2 not in g.node.tracks
+        assert len(g.node.tracks) == MAX_TRACKS
+    finally:
+        g.close()
+
+
 @pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9))], ids=['negative', 'all zeros'])
 def test_a_bad_covariance_still_gives_the_prediction(graph, cov):
     # All zeros is a publisher's 'unknown' (BallState): propagated, it gave a hit covariance

@@ -40,7 +40,8 @@ to be past that bounce (so the plane crossing ahead is the hit), s."""
 STATE_QUEUE_DEPTH = 100
 """States kept for the callback (best effort): a replay publishes in bursts."""
 MAX_TRACKS = 8
-"""Tracks remembered (the last predicted bounce and uncertainty of each)."""
+"""Tracks remembered (the last predicted bounce and uncertainty of each); the one updated
+longest ago is forgotten first."""
 MAX_LEAD_S = 1.0
 """A state stamped further ahead of the node clock is dropped (with stale_after_s > 0), s:
 its clock and the node's disagree, and the hit time it gives would be as far off."""
@@ -49,6 +50,13 @@ TRACK_GAP_S = 1.0
 before it) starts the track afresh, s: it is another ball (perception restarted, its ids
 from 1 again; a replay started over). Perception ends a track after 0.2 s without the ball;
 a ball flies from the opponent's racket to the robot's in under a second."""
+TRACK_JUMP_M = 0.3
+TRACK_JUMP_SPEED = 8.0
+TRACK_JUMP_DT = 0.25
+"""A state of a remembered track farther than TRACK_JUMP_M + TRACK_JUMP_SPEED * min(dt,
+TRACK_JUMP_DT) (m, m/s, s) from where the track's last state would be after dt (a straight
+line under gravity) starts it afresh too: another ball, sooner than TRACK_GAP_S. A bounce
+changes v_z by under 8 m/s, and perception ends a track after 0.2 s without its ball."""
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -80,7 +88,7 @@ PARAMETERS = (
 class _Track:
     """What the node remembers of one track: its predicted bounce and last uncertainty."""
 
-    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns')
+    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns', 'state')
 
     def __init__(self):
         self.bounce = None
@@ -88,6 +96,16 @@ class _Track:
         self.uncertainty = None
         self.uncertainty_ns = None
         self.last_ns = None
+        self.state = None
+
+    def continues(self, state, stamp_ns, gravity):
+        """Whether ``state`` (9,), stamped ``stamp_ns`` within the track's gap, is near where
+        the track's ball flies (TRACK_JUMP_M)."""
+        dt = (stamp_ns - self.last_ns) * 1e-9
+        expect = self.state[:3] + self.state[3:6] * dt
+        expect[2] -= 0.5 * gravity * dt * dt
+        return (np.linalg.norm(state[:3] - expect)
+                <= TRACK_JUMP_M + TRACK_JUMP_SPEED * min(dt, TRACK_JUMP_DT))
 
 
 class _LatestWorker:
@@ -223,17 +241,19 @@ class PredictionNode(Node):
             self._drop(position_error((p.x, p.y, p.z), 'position'))
             return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
-        track = self.tracks.get(msg.track_id)
+        track = self.tracks.pop(msg.track_id, None)     # back in as the latest updated
         # The longest gap between two states of one track: TRACK_GAP_S, or max_rate_hz's.
         gap_ns = (TRACK_GAP_S + (1.0 / self.p.max_rate_hz if self.p.max_rate_hz else 0.0)) * 1e9
-        if track is not None and not 0 <= stamp_ns - track.last_ns <= gap_ns:
-            del self.tracks[msg.track_id]           # another ball under a used id
-            track = None
+        if track is not None and not (0 <= stamp_ns - track.last_ns <= gap_ns
+                                      and track.continues(state, stamp_ns, self.params.gravity)):
+            track = None                            # another ball under a used id
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:
-                self.tracks.pop(next(iter(self.tracks)))
-            track = self.tracks[msg.track_id] = _Track()
+                self.tracks.pop(next(iter(self.tracks)))     # the one updated longest ago
+            track = _Track()
+        self.tracks[msg.track_id] = track
         track.last_ns = stamp_ns
+        track.state = state
         plane_x = self.p.hit_plane_x
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
