@@ -423,3 +423,49 @@ def test_start_up_names_the_reach_and_the_racket_speed_limit_that_applies(tmp_pa
         assert g.node._reach_text().endswith('limit 0.5 m/s')
     finally:
         g.close()
+
+
+def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
+    # A user's stream: ball 15 for 0.2 s, 1.2 s without it, ball 15 again. prediction_node
+    # took it as a new ball (over 1 s after the track's last state); strike_node counted
+    # its 1 s from the old ball's kept hit time and sent nothing for the new one.
+    g = Graph()
+    try:
+        first = prediction_msg(15)
+        hit_t = seconds(first.hit_time)
+        g.node.get_clock().set_ros_time_override(
+            rclpy.time.Time(nanoseconds=round((seconds(first.header.stamp)) * 1e9)))
+        g.pub.publish(first)
+        g.spin_until(lambda: len(g.commands) == 1, 20.0, "the first ball's command")
+        later = prediction_msg(15)
+        later.header.stamp.sec += 1
+        later.header.stamp.nanosec += 200_000_000
+        later.hit_time.sec += 1
+        later.hit_time.nanosec += 200_000_000
+        assert seconds(later.header.stamp) < seconds(g.commands[0].hit_time) + 1.0
+        g.node.get_clock().set_ros_time_override(
+            rclpy.time.Time(nanoseconds=round(seconds(later.header.stamp) * 1e9)))
+        g.pub.publish(later)
+        g.spin_until(lambda: len(g.commands) == 2, 20.0, "the second ball's command")
+        assert g.commands[1].feasible
+        assert seconds(g.commands[1].hit_time) > hit_t + 1.0
+        assert (g.node.n_too_late, g.node.n_committed) == (0, 0)
+    finally:
+        g.close()
+
+
+def test_probability_is_reused_per_track():
+    # Two balls at once: the probability remembered for the last track only, every switch
+    # of track worked it out again (15-30 ms each) and the node fell behind its queue.
+    g = Graph([Parameter('probability_rate_hz', value=10.0)])
+    try:
+        narrow, other, wide = prediction_msg(4), prediction_msg(5), prediction_msg(4)
+        wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
+        for msg in (narrow, other, wide):
+            g.pub.publish(msg)
+        g.spin_until(lambda: len(g.commands) == 3, 30.0, 'three commands')
+        p4, p5, p4_again = (c.in_zone_probability for c in g.commands)
+        assert [c.track_id for c in g.commands] == [4, 5, 4]
+        assert p4_again == p4
+    finally:
+        g.close()

@@ -127,9 +127,10 @@ def check_parameters(values):
 TALLIED_TRACKS = 20
 """Tracks whose counts the exit summary lists (the latest)."""
 NEW_BALL_GAP_S = 1.0
-"""A prediction stamped this long after its track's kept hit time, or before the track's
-last prediction, is of another ball under a used id (perception numbers its tracks from 1
-again when it restarts; prediction_node's TRACK_GAP_S): its hit time is chosen afresh."""
+"""A prediction stamped this long after its track's last one (prediction_node's
+TRACK_GAP_S), or before it, or after the track's kept hit time (that ball was struck or
+missed), is of another ball under a used id (perception numbers its tracks from 1 again when
+it restarts; a ball thrown again): its hit time is chosen afresh."""
 
 
 @dataclasses.dataclass
@@ -148,6 +149,8 @@ class TrackTally:
     """The hit time of the last feasible stroke, s (kept: tt_strike.hitpoint)."""
     stamp: float = -math.inf
     """The stamp of the track's last prediction, s."""
+    probability: tuple = None
+    """The last in-zone probability worked out for it: (zone, point), stamp (ns), value."""
 
 
 class StrikeNode(Node):
@@ -174,7 +177,6 @@ class StrikeNode(Node):
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
-        self.last_probability = None      # (track, zone, point), stamp (ns), probability
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         # Names relative to the node's namespace (/strike/command in the root one).
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
@@ -238,10 +240,10 @@ class StrikeNode(Node):
         cov[:3, :3] = 0.5 * (pos + pos.T)             # symmetric within rounding
         return cov
 
-    def _probability_due(self, key, stamp_ns):
-        rate = self.p.probability_rate_hz
-        last = self.last_probability
-        return last is None or last[0] != key or due(stamp_ns, last[1], rate)
+    def _probability_due(self, tally, aim, stamp_ns):
+        last = tally.probability
+        return (last is None or last[0] != aim
+                or due(stamp_ns, last[1], self.p.probability_rate_hz))
 
     def _tally(self, track_id):
         """The counts of track ``track_id`` (the latest :data:`TALLIED_TRACKS` are kept)."""
@@ -303,17 +305,17 @@ class StrikeNode(Node):
         zone, point = self.target
         settings = self.settings
         stamp_ns = to_ns(msg.header.stamp)
-        key = (msg.track_id, zone, tuple(point))
-        cov = None
-        if self.p.in_zone_probability and (
-                settings.aim_inside_zone or self._probability_due(key, stamp_ns)):
-            cov = self._covariance(msg, state)
+        aim = (zone, tuple(point))
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         stamp = stamp_ns * 1e-9
-        if tally.hit_t is not None and (stamp > tally.hit_t + NEW_BALL_GAP_S
-                                        or stamp < tally.stamp):
-            tally.hit_t = None          # another ball under a used id: nothing kept
+        if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
+                or (tally.hit_t is not None and stamp > tally.hit_t)):
+            tally.hit_t = tally.probability = None   # another ball under a used id
         tally.stamp = stamp
+        cov = None
+        if self.p.in_zone_probability and (
+                settings.aim_inside_zone or self._probability_due(tally, aim, stamp_ns)):
+            cov = self._covariance(msg, state)
         now = self.get_clock().now().nanoseconds * 1e-9
         if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
             now = -math.inf                          # no hit-time check: not comparable
@@ -346,9 +348,9 @@ class StrikeNode(Node):
             if sol is None:
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if cov is not None and sol.feasible:
-            self.last_probability = (key, stamp_ns, sol.in_zone_probability)
-        elif sol.feasible and self.last_probability and self.last_probability[0] == key:
-            sol.in_zone_probability = self.last_probability[2]
+            tally.probability = (aim, stamp_ns, sol.in_zone_probability)
+        elif sol.feasible and tally.probability and tally.probability[0] == aim:
+            sol.in_zone_probability = tally.probability[2]
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
