@@ -29,6 +29,18 @@ def test_bad_covariance_is_an_error():
         predict_uncertainty(GOOD, -np.eye(9))
     with pytest.raises(ValueError, match='not finite'):
         predict_uncertainty(GOOD, np.full((9, 9), np.nan))
+    # Wider than the table, a smash or the spin range: nothing to propagate (its sigma
+    # points fly off the table; the hit covariance of those left came out narrower).
+    for k, words in ((0, r'position standard deviation 1e\+75 m is beyond 1 m'),
+                     (4, 'velocity standard deviation 40 m/s'),
+                     (8, r'spin standard deviation 2e\+03 rad/s')):
+        cov = np.eye(9) * 1e-6
+        cov[k, k] = (1e150, 1600.0, 4e6)[k // 3]
+        with pytest.raises(ValueError, match=words):
+            predict_uncertainty(GOOD, cov)
+    cov = np.eye(9) * 1e-6
+    cov[0, 0] = 0.99 ** 2                                   # within: propagated
+    assert predict_uncertainty(GOOD, cov).zone_probabilities.sum() == pytest.approx(1.0)
 
 
 def test_known_state_gives_a_certain_zone_and_no_spread():

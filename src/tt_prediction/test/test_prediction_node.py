@@ -292,10 +292,12 @@ def test_the_track_forgotten_first_is_the_one_updated_longest_ago():
         g.close()
 
 
-@pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9))], ids=['negative', 'all zeros'])
+@pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9)), np.eye(9) * 1e300],
+                         ids=['negative', 'all zeros', '1e300'])
 def test_a_bad_covariance_still_gives_the_prediction(graph, cov):
     # All zeros is a publisher's 'unknown' (BallState): propagated, it gave a hit covariance
-    # of 1e-32 m^2 that strike_node took as a known, exact position.
+    # of 1e-32 m^2 that strike_node took as a known, exact position. 1e300 was propagated
+    # too: 90 % off the table, and a hit covariance narrower than for 0.01 m^2.
     t0 = T0
     publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=t0 + k * 25_000_000, cov=cov),
                   lambda: graph.node.n_bad_covariance >= 1 and len(graph.predictions) >= 2,

@@ -65,6 +65,25 @@ def covariance_eigen(cov, name='covariance'):
     return eigval, eigvec
 
 
+SPREAD_LIMITS = (('position', 'm', 1.0), ('velocity', 'm/s', 30.0), ('spin', 'rad/s', 1500.0))
+"""The largest standard deviation a covariance may give each block of the state (p, v, w):
+beyond, it says no more than the table's size, a smash's speed or the spin range would
+(all zeros is 'unknown'), and propagated, its sigma points fly off the table and are left
+out of the hit covariance, which came out narrower than for a covariance 100 times
+smaller (a user's 1e300 gave 0.004 m^2 in y where 0.01 gave 0.0135)."""
+
+
+def check_spread(cov, name='covariance'):
+    """Raises ValueError, naming ``name``, when a diagonal block of the square covariance
+    ``cov`` (3, 6 or 9 rows: position, velocity, spin) is wider than SPREAD_LIMITS."""
+    sd = np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=float)), 0.0, None))
+    for k, (what, unit, limit) in enumerate(SPREAD_LIMITS):
+        block = sd[3 * k:3 * k + 3]
+        if block.size and block.max() > limit:
+            raise ValueError(f'{name}: {what} standard deviation {block.max():.3g} {unit} '
+                             f'is beyond {limit:g} {unit} (all zeros means unknown)')
+
+
 def sigma_points(mean, cov, kappa=KAPPA):
     """Unscented sigma points (2n+1, n) and weights (2n+1,) of N(mean, cov).
 
@@ -107,6 +126,7 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
     no hit). Raises ValueError for a bad covariance.
     """
     points, weights = sigma_points(state9, cov)
+    check_spread(np.asarray(cov, dtype=float).reshape(9, 9))
     # predict_batch lifts the points under the table's surface on to it.
     batch = predict_batch(points, params, t0, hit_plane_x, bounced=bounced, outgoing=outgoing,
                           parallel=False, validate=False)

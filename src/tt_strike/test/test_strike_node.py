@@ -209,6 +209,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
             1: [1e-6, 5.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 1e-6],       # not symmetric
             2: [1e-6, 2e-6, 0.0, 2e-6, 1e-6, 0.0, 0.0, 0.0, 1e-6],     # eigenvalue -1e-6
             3: [math.nan] + [0.0] * 8,
+            7: (np.eye(3) * 1e300).ravel().tolist(),     # was 'ok', probability 0.000
         }
         for track, cov in bad.items():
             msg = prediction_msg(track)
@@ -219,12 +220,14 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         early = prediction_msg(6)
         early.hit_time.sec, early.hit_time.nanosec = 0, 0
         g.pub.publish(early)
-        g.spin_until(lambda: g.node.n_received == 4, 10.0, 'the four bad predictions')
-        assert g.node.n_dropped == 4 and g.commands == []
+        g.spin_until(lambda: g.node.n_received == 5, 10.0, 'the five bad predictions')
+        assert g.node.n_dropped == 5 and g.commands == []
         assert reasons[0].startswith('hit_covariance is not symmetric (')
         assert reasons[1] == 'hit_covariance is not positive semi-definite (eigenvalue -1e-06)'
         assert reasons[2] == 'hit_covariance is not finite'
-        assert reasons[3] == 'hit_time precedes header.stamp (the state it was predicted from)'
+        assert reasons[3] == ('hit_covariance: position standard deviation 1e+150 m is '
+                              'beyond 1 m (all zeros means unknown)')
+        assert reasons[4] == 'hit_time precedes header.stamp (the state it was predicted from)'
         # All zeros (unknown: the position taken as exact), and an asymmetry of rounding,
         # are taken.
         zeros, rounded = prediction_msg(4), prediction_msg(5)
@@ -237,7 +240,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         g.spin_until(lambda: len(g.commands) == 2, 20.0, 'two commands')
         for cmd, msg in zip(g.commands, (zeros, rounded), strict=True):
             check_command(cmd, msg, 5)
-        assert g.node.n_dropped == 4
+        assert g.node.n_dropped == 5
     finally:
         g.close()
 

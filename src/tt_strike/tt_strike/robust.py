@@ -38,7 +38,7 @@ from tt_prediction.ball import (
     zone_bounds,
 )
 from tt_prediction.predict import predict_landing
-from tt_prediction.uncertainty import covariance_eigen
+from tt_prediction.uncertainty import check_spread, covariance_eigen
 
 _NJIT = {'cache': True, 'nogil': True}
 ENSEMBLE_SIZE = 1024
@@ -196,12 +196,14 @@ SYMMETRY_TOLERANCE = 1e-9
 def check_covariance(cov, name='covariance'):
     """Check the square covariance ``cov`` as given by a user or message: raises ValueError
     ('<name> is not finite', 'is not symmetric (...)' beyond :data:`SYMMETRY_TOLERANCE`,
-    'is not positive semi-definite (eigenvalue ...)', tt_prediction's covariance_eigen)."""
+    'is not positive semi-definite (eigenvalue ...)', tt_prediction's covariance_eigen;
+    wider than tt_prediction's SPREAD_LIMITS, check_spread)."""
     cov = np.asarray(cov, dtype=float)
     asym = float(np.abs(cov - cov.T).max())     # NaN (not finite): left to covariance_eigen
     if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
         raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
     covariance_eigen(cov, name)
+    check_spread(cov, name)
 
 
 def noise_covariance(hit_state, sigma_position=0.002, velocity_fraction=0.02,
