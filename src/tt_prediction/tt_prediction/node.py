@@ -56,7 +56,9 @@ TRACK_JUMP_DT = 0.25
 """A state of a remembered track farther than TRACK_JUMP_M + TRACK_JUMP_SPEED * min(dt,
 TRACK_JUMP_DT) (m, m/s, s) from where the track's last state would be after dt (a straight
 line under gravity) starts it afresh too: another ball, sooner than TRACK_GAP_S. A bounce
-changes v_z by under 8 m/s, and perception ends a track after 0.2 s without its ball."""
+changes v_z by about twice the impact speed (up to ~10 m/s), only for the time after it, and
+perception ends a track after 0.2 s without its ball: on model flights no state of one ball
+was taken for another down to 10 Hz (a review, 28 Nov 2026)."""
 
 
 _ZERO3 = (0.0, 0.0, 0.0)

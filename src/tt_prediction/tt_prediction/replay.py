@@ -384,14 +384,15 @@ class RestitutionLearner:
         self._e, self._var = [], []
 
     def observe(self, observation):
-        """Add one track's ``(e_t, sd)`` (sd None: ``default_sd``), or None (none shown)."""
+        """Add one track's ``(e_t, sd)`` (sd None: ``default_sd``), or None (none shown).
+        A value or sd that is not a finite number (an sd below 0 included) says nothing."""
         if observation is None:
             return
         e_t, sd = observation
-        sd = self.default_sd if sd is None or not math.isfinite(sd) else sd
-        if math.isfinite(e_t):
+        sd = self.default_sd if sd is None else sd
+        if math.isfinite(e_t) and math.isfinite(sd) and sd >= 0.0:
             self._e.append(float(e_t))
-            self._var.append(sd * sd + self.spread ** 2)
+            self._var.append(max(sd * sd + self.spread ** 2, 1e-12))
 
     @property
     def count(self):

@@ -127,10 +127,14 @@ def check_parameters(values):
 TALLIED_TRACKS = 20
 """Tracks whose counts the exit summary lists (the latest)."""
 NEW_BALL_GAP_S = 1.0
-"""A prediction stamped this long after its track's last one (prediction_node's
-TRACK_GAP_S), or before it, or after the track's kept hit time (that ball was struck or
-missed), is of another ball under a used id (perception numbers its tracks from 1 again when
-it restarts; a ball thrown again): its hit time is chosen afresh."""
+KEPT_HIT_MARGIN_S = 0.02
+"""A prediction stamped NEW_BALL_GAP_S after its track's last one (prediction_node's
+TRACK_GAP_S), or before it, or KEPT_HIT_MARGIN_S after the track's kept hit time (that ball
+was struck or missed; the margin: the kept hit is a row of a path whose plane crossing
+noise moves), is of another ball under a used id (perception numbers its tracks from 1
+again when it restarts; a ball thrown again): its hit time is chosen afresh. Unlike
+prediction_node, it does not see a ball's state jump (a new ball thrown before the old
+one's kept hit time keeps the old time)."""
 
 
 @dataclasses.dataclass
@@ -309,7 +313,7 @@ class StrikeNode(Node):
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         stamp = stamp_ns * 1e-9
         if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
-                or (tally.hit_t is not None and stamp > tally.hit_t)):
+                or (tally.hit_t is not None and stamp > tally.hit_t + KEPT_HIT_MARGIN_S)):
             tally.hit_t = tally.probability = None   # another ball under a used id
         tally.stamp = stamp
         cov = None

@@ -19,7 +19,18 @@ OUTLIER_DISTANCE = 0.02
 """A sample farther than this from the time-interpolated midpoint of its neighbours is an
 outlier, m (noise is ~2 mm; a racket hit bends the path by < 1.5 cm at 150 Hz). A table
 contact bends it by up to (|vz_in| + vz_out) dt / 2, 3 cm at 100 Hz: a sample below both
-neighbours, near the table and displaced along z alone, is a bounce, not an outlier."""
+neighbours, near the table but not under it (CONTACT_BELOW), within OUTLIER_DISTANCE
+sideways and without a gap on either side (GAP_FACTOR), is a bounce, not an outlier."""
+CONTACT_BELOW = 0.01
+"""A contact sample is at most this far below the contact height z = r (noise), m."""
+GAP_FACTOR = 2.5
+GAP_MIN = 0.015
+"""Samples further apart than GAP_FACTOR typical intervals (the median) and GAP_MIN (s: a
+500 Hz track missing two samples at the contact is still located) have a gap between them:
+no contact is taken across it (a 40 ms gap at a 180 Hz bounce gave e_t 1.65)."""
+MAX_RESTITUTION = 1.0
+"""A located bounce that gives back more than this of its normal speed, by over three of its
+own standard errors, is no bounce (a spike or a gap at the contact): unresolved."""
 MAX_GAP = 0.15
 """A gap in the samples longer than this ends the track, s."""
 BOUNCE_HEIGHT = 0.05
@@ -30,7 +41,8 @@ SPLIT_WINDOW = 0.01
 """The contact is looked for between samples within this time of the lowest one, s (at
 500 Hz noise can put a sample just after the contact lower than the one before it)."""
 GRAVITY = 9.81
-"""m/s^2: a ball leaving the table at vz cannot touch it again before about 2 vz / g."""
+"""m/s^2: a ball leaving the table at vz cannot touch it again before about 2 vz / g (half
+of it is waited for: a lower bound, which a set's own g within 5 % does not move)."""
 HIT_TURN = 0.5
 """A contact away from the table (racket, net, hand) turns the velocity: the cosine between
 the velocities fitted before and after it falls below this."""
@@ -78,7 +90,10 @@ def drop_outliers(t, p, notes, radius=0.02):
         off = pp[1:-1] - mid
         dist = np.linalg.norm(off, axis=1)
         z = pp[:, 2]
-        contact = ((z[1:-1] < radius + BOUNCE_HEIGHT) & (z[1:-1] < z[:-2]) & (z[1:-1] < z[2:])
+        step = np.diff(tt)
+        no_gap = np.maximum(step[:-1], step[1:]) <= max(GAP_FACTOR * np.median(step), GAP_MIN)
+        contact = ((z[1:-1] < radius + BOUNCE_HEIGHT) & (z[1:-1] >= radius - CONTACT_BELOW)
+                   & (z[1:-1] < z[:-2]) & (z[1:-1] < z[2:]) & no_gap
                    & (np.hypot(off[:, 0], off[:, 1]) <= OUTLIER_DISTANCE))
         bad = np.flatnonzero((dist > OUTLIER_DISTANCE) & ~contact) + 1
         # An outlier also displaces its neighbours' midpoints: drop only the local worst.
@@ -123,14 +138,16 @@ def _slope_sds(t, p, sides, t_ref, fits_z, tb):
 def locate_bounce(t, p, i):
     """Bounce near the z-minimum sample i: the meeting point of the two flights, or None.
 
-    The contact lies between two samples within SPLIT_WINDOW of sample i: the split whose
-    two flights fit best; the bounce time is the root of z_before(t) - z_after(t) between
-    the last sample before and the first after contact.
+    The contact lies between two consecutive samples, one of them within SPLIT_WINDOW of
+    sample i, with no gap between them (GAP_FACTOR): the split whose two flights fit best;
+    the bounce time is the root of z_before(t) - z_after(t) between the last sample before
+    and the first after contact.
     """
     t_ref = t[i]
     near = np.abs(t - t_ref) <= CONTACT_WINDOW
     best = None
-    window = np.flatnonzero(np.abs(t - t_ref) <= SPLIT_WINDOW)
+    typical = np.median(np.diff(t[near])) if near.sum() > 1 else np.inf
+    window = np.flatnonzero(np.abs(t - t_ref) <= SPLIT_WINDOW + 1e-9)
     for split in range(max(window[0], 1), min(window[-1] + 1, len(t) - 1) + 1):
         before = near & (np.arange(len(t)) < split)
         after = near & (np.arange(len(t)) >= split)
@@ -139,6 +156,8 @@ def locate_bounce(t, p, i):
         if fb is None or fa is None:
             continue
         lo, hi = t[split - 1] - t_ref, t[split] - t_ref
+        if hi - lo > max(GAP_FACTOR * typical, GAP_MIN):
+            continue                # a contact in a gap of the data: not located
         slack = 0.25 * (hi - lo)    # a contact within noise of a sample: either side of it
         roots = np.roots(fb[2] - fa[2])
         roots = roots[np.isreal(roots)].real
@@ -167,6 +186,14 @@ def _turn_cosines(t, p, half=6):
         va = np.polyfit(t[i:i + half], p[i:i + half], 1)[0]
         cos[i] = vb @ va / max(np.linalg.norm(vb) * np.linalg.norm(va), 1e-9)
     return cos
+
+
+def _gains_speed(bounce):
+    """Whether a located bounce returns more than MAX_RESTITUTION of its normal speed by over
+    three of its standard errors (the fits' normal velocities, :class:`Bounce`)."""
+    e = bounce.v_out[2] / -bounce.v_in[2]
+    e_sd = math.hypot(*bounce.vz_sd) / -bounce.v_in[2]
+    return e > MAX_RESTITUTION + 3.0 * e_sd
 
 
 def _first_rolling(t, low):
@@ -226,8 +253,9 @@ def segment(track, radius=0.02):
         if bounces and t[i] < bounces[-1].t + bounces[-1].v_out[2] / GRAVITY:
             continue
         b = locate_bounce(t, p, i)
-        if b is None or b.v_out[2] <= ROLL_SPEED:
-            # No clear rebound: too few samples after the contact, or a ball that skids.
+        if b is None or b.v_out[2] <= ROLL_SPEED or _gains_speed(b):
+            # No clear rebound: too few samples after the contact, a ball that skids, or
+            # more speed back than came in (a spike or a gap at the contact).
             end, why = i, 'samples_from_unresolved_bounce'
             break
         if abs(b.p[0]) > HALF_LENGTH or abs(b.p[1]) > HALF_WIDTH:
