@@ -33,10 +33,18 @@ def console_scripts():
 NODE_AND_CLI_SCRIPTS = [s for s in console_scripts() if s[0].name != 'tt_tools']
 
 
+def _sigint_as_from_a_terminal():
+    # A test run started in the background by a non-interactive shell (`make test &`)
+    # ignores SIGINT, and so would the child: Python then installs no KeyboardInterrupt
+    # handler. A process run from a terminal, as these tests mean, has the default.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def python(code, tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path)] + sys.path))
     return subprocess.Popen([sys.executable, '-c', code], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_sigint_as_from_a_terminal)
 
 
 def test_ctrl_c_while_importing_is_one_line_and_status_130(tmp_path):
