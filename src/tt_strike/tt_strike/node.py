@@ -14,8 +14,9 @@ no such check, for replays; none either, with one warning, for hit times on anot
 than the node clock, :mod:`tt_ros.timebase`); once a ball's feasible stroke was sent and its
 hit comes that close, the arm is on its way: its further predictions are counted
 (``n_committed``), not warned of. Predictions without a hit point, with
-non-finite numbers or with a ``hit_covariance`` that is not symmetric or not positive
-semi-definite (all zeros: unknown, the position taken as exact) are dropped with a throttled
+non-finite numbers or with a ``hit_covariance`` that is not symmetric, not positive
+semi-definite or wider than 1 m (all zeros: unknown, the position taken as exact) are
+dropped with a throttled
 warning: nothing is published for them. A bad
 workspace file stops the node at start with a one-line reason. At exit it logs one line of
 counts, with each of the latest tracks' predictions, commands and first command's status.
