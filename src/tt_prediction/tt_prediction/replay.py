@@ -224,16 +224,16 @@ def no_crossing_reason(rp, plane_x):
         return ''
     if not len(rp.t):
         return 'no valid samples'
-    robot = [tb for tb, xb in rp.bounce_times if xb < 0.0]
-    if not robot:
+    if rp.robot_bounce is None:
         return (f"no bounce located on the robot's half (the cleaned track ends at t = "
                 f'{rp.t[-1]:.3f} s, x = {rp.p[-1, 0]:.2f} m)')
-    x = rp.p[rp.t > robot[0], 0]
+    tb = rp.robot_bounce.t
+    x = rp.p[rp.t > tb, 0]
     if not len(x) or np.all(x > plane_x):
         end = x.min() if len(x) else rp.p[-1, 0]
-        return f'ends at x = {end:.2f} m after its bounce at t = {robot[0]:.3f} s'
-    return (f'no sample between its bounce at t = {robot[0]:.3f} s and the plane (the first '
-            f'after it is at x = {x[0]:.2f} m)')
+        return f'ends at x = {end:.2f} m after its bounce at t = {tb:.3f} s'
+    return (f'no sample between its bounce at t = {tb:.3f} s and the plane (the first after '
+            f'it is at x = {x[0]:.2f} m)')
 
 
 def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
@@ -352,10 +352,7 @@ def restitution_observation(rp, params):
     out = contact.copy()
     table_rebound_inplace(out, params.packed())
     effects = -out[5] / contact[5] - params.e_t
-    # The ratio's error as if e ~ 1: weighed by the measured ratio, high values would count
-    # less than low ones (a bias of -0.02 on 100 Hz bounces).
-    sd = None if b.vz_sd is None else math.hypot(*b.vz_sd) / -b.v_in[2]
-    return float(-b.v_out[2] / b.v_in[2] - effects), sd
+    return float(b.restitution - effects), b.restitution_sd
 
 
 class RestitutionLearner:

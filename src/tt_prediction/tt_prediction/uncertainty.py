@@ -125,7 +125,8 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
     the landing of a ball leaving the racket (zone probabilities on the opponent's half;
     no hit). Raises ValueError for a bad covariance.
     """
-    check_spread(np.asarray(cov, dtype=float).reshape(9, 9))
+    cov = np.asarray(cov, dtype=float).reshape(9, 9)
+    check_spread(cov)
     points, weights = sigma_points(state9, cov)
     # predict_batch lifts the points under the table's surface on to it.
     batch = predict_batch(points, params, t0, hit_plane_x, bounced=bounced, outgoing=outgoing,

@@ -57,6 +57,10 @@ class Graph(testing.Graph):
                         and self.test.count_publishers(f'{self.prefix}/strike/command') > 0,
                         10.0, 'discovery')
 
+    def set_clock(self, t):
+        """The node's simulated clock set to ``t`` (s)."""
+        self.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(t * 1e9)))
+
 
 def prediction_msg(track_id, state=INCOMING, hit_valid=True):
     pred = predict(np.array(state), PARAMS)
@@ -283,7 +287,7 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
         assert cmd.hit_point == msg.hit_point
         # Simulated clock 0.1 s before the hit (min_time_before_hit 0.15 s): not sent. For
         # ball 5, struck already, the arm is on its way (not a warning); ball 6 is too late.
-        g.node.get_clock().set_ros_time_override(rclpy.time.Time(seconds=100.5))
+        g.set_clock(100.5)
         g.pub.publish(prediction_msg(5))
         g.spin_until(lambda: g.node.n_committed == 1, 20.0, 'the count after the stroke')
         g.pub.publish(prediction_msg(6))
@@ -299,7 +303,7 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
     g = Graph()
     try:
         now = t_exit - WORKSPACE.min_time_before_hit + 1e-3
-        g.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(now * 1e9)))
+        g.set_clock(now)
         g.pub.publish(msg)
         g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
         assert g.commands == []
@@ -320,7 +324,7 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
         n = 0
         for k in range(150):
             now = hit_t - 0.5 + k / 150.0      # from 0.5 s before the prediction's plane
-            g.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(now * 1e9)))
+            g.set_clock(now)
             g.pub.publish(msg)
             n += 1
             g.spin_until(lambda n=n: len(g.commands) + g.node.n_committed == n, 20.0,
@@ -340,8 +344,7 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
         later = prediction_msg(3)
         later.header.stamp.sec += 100
         later.hit_time.sec += 100
-        g.node.get_clock().set_ros_time_override(rclpy.time.Time(
-            nanoseconds=round((hit_t + 99.5) * 1e9)))
+        g.set_clock(hit_t + 99.5)
         g.pub.publish(later)
         g.spin_until(lambda: len(g.commands) == n + 1, 20.0, "the new ball's command")
         assert g.commands[-1].track_id == 3 and g.commands[-1].feasible
@@ -436,8 +439,7 @@ def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
     try:
         first = prediction_msg(15)
         hit_t = seconds(first.hit_time)
-        g.node.get_clock().set_ros_time_override(
-            rclpy.time.Time(nanoseconds=round((seconds(first.header.stamp)) * 1e9)))
+        g.set_clock(seconds(first.header.stamp))
         g.pub.publish(first)
         g.spin_until(lambda: len(g.commands) == 1, 20.0, "the first ball's command")
         later = prediction_msg(15)
@@ -446,8 +448,7 @@ def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
         later.hit_time.sec += 1
         later.hit_time.nanosec += 200_000_000
         assert seconds(later.header.stamp) < seconds(g.commands[0].hit_time) + 1.0
-        g.node.get_clock().set_ros_time_override(
-            rclpy.time.Time(nanoseconds=round(seconds(later.header.stamp) * 1e9)))
+        g.set_clock(seconds(later.header.stamp))
         g.pub.publish(later)
         g.spin_until(lambda: len(g.commands) == 2, 20.0, "the second ball's command")
         assert g.commands[1].feasible

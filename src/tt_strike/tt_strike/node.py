@@ -199,13 +199,21 @@ class StrikeNode(Node):
         zone, point = self.target
         return f'zone {zone}' if zone else f'point ({point[0]:.3f}, {point[1]:.3f}) m'
 
+    def _reach(self):
+        """The workspace with the racket speed limit that applies: the lower of its own and
+        the max_racket_speed parameter."""
+        ws, limit = self.workspace, self.settings.max_racket_speed
+        if limit < ws.max_racket_speed:
+            ws = dataclasses.replace(ws, max_racket_speed=limit)
+        return ws
+
     def _reach_text(self):
-        limit = self.settings.max_racket_speed
         if self.p.use_hit_plane:
-            return f'at the hitting plane, racket speed limit {limit:.1f} m/s'
-        limit = min(limit, self.workspace.max_racket_speed)
-        return (f'reach {self.workspace.describe()} ({self.p.workspace_file or "default"}), '
-                f'racket speed limit {limit:.1f} m/s')
+            return (f'at the hitting plane, racket speed limit '
+                    f'{self.settings.max_racket_speed:.1f} m/s')
+        ws = self._reach()
+        return (f'reach {ws.describe()} ({self.p.workspace_file or "default"}), racket speed '
+                f'limit {ws.max_racket_speed:.1f} m/s')
 
     def _apply(self, v, changed):
         """Parameters set: the solver settings, and the target when it changed."""
@@ -326,9 +334,7 @@ class StrikeNode(Node):
             now = -math.inf                          # no hit-time check: not comparable
         if not self.p.check_hit_time:
             now = -math.inf
-        ws = self.workspace
-        if settings.max_racket_speed < ws.max_racket_speed:
-            ws = dataclasses.replace(ws, max_racket_speed=settings.max_racket_speed)
+        ws = self._reach()
         target = {'target_zone': zone or None, 'target_point': None if zone else point}
         if self.p.use_hit_plane:
             hit = Hit(hit_t, state[:3], state[3:6], state[6:9])

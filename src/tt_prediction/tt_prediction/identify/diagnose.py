@@ -108,7 +108,7 @@ def rebound_summary(tracks, globals_, states):
         times = np.array([b.t - 1e-4 for b in tr.bounces])
         model = fitting.simulate(fitting.full_state(tr, x, k), P, times, tr.n_bounces + 1)
         for b, m in zip(tr.bounces, model, strict=True):
-            ei = -b.v_out[2] / b.v_in[2]
+            ei = b.restitution
             e.append(ei)
             mu.append(np.linalg.norm(b.v_out[:2] - b.v_in[:2]) / ((1 + ei) * abs(b.v_in[2])))
             speed.append(abs(b.v_in[2]))

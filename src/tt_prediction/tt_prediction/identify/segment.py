@@ -69,6 +69,18 @@ class Bounce:
     v_out: np.ndarray
     vz_sd: tuple = None
 
+    @property
+    def restitution(self):
+        """-v_z' / v_z: the normal speed the bounce gives back."""
+        return float(-self.v_out[2] / self.v_in[2])
+
+    @property
+    def restitution_sd(self):
+        """Standard error of :attr:`restitution` from ``vz_sd``, taken as if it were 1 (a
+        weight by the measured ratio would count high values less than low ones); None
+        where ``vz_sd`` is."""
+        return None if self.vz_sd is None else math.hypot(*self.vz_sd) / -self.v_in[2]
+
 
 def _count(notes, key, n=1):
     if n:
@@ -91,7 +103,7 @@ def drop_outliers(t, p, notes, radius=0.02):
         dist = np.linalg.norm(off, axis=1)
         z = pp[:, 2]
         step = np.diff(tt)
-        no_gap = np.maximum(step[:-1], step[1:]) <= max(GAP_FACTOR * np.median(step), GAP_MIN)
+        no_gap = np.maximum(step[:-1], step[1:]) <= _gap_limit(step)
         contact = ((z[1:-1] < radius + BOUNCE_HEIGHT) & (z[1:-1] >= radius - CONTACT_BELOW)
                    & (z[1:-1] < z[:-2]) & (z[1:-1] < z[2:]) & no_gap
                    & (np.hypot(off[:, 0], off[:, 1]) <= OUTLIER_DISTANCE))
@@ -125,6 +137,12 @@ def _side_fit(t, p, sel, t_ref):
     return fits, sse
 
 
+def _gap_limit(steps):
+    """The longest interval (s) between samples that is not a gap, given the intervals
+    ``steps`` around (GAP_FACTOR of their median, GAP_MIN at least)."""
+    return max(GAP_FACTOR * np.median(steps), GAP_MIN) if len(steps) else np.inf
+
+
 def _slope_sds(t, p, sides, t_ref, fits_z, tb):
     """Standard errors of the quadratic z fits' slopes at tb (s from t_ref) on each side of
     a contact, m/s: their residual variance, pooled over both sides (a few samples per side
@@ -148,10 +166,9 @@ def locate_bounce(t, p, i):
     t_ref = t[i]
     near = np.abs(t - t_ref) <= CONTACT_WINDOW
     best = None
-    typical = np.median(np.diff(t[near])) if near.sum() > 1 else np.inf
     window = np.flatnonzero(np.abs(t - t_ref) <= SPLIT_WINDOW + 1e-9)
     around = t[max(window[0] - 1, 0):window[-1] + 2]
-    if len(around) > 1 and np.diff(around).max() > max(GAP_FACTOR * typical, GAP_MIN):
+    if len(around) > 1 and np.diff(around).max() > _gap_limit(np.diff(t[near])):
         return None                 # a gap at the contact: neither side's flight is whole
     for split in range(max(window[0], 1), min(window[-1] + 1, len(t) - 1) + 1):
         before = near & (np.arange(len(t)) < split)
@@ -194,9 +211,7 @@ def _turn_cosines(t, p, half=6):
 def _gains_speed(bounce):
     """Whether a located bounce returns more than MAX_RESTITUTION of its normal speed by over
     three of its standard errors (the fits' normal velocities, :class:`Bounce`)."""
-    e = bounce.v_out[2] / -bounce.v_in[2]
-    e_sd = math.hypot(*bounce.vz_sd) / -bounce.v_in[2]
-    return e > MAX_RESTITUTION + 3.0 * e_sd
+    return bounce.restitution > MAX_RESTITUTION + 3.0 * bounce.restitution_sd
 
 
 def _first_rolling(t, low):
