@@ -321,6 +321,27 @@ def test_max_rate_skips_states_by_their_stamps():
         g.close()
 
 
+def test_max_rate_holds_for_each_track_apart():
+    # Two balls at once, their states interleaved at 500 Hz each: a rate shared by the
+    # tracks gave every prediction to the ball whose states came first (the other: none).
+    g = Graph(overrides=[rclpy.parameter.Parameter('max_rate_hz', value=100.0)])
+    other = list(GOOD)
+    other[1] = -0.4
+    try:
+        t0 = T0
+        for k in range(11):
+            for track_id, values, offset in ((1, GOOD, 0), (2, other, 1_000_000)):
+                g.pub.publish(g.state(values, stamp_ns=t0 + k * 2_000_000 + offset,
+                                      track_id=track_id))
+            g.spin_until(lambda k=k: g.node.n_received == 2 * (k + 1), 10.0, f'states {k}')
+        g.spin_until(lambda: len(g.predictions) == g.node.n_predicted, 10.0, 'predictions')
+        for track_id, offset in ((1, 0), (2, 1_000_000)):
+            assert [ns(p.header.stamp) - t0 - offset for p in g.predictions
+                    if p.track_id == track_id] == [0, 10_000_000, 20_000_000], track_id
+    finally:
+        g.close()
+
+
 def test_the_config_file_sets_the_parameters():
     g = Graph(args=['--ros-args', '--params-file', str(CONFIG)])
     try:

@@ -68,8 +68,8 @@ PARAMETERS = (
           "x of the hitting plane on the robot's side (table frame)", 'm', *HIT_PLANE_X_RANGE),
     Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
           read_only=True),
-    Param('max_rate_hz', 0.0, "highest prediction rate per the states' stamps; 0: every "
-          'state', 'Hz', 0.0, 2000.0),
+    Param('max_rate_hz', 0.0, "highest prediction rate of each track, by its states' stamps; "
+          '0: every state', 'Hz', 0.0, 2000.0),
     Param('uncertainty', True, 'propagate the state covariance: zone probabilities, hit '
           'covariance'),
     Param('uncertainty_rate_hz', 50.0, 'rate of the uncertainty propagation per track (19 '
@@ -90,7 +90,8 @@ PARAMETERS = (
 class _Track:
     """What the node remembers of one track: its predicted bounce and last uncertainty."""
 
-    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns', 'state')
+    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns', 'state',
+                 'predicted_ns')
 
     def __init__(self):
         self.bounce = None
@@ -99,6 +100,7 @@ class _Track:
         self.uncertainty_ns = None
         self.last_ns = None
         self.state = None
+        self.predicted_ns = None        # stamp of the track's last prediction (max_rate_hz)
 
     def continues(self, state, stamp_ns, gravity):
         """Whether ``state`` (9,), stamped ``stamp_ns`` within the track's gap, is near where
@@ -170,7 +172,6 @@ class PredictionNode(Node):
         self.uncertainty_worker = _LatestWorker('uncertainty', self._propagate)
         self.path_worker = _LatestWorker('path', self._publish_path)
         self.tracks = {}
-        self.last_ns = None
         self.last_path_ns = None
         self.stamps_ns = None             # [first, last] stamp of the states received, ns
         self.work = CallbackTimes()       # the callback's time for the last states
@@ -221,8 +222,6 @@ class PredictionNode(Node):
         if self.stamps_ns is None:
             self.stamps_ns = [stamp_ns, stamp_ns]
         self.stamps_ns[1] = stamp_ns
-        if not due(stamp_ns, self.last_ns, self.p.max_rate_hz):
-            return
         if msg.header.frame_id not in ('', 'table'):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
             return
@@ -244,9 +243,7 @@ class PredictionNode(Node):
             return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
         track = self.tracks.pop(msg.track_id, None)     # back in as the latest updated
-        # The longest gap between two states of one track: TRACK_GAP_S, or max_rate_hz's.
-        gap_ns = (TRACK_GAP_S + (1.0 / self.p.max_rate_hz if self.p.max_rate_hz else 0.0)) * 1e9
-        if track is not None and not (0 <= stamp_ns - track.last_ns <= gap_ns
+        if track is not None and not (0 <= stamp_ns - track.last_ns <= TRACK_GAP_S * 1e9
                                       and track.continues(state, stamp_ns, self.params.gravity)):
             track = None                            # another ball under a used id
         if track is None:
@@ -256,6 +253,8 @@ class PredictionNode(Node):
         self.tracks[msg.track_id] = track
         track.last_ns = stamp_ns
         track.state = state
+        if not due(stamp_ns, track.predicted_ns, self.p.max_rate_hz):
+            return                  # each track at max_rate_hz: a second ball has its own
         plane_x = self.p.hit_plane_x
         margin_ns = BOUNCE_MARGIN_S * 1e9
         near = track.bounce_ns is not None and stamp_ns > track.bounce_ns - margin_ns
@@ -271,7 +270,7 @@ class PredictionNode(Node):
         if pred.status == 'invalid':
             self._drop(pred.reason)
             return
-        self.last_ns = stamp_ns
+        track.predicted_ns = stamp_ns
         if not bounced:
             track.bounce = None
             track.bounce_ns = None
