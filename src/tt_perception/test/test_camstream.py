@@ -2,11 +2,14 @@
 the bounded queue and the drop counts, checked by frame indices, times of a simulated clock and
 frame content (each frame's grey level is its index), never by wall-clock timing."""
 
+import pathlib
+import shutil
 import threading
 
 import cv2
 import numpy as np
 import pytest
+from test_sources import overwrite_avi_frame
 from tt_perception.camstream import (
     END,
     CameraReader,
@@ -187,6 +190,21 @@ def test_unpaced_lossless_reading_keeps_every_frame(video):
         assert len(q) <= 2 + 1      # two frames, and the END item (it takes no frame's place)
     reader.join(timeout=30)
     assert got == list(range(N_FRAMES)) and drops.snapshot() == ([0], 0)
+
+
+def test_a_frame_overwritten_mid_file_is_none_and_the_others_keep_their_index(video, tmp_path):
+    # Its JPEG packet skipped by FFmpeg's resynchronisation, every later frame had the index
+    # (and so the time) of the one before it.
+    path = tmp_path / 'cam.avi'
+    shutil.copy(video, path)
+    overwrite_avi_frame(pathlib.Path(path), 5)
+    src = PacedVideoSource(str(path), FPS, clock=SimClock(), start=0.0, rate=0.0).open()
+    got = []
+    while (index := src.grab()) is not None:
+        image = src.retrieve()
+        got.append((index, None if image is None else index_of(image)))
+    src.close()
+    assert got == [(n, None if n == 5 else n) for n in range(N_FRAMES)]
 
 
 def test_detection_in_the_camera_thread_gives_the_same_states():

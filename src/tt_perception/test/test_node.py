@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 
+import cv2
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 import pytest
@@ -157,6 +158,9 @@ def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
      "video_clock 'wall' needs video_rate 1: at 0.5x"),
     # Logged an error, said 'ready' and ran on one camera (no state, no exit).
     ({'rig_file': 'VIDEO_MISSING'}, r'camera cam1: .*/nope\.avi: no such video file$'),
+    # Paced both at the rig's 100 fps: cam1's frames drifted off cam0's, no state.
+    ({'rig_file': 'VIDEO_RATES'}, r'cameras cam0 and cam1 run at different rates: '
+                                  r'.*/cam0\.avi is 100 fps, .*/cam1\.avi 80 fps'),
 ])
 def test_a_bad_rig_model_or_topic_stops_the_node_at_start(graph, tmp_path, overrides, words):
     # As prediction_node and strike_node do (one line, exit 2 under ros2 run, and bringup
@@ -170,7 +174,13 @@ def test_a_bad_rig_model_or_topic_stops_the_node_at_start(graph, tmp_path, overr
             rig = yaml.safe_load(open(rig_path))
             rig['cameras'][1]['source'] = 'nope.avi'
             yaml.safe_dump(rig, open(rig_path, 'w'))
-    values = [Parameter(k, value=rig_path if v in ('RIG', 'VIDEO', 'VIDEO_MISSING') else v)
+        if overrides['rig_file'] == 'VIDEO_RATES':             # cam1 recorded at 80 fps
+            writer = cv2.VideoWriter(str(tmp_path / 'video' / 'cam1.avi'),
+                                     cv2.VideoWriter_fourcc(*'MJPG'), 80.0, (64, 48))
+            writer.write(frames[0][2])
+            writer.release()
+    values = [Parameter(k, value=rig_path if v in ('RIG', 'VIDEO', 'VIDEO_MISSING',
+                                                   'VIDEO_RATES') else v)
               for k, v in overrides.items()]
     with pytest.raises(StartupError, match=words):
         PerceptionNode(context=graph.context, parameter_overrides=values)

@@ -7,8 +7,10 @@ import os
 import pathlib
 import stat
 
+import cv2
 import numpy as np
 import pytest
+from test_sources import overwrite_avi_frame
 from tt_perception.camera import load_rig
 import yaml
 
@@ -57,6 +59,41 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
         header, row = list(csv.reader(f))[:2]
     assert header == ['file', 'wx', 'wy', 'wz', 'label', 'source_id', 'spin_source']
     assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
+
+
+def test_a_video_overwritten_mid_flight_gives_the_track_and_names_the_frame(scene, tmp_path,
+                                                                           capsys):
+    # FFmpeg skipped the damaged frame without a word and the frames after it were each timed
+    # a frame early: two tracks, the second 7-10 mm off, exit 0 and no warning.
+    base, rig_path, frames, truth = scene
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth],
+                                  time_offset=0.0)
+    cam0 = tmp_path / 'video' / 'cam0.avi'
+    overwrite_avi_frame(cam0, 40)                   # the ball in flight
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
+    n = sum(1 for _, k, _ in frames if k == 0)
+    assert capsys.readouterr().err.splitlines() == [
+        f'tt-perceive: warning: camera cam0: {cam0}: 1 of its {n} frames unreadable '
+        '(corrupt?): skipped, the others at their times']
+    assert sorted(p.name for p in out.iterdir()) == ['index.csv', 'track_001.csv']
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+
+
+def test_video_files_at_different_rates_are_one_line_and_write_nothing(tmp_path, capsys):
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 150.0)
+    frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None)
+    cam1 = tmp_path / 'video' / 'cam1.avi'
+    writer = cv2.VideoWriter(str(cam1), cv2.VideoWriter_fourcc(*'MJPG'), 120.0, (64, 48))
+    writer.write(frames[0][2])
+    writer.release()
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and 'cameras cam0 and cam1 run at different rates' in err[0]
+    assert f'cam0.avi is 150 fps, {cam1} 120 fps' in err[0]
+    assert not out.exists()
 
 
 @pytest.mark.parametrize('edit', ['transposed', 'none'])

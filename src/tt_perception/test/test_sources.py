@@ -9,6 +9,7 @@ from tt_perception.sources import (
     V4L2Source,
     VideoFileSource,
     file_frames,
+    file_rates_error,
     image_to_bgr,
     source_kind,
 )
@@ -105,6 +106,86 @@ def test_a_video_cut_short_is_named_with_the_frames_it_lacks(tmp_path):
     assert 0 < read < 19
     assert notes == [f'camera cam0: {cam0}: video ended after {read} of the 20 frames its '
                      'header declares (cut or corrupt?)']
+
+
+def overwrite_avi_frame(path, n, seed=0):
+    """Overwrite frame ``n`` of the AVI file ``path`` (its chunk in the movi list, header and
+    JPEG data) with random bytes, as a damaged disk or copy does in the middle of a file."""
+    data = bytearray(path.read_bytes())
+    pos = data.index(b'movi')
+    for _ in range(n + 1):
+        pos = data.index(b'00dc', pos + 1)
+    size = 8 + int.from_bytes(data[pos + 4:pos + 8], 'little')
+    data[pos:pos + size] = np.random.default_rng(seed).integers(0, 256, size, np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+
+
+def test_a_frame_overwritten_mid_file_is_named_and_the_others_keep_their_times(tmp_path):
+    # FFmpeg read in file order skipped the damaged chunk without a word and OpenCV numbered
+    # the frames it decoded: frames 11-19 of cam0 came at 0.10-0.18 s, a frame early each,
+    # and no note (19 of the 20 declared frames is within a frame's slack).
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 10 * n + 20, np.uint8))
+              for n in range(20) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
+    cam0 = tmp_path / 'video' / 'cam0.avi'
+    overwrite_avi_frame(cam0, 10)
+    notes = []
+    got = [(round(t * 100), int(round(frame.mean()))) for t, k, frame in file_frames(rig, notes)
+           if k == 0]
+    assert [n for n, _ in got] == [n for n in range(20) if n != 10]
+    assert all(abs(grey - (10 * n + 20)) <= 2 for n, grey in got)
+    assert notes == [f'camera cam0: {cam0}: 1 of its 20 frames unreadable (corrupt?): '
+                     'skipped, the others at their times']
+
+
+@pytest.mark.parametrize('fourcc', ['MJPG', 'XVID', 'MPEG'])
+def test_a_whole_avi_read_through_its_index_gives_every_frame_at_its_time(tmp_path, fourcc):
+    # Read through the index, a whole file gives the frames a read in file order gives, at
+    # n / fps. A frame's number is its PTS from the first frame's: MPEG-1 in AVI numbers its
+    # frames from 1 (every frame was timed a frame late, the first counted as unreadable).
+    path = str(tmp_path / f'{fourcc}.avi')
+    writer = cv2.VideoWriter(path, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*fourcc), 100.0,
+                             (64, 48))
+    assert writer.isOpened(), fourcc
+    for n in range(20):
+        frame = np.full((48, 64, 3), 40, np.uint8)
+        frame[10:20, 2 + 3 * n:12 + 3 * n] = 230
+        writer.write(frame)
+    writer.release()
+    plain = cv2.VideoCapture(path)
+    in_file_order = [frame for ok, frame in iter(plain.read, (False, None))]
+    plain.release()
+    src = VideoFileSource(path, 100.0).open()
+    try:
+        assert src.by_index
+        got = list(iter(src.read, (None, None)))
+    finally:
+        src.close()
+    assert len(in_file_order) == 20
+    assert [round(t * 100) for t, _ in got] == list(range(20))
+    assert all(np.array_equal(a, b) for (_, a), b in zip(got, in_file_order, strict=True))
+    assert src.damage() == ''
+
+
+def test_video_files_at_different_rates_are_refused_naming_both(tmp_path):
+    # The rig has one fps: cam1's 80 fps frames were timed at 100 fps and drifted off cam0's
+    # (a warning on the rig's fps, then no point and a warning blaming the poses, exit 0).
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
+    assert file_rates_error(rig) == ''
+    cam0, cam1 = (str(tmp_path / 'video' / f'cam{k}.avi') for k in range(2))
+    writer = cv2.VideoWriter(cam1, cv2.VideoWriter_fourcc(*'MJPG'), 80.0, (64, 48))
+    for _ in range(3):
+        writer.write(frames[0][2])
+    writer.release()
+    expect = (f'cameras cam0 and cam1 run at different rates: {cam0} is 100 fps, {cam1} 80 fps '
+              '(the rig has one fps for all its cameras: record them at one rate)')
+    with pytest.raises(OSError) as refused:
+        list(file_frames(rig, []))
+    assert str(refused.value) == expect
+    assert file_rates_error(rig) == expect
 
 
 def test_a_video_of_another_size_or_rate_than_its_rig_is_named(tmp_path):

@@ -60,6 +60,7 @@ from .detect import DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import (
     camera_info_topic,
+    file_rates_error,
     file_source_error,
     file_source_path,
     image_to_bgr,
@@ -224,6 +225,9 @@ class PerceptionNode(Node):
                 error = file_source_error(rig, cam)
                 if error:
                     raise StartupError(f'rig {rig_file}: camera {cam.name}: {error}')
+        error = file_rates_error(rig)    # two video files at different rates
+        if error:
+            raise StartupError(f'rig {rig_file}: {error}')
         if self._p('measured_spin_topic'):
             _check_topic(self._p('measured_spin_topic'), 'measured_spin_topic')
         fourcc = self._p('device_fourcc')

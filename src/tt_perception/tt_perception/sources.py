@@ -19,6 +19,8 @@ happened last, for the caller to report. A :class:`V4L2Source` also reads in two
 """
 
 import os
+import struct
+import threading
 import time
 
 import cv2
@@ -28,6 +30,19 @@ SOURCE_KINDS = ('v4l2', 'file', 'topic')
 """What :func:`source_kind` tells apart (docs/DEVELOPING.md: adding a camera source)."""
 
 VIDEO_EXTENSIONS = ('.avi', '.mp4', '.mkv', '.mov', '.webm', '.png', '.jpg', '.jpeg', '.bmp')
+
+AVI_BY_INDEX = 'fflags;+sortdts'
+"""FFmpeg's option (in ``OPENCV_FFMPEG_CAPTURE_OPTIONS``) under which an AVI file is read
+through its index (the demuxer's non-interleaved mode): each frame from the place, and with
+the number (``CAP_PROP_PTS``), the index gives it, and a frame that cannot be decoded fails
+one read, the next going on after it. Read in file order instead, FFmpeg resynchronises
+silently past a damaged chunk, and the frames after it were numbered from the first one lost:
+one MJPG frame overwritten in the middle of a file had the 47 after it each timed a frame
+early (a track 7-10 mm off, exit 0 without a word). Only a file whose index is whole
+(:func:`_avi_index_whole`) is: read through a damaged index, the frames it lost are skipped and
+the rest numbered from the gap. Any other (cut before the index was written, an OpenDML file
+over 1 GB) is read in file order."""
+_CAPTURE_OPTIONS = threading.Lock()
 
 
 def source_kind(source, base=''):
@@ -47,6 +62,56 @@ def file_source_path(rig, cam):
     """The path of camera ``cam``'s video file or image sequence: its source, relative to
     the folder of the rig file ``rig``."""
     return os.path.join(os.path.dirname(rig.path), cam.source)
+
+
+def _avi_index_whole(path):
+    """Whether the AVI file ``path`` ends in an index (idx1, the file's last chunk) of as
+    many video frames as its main header declares, at increasing places: one that no
+    overwrite has reached. Only the chunk headers and the index are read."""
+    try:
+        with open(path, 'rb') as f:
+            size = os.fstat(f.fileno()).st_size
+            head = f.read(52)
+            if len(head) < 52 or head[:4] != b'RIFF' or head[8:12] != b'AVI ' \
+                    or head[24:28] != b'avih':
+                return False
+            frames = struct.unpack_from('<I', head, 48)[0]
+            pos = 12
+            while pos + 8 <= size:
+                f.seek(pos)
+                tag, length = struct.unpack('<4sI', f.read(8))
+                end = pos + 8 + length + (length & 1)
+                if tag == b'idx1':
+                    entries = np.frombuffer(f.read(length - length % 16), dtype=[
+                        ('id', 'S4'), ('flags', '<u4'), ('offset', '<u4'), ('size', '<u4')])
+                    video = entries[np.char.endswith(entries['id'], b'dc')
+                                    | np.char.endswith(entries['id'], b'db')]['offset']
+                    return (end >= size and 0 < frames == len(video)
+                            and bool(np.all(np.diff(video.astype(np.int64)) > 0)))
+                pos = end
+    except (OSError, struct.error):
+        pass
+    return False
+
+
+def _open_capture(path):
+    """``(cv2.VideoCapture(path), by_index)``: an AVI file whose index is whole is read
+    through it (``by_index`` True; :data:`AVI_BY_INDEX`, set for this open only, after any
+    options the user has set)."""
+    if not (path.lower().endswith('.avi') and os.path.isfile(path)
+            and _avi_index_whole(path)):
+        return cv2.VideoCapture(path), False
+    key = 'OPENCV_FFMPEG_CAPTURE_OPTIONS'
+    with _CAPTURE_OPTIONS:
+        before = os.environ.get(key)
+        os.environ[key] = f'{before}|{AVI_BY_INDEX}' if before else AVI_BY_INDEX
+        try:
+            return cv2.VideoCapture(path), True
+        finally:
+            if before is None:
+                del os.environ[key]
+            else:
+                os.environ[key] = before
 
 
 def file_source_error(rig, cam):
@@ -96,14 +161,21 @@ def _sequence_starts(pattern):
 
 
 class VideoFileSource(FrameSource):
-    """A video file or an image sequence (printf pattern or a directory of images)."""
+    """A video file or an image sequence (printf pattern or a directory of images).
+
+    An AVI file whose index is whole is read through it (``by_index``, :func:`_open_capture`):
+    a frame that cannot be decoded is counted (``unreadable``) and the frames after it keep
+    their numbers and times."""
 
     def __init__(self, path, fps):
         self.path = path
         self.fps = float(fps)
         self.capture = None
+        self.by_index = False
         self.index = 0
         self.declared = 0
+        self.unreadable = 0
+        self.first_pts = None
 
     def open(self):
         path = self.path
@@ -124,12 +196,19 @@ class VideoFileSource(FrameSource):
             # Checked here: FFmpeg would log '[image2 @ 0x...] Could find no file ...' on
             # stderr before the one-line error below.
             raise OSError(f'{path}: no image matches the pattern (first index 0 to 4)')
-        self.capture = cv2.VideoCapture(path)
+        self.capture, self.by_index = _open_capture(path)
         if not self.capture.isOpened():
             raise OSError(f'{path}: cannot be opened as a video or image sequence')
-        self.index = 0
+        self.index = self.unreadable = 0
+        self.first_pts = None
         self.declared = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
         return self
+
+    def rate(self):
+        """The video file's own frame rate (fps), or 0.0 when it has none (an image
+        sequence) or does not say."""
+        fps = self.capture.get(cv2.CAP_PROP_FPS)
+        return float(fps) if os.path.isfile(self.path) and fps > 0.0 else 0.0
 
     def disagreement(self, cam, rig_fps):
         """``(error, warning)`` of the opened file against its camera ``cam`` (its
@@ -143,27 +222,48 @@ class VideoFileSource(FrameSource):
         if w > 0 and h > 0 and (w, h) != (cam.width, cam.height):
             error = (f'{self.path} is {w}x{h}, its calibration (camera_info) '
                      f'{cam.width}x{cam.height}')
-        fps = cap.get(cv2.CAP_PROP_FPS)
-        if (os.path.isfile(self.path) and fps > 0.0
-                and abs(fps - rig_fps) > 0.01 * rig_fps):
+        fps = self.rate()
+        if fps > 0.0 and abs(fps - rig_fps) > 0.01 * rig_fps:
             warning = (f"{self.path} is {fps:g} fps, the rig's fps {rig_fps:g}: its frames "
                        "are timed at the rig's")
         return error, warning
 
-    def cut_short(self):
+    def damage(self):
         """After the end: one line when fewer frames were read than the file's header
-        declares (a cut or corrupt file), else ''. A frame of slack: some containers' counts
-        are estimates."""
-        if self.declared > 0 and self.index < self.declared - 1:
-            return (f'{self.path}: video ended after {self.index} of the {self.declared} '
+        declares (a cut or corrupt file; a frame of slack: some containers' counts are
+        estimates) or some could not be decoded, else ''."""
+        cut = self.declared > 0 and self.index < self.declared - 1
+        if cut:
+            text = (f'{self.path}: video ended after {self.index} of the {self.declared} '
                     'frames its header declares (cut or corrupt?)')
+            return text + (f', {self.unreadable} of them unreadable' if self.unreadable
+                           else '')
+        if self.unreadable:
+            return (f'{self.path}: {self.unreadable} of its {self.index} frames unreadable '
+                    '(corrupt?): skipped, the others at their times')
         return ''
 
     def read(self):
-        """Next frame ``(t, frame)``; ``(None, None)`` at the end of the file."""
+        """Next frame ``(t, frame)``; ``(None, None)`` at the end of the file. Read through
+        the index (``by_index``), a frame that cannot be decoded is ``(t, None)`` (counted in
+        ``unreadable``) and the next read goes on after it."""
         ok, frame = self.capture.read()
         if not ok:
-            return None, None
+            if not (self.by_index and self.index < self.declared):
+                return None, None
+            frame = None
+            self.unreadable += 1
+        elif self.by_index:
+            # The index's number of the frame, from the first frame's (MPEG-1 in AVI
+            # numbers from 1): one the decoder left out without failing the read does not
+            # take the next one's time.
+            pts = int(self.capture.get(cv2.CAP_PROP_PTS))
+            if self.first_pts is None:
+                self.first_pts = pts - self.index
+            n = pts - self.first_pts
+            if n > self.index:
+                self.unreadable += n - self.index
+                self.index = n
         t = self.index / self.fps
         self.index += 1
         return t, frame
@@ -271,13 +371,50 @@ class V4L2Source(FrameSource):
             self.capture = None
 
 
+def rates_error(rig, sources):
+    """One line when two of the opened video files ``sources`` ({camera index:
+    :class:`VideoFileSource`}) run at rates more than 1 % apart, else '': the rig has one
+    ``fps``, and a camera's frames timed at another camera's rate drift off its frames (120
+    and 150 fps: a frame apart after four frames; no point triangulated, and the only word
+    was a warning that blamed the poses). Image sequences have no rate of their own."""
+    rates = [(k, src.rate()) for k, src in sorted(sources.items()) if src.rate() > 0.0]
+    for k, fps in rates[1:]:
+        k0, fps0 = rates[0]
+        if abs(fps - fps0) > 0.01 * max(fps, fps0):
+            return (f'cameras {rig.cameras[k0].name} and {rig.cameras[k].name} run at '
+                    f'different rates: {sources[k0].path} is {fps0:g} fps, '
+                    f'{sources[k].path} {fps:g} fps (the rig has one fps for all its cameras: '
+                    'record them at one rate)')
+    return ''
+
+
+def file_rates_error(rig):
+    """:func:`rates_error` of the rig's video files (opened and closed again), or one line
+    naming a camera whose file cannot be opened; '' when they agree."""
+    base = os.path.dirname(rig.path)
+    sources = {}
+    try:
+        for k, cam in enumerate(rig.cameras):
+            if source_kind(cam.source, base) == 'file':
+                try:
+                    sources[k] = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
+                except OSError as exc:
+                    return f'camera {cam.name}: {exc}'
+        return rates_error(rig, sources)
+    finally:
+        for src in sources.values():
+            src.close()
+
+
 def file_frames(rig, notes=None):
     """(t, camera_index, frame) of the rig's video files, one frame of each camera in turn at
-    each frame index, ``t`` = index / fps on each camera's own clock. Raises OSError naming
-    the camera when a source is not a file or cannot be read, or its frames are not of its
-    calibration's size (:meth:`VideoFileSource.disagreement`). A video whose own rate is not
-    the rig's, or that ends before its header's frame count, adds a line naming the camera to
-    the list ``notes``.
+    each frame index, ``t`` = index / fps on each camera's own clock; a frame that cannot be
+    decoded is left out (the others keep their times). Raises OSError naming the camera when
+    a source is not a file or cannot be read, or its frames are not of its calibration's size
+    (:meth:`VideoFileSource.disagreement`), or naming two cameras whose files run at
+    different rates (:func:`rates_error`). A video whose own rate is not the rig's, that ends
+    before its header's frame count or has frames that cannot be decoded adds a line naming
+    the camera to the list ``notes``.
     """
     base = os.path.dirname(rig.path)
     sources = {}
@@ -294,17 +431,21 @@ def file_frames(rig, notes=None):
                 raise OSError(f'camera {cam.name}: {error}')
             if warning and notes is not None:
                 notes.append(f'camera {cam.name}: {warning}')
+        error = rates_error(rig, sources)
+        if error:
+            raise OSError(error)
         while sources:
             for k in sorted(sources):
                 t, frame = sources[k].read()
-                if frame is None:
+                if t is None:
                     ended = sources.pop(k)
                     ended.close()
-                    short = ended.cut_short()
-                    if notes is not None and short:
-                        notes.append(f'camera {rig.cameras[k].name}: {short}')
+                    damage = ended.damage()
+                    if notes is not None and damage:
+                        notes.append(f'camera {rig.cameras[k].name}: {damage}')
                     continue
-                yield t, k, frame
+                if frame is not None:
+                    yield t, k, frame
     finally:
         for src in sources.values():
             src.close()
