@@ -151,6 +151,36 @@ def test_a_session_bag_played_with_clock_gives_a_prediction_per_state(tmp_path, 
         assert 'another time base' not in log
 
 
+def test_a_session_bag_played_twice_is_judged_on_each_pass_clock(tmp_path):
+    # Each `ros2 bag play` process its own pass: the second player made its /clock publisher
+    # after waiting for the state's subscribers, and prediction_node matched it up to 2 s
+    # after the first states (on a loaded machine), judging them against the first pass's
+    # end (stale by the bag's length: 0.8 s here, over the 0.5 s limit). The player's side
+    # is checked exactly in test_bag.py (test_play_with_clock_waits_for_a_clock_subscriber_too).
+    stamps = _write_session(tmp_path / 'session', STAMP_BASE_NS)
+    domain = unique_domain()
+    listener = Listener(domain, states=False)
+    try:
+        with ProcessGroup(str(tmp_path)) as group:
+            env = {'ROS_DOMAIN_ID': str(domain)}
+            group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
+                                       '--ros-args', '-p', 'use_sim_time:=true',
+                                       '-p', 'uncertainty:=false'], env=env)
+            for n in range(2):
+                player = group.start(f'play{n}', ['ros2', 'bag', 'play',
+                                                  str(tmp_path / 'session'), '--clock',
+                                                  '--wait-for-subscribers'], env=env)
+                wait_until(lambda p=player: listener.spin() or p.poll() is not None,
+                           TIMEOUT_S, f'pass {n} to end')
+                assert player.returncode == 0
+            assert group.stop('prediction') == 0
+    finally:
+        listener.close()
+    received, predicted, dropped, first, last = _summary(tmp_path)
+    assert received > len(stamps)                 # states of both passes reached the node
+    assert (predicted, dropped) == (received, 0), 'states of a pass dropped (stale?)'
+
+
 def _summary(tmp_path):
     """(states, predictions, dropped, first stamp, last stamp (ns)) of the summary
     prediction_node logs on exit; the test fails when its log has none."""

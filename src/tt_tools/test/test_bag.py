@@ -320,6 +320,36 @@ def test_play_publishes_the_bag_time_on_clock(recorded, procs):
     assert start <= clocks[0] and clocks[-1] <= end + 10_000_000
 
 
+def test_play_with_clock_waits_for_a_clock_subscriber_too(recorded, procs):
+    # --clock --wait-for-subscribers: no message before /clock has a subscriber, as the
+    # replayed topics. /clock's publisher was made after the wait: a node on /clock, started
+    # before the player, matched it up to 2 s after the first states and judged them against
+    # the clock a previous player had left (stale; strokes too late).
+    out, topics, _ = recorded
+    domain = 50 + (os.getpid() + 7) % 50     # /clock is shared: a domain of this test's own
+    g = Graph(domain_id=domain)
+    try:
+        got = []
+        g.node.create_subscription(BallState, topics['state'], got.append, QoSProfile(depth=100))
+        g.node.create_subscription(CameraInfo, topics['info'], lambda m: None,
+                                   qos_profile_sensor_data)
+        play = procs('bag', 'play', str(out), '--clock', '--wait-for-subscribers',
+                     env={'ROS_DOMAIN_ID': str(domain)})
+        g.spin_until(lambda: 'none yet on /clock)' in play.stderr or play.proc.poll() is not None,
+                     60, 'the player to say what it waits for')
+        assert got == [] and play.proc.poll() is None, play.stderr
+        clocks = []
+        g.node.create_subscription(
+            Clock, '/clock', clocks.append,
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+        g.spin_until(lambda: len(got) == N_STATES and play.proc.poll() is not None, 60,
+                     'the replay to end')
+    finally:
+        g.close()
+    assert play.wait() == 0, play.stderr
+    assert clocks
+
+
 def test_sqlite3_storage_round_trip(tmp_path):
     out = tmp_path / 'db'
     topics, sent = _record(out, 'sqlite3', f'/tt_bag_sqlite_{os.getpid()}')

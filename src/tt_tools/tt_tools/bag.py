@@ -122,11 +122,16 @@ def bag_play(args):
             for conn in conns:
                 qos = qos_from_bag(conn.ext.offered_qos_profiles, depth=args.qos_depth)
                 pubs[conn.id] = cli.node.create_publisher(classes[conn.id], conn.topic, qos)
+            # /clock's publisher with the others, and waited for as they are: made after the
+            # wait, a node on /clock matched it up to 2 s after the first messages, and judged
+            # them against the clock a previous player had left (stale, too late).
+            clock_pub = _clock_publisher(cli) if args.clock is not None else None
+            waited = list(pubs.values()) + ([clock_pub] if clock_pub is not None else [])
             if args.wait_for_subscribers and not cli.wait_saying(
-                    lambda: all(p.get_subscription_count() > 0 for p in pubs.values()),
+                    lambda: all(p.get_subscription_count() > 0 for p in waited),
                     lambda: 'waiting for a subscriber on every topic (--wait-for-subscribers; '
                             'none yet on ' + ', '.join(sorted(
-                                p.topic_name for p in pubs.values()
+                                p.topic_name for p in waited
                                 if p.get_subscription_count() == 0)) + ')'):
                 return 0
             if args.delay > 0:
@@ -137,8 +142,8 @@ def bag_play(args):
             # Bag time now = first + (monotonic time since t0) * rate.
             state = {'t0': time.monotonic()}
             tick = None
-            if args.clock is not None:
-                tick = _publish_clock(cli, args.clock,
+            if clock_pub is not None:
+                tick = _publish_clock(cli, clock_pub, args.clock,
                                       lambda: first + int((time.monotonic() - state['t0'])
                                                           * args.rate * 1e9))
             while not cli.stopped:
@@ -165,13 +170,19 @@ def bag_play(args):
     return 0
 
 
-def _publish_clock(cli, rate_hz, bag_time_ns):
-    """Publish rosgraph_msgs/Clock on /clock at ``rate_hz`` with the bag time (ClockQoS);
-    returns the function that publishes it once, now."""
+def _clock_publisher(cli):
+    """The player's rosgraph_msgs/Clock publisher on /clock (rclcpp's ClockQoS: best effort,
+    depth 1)."""
     from rosgraph_msgs.msg import Clock
 
-    pub = cli.node.create_publisher(
+    return cli.node.create_publisher(
         Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+
+def _publish_clock(cli, pub, rate_hz, bag_time_ns):
+    """Publish the bag time on ``pub`` (:func:`_clock_publisher`) at ``rate_hz``; returns the
+    function that publishes it once, now."""
+    from rosgraph_msgs.msg import Clock
 
     def tick():
         ns = bag_time_ns()
