@@ -237,6 +237,18 @@ def test_bad_and_stale_states_publish_nothing(graph):
     assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == len(good)
 
 
+def test_a_state_without_a_stamp_is_dropped_on_a_wall_clock(graph):
+    # Stamped 0 (`ros2 topic pub` without header: {stamp: now}) on a node whose clock reads
+    # today: taken for another time base, its time checks were switched off and it was
+    # predicted, and struck, for 1970.
+    graph.set_clock(1_790_000_000 * 10**9)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=0))
+    graph.pub.publish(graph.state(GOOD, stamp_ns=1_790_000_000 * 10**9, track_id=2))
+    graph.spin_until(lambda: len(graph.predictions) == 1, 10.0, 'the stamped state')
+    assert graph.node.n_received == 2 and graph.node.n_dropped == 1
+    assert graph.predictions[0].track_id == 2
+
+
 def test_a_track_id_used_again_by_a_later_ball_is_a_new_track(graph):
     # perception_node numbers its tracks from 1 again when it restarts: the node remembered
     # the first ball's bounce as past and predicted the new ball as after it (double_bounce,

@@ -19,7 +19,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import point_msg, set_time, set_xyz
+from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
@@ -59,7 +59,6 @@ line under gravity) starts it afresh too: another ball, sooner than TRACK_GAP_S.
 changes v_z by about twice the impact speed (up to ~10 m/s), only for the time after it, and
 perception ends a track after 0.2 s without its ball: on model flights no state of one ball
 was taken for another down to 10 Hz (a review, 28 Nov 2026)."""
-
 
 _ZERO3 = (0.0, 0.0, 0.0)
 
@@ -222,6 +221,9 @@ class PredictionNode(Node):
         if self.stamps_ns is None:
             self.stamps_ns = [stamp_ns, stamp_ns]
         self.stamps_ns[1] = stamp_ns
+        if stamp_ns == 0:
+            self._drop(UNSTAMPED)
+            return
         if msg.header.frame_id not in ('', 'table'):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
             return

@@ -5,6 +5,12 @@ from geometry_msgs.msg import Point
 
 NS_PER_S = 1_000_000_000
 
+UNSTAMPED = "header.stamp is 0: not set (ros2 topic pub: '{header: {stamp: now}, ...}')"
+"""Why prediction_node and strike_node drop a message stamped 0. Taken for another time base,
+it only switched their time checks off (stale, too late): a state published without a stamp
+on the robot's wall clock got strike commands for 1970. A clock that starts at 0 (video time)
+has no state at 0: a track is published from its third frame on."""
+
 
 def point_msg(p):
     """geometry_msgs/Point of ``p`` (x, y[, z]), m; z 0 for a point on the table (2 numbers)."""

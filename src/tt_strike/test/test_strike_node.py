@@ -225,13 +225,20 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         early.hit_time.sec, early.hit_time.nanosec = 0, 0
         g.pub.publish(early)
         g.spin_until(lambda: g.node.n_received == 5, 10.0, 'the five bad predictions')
-        assert g.node.n_dropped == 5 and g.commands == []
+        # Not stamped (0), its hit at 0.7 s: taken for another time base, it was struck 'ok'.
+        unstamped = prediction_msg(8)
+        unstamped.header.stamp.sec, unstamped.header.stamp.nanosec = 0, 0
+        unstamped.hit_time.sec, unstamped.hit_time.nanosec = 0, 700_000_000
+        g.pub.publish(unstamped)
+        g.spin_until(lambda: g.node.n_received == 6, 10.0, 'the unstamped prediction')
+        assert g.node.n_dropped == 6 and g.commands == []
         assert reasons[0].startswith('hit_covariance is not symmetric (')
         assert reasons[1] == 'hit_covariance is not positive semi-definite (eigenvalue -1e-06)'
         assert reasons[2] == 'hit_covariance is not finite'
         assert reasons[3] == ('hit_covariance: position standard deviation 1e+150 m is '
                               'beyond 1 m (all zeros means unknown)')
         assert reasons[4] == 'hit_time precedes header.stamp (the state it was predicted from)'
+        assert reasons[5].startswith('header.stamp is 0: not set')
         # All zeros (unknown: the position taken as exact), and an asymmetry of rounding,
         # are taken.
         zeros, rounded = prediction_msg(4), prediction_msg(5)
@@ -244,7 +251,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         g.spin_until(lambda: len(g.commands) == 2, 20.0, 'two commands')
         for cmd, msg in zip(g.commands, (zeros, rounded), strict=True):
             check_command(cmd, msg, 5)
-        assert g.node.n_dropped == 5
+        assert g.node.n_dropped == 6
     finally:
         g.close()
 

@@ -35,7 +35,7 @@ from tt_prediction.predict import Hit
 from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import point_msg, set_time, set_xyz
+from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
@@ -297,6 +297,9 @@ class StrikeNode(Node):
         tally.received += 1
         if not msg.hit_valid:
             self._drop(f'no hit point (prediction status {msg.status!r})')
+            return
+        if to_ns(msg.header.stamp) == 0:
+            self._drop(UNSTAMPED)
             return
         if msg.header.frame_id not in ('', 'table'):
             self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
