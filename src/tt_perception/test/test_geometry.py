@@ -71,6 +71,12 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: _edit(info, lambda d: d.pop('image_width')),
      'image_width/image_height missing'),
     (lambda rig, info: _edit(info, lambda d: d.pop('camera_matrix')), 'camera_matrix missing'),
+    # Read as no distortion: 18 mm RMS on a lens with k1 -0.21, without a word.
+    (lambda rig, info: _edit(info, lambda d: d.pop('distortion_coefficients')),
+     'distortion_coefficients missing (a lens without distortion: data: [0, 0, 0, 0, 0])'),
+    # Said 'rotation needs 9 numbers and translation 3'.
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].pop('translation')),
+     'cameras[1] (cam1): translation missing'),
     (lambda rig, info: _edit(info, lambda d: d['camera_matrix']['data'].__setitem__(2, 2000)),
      'principal point (2000, '),
     (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
@@ -92,7 +98,8 @@ def test_rig_round_trip(tmp_path):
      "frame_id 'world': the poses are in the table frame (MODEL.md), frame_id 'table'"),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
         'bad translation',
-        'bad camera matrix', 'no image size', 'no camera matrix', 'principal point off',
+        'bad camera matrix', 'no image size', 'no camera matrix', 'no distortion',
+        'no translation', 'principal point off',
         'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
         'misspelt key',
         'unknown rig key', 'frame not the table'])

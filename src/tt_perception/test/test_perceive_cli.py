@@ -61,6 +61,32 @@ def test_video_files_give_one_track(scene, tmp_path, capsys, fmt):
     assert row[header.index('spin_source')] == 'estimated'     # never counted as measured
 
 
+def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
+    # The scene's frames as a camera with an sRGB-like response records them (pixel =
+    # 255 (light / full)^(1 / 2.2)): told its gamma, tt-perceive sees the light the linear
+    # camera saw, and gives its track. It had no option for it: 2-4 times the error, the
+    # height high, on another renderer's camera (a new user's walk-through).
+    base, rig_path, frames, truth = scene
+    lut = np.round(255.0 * (np.arange(256) / 255.0) ** (1.0 / 2.2)).astype(np.uint8)
+    rigs = {name: synth.write_scene(str(tmp_path / name), rig_path, scene_frames, [truth],
+                                    fmt='png')
+            for name, scene_frames in (('linear', frames),
+                                       ('webcam', [(t, k, lut[f]) for t, k, f in frames]))}
+    tracks = {}
+    for name, rig, gamma in (('linear', rigs['linear'], '1'), ('webcam', rigs['webcam'], '2.2'),
+                             ('webcam_untold', rigs['webcam'], '1')):
+        out = tmp_path / f'out_{name}'
+        assert cli.main(['--rig', rig, '--out', str(out), '--response-gamma', gamma]) == 0
+        tracks[name] = read_track(out / 'track_001.csv')
+    capsys.readouterr()
+    def off(name):          # RMS distance to the linear camera's track, m
+        return np.sqrt(np.mean(np.sum((tracks[name][:, 1:4] - tracks['linear'][:, 1:4]) ** 2,
+                                      axis=1)))
+
+    assert off('webcam') < 0.25 * off('webcam_untold')
+    assert_matches_truth(tracks['webcam'], truth, -LEAD_IN)
+
+
 def test_a_video_overwritten_mid_flight_gives_the_track_and_names_the_frame(scene, tmp_path,
                                                                            capsys):
     # FFmpeg skipped the damaged frame without a word and the frames after it were each timed

@@ -165,7 +165,11 @@ def load_camera_info(path):
     if model not in ('plumb_bob', 'rational_polynomial'):
         raise CalibrationError(f'camera_info {path}: distortion_model {model!r} not supported '
                                '(plumb_bob or rational_polynomial)')
-    entry = data.get('distortion_coefficients', {'data': [0.0] * 5})
+    if 'distortion_coefficients' not in data:
+        # Read as none, a lens's distortion put the ball centimetres off without a word.
+        raise CalibrationError(f'camera_info {path}: distortion_coefficients missing (a lens '
+                               'without distortion: data: [0, 0, 0, 0, 0])')
+    entry = data['distortion_coefficients']
     dist = np.asarray(entry.get('data') if isinstance(entry, dict) else entry, dtype=float)
     if dist.size not in (4, 5, 8) or not np.all(np.isfinite(dist)):
         raise CalibrationError(f'camera_info {path}: distortion_coefficients needs 5 numbers')
@@ -268,6 +272,10 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
         if 'camera_info' not in entry:
             raise CalibrationError(f'{where} ({name}): camera_info missing')
         info = load_camera_info(os.path.join(base, str(entry['camera_info'])))
+        for key in ('rotation', 'translation'):
+            if key not in entry:
+                raise CalibrationError(f'{where} ({name}): {key} missing (the pose takes table '
+                                       'points into the camera frame: x_cam = R x_table + t)')
         try:
             R = np.asarray(entry.get('rotation'), dtype=float).reshape(3, 3)
             t = np.asarray(entry.get('translation'), dtype=float).reshape(3)

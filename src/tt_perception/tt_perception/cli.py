@@ -26,6 +26,7 @@ pass of detection over the files), reported on stderr.
 import argparse
 import contextlib
 import csv
+import dataclasses
 import os
 import pathlib
 import re
@@ -98,11 +99,12 @@ def bag_frames(rig, bag, notes=None):
         reader.close()
 
 
-def detections_per_camera(rig, frames, colours):
+def detections_per_camera(rig, frames, colours, detector_config=None):
     """Single-candidate detections per camera over all frames, for each ball colour of
-    ``colours`` (each frame decoded once, looked at by one detector per colour): {colour:
-    [(times, normalised (n, 2)) per camera]}."""
-    detectors = {c: [BallDetector(DetectorConfig(colour=c)) for _ in rig.cameras]
+    ``colours`` (each frame decoded once, looked at by one detector per colour; the other
+    settings from ``detector_config``): {colour: [(times, normalised (n, 2)) per camera]}."""
+    base = detector_config or DetectorConfig()
+    detectors = {c: [BallDetector(dataclasses.replace(base, colour=c)) for _ in rig.cameras]
                  for c in colours}
     found = {c: [([], []) for _ in rig.cameras] for c in colours}
     for t, k, frame in frames:
@@ -121,9 +123,10 @@ UNRELIABLE_OFFSET_PX = 3.0
 unreliable (a right offset on a detected ball gives under a pixel)."""
 
 
-def estimate_offsets(rig, colour):
+def estimate_offsets(rig, colour, detector_config=None):
     """Fill in the missing ``time_offset`` of the rig's cameras from the ball's detections
-    (:mod:`tt_perception.sync`); returns one line per camera estimated. With ``colour``
+    (:mod:`tt_perception.sync`; the detector's settings but its colour from
+    ``detector_config``); returns one line per camera estimated. With ``colour``
     'any', the detections of a white and of an orange ball are both tried and the offset
     that puts its pairs nearer the epipolar lines kept: without a colour, the frames with
     the ball also have other moving things (a racket, an arm, shadows), and those with a
@@ -132,7 +135,8 @@ def estimate_offsets(rig, colour):
     if not missing:
         return []
     colours = ('white', 'orange') if colour == 'any' else (colour,)
-    found = detections_per_camera(rig, file_frames(rig), colours)   # OSError: bad input
+    found = detections_per_camera(rig, file_frames(rig), colours,   # OSError: bad input
+                                  detector_config)
     notes = []
     for k in missing:
         cam = rig.cameras[k]
@@ -151,9 +155,12 @@ def estimate_offsets(rig, colour):
         notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
                      f'{which}ball (median epipolar distance {px:.2f} px)')
         if px > UNRELIABLE_OFFSET_PX:
+            # With a colour given, the detections are the ball's: the rays do not meet.
             notes.append(f'warning: {cam.name}: that time offset is unreliable (above '
-                         f'{UNRELIABLE_OFFSET_PX:g} px): set time_offset in the rig file or '
-                         'give --colour')
+                         f'{UNRELIABLE_OFFSET_PX:g} px): set time_offset in the rig file'
+                         + (' or give --colour' if colour == 'any' else '')
+                         + " (or the rig's poses are off: a transposed rotation, a pose "
+                         'in the other convention)')
     return notes
 
 
@@ -294,6 +301,20 @@ def main(argv=None):
     return interruptible('tt-perceive', _main, argv)
 
 
+def _in_range(lo, hi):
+    """argparse type: a number in [lo, hi] (the node parameter's range), else a usage error
+    naming it (exit 2)."""
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            value = float('nan')
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f'{text} is not a number in [{lo:g}, {hi:g}]')
+        return value
+    return parse
+
+
 def _main(argv=None):
     parser = argparse.ArgumentParser(
         prog='tt-perceive',
@@ -308,6 +329,14 @@ def _main(argv=None):
     parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')
     parser.add_argument('--out-bag', help='also write the states as BallState on /ball/state '
                                           'into this new bag (MCAP)')
+    parser.add_argument('--response-gamma', type=_in_range(1.0, 3.0), default=1.0,
+                        metavar='G',
+                        help="the cameras' response, pixel = 255 (light / full)^(1/G): 1 "
+                             'linear (machine-vision cameras), about 2.2 for sRGB-like '
+                             "webcams (perception_node's response_gamma; default 1)")
+    parser.add_argument('--exposure', type=_in_range(1e-5, 0.1), default=0.002, metavar='S',
+                        help="the cameras' exposure time, s: the ball's motion blur "
+                             "(perception_node's exposure; default 0.002)")
     parser.add_argument('--smooth', action='store_true',
                         help="each state from all of its track's frames, the later ones too "
                              '(fixed-interval smoother; default: as perception_node publishes '
@@ -332,11 +361,12 @@ def _main(argv=None):
         print(f'tt-perceive: --model {named}', file=sys.stderr)
         return 2
     try:
+        detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
+                                  exposure=args.exposure)
         if not args.bag:
-            for note in estimate_offsets(rig, args.colour):
+            for note in estimate_offsets(rig, args.colour, detector):
                 print(f'tt-perceive: {note}', file=sys.stderr)
-        pipeline = Pipeline(rig, params=params,
-                            detector_config=DetectorConfig(colour=args.colour),
+        pipeline = Pipeline(rig, params=params, detector_config=detector,
                             tracker_config=TrackerConfig(smooth=args.smooth))
         cut = []
         frames = bag_frames(rig, args.bag, cut) if args.bag else file_frames(rig, cut)
