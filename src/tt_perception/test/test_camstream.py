@@ -2,8 +2,6 @@
 the bounded queue and the drop counts, checked by frame indices, times of a simulated clock and
 frame content (each frame's grey level is its index), never by wall-clock timing."""
 
-import pathlib
-import shutil
 import threading
 
 import cv2
@@ -192,12 +190,18 @@ def test_unpaced_lossless_reading_keeps_every_frame(video):
     assert got == list(range(N_FRAMES)) and drops.snapshot() == ([0], 0)
 
 
-def test_a_frame_overwritten_mid_file_is_none_and_the_others_keep_their_index(video, tmp_path):
-    # Its JPEG packet skipped by FFmpeg's resynchronisation, every later frame had the index
-    # (and so the time) of the one before it.
+@pytest.mark.parametrize('fourcc', ['MJPG', 'XVID'])
+def test_a_frame_overwritten_mid_file_is_none_and_the_others_keep_their_index(tmp_path, fourcc):
+    # Its packet skipped by FFmpeg's resynchronisation, every later frame had the index (and
+    # so the time) of the one before it. Read through the file's index, an XVID frame that
+    # failed its grab ended the camera (MJPG's JPEG packets are decoded here instead).
     path = tmp_path / 'cam.avi'
-    shutil.copy(video, path)
-    overwrite_avi_frame(pathlib.Path(path), 5)
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*fourcc), FPS,
+                             (64, 48))
+    for n in range(N_FRAMES):
+        writer.write(np.full((48, 64, 3), grey(n), np.uint8))
+    writer.release()
+    overwrite_avi_frame(path, 5)
     src = PacedVideoSource(str(path), FPS, clock=SimClock(), start=0.0, rate=0.0).open()
     got = []
     while (index := src.grab()) is not None:

@@ -186,6 +186,10 @@ def test_video_files_at_different_rates_are_refused_naming_both(tmp_path):
         list(file_frames(rig, []))
     assert str(refused.value) == expect
     assert file_rates_error(rig) == expect
+    # Neither file at the rig's rate (a phone's slow motion states 30 fps for 240): the rig's
+    # fps times both, as it says; each file is named in a warning, nothing refused.
+    rig.fps = 240.0
+    assert file_rates_error(rig) == ''
 
 
 def test_a_video_of_another_size_or_rate_than_its_rig_is_named(tmp_path):

@@ -217,6 +217,15 @@ class PacedVideoSource:
         self.dropped_indices = []    # the skipped frame numbers since the last call of take
         self._file = None
         self._raw = False
+        self._lost = False       # the last grab failed on a frame the file's index has
+
+    def _grab(self, cap, index):
+        """``cap.grab()`` of frame ``index``; True also when it fails on a frame the file's
+        index lists (an AVI read through it, :class:`VideoFileSource` ``by_index``: a damaged
+        frame fails its read alone, the next goes on), which :meth:`retrieve` then gives as
+        None."""
+        self._lost = not cap.grab()
+        return not self._lost or (self._file.by_index and index < self._file.declared)
 
     def open(self):
         src = VideoFileSource(self.path, self.fps)
@@ -240,7 +249,7 @@ class PacedVideoSource:
             self.start = self.clock.now()
         nxt = self.index + 1
         if self.rate <= 0.0:
-            if self.stop.is_set() or not cap.grab():
+            if self.stop.is_set() or not self._grab(cap, nxt):
                 return None
             self.index = nxt
             return nxt
@@ -249,12 +258,12 @@ class PacedVideoSource:
         # Frames due before the newest `buffers` ones were overwritten in the driver's ring.
         newest = int(np.floor((self.clock.now() - self.start) * self.fps * self.rate + 1e-9))
         while nxt < newest - self.buffers + 1:
-            if not cap.grab():
+            if not self._grab(cap, nxt):
                 return None
             self.dropped += 1
             self.dropped_indices.append(nxt)
             nxt += 1
-        if not cap.grab():
+        if not self._grab(cap, nxt):
             return None
         self.index = nxt
         return nxt
@@ -266,6 +275,8 @@ class PacedVideoSource:
 
     def retrieve(self):
         """The grabbed frame, BGR uint8, or None when it cannot be decoded."""
+        if self._lost:
+            return None
         ok, data = self._file.capture.retrieve()
         if not ok or data is None:
             return None

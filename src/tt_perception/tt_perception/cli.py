@@ -1,7 +1,7 @@
 """tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
 
     tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
-                [--out-bag BAG] [--smooth]
+                [--out-bag BAG] [--response-gamma G] [--exposure S] [--smooth]
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the

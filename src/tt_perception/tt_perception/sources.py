@@ -18,6 +18,7 @@ happened last, for the caller to report. A :class:`V4L2Source` also reads in two
 (decode it), for a reader that decodes only the frames it keeps.
 """
 
+import itertools
 import os
 import struct
 import threading
@@ -373,14 +374,20 @@ class V4L2Source(FrameSource):
 
 def rates_error(rig, sources):
     """One line when two of the opened video files ``sources`` ({camera index:
-    :class:`VideoFileSource`}) run at rates more than 1 % apart, else '': the rig has one
-    ``fps``, and a camera's frames timed at another camera's rate drift off its frames (120
-    and 150 fps: a frame apart after four frames; no point triangulated, and the only word
-    was a warning that blamed the poses). Image sequences have no rate of their own."""
-    rates = [(k, src.rate()) for k, src in sorted(sources.items()) if src.rate() > 0.0]
-    for k, fps in rates[1:]:
-        k0, fps0 = rates[0]
-        if abs(fps - fps0) > 0.01 * max(fps, fps0):
+    :class:`VideoFileSource`}) run at rates more than 1 % apart, one of them the rig's
+    ``fps``, else '': the frames are timed at the rig's fps, and the other camera's frames
+    drift off (120 and 150 fps: a frame apart after four frames; no point triangulated, and
+    the only word was a warning that blamed the poses). Files whose stated rates are neither
+    the rig's (a phone's slow motion says 30 fps) are left to the warning of
+    :meth:`VideoFileSource.disagreement`. Image sequences have no rate of their own."""
+    rates = [(k, fps) for k, fps in ((k, src.rate()) for k, src in sorted(sources.items()))
+             if fps > 0.0]
+
+    def near(a, b):
+        return abs(a - b) <= 0.01 * max(a, b)
+
+    for (k0, fps0), (k, fps) in itertools.combinations(rates, 2):
+        if not near(fps0, fps) and (near(fps0, rig.fps) or near(fps, rig.fps)):
             return (f'cameras {rig.cameras[k0].name} and {rig.cameras[k].name} run at '
                     f'different rates: {sources[k0].path} is {fps0:g} fps, '
                     f'{sources[k].path} {fps:g} fps (the rig has one fps for all its cameras: '

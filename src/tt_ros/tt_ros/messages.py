@@ -8,8 +8,9 @@ NS_PER_S = 1_000_000_000
 UNSTAMPED = "header.stamp is 0: not set (ros2 topic pub: '{header: {stamp: now}, ...}')"
 """Why prediction_node and strike_node drop a message stamped 0. Taken for another time base,
 it only switched their time checks off (stale, too late): a state published without a stamp
-on the robot's wall clock got strike commands for 1970. A clock that starts at 0 (video time)
-has no state at 0: a track is published from its third frame on."""
+on the robot's wall clock got strike commands for 1970. perception_node on video time (from 0)
+publishes a track from its third frame on; a bag of ``tt-perceive --out-bag`` may hold a
+track's seed frame at 0, which is then dropped."""
 
 
 def point_msg(p):

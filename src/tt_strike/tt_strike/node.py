@@ -298,7 +298,8 @@ class StrikeNode(Node):
         if not msg.hit_valid:
             self._drop(f'no hit point (prediction status {msg.status!r})')
             return
-        if to_ns(msg.header.stamp) == 0:
+        stamp_ns = to_ns(msg.header.stamp)
+        if stamp_ns == 0:
             self._drop(UNSTAMPED)
             return
         if msg.header.frame_id not in ('', 'table'):
@@ -320,7 +321,6 @@ class StrikeNode(Node):
             return
         zone, point = self.target
         settings = self.settings
-        stamp_ns = to_ns(msg.header.stamp)
         aim = (zone, tuple(point))
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
         stamp = stamp_ns * 1e-9

@@ -124,15 +124,22 @@ def bag_play(args):
                 pubs[conn.id] = cli.node.create_publisher(classes[conn.id], conn.topic, qos)
             # /clock's publisher with the others, and waited for as they are: made after the
             # wait, a node on /clock matched it up to 2 s after the first messages, and judged
-            # them against the clock a previous player had left (stale, too late).
+            # them against the clock a previous player had left (stale, too late). Every
+            # /clock subscription the graph shows, none when there is none (no consumer on
+            # sim time: ros2 topic echo, a recorder).
             clock_pub = _clock_publisher(cli) if args.clock is not None else None
-            waited = list(pubs.values()) + ([clock_pub] if clock_pub is not None else [])
+
+            def waiting():
+                out = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
+                if clock_pub is not None and (clock_pub.get_subscription_count()
+                                              < cli.node.count_subscribers('/clock')):
+                    out.append('/clock')
+                return sorted(out)
+
             if args.wait_for_subscribers and not cli.wait_saying(
-                    lambda: all(p.get_subscription_count() > 0 for p in waited),
+                    lambda: not waiting(),
                     lambda: 'waiting for a subscriber on every topic (--wait-for-subscribers; '
-                            'none yet on ' + ', '.join(sorted(
-                                p.topic_name for p in waited
-                                if p.get_subscription_count() == 0)) + ')'):
+                            'none yet on ' + ', '.join(waiting()) + ')'):
                 return 0
             if args.delay > 0:
                 cli.spin_until(timeout=args.delay)          # the delay, or a signal
@@ -217,7 +224,8 @@ def add_arguments(bag_sub):
     p.add_argument('-d', '--delay', type=non_negative_float, default=0.0,
                    help='wait this many seconds before playing')
     p.add_argument('--wait-for-subscribers', action='store_true',
-                   help='(tt) wait until every topic has a matched subscription')
+                   help='(tt) wait until every topic has a matched subscription (with '
+                        '--clock, /clock too: each node on sim time the graph shows)')
     p.add_argument('--clock', type=positive_float, nargs='?', const=40.0, default=None,
                    metavar='HZ',
                    help='publish the bag time on /clock at HZ (default 40 when given)')
