@@ -9,7 +9,7 @@ from tt_perception.sources import (
     V4L2Source,
     VideoFileSource,
     file_frames,
-    file_rates_error,
+    file_sources_error,
     image_to_bgr,
     source_kind,
 )
@@ -174,7 +174,7 @@ def test_video_files_at_different_rates_are_refused_naming_both(tmp_path):
     rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
     frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
     rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
-    assert file_rates_error(rig) == ''
+    assert file_sources_error(rig) == ''
     cam0, cam1 = (str(tmp_path / 'video' / f'cam{k}.avi') for k in range(2))
     writer = cv2.VideoWriter(cam1, cv2.VideoWriter_fourcc(*'MJPG'), 80.0, (64, 48))
     for _ in range(3):
@@ -185,11 +185,11 @@ def test_video_files_at_different_rates_are_refused_naming_both(tmp_path):
     with pytest.raises(OSError) as refused:
         list(file_frames(rig, []))
     assert str(refused.value) == expect
-    assert file_rates_error(rig) == expect
+    assert file_sources_error(rig) == expect
     # Neither file at the rig's rate (a phone's slow motion states 30 fps for 240): the rig's
     # fps times both, as it says; each file is named in a warning, nothing refused.
     rig.fps = 240.0
-    assert file_rates_error(rig) == ''
+    assert file_sources_error(rig) == ''
 
 
 def test_a_video_of_another_size_or_rate_than_its_rig_is_named(tmp_path):

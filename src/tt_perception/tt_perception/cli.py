@@ -45,7 +45,7 @@ from tt_prediction.staged import (
 )
 
 from .camera import CalibrationError, load_rig
-from .detect import BallDetector, DetectorConfig
+from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, BallDetector, DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import file_frames, image_to_bgr
 from .sync import estimate_offset
@@ -329,12 +329,13 @@ def _main(argv=None):
     parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')
     parser.add_argument('--out-bag', help='also write the states as BallState on /ball/state '
                                           'into this new bag (MCAP)')
-    parser.add_argument('--response-gamma', type=_in_range(1.0, 3.0), default=1.0,
+    parser.add_argument('--response-gamma', type=_in_range(*RESPONSE_GAMMA_RANGE), default=1.0,
                         metavar='G',
                         help="the cameras' response, pixel = 255 (light / full)^(1/G): 1 "
                              'linear (machine-vision cameras), about 2.2 for sRGB-like '
                              "webcams (perception_node's response_gamma; default 1)")
-    parser.add_argument('--exposure', type=_in_range(1e-5, 0.1), default=0.002, metavar='S',
+    parser.add_argument('--exposure', type=_in_range(*EXPOSURE_RANGE),
+                        default=DetectorConfig.exposure, metavar='S',
                         help="the cameras' exposure time, s: the ball's motion blur "
                              "(perception_node's exposure; default 0.002)")
     parser.add_argument('--smooth', action='store_true',

@@ -32,6 +32,12 @@ import cv2
 from numba import njit
 import numpy as np
 
+EXPOSURE_RANGE = (1e-5, 0.1)
+"""Accepted exposure times (:attr:`DetectorConfig.exposure`), s: perception_node's parameter,
+tt-perceive's option."""
+RESPONSE_GAMMA_RANGE = (1.0, 3.0)
+"""Accepted camera responses (:attr:`DetectorConfig.response_gamma`), as EXPOSURE_RANGE."""
+
 
 @dataclasses.dataclass
 class DetectorConfig:

@@ -56,13 +56,12 @@ from .camstream import (
     open_v4l2,
     warm_up,
 )
-from .detect import DetectorConfig
+from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import (
     camera_info_topic,
-    file_rates_error,
-    file_source_error,
     file_source_path,
+    file_sources_error,
     image_to_bgr,
     source_kind,
 )
@@ -92,9 +91,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
      'pixels', 8, 2000),
     ('exposure', 0.002, 'Exposure time of the cameras (the motion blur of the ball)', 's',
-     1e-5, 0.1),
+     *EXPOSURE_RANGE),
     ('response_gamma', 1.0, "Cameras' response: pixel = 255 (light / full)^(1/gamma); 1 linear, "
-     'about 2.2 for sRGB-like webcams', '', 1.0, 3.0),
+     'about 2.2 for sRGB-like webcams', '', *RESPONSE_GAMMA_RANGE),
     ('curvature_weight', 1.0, "Penalty of the outline fit on the ball's brightness curving "
      'beyond a linear shading (0: a free quadratic, for a single compact light with no '
      'ambient)', '', 0.0, 100.0),
@@ -221,11 +220,8 @@ class PerceptionNode(Node):
                 _check_topic(cam.source, f'rig {rig_file}: camera {cam.name}: source '
                              f'{cam.source!r} is no video file, image sequence or V4L2 device '
                              'and')
-            elif kind == 'file':        # missing, unreadable, frames of another size
-                error = file_source_error(rig, cam)
-                if error:
-                    raise StartupError(f'rig {rig_file}: camera {cam.name}: {error}')
-        error = file_rates_error(rig)    # two video files at different rates
+        # Video files missing, unreadable, of another frame size, at different rates.
+        error = file_sources_error(rig)
         if error:
             raise StartupError(f'rig {rig_file}: {error}')
         if self._p('measured_spin_topic'):

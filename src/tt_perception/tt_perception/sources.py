@@ -115,20 +115,6 @@ def _open_capture(path):
                 os.environ[key] = before
 
 
-def file_source_error(rig, cam):
-    """Why camera ``cam``'s video file cannot be used ('<path>: no such video file', frames
-    not of its calibration's size, ...), or None; the file is opened and closed again."""
-    try:
-        source = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
-    except OSError as exc:
-        return str(exc)
-    try:
-        error, _ = source.disagreement(cam, rig.fps)
-    finally:
-        source.close()
-    return error or None
-
-
 def camera_info_topic(image_topic):
     """The CameraInfo topic beside a camera's image topic, where perception_node subscribes
     it (``/cam0/image_raw`` -> ``/cam0/camera_info``; ``image_raw`` -> ``camera_info``)."""
@@ -395,18 +381,24 @@ def rates_error(rig, sources):
     return ''
 
 
-def file_rates_error(rig):
-    """:func:`rates_error` of the rig's video files (opened and closed again), or one line
-    naming a camera whose file cannot be opened; '' when they agree."""
+def file_sources_error(rig):
+    """Why the rig's video files cannot be used, in one line, or '': a camera's file missing,
+    unreadable or of another frame size than its calibration ('camera NAME: <path>: no such
+    video file', :meth:`VideoFileSource.disagreement`), or two files at different rates
+    (:func:`rates_error`). Each file is opened once and closed again."""
     base = os.path.dirname(rig.path)
     sources = {}
     try:
         for k, cam in enumerate(rig.cameras):
-            if source_kind(cam.source, base) == 'file':
-                try:
-                    sources[k] = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
-                except OSError as exc:
-                    return f'camera {cam.name}: {exc}'
+            if source_kind(cam.source, base) != 'file':
+                continue
+            try:
+                sources[k] = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
+            except OSError as exc:
+                return f'camera {cam.name}: {exc}'
+            error, _ = sources[k].disagreement(cam, rig.fps)
+            if error:
+                return f'camera {cam.name}: {error}'
         return rates_error(rig, sources)
     finally:
         for src in sources.values():
