@@ -490,6 +490,81 @@ def test_restitution_learned_from_noisy_bounces_is_unbiased():
     assert learner.value == pytest.approx(0.90, abs=0.005)
 
 
+def _topspin_tracks(c_m, rng, n=20):
+    """Balls flown and bounced with Magnus coefficient ``c_m`` (eq. 8) and 150-300 rad/s of
+    topspin, which grips the table at the bounce (eqs. 1-6: 2/5 of the contact velocity
+    |v_T| = |v - r w| is below the sliding mu (1 + e) |v_z|); 180 Hz, 0.5 mm noise."""
+    params = ModelParams(c_m=c_m)
+    tracks = []
+    while len(tracks) < n:
+        s = np.array([1.3, rng.uniform(-0.2, 0.2), rng.uniform(0.3, 0.45),
+                      rng.uniform(-6.0, -4.5), rng.uniform(-0.3, 0.3), rng.uniform(1.0, 2.0),
+                      rng.uniform(-20, 20), rng.uniform(-300, -150), rng.uniform(-20, 20)])
+        if predict(s, params.packed(), hit_plane_x=PLANE).status == 'ok':
+            tracks.append((f'{len(tracks):04d}.csv',
+                           *_track(s, rng, noise=5e-4, params=params), None))
+    return tracks
+
+
+@pytest.mark.parametrize('c_m, seed', [(0.12, 3), (0.069, 4)])
+def test_the_lift_of_the_balls_is_learned_from_their_flights_and_grip_bounces(c_m, seed,
+                                                                             monkeypatch):
+    """A flight's curvature shows C_M w, a gripping bounce w itself (eqs. 1-6): the replay
+    learns C_M from the tracks before each one. Balls with C_M = 0.12 (the model says 0.069)
+    are learned as 0.12, and the hit 300, 200 and 150 ms ahead, before the bounce, is then
+    predicted with under half the error of the same replay with C_M held at 0.069 (which
+    reads 1.7 times the spin from the curvature and sends each ball off the table too fast);
+    balls with the model's own 0.069 leave it there, and the errors as they were."""
+    from tt_prediction.ball_filter import FilterConfig
+
+    from tt_prediction import replay
+
+    tracks = _topspin_tracks(c_m, np.random.default_rng(seed))
+    config = FilterConfig(position_noise=5e-4)
+    _, learned = replay.replay_tracks(tracks, ModelParams(), config, PLANE, textbook=False)
+    lift = learned['lift_learned']
+    assert lift['final'] == pytest.approx(c_m, abs=0.004)
+    assert lift['per_track'][tracks[0][0]] == 0.069               # nothing learned before it
+    assert lift['tracks_informing'] >= 15
+
+    class Held(replay.LiftLearner):
+        def observe(self, observation):
+            pass
+
+    monkeypatch.setattr(replay, 'LiftLearner', Held)
+    _, held = replay.replay_tracks(tracks, ModelParams(), config, PLANE, textbook=False)
+    for lead in ('300', '200', '150'):
+        medians = [s['hit_error'][lead]['median_mm'] for s in (learned, held)]
+        if c_m == 0.069:
+            assert medians[0] == pytest.approx(medians[1], rel=0.1), (lead, medians)
+        else:
+            assert medians[0] < 0.5 * medians[1], (lead, medians)
+
+
+def test_a_sliding_bounce_says_nothing_of_the_lift():
+    """Backspin balls slide through the bounce (the contact velocity v - r w is large): the
+    tangential change is the sliding mu (1 + e) |v_z| whatever the spin, so only the slip's
+    direction is seen, not w: no track informs C_M, which stays the model's."""
+    from tt_prediction.ball_filter import FilterConfig
+    from tt_prediction.replay import lift_observation, replay_track, replay_tracks
+    rng = np.random.default_rng(6)
+    tracks = []
+    while len(tracks) < 6:
+        s = np.array([1.3, rng.uniform(-0.2, 0.2), rng.uniform(0.25, 0.4),
+                      rng.uniform(-6.0, -4.5), rng.uniform(-0.3, 0.3), rng.uniform(0.5, 1.5),
+                      0.0, rng.uniform(100, 200), 0.0])
+        if predict(s, hit_plane_x=PLANE).status == 'ok':
+            tracks.append((f'{len(tracks):04d}.csv', *_track(s, rng, noise=5e-4), None))
+    config = FilterConfig(position_noise=5e-4)
+    for name, t, p, _ in tracks:
+        rp = replay_track(name, t, p, ModelParams(), config, PLANE)
+        assert rp.robot_bounce is not None
+        assert lift_observation(rp, ModelParams(), config) is None
+    _, summary = replay_tracks(tracks, ModelParams(), config, PLANE, textbook=False)
+    assert summary['lift_learned']['final'] == 0.069
+    assert summary['lift_learned']['tracks_informing'] == 0
+
+
 def test_learned_prior_is_causal(data):
     """A track's prior (and table restitution) comes only from the tracks before it: changing
     the last track's own data (or dropping it) changes no prior, and the first min_tracks use

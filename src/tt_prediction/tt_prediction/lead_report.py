@@ -51,8 +51,8 @@ def table(result):
         miss = f", {s['missing']} missing" if s['missing'] else ''
         return f"{s['median_mm']:.1f} / {s['p90_mm']:.1f}{miss}"
 
-    lines = ['| lead, ms | baseline model | final model | textbook refit (final model) |',
-             '|---|---|---|---|']
+    lines = ['| lead, ms | baseline (nominal) model | final model (model.yaml) '
+             '| textbook refit (final model) |', '|---|---|---|---|']
     for lead in base['leads_ms']:
         k = str(lead)
         lines.append(f"| {lead} | {cell(base['hit_error'][k])} | {cell(final['hit_error'][k])}"
@@ -82,7 +82,7 @@ def table(result):
 def plot(result, path):
     """PNG of median (solid) and p90 (dashed) hit error against lead time."""
     fig, ax = plt.subplots(figsize=(7, 4))
-    series = (('baseline', 'hit_error', 'baseline model', 'C0'),
+    series = (('baseline', 'hit_error', 'baseline (nominal) model', 'C0'),
               ('final', 'hit_error', 'final model', 'C1'),
               ('final', 'textbook_hit_error', 'textbook refit', 'C2'))
     for key, field, label, color in series:

@@ -74,6 +74,8 @@ class TrackReplay:
     (:class:`tt_prediction.identify.segment.Bounce`: t, p, v_in, v_out), or None."""
     e_t: float = None
     """The table restitution the track was replayed with."""
+    c_m: float = None
+    """The Magnus coefficient the track was replayed with."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
@@ -248,7 +250,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
                        config.spin_prior_axes(), nis, tuple(config.spin_prior_mean),
-                       robot[0] if robot else None, params.e_t)
+                       robot[0] if robot else None, params.e_t, params.c_m)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -259,27 +261,16 @@ POST_BOUNCE_WINDOW = (0.004, 0.09)
 """Samples this long after the located bounce (s) give the measured rebound velocity."""
 
 
-def bounce_spin_observation(rp, params, config):
-    """Per-axis measurement of a finished track's pre-bounce spin: ``(y (3,), s2 (3,))`` in
-    the velocity frame (top/back, side, along v; rad/s, (rad/s)^2), or None.
-
-    A filter with ``config``'s prior over the samples before the located robot-half bounce;
-    its state is taken to
-    the model's contact (eq. 8) and through the rebound's linear map S (eqs. 1-6, Jacobian
-    and saltation, :func:`tt_prediction.ball_filter.rebound_map`). The rebound velocity is
-    measured independently of the filter: a quadratic fit in time to the samples 4-90 ms
-    after the located bounce (shortened until it fits them within 4 sigma + 2 mm: a racket
-    hit ends the flight), at the bounce. Conditioning the
-    joint Gaussian of (pre-bounce spin, rebound velocity) on it gives the spin's posterior
-    given the whole track: flight's curvature for the spin across v, eqs. 1-2's change of
-    tangential velocity (r w x n) for the spin along v. The track's prior is divided out
-    (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`).
-    """
+def _before_bounce(rp, params, config):
+    """The filter over a finished track's samples before its located bounce on the robot's
+    half, with ``config``'s (generic) prior, so that what the data say is read against that
+    prior whatever the track was replayed with; and the time of the model's contact from
+    there: ``(TrackFilter, t_contact)``, or None (no such bounce, fewer than 5 updates, a ball
+    not coming toward the robot, or a predicted contact more than 30 ms from the located one
+    or on the other half)."""
     if rp.robot_bounce is None:
         return None
     tb = rp.robot_bounce.t
-    # The filter over the samples before the bounce, with the config's (generic) prior: what
-    # the data say is then read against that prior, whatever the track was replayed with.
     tf = TrackFilter(params, config)
     for ti, pi in zip(rp.t, rp.p, strict=True):
         if ti >= tb - 0.004:
@@ -287,14 +278,21 @@ def bounce_spin_observation(rp, params, config):
         tf.add(ti, pi)
     if not tf.running or tf.updates < 5 or tf.filter.x[3] >= 0.0:
         return None
-    x0, P0, t0 = tf.filter.x, tf.filter.P, tf.filter.t
-    v0 = tf.filter.start_velocity       # the prior's axes: the velocity the filter started from
     bf = BallFilter(params, config)
-    bf.x, bf.P, bf.t = x0, P0, t0
-    bf.predict(t0 + 0.25)
+    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
+    bf.predict(bf.t + 0.25)
     if bf.last_bounce is None or bf.last_bounce[1] >= 0.0 or abs(bf.last_bounce[0] - tb) > 0.03:
         return None
-    tc = bf.last_bounce[0]
+    return tf, bf.last_bounce[0]
+
+
+def _rebound_velocity(rp, config):
+    """The velocity just after a finished track's located bounce on the robot's half,
+    measured apart from any filter: a quadratic fit in time to the samples
+    :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm:
+    a racket hit ends the flight), at the bounce. ``(v (3,), variance per axis)`` (m/s,
+    (m/s)^2), or None (fewer than 6 samples)."""
+    tb = rp.robot_bounce.t
     sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0])
                          & (rp.t < tb + POST_BOUNCE_WINDOW[1]))
     while True:                 # drop the window's end until one flight explains it (racket)
@@ -306,9 +304,34 @@ def bounce_spin_observation(rp, params, config):
         if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * config.position_noise + 2e-3:
             break
         sel = sel[:-2]
-    v_meas = coef[1]
-    var_fit = config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
-    bf.x, bf.P, bf.t = x0, P0, t0
+    return coef[1], config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
+
+
+def bounce_spin_observation(rp, params, config):
+    """Per-axis measurement of a finished track's pre-bounce spin: ``(y (3,), s2 (3,))`` in
+    the velocity frame (top/back, side, along v; rad/s, (rad/s)^2), or None.
+
+    A filter with ``config``'s prior over the samples before the located robot-half bounce;
+    its state is taken to
+    the model's contact (eq. 8) and through the rebound's linear map S (eqs. 1-6, Jacobian
+    and saltation, :func:`tt_prediction.ball_filter.rebound_map`). The rebound velocity is
+    measured independently of the filter (:func:`_rebound_velocity`). Conditioning the
+    joint Gaussian of (pre-bounce spin, rebound velocity) on it gives the spin's posterior
+    given the whole track: flight's curvature for the spin across v, eqs. 1-2's change of
+    tangential velocity (r w x n) for the spin along v. The track's prior is divided out
+    (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`).
+    """
+    before = _before_bounce(rp, params, config)
+    if before is None:
+        return None
+    rebound = _rebound_velocity(rp, config)
+    if rebound is None:
+        return None
+    v_meas, var_fit = rebound
+    tf, tc = before
+    v0 = tf.filter.start_velocity       # the prior's axes: the velocity the filter started from
+    bf = BallFilter(params, config)
+    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
     bf.predict(tc, contact_z=-math.inf)         # the same flight, up to the contact only
     xc, Cc = bf.x.copy(), bf.P
     xc[2] = params.radius
@@ -355,40 +378,38 @@ def restitution_observation(rp, params):
     return float(b.restitution - effects), b.restitution_sd
 
 
-class RestitutionLearner:
-    """The table's restitution e_t learned from finished tracks' bounces.
+class PooledLearner:
+    """A model coefficient (``field``) learned from finished tracks, one observation each.
 
-    Tables and balls differ (the ITTF's table test asks for a bounce of about 23 cm from
-    30 cm, e ~ 0.88; the MPI sets' bounces show 0.94), and 0.03 less of it moves the median
-    hit error at a 300 ms lead from 23 to 40 mm (measured on mpi_launcher). Each finished
-    track adds the e_t its own bounce shows and that value's standard error
-    (:func:`restitution_observation`). The learned value weighs them by their precision
-    with the model's own e_t as a prior of sd ``prior_sd`` (the tables' spread): a bounce
-    at 100 Hz with 2 mm noise measures e_t to about 0.1, at 500 Hz to 0.03, and a few of
-    the former must not move it far. A value more than ``reject`` standard deviations from
-    the weighted median (a bounce fitted across a racket hit or a table edge) is left out;
-    the result is held to e_t's declared range.
+    Each finished track adds the value its own data show and that value's standard error.
+    The learned value weighs them by their precision with the model's own value as a prior
+    of sd ``prior_sd``; a value more than ``reject`` standard deviations from the weighted
+    median (a bounce fitted across a racket hit or a table edge) is left out; the result is
+    held to the field's declared range. ``spread``: the track-to-track scatter beyond the
+    fits' errors, added to each one's variance; ``default_sd``: an observation's standard
+    error where it has none.
     """
 
-    def __init__(self, generic, prior_sd=0.03, default_sd=0.05, spread=0.01, reject=3.0,
-                 bounds=FIELD['e_t'].bounds):
+    field = None
+
+    def __init__(self, generic, prior_sd, default_sd, spread, reject=3.0, bounds=None):
         self.generic = float(generic)
         self.prior_sd = float(prior_sd)
-        self.default_sd = float(default_sd)     # a value without its own standard error
-        self.spread = float(spread)             # bounce to bounce, beyond the fits' errors
+        self.default_sd = float(default_sd)
+        self.spread = float(spread)
         self.reject = float(reject)
-        self.bounds = bounds
+        self.bounds = FIELD[self.field].bounds if bounds is None else bounds
         self._e, self._var = [], []
 
     def observe(self, observation):
-        """Add one track's ``(e_t, sd)`` (sd None: ``default_sd``), or None (none shown).
+        """Add one track's ``(value, sd)`` (sd None: ``default_sd``), or None (none shown).
         A value or sd that is not a finite number (an sd below 0 included) says nothing."""
         if observation is None:
             return
-        e_t, sd = observation
+        value, sd = observation
         sd = self.default_sd if sd is None else sd
-        if math.isfinite(e_t) and math.isfinite(sd) and sd >= 0.0:
-            self._e.append(float(e_t))
+        if math.isfinite(value) and math.isfinite(sd) and sd >= 0.0:
+            self._e.append(float(value))
             self._var.append(max(sd * sd + self.spread ** 2, 1e-12))
 
     @property
@@ -398,7 +419,7 @@ class RestitutionLearner:
 
     @property
     def value(self):
-        """The learned e_t."""
+        """The learned value."""
         if not self._e:
             return self.generic
         e = np.array(self._e + [self.generic])
@@ -412,8 +433,111 @@ class RestitutionLearner:
         return min(max(value, self.bounds[0]), self.bounds[1])
 
     def params(self, base):
-        """``base`` (ModelParams) with the learned e_t."""
-        return base.replace(e_t=self.value)
+        """``base`` (ModelParams) with the learned value."""
+        return base.replace(**{self.field: self.value})
+
+
+class RestitutionLearner(PooledLearner):
+    """The table's restitution e_t learned from finished tracks' bounces
+    (:func:`restitution_observation`; :class:`PooledLearner`).
+
+    Tables and balls differ (the ITTF's table test asks for a bounce of about 23 cm from
+    30 cm, e ~ 0.88; the MPI sets' bounces show 0.94), and 0.03 less of it moves the median
+    hit error at a 300 ms lead from 23 to 40 mm (measured on mpi_launcher). The model's own
+    e_t is the prior, of sd ``prior_sd`` (the tables' spread): a bounce at 100 Hz with 2 mm
+    noise measures e_t to about 0.1, at 500 Hz to 0.03, and a few of the former must not
+    move it far.
+    """
+
+    field = 'e_t'
+
+    def __init__(self, generic, prior_sd=0.03, default_sd=0.05, spread=0.01, reject=3.0,
+                 bounds=None):
+        super().__init__(generic, prior_sd, default_sd, spread, reject, bounds)
+
+
+# ----------------------------------------------------------------------------------------------
+# What a finished track says about the Magnus coefficient
+
+
+MIN_SPIN_SIGNIFICANCE = 3.0
+"""The flight's and the bounce's top/back spin must each be this many standard errors from 0
+for their ratio to say anything of C_M."""
+GRIP_MARGIN = 0.5
+"""A bounce is taken to grip where its change of tangential velocity is below this fraction
+of the sliding one with the model's mu, as a table's mu may be well below the model's 0.25:
+mpi_pam's sliding bounces change by 0.70-0.84 of it (its mu is about 0.2), mpi_launcher's by
+0.86-1.17, and mpi_launcher's gripping ones by 0.04-0.32."""
+
+
+def lift_observation(rp, params, config):
+    """The Magnus coefficient C_M (eq. 8) that a finished track's flight and bounce on the
+    robot's half show together, and its standard error: ``(c_m, sd)``, or None.
+
+    A flight's curvature shows only the product C_M w (eq. 8's k_M w x v): the filter over
+    the samples before the bounce (``config``'s prior, :func:`_before_bounce`), taken to the
+    model's contact, turns it into a spin with ``params``' C_M, and gives the incoming
+    velocity v. The bounce shows the spin itself where the ball grips the table: eqs. 1-6
+    with alpha = 2/5 (1 + e_t_tangential) give r w x n = (v_T' - (1 - alpha) v_T) / alpha,
+    with the rebound velocity v' measured apart from the filter (:func:`_rebound_velocity`).
+    It grips where the change of tangential velocity is below :data:`GRIP_MARGIN` of the
+    sliding one, mu (1 + e) |v_z| (``params``' mu, without its effects; e = -v_z'/v_z), by
+    2 of its standard errors. Both spins are projected on the top/back axis
+    n x v_T / |v_T|, the one component both see; where both are significant
+    (:data:`MIN_SPIN_SIGNIFICANCE`) and of one sign, C_M = params' C_M x flight / bounce.
+    A sliding bounce shows only the slip's direction, and a weak spin's curvature only
+    noise: None then.
+    """
+    before = _before_bounce(rp, params, config)
+    rebound = _rebound_velocity(rp, config) if before is not None else None
+    if rebound is None:
+        return None
+    tf, tc = before
+    v_out, var_out = rebound
+    bf = BallFilter(params, config)
+    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
+    bf.predict(tc, contact_z=-math.inf)         # the flight up to the contact
+    v_in = bf.x[3:6]
+    speed = math.hypot(v_in[0], v_in[1])
+    if v_in[2] > -MIN_IMPACT_SPEED or v_out[2] <= 0.0 or speed < MIN_IMPACT_SPEED:
+        return None
+    along = v_in[:2] / speed
+    axis = np.array([-along[1], along[0], 0.0])             # n x v_T: top/back spin
+    var_in = float(along @ bf.P[3:5, 3:5] @ along)
+    change_sd = math.sqrt(var_in + var_out)
+    sliding = params.mu * (1.0 - v_out[2] / v_in[2]) * -v_in[2]
+    if np.linalg.norm(v_out[:2] - v_in[:2]) > GRIP_MARGIN * sliding - 2.0 * change_sd:
+        return None
+    grip = 0.4 * (1.0 + params.e_t_tangential)
+    radius = params.radius
+    bounce = float((v_out[:2] - (1.0 - grip) * v_in[:2]) @ along) / (grip * radius)
+    bounce_sd = math.sqrt(var_out + (1.0 - grip) ** 2 * var_in) / (grip * radius)
+    flight = float(bf.x[6:9] @ axis)
+    flight_sd = math.sqrt(float(axis @ bf.P[6:9, 6:9] @ axis))
+    if (abs(flight) < MIN_SPIN_SIGNIFICANCE * flight_sd
+            or abs(bounce) < MIN_SPIN_SIGNIFICANCE * bounce_sd or flight * bounce <= 0.0):
+        return None
+    c_m = params.c_m * flight / bounce
+    return c_m, c_m * math.hypot(flight_sd / flight, bounce_sd / bounce)
+
+
+class LiftLearner(PooledLearner):
+    """The Magnus coefficient C_M learned from finished tracks' flights and bounces
+    (:func:`lift_observation`; :class:`PooledLearner`).
+
+    The filter reads a spin from a flight's curvature through C_M, and the rebound turns
+    that spin into the ball's new velocity (eqs. 1-6): a C_M too small reads too much spin,
+    and a topspin ball that grips is predicted to leave the table too fast (mpi_launcher's
+    long balls: 11-16 mm off at the plane 50-200 ms before the hit, their gripping bounces
+    showing C_M = 0.10-0.17 against the nominal 0.069). The model's C_M is the prior, of sd
+    ``prior_sd`` (lift coefficients measured on spinning balls spread that much).
+    """
+
+    field = 'c_m'
+
+    def __init__(self, generic, prior_sd=0.03, default_sd=0.03, spread=0.01, reject=3.0,
+                 bounds=None):
+        super().__init__(generic, prior_sd, default_sd, spread, reject, bounds)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -535,31 +659,34 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     tracks before it taught (causal: never its own data; the config's and the model's values
     until enough was seen): the spin prior of a
     :class:`tt_prediction.ball_filter.SpinPriorLearner` (:func:`bounce_spin_observation`),
-    the accel_noise of an :class:`tt_prediction.ball_filter.AccelNoiseLearner` and the table
-    restitution of a :class:`RestitutionLearner` (:func:`restitution_observation`). The
+    the accel_noise of an :class:`tt_prediction.ball_filter.AccelNoiseLearner`, the table
+    restitution of a :class:`RestitutionLearner` (:func:`restitution_observation`) and the
+    Magnus coefficient of a :class:`LiftLearner` (:func:`lift_observation`). The
     textbook reference keeps ``params``. Returns ``(replays, summary)``: the
     :class:`TrackReplay` list and a JSON-ready dict.
     """
     config = config or FilterConfig()
-    learner = noise = restitution = None
+    learner = noise = restitution = lift = None
     if learn:
         noise = AccelNoiseLearner(config.accel_noise)
         generic = config
         learner = SpinPriorLearner(generic=config.spin_prior_axes(),
                                    generic_mean=config.spin_prior_mean)
         restitution = RestitutionLearner(params.e_t)
+        lift = LiftLearner(params.c_m)
     replays = []
     for name, t, p, spin in tracks:
         cfg, model = config, params
         if learner is not None:
             cfg = dataclasses.replace(learner.config(config), accel_noise=noise.value)
             generic = dataclasses.replace(config, accel_noise=noise.value)
-            model = restitution.params(params)
+            model = lift.params(restitution.params(params))
         rp = replay_track(name, t, p, model, cfg, hit_plane_x, spin)
         replays.append(rp)
         if learner is not None:
             noise.observe(rp.nis)
             restitution.observe(restitution_observation(rp, model))
+            lift.observe(lift_observation(rp, model, generic))
             obs = bounce_spin_observation(rp, model, generic)
             if obs is not None:
                 learner.observe(*obs)
@@ -607,6 +734,15 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
             'final': round(restitution.value, 4),
             'tracks_informing': restitution.count,
             'per_track': {rp.name: round(rp.e_t, 4) for rp in replays},
+        }
+        summary['lift_learned'] = {
+            'rule': 'causal: each track uses the C_M of the flights and bounces before it '
+                    'that show one (a grip and a spin significant in both), weighed by their '
+                    f"precision with the model's c_m = {params.c_m} as a prior of sd "
+                    f'{lift.prior_sd}',
+            'final': round(lift.value, 4),
+            'tracks_informing': lift.count,
+            'per_track': {rp.name: round(rp.c_m, 4) for rp in replays},
         }
     if textbook:
         summary['textbook_hit_error'] = errors['textbook']
