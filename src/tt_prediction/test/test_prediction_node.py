@@ -421,6 +421,51 @@ def test_the_executor_is_chosen_by_name_and_a_bad_name_is_one_line():
     assert out.stderr.strip().splitlines()[-1].endswith('is not one of: events, single')
 
 
+def _past_its_bounce(graph, track_id, between):
+    """Track ``track_id``: GOOD, then the same ball 60 and 70 ms after its bounce with
+    ``between`` (values, stamp offset from the first of those, s) published in between;
+    returns the first prediction and the last (the ball 70 ms after its bounce)."""
+    before = predict(GOOD)
+    t1 = before.bounce.t + 0.06
+    graph.pub.publish(graph.state(GOOD, track_id=track_id))
+    graph.spin_until(lambda: graph.node.n_received == 1, 10.0, 'the first state')
+    _, samples = rollout(np.array(GOOD), ModelParams(), sample_times=[t1, t1 + 0.01])
+    sent = [(samples[0], 0.0), between, (samples[1], 0.01)]
+    for k, (values, offset) in enumerate(sent, start=2):
+        graph.pub.publish(graph.state(values, stamp_ns=T0 + round((t1 + offset) * 1e9),
+                                      track_id=track_id))
+        graph.spin_until(lambda k=k: graph.node.n_received == k, 10.0, f'state {k}')
+    graph.spin_until(lambda: graph.predictions and graph.predictions[-1].header.stamp
+                     == graph.state(GOOD, stamp_ns=T0 + round((t1 + 0.01) * 1e9)).header.stamp,
+                     10.0, 'the last prediction')
+    return graph.predictions[0], graph.predictions[-1]
+
+
+def test_a_late_state_is_dropped_and_its_track_keeps_its_bounce(graph):
+    # Best effort delivers out of order (and a second publisher may lag): a state of the
+    # ball 10 ms older than the track's last, past the bounce, was taken for a new ball; the
+    # track lost its bounce and every later state was no_bounce, no hit, no stroke.
+    _, samples = rollout(np.array(GOOD), ModelParams(),
+                         sample_times=[predict(GOOD).bounce.t + 0.05])
+    first, last = _past_its_bounce(graph, 3, (samples[0], -0.01))
+    assert graph.node.n_dropped == 1 and len(graph.predictions) == 3
+    assert last.status == 'ok' and last.bounce_time == first.bounce_time
+    assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
+
+
+def test_one_state_off_the_path_is_an_outlier_and_the_track_keeps_its_bounce(graph):
+    # One state 1 m to the side (a mismatched detection) between two of the ball past its
+    # bounce: it started a new track, and the ball's next state, far from it, another one:
+    # the bounce was lost for the rest of the flight (no_bounce, no hit).
+    _, samples = rollout(np.array(GOOD), ModelParams(),
+                         sample_times=[predict(GOOD).bounce.t + 0.065])
+    outlier = samples[0].copy()
+    outlier[1] += 1.0
+    first, last = _past_its_bounce(graph, 4, (outlier, 0.005))
+    assert last.status == 'ok' and last.bounce_time == first.bounce_time
+    assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
+
+
 def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):
     t0 = T0
     before = predict(GOOD)

@@ -47,9 +47,15 @@ MAX_LEAD_S = 1.0
 its clock and the node's disagree, and the hit time it gives would be as far off."""
 TRACK_GAP_S = 1.0
 """A state of a remembered track id stamped this much after the track's last state (or
-before it) starts the track afresh, s: it is another ball (perception restarted, its ids
-from 1 again; a replay started over). Perception ends a track after 0.2 s without the ball;
-a ball flies from the opponent's racket to the robot's in under a second."""
+more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ball
+(perception restarted, its ids from 1 again; a replay started over). Perception ends a track
+after 0.2 s without the ball; a ball flies from the opponent's racket to the robot's in
+under a second."""
+OUT_OF_ORDER_S = 0.1
+"""A state stamped up to this much before its track's last state is a late one of the same
+ball (best effort delivers out of order; a second publisher), s: dropped with a warning.
+Taken for a new ball, it lost the track's bounce and every later state of the ball was
+predicted as before it (no_bounce, no hit)."""
 TRACK_JUMP_M = 0.3
 TRACK_JUMP_SPEED = 8.0
 TRACK_JUMP_DT = 0.25
@@ -58,7 +64,9 @@ TRACK_JUMP_DT) (m, m/s, s) from where the track's last state would be after dt (
 line under gravity) starts it afresh too: another ball, sooner than TRACK_GAP_S. A bounce
 changes v_z by about twice the impact speed (up to ~10 m/s), only for the time after it, and
 perception ends a track after 0.2 s without its ball: on model flights no state of one ball
-was taken for another down to 10 Hz (a review, 28 Nov 2026)."""
+was taken for another down to 10 Hz (a review, 28 Nov 2026). The track it replaces is kept
+for one state: when the next state carries on from it and not from the one far off, that
+one was an outlier and the track goes on with its bounce."""
 
 _ZERO3 = (0.0, 0.0, 0.0)
 
@@ -90,7 +98,7 @@ class _Track:
     """What the node remembers of one track: its predicted bounce and last uncertainty."""
 
     __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns', 'state',
-                 'predicted_ns')
+                 'predicted_ns', 'replaced')
 
     def __init__(self):
         self.bounce = None
@@ -100,10 +108,13 @@ class _Track:
         self.last_ns = None
         self.state = None
         self.predicted_ns = None        # stamp of the track's last prediction (max_rate_hz)
+        self.replaced = None            # the track this one's first state was far from
 
     def continues(self, state, stamp_ns, gravity):
-        """Whether ``state`` (9,), stamped ``stamp_ns`` within the track's gap, is near where
-        the track's ball flies (TRACK_JUMP_M)."""
+        """Whether ``state`` (9,), stamped ``stamp_ns``, is the track's ball: stamped within
+        TRACK_GAP_S after its last state and near where it flies (TRACK_JUMP_M)."""
+        if not 0 <= stamp_ns - self.last_ns <= TRACK_GAP_S * 1e9:
+            return False
         dt = (stamp_ns - self.last_ns) * 1e-9
         expect = self.state[:3] + self.state[3:6] * dt
         expect[2] -= 0.5 * gravity * dt * dt
@@ -244,15 +255,9 @@ class PredictionNode(Node):
             self._drop(position_error((p.x, p.y, p.z), 'position'))
             return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
-        track = self.tracks.pop(msg.track_id, None)     # back in as the latest updated
-        if track is not None and not (0 <= stamp_ns - track.last_ns <= TRACK_GAP_S * 1e9
-                                      and track.continues(state, stamp_ns, self.params.gravity)):
-            track = None                            # another ball under a used id
+        track = self._track(msg.track_id, state, stamp_ns)
         if track is None:
-            if len(self.tracks) >= MAX_TRACKS:
-                self.tracks.pop(next(iter(self.tracks)))     # the one updated longest ago
-            track = _Track()
-        self.tracks[msg.track_id] = track
+            return
         track.last_ns = stamp_ns
         track.state = state
         if not due(stamp_ns, track.predicted_ns, self.p.max_rate_hz):
@@ -288,6 +293,34 @@ class PredictionNode(Node):
         if due(stamp_ns, self.last_path_ns, self.p.path_rate_hz):
             self.last_path_ns = stamp_ns
             self.path_worker.submit((msg, stamp_ns, state, plane_x, bounced))
+
+    def _track(self, track_id, state, stamp_ns):
+        """The remembered track ``state`` belongs to, made the latest updated (a new one for
+        another ball under a used id), or None: a late state, dropped (OUT_OF_ORDER_S)."""
+        gravity = self.params.gravity
+        track = self.tracks.pop(track_id, None)
+        if track is None:
+            if len(self.tracks) >= MAX_TRACKS:
+                self.tracks.pop(next(iter(self.tracks)))     # the one updated longest ago
+            track = _Track()
+        elif -OUT_OF_ORDER_S * 1e9 <= stamp_ns - track.last_ns < 0:
+            self.tracks[track_id] = track
+            self._drop(f'track {track_id}: stamp {(track.last_ns - stamp_ns) * 1e-6:.1f} ms '
+                       "before the track's last state: out of order")
+            return None
+        elif track.continues(state, stamp_ns, gravity):
+            track.replaced = None           # not an outlier: the track it replaced is gone
+        elif track.replaced is not None and track.replaced.continues(state, stamp_ns, gravity):
+            self.get_logger().warning(
+                f'track {track_id}: one state off its path (an outlier); the track goes on',
+                throttle_duration_sec=1.0)
+            track = track.replaced
+        else:
+            track.replaced, replaced = None, track      # another ball under a used id
+            track = _Track()
+            track.replaced = replaced
+        self.tracks[track_id] = track
+        return track
 
     def _prediction_msg(self, msg, stamp_ns, pred, track, plane_x):
         """Fill the node's one BallPrediction (every field, each time) and return it.
