@@ -480,3 +480,25 @@ def test_probability_is_reused_per_track():
         assert p4_again == p4
     finally:
         g.close()
+
+
+def test_start_up_compiles_what_a_ball_keeping_its_hit_time_runs():
+    # The hit time kept for a ball (keep_t) is read off the path by the Hermite position of
+    # tt_prediction.predict, called from Python there: its first call compiled it (numba)
+    # during the first ball of a fresh build (callback p99 408 ms, commands 488 ms late).
+    # The node's start-up now runs that path too. A fresh process: nothing compiled yet.
+    import subprocess
+    import sys
+    code = ('import rclpy\n'
+            'from tt_prediction.predict import hermite_position\n'
+            'from tt_strike.node import StrikeNode\n'
+            'assert not hermite_position.signatures\n'
+            'rclpy.init()\n'
+            'node = StrikeNode()\n'
+            'print(len(hermite_position.signatures))\n'
+            'node.destroy_node()\n'
+            'rclpy.shutdown()\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) >= 1

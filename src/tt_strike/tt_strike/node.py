@@ -177,7 +177,10 @@ class StrikeNode(Node):
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
         solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
-        choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
+        plan = choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
+        if plan.hit is not None:        # a ball's next prediction keeps its hit time
+            choose(warm, self.params, self.workspace, target_zone=5, bounced=True,
+                   keep_t=plan.hit.t)
         self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
