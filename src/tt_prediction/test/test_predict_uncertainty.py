@@ -29,6 +29,12 @@ def test_bad_covariance_is_an_error():
         predict_uncertainty(GOOD, -np.eye(9))
     with pytest.raises(ValueError, match='not finite'):
         predict_uncertainty(GOOD, np.full((9, 9), np.nan))
+    # A covariance filled in one triangle only (a user's message): named as not symmetric
+    # (it was named not positive semi-definite, from its symmetric part's eigenvalue -0.25).
+    lower = np.eye(9) * 1e-6
+    lower[1, 0] = 0.5
+    with pytest.raises(ValueError, match=r'not symmetric \(largest \|C - C\^T\| 0.5\)'):
+        predict_uncertainty(GOOD, lower)
     # Wider than the table, a smash or the spin range: nothing to propagate (its sigma
     # points fly off the table; the hit covariance of those left came out narrower).
     for k, words in ((0, r'position standard deviation 1e\+75 m is beyond 1 m'),

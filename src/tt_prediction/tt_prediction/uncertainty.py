@@ -73,6 +73,20 @@ out of the hit covariance, which came out narrower than for a covariance 100 tim
 smaller (a user's 1e300 gave 0.004 m^2 in y where 0.01 gave 0.0135)."""
 
 
+SYMMETRY_TOLERANCE = 1e-9
+"""Largest |C - C^T| of a covariance C taken as symmetric, relative to its largest |C|."""
+
+
+def check_symmetric(cov, name='covariance'):
+    """Raises ValueError, naming ``name``, when the square covariance ``cov`` is not symmetric
+    beyond :data:`SYMMETRY_TOLERANCE` (one that is not finite is left to
+    :func:`covariance_eigen`)."""
+    cov = np.asarray(cov, dtype=float)
+    asym = float(np.abs(cov - cov.T).max())
+    if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
+        raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
+
+
 def check_spread(cov, name='covariance'):
     """Raises ValueError, naming ``name``, when a diagonal block of the square covariance
     ``cov`` (3, 6 or 9 rows: position, velocity, spin) is wider than SPREAD_LIMITS."""
@@ -123,9 +137,11 @@ def predict_uncertainty(state9, cov, params=None, t0=0.0, hit_plane_x=DEFAULT_HI
 
     ``cov`` (9, 9) or 81 numbers row-major, SI units (BallState.covariance). ``outgoing``:
     the landing of a ball leaving the racket (zone probabilities on the opponent's half;
-    no hit). Raises ValueError for a bad covariance.
+    no hit). Raises ValueError for a bad covariance (not symmetric, not finite, not
+    positive semi-definite, wider than SPREAD_LIMITS), naming what is wrong.
     """
     cov = np.asarray(cov, dtype=float).reshape(9, 9)
+    check_symmetric(cov)
     check_spread(cov)
     points, weights = sigma_points(state9, cov)
     # predict_batch lifts the points under the table's surface on to it.

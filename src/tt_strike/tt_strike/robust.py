@@ -38,7 +38,7 @@ from tt_prediction.ball import (
     zone_bounds,
 )
 from tt_prediction.predict import predict_landing
-from tt_prediction.uncertainty import check_spread, covariance_eigen
+from tt_prediction.uncertainty import check_spread, check_symmetric, covariance_eigen
 
 _NJIT = {'cache': True, 'nogil': True}
 ENSEMBLE_SIZE = 1024
@@ -189,19 +189,13 @@ def aim_in_zone(hit_state, normal, racket_velocity, params, points, centre, zone
     return np.clip(res.x, lo, hi)
 
 
-SYMMETRY_TOLERANCE = 1e-9
-"""Largest |C - C^T| of a covariance C taken as symmetric, relative to its largest |C|."""
-
-
 def check_covariance(cov, name='covariance'):
     """Check the square covariance ``cov`` as given by a user or message: raises ValueError
-    ('<name> is not finite', 'is not symmetric (...)' beyond :data:`SYMMETRY_TOLERANCE`,
-    'is not positive semi-definite (eigenvalue ...)', tt_prediction's covariance_eigen;
-    wider than tt_prediction's SPREAD_LIMITS, check_spread)."""
+    ('<name> is not finite', 'is not symmetric (...)', 'is not positive semi-definite
+    (eigenvalue ...)', wider than tt_prediction's SPREAD_LIMITS: tt_prediction.uncertainty's
+    check_symmetric, covariance_eigen, check_spread)."""
     cov = np.asarray(cov, dtype=float)
-    asym = float(np.abs(cov - cov.T).max())     # NaN (not finite): left to covariance_eigen
-    if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
-        raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
+    check_symmetric(cov, name)
     covariance_eigen(cov, name)
     check_spread(cov, name)
 
