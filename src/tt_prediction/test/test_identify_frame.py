@@ -93,6 +93,35 @@ def test_tracks_in_the_table_frame_raise_no_frame_warning():
     assert frame_warnings(_named(tracks), TRUE, -1.5) == []
 
 
+def test_a_long_track_of_a_ball_rolling_on_the_table_raises_no_frame_warning():
+    # A tracker's dump may hold 20 s of a ball rolling on the table: its 0.1 s pieces (no
+    # acceleration) outnumbered the flights' and the set was named as falling along +x.
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 20.0, 1.0 / 240.0)
+    x = 0.5 - 0.2 * t + 0.002 * t * t
+    rolling = np.column_stack([x, 0.1 + 0.0 * t, np.full_like(t, TRUE.radius)])
+    tracks = _named(make_tracks(6, TRUE, seed=3))
+    assert sum(len(tr[1]) for tr in tracks) < len(t)
+    tracks.append(('roll.csv', t, rolling + rng.normal(0.0, 1e-3, rolling.shape)))
+    assert frame_warnings(tracks, TRUE, -1.5) == []
+    # The rolling track alone has no flight: nothing to say of where the balls fall.
+    assert not any('fall along' in w for w in frame_warnings(tracks[-1:], TRUE, -1.5))
+
+
+def test_a_dropped_track_says_what_removed_its_samples_and_they_are_counted():
+    # Every step counts what it removes (report.json data.samples_dropped): the samples of a
+    # track dropped whole were counted nowhere, and its reason ('0 samples over 0.000 s left
+    # after cleaning') did not say that it was rolling.
+    t = np.arange(0.0, 2.0, 1.0 / 240.0)
+    rolling = np.column_stack([0.5 - 0.2 * t, 0.1 + 0.0 * t, np.full_like(t, TRUE.radius)])
+    tracks = make_tracks(3, TRUE, seed=3) + [Track('roll.csv', t, rolling, None)]
+    prepared, dropped, notes = prepare(tracks, TRUE.radius)
+    assert [tr.name for tr in prepared] == [tr.name for tr in tracks[:3]]
+    assert dropped == {'roll.csv': f'0 samples over 0.000 s left after cleaning '
+                                   f'(samples_rolling {len(t)})'}
+    assert notes.get('samples_rolling', 0) >= len(t)
+
+
 @pytest.mark.parametrize('change, words', [
     (lambda p: p + [0.0, 0.0, 0.74], 'none on the table'),          # table surface at 0.74
     (lambda p: p * [1.0, 1.0, -1.0], 'the balls fall along +z'),    # z down

@@ -35,10 +35,13 @@ def _finite_sorted(t, p):
     return t[ok][order], p[ok][order]
 
 
-def flight_acceleration(tracks):
+def median_flight_acceleration(tracks, gravity):
     """Median acceleration (3,) of parabolas fitted to ACC_WINDOW pieces of the tracks
-    ``[(t, p)]`` (a bounce or hit spoils only the pieces it falls in), m/s^2; None when no
-    piece has 8 samples."""
+    ``[(t, p)]`` (a bounce or hit spoils only the pieces it falls in) in flight, m/s^2; None
+    when no piece has 8 samples. In flight, whatever the frame, the ball accelerates by
+    about ``gravity`` (m/s^2): a piece accelerating by less than half of it is not a flight
+    (a ball rolling on the table or held; a tracker's 20 s of a ball rolling outnumbered a
+    set's flights and had the set named as falling along +x)."""
     accs = []
     for t, p in tracks:
         t, p = _finite_sorted(t, p)
@@ -46,7 +49,9 @@ def flight_acceleration(tracks):
         while start < len(t):
             end = int(np.searchsorted(t, t[start] + ACC_WINDOW))
             if end - start >= 8:
-                accs.append(2.0 * np.polyfit(t[start:end] - t[start], p[start:end], 2)[0])
+                acc = 2.0 * np.polyfit(t[start:end] - t[start], p[start:end], 2)[0]
+                if np.linalg.norm(acc) > 0.5 * gravity:
+                    accs.append(acc)
             start = max(end, start + 1)
     return np.median(accs, axis=0) if accs else None
 
@@ -75,7 +80,7 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
     radius, gravity = params.radius, params.gravity
     out = []
     n = len(tracks)
-    acc = flight_acceleration([(t, p) for _, t, p in tracks])
+    acc = median_flight_acceleration([(t, p) for _, t, p in tracks], gravity)
     if acc is not None and acc[2] > -0.5 * gravity:
         axis = int(np.argmax(np.abs(acc)))
         down = '-+'[int(acc[axis] > 0)] + 'xyz'[axis]

@@ -34,9 +34,9 @@ def prepare(tracks, radius):
     """Segment tracks; returns (prepared, dropped {name: reason}, notes totals)."""
     prepared, dropped, notes = [], {}, {}
     for tr in tracks:
-        seg, found = segment(tr, radius)
+        seg, found = segment(tr, radius, notes_out=notes)
         if seg is None:
-            dropped[tr.name] = found        # the reason
+            dropped[tr.name] = found        # the reason (what each step removed is in notes)
             continue
         for key, n in seg.notes.items():
             notes[key] = notes.get(key, 0) + n

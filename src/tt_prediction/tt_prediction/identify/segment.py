@@ -228,7 +228,19 @@ def _first_rolling(t, low):
     return None
 
 
-def segment(track, radius=0.02):
+def _too_little(t, notes, notes_out):
+    """Why a track is dropped (one line: what is left, and what each step removed), the
+    step counts added to ``notes_out`` (a dict, or None)."""
+    removed = {k: n for k, n in notes.items() if n}
+    if notes_out is not None:
+        for key, n in removed.items():
+            notes_out[key] = notes_out.get(key, 0) + n
+    steps = ', '.join(f'{k} {n}' for k, n in removed.items())
+    return (f'{len(t)} samples over {np.ptp(t) if len(t) else 0.0:.3f} s left after cleaning'
+            + (f' ({steps})' if steps else ''))
+
+
+def segment(track, radius=0.02, notes_out=None):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
     Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track;
@@ -236,7 +248,8 @@ def segment(track, radius=0.02):
     velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it;
     so does a bounce located off the table's outline (the model's ball bounces only with its
     centre over the table: such a bounce is data in another frame, or an edge ball).
-    Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left.
+    Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left; then the
+    samples each step removed are added to the dict ``notes_out`` when given.
     """
     notes = dict(track.notes)
     t, p = drop_outliers(track.t, track.p, notes, radius)
@@ -258,7 +271,7 @@ def segment(track, radius=0.02):
             _count(notes, 'samples_after_racket_contact', len(t) - hits[0] + 1)
             t, p = t[:hits[0] - 1], p[:hits[0] - 1]
     if len(t) < 8:
-        return None, f'{len(t)} samples left after cleaning'
+        return None, _too_little(t, notes, notes_out)
     bounces = []
     z = p[:, 2]
     # A contact is the lowest sample within SPLIT_WINDOW; noise at high rates makes other
@@ -290,7 +303,6 @@ def segment(track, radius=0.02):
         t, p = t[:end], p[:end]
         bounces = [b for b in bounces if b.t < t[-1]]
     if len(t) < 8 or t[-1] - t[0] < MIN_DURATION:
-        return None, f'{len(t)} samples over {np.ptp(t) if len(t) else 0.0:.3f} s left ' \
-                     'after cleaning'
+        return None, _too_little(t, notes, notes_out)
     out = Track(track.name, t, p, track.spin, track.label, notes, track.spin_source)
     return out, bounces
