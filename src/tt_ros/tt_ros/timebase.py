@@ -26,20 +26,23 @@ def mismatch_warning(offset_s):
 
 
 class TimeBaseCheck:
-    """:func:`same_time_base` for a node's stamps, warning once: the first stamp on another
-    time base than a running clock is reported through ``warn`` (a logger's warning) with
-    :func:`mismatch_warning`, the later ones are not."""
+    """:func:`same_time_base` for a node's stamps, warning once per time base: the first
+    stamp on another time base than a running clock is reported through ``warn`` (a
+    logger's warning) with :func:`mismatch_warning`, and so is the first on each other time
+    base after it (an offset from the node clock more than TIME_BASE_MISMATCH_S from every
+    one warned of: stamps 2 h ahead after stamps 2 h behind were not reported)."""
 
     def __init__(self, warn):
         self._warn = warn
-        self.warned = False
+        self.warned = []            # the offsets warned of, s
 
     def __call__(self, stamp_s, now_s):
         """Whether ``stamp_s`` can be compared with the node clock's ``now_s`` (s, 0: no
         /clock yet under use_sim_time, which is not warned about)."""
         if same_time_base(stamp_s, now_s):
             return True
-        if now_s and not self.warned:
-            self.warned = True
-            self._warn(mismatch_warning(stamp_s - now_s))
+        offset = stamp_s - now_s
+        if now_s and all(abs(offset - w) > TIME_BASE_MISMATCH_S for w in self.warned):
+            self.warned.append(offset)
+            self._warn(mismatch_warning(offset))
         return False

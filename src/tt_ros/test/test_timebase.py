@@ -1,0 +1,27 @@
+"""tt_ros.timebase: which stamps can be checked against the node clock, and the warnings."""
+
+from tt_ros.timebase import TIME_BASE_MISMATCH_S, TimeBaseCheck, same_time_base
+
+NOW = 1_790_000_000.0           # a wall clock in 2026, s
+
+
+def test_a_stamp_within_the_mismatch_of_the_clock_is_on_its_time_base():
+    assert same_time_base(NOW - TIME_BASE_MISMATCH_S, NOW)
+    assert not same_time_base(NOW - TIME_BASE_MISMATCH_S - 1.0, NOW)
+    assert not same_time_base(NOW, 0.0)                 # no /clock yet under use_sim_time
+
+
+def test_each_other_time_base_is_warned_of_once():
+    # Stamps 2 h behind the clock, then 2 h ahead of it (a second publisher on another
+    # clock): the second time base was not reported, as only the first stamp of all was.
+    warnings = []
+    check = TimeBaseCheck(warnings.append)
+    assert check(NOW, NOW)
+    assert not check(NOW - 7200.0, NOW)
+    assert not check(NOW - 7190.0, NOW)                 # the same time base: no new warning
+    assert not check(NOW + 7200.0, NOW)
+    assert not check(NOW + 7300.0, NOW)
+    assert not check(5.0, 0.0)                          # no clock yet: not warned of
+    assert len(warnings) == 2
+    assert warnings[0].startswith('stamps are -7200 s from the node clock')
+    assert warnings[1].startswith('stamps are 7200 s from the node clock')
