@@ -237,6 +237,18 @@ def test_bad_and_stale_states_publish_nothing(graph):
     assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == len(good)
 
 
+def test_states_received_late_are_counted_in_the_exit_line(graph):
+    # At 1 kHz from another process the node fell 94-133 ms behind (its queue full) and its
+    # exit line read as if all were well. A state 0.2 s old (not stale: 0.5 s) is late.
+    from tt_prediction.node import LATE_S
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 - round(4 * LATE_S * 1e9), track_id=2))
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 - round(0.5 * LATE_S * 1e9), track_id=3))
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'both predictions')
+    assert graph.node.n_late == 1
+    assert graph.node.work_summary().endswith(
+        f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp')
+
+
 def test_a_state_without_a_stamp_is_dropped_on_a_wall_clock(graph):
     # Stamped 0 (`ros2 topic pub` without header: {stamp: now}) on a node whose clock reads
     # today: taken for another time base, its time checks were switched off and it was

@@ -42,6 +42,11 @@ STATE_QUEUE_DEPTH = 100
 MAX_TRACKS = 8
 """Tracks remembered (the last predicted bounce and uncertainty of each); the one updated
 longest ago is forgotten first."""
+LATE_S = 0.05
+"""A state received this long after its stamp (s) is late: counted, and warned of (at most
+every 5 s). On a robot a state is out a few ms after its exposure; at 1 kHz from another
+process the node fell 94-133 ms behind, its queue full, without a word (a new-user
+walk-through, 29 Nov 2026)."""
 MAX_LEAD_S = 1.0
 """A state stamped further ahead of the node clock is dropped (with stale_after_s > 0), s:
 its clock and the node's disagree, and the hit time it gives would be as far off."""
@@ -187,6 +192,7 @@ class PredictionNode(Node):
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
+        self.n_late = 0
         self.time_base = TimeBaseCheck(self.get_logger().warning)
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -225,7 +231,8 @@ class PredictionNode(Node):
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
                 f'{np.percentile(times, 99):.3f} ms (last {len(times)}); stamps {first} '
-                f'to {last} s')
+                f'to {last} s; {self.n_late} received more than {LATE_S * 1e3:.0f} ms after '
+                'their stamp')
 
     def _on_state(self, msg):
         stamp_ns = to_ns(msg.header.stamp)
@@ -250,6 +257,12 @@ class PredictionNode(Node):
                     self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
                                f'{MAX_LEAD_S:g} s): the clocks disagree')
                     return
+                if age > LATE_S:
+                    self.n_late += 1
+                    self.get_logger().warning(
+                        f'a state received {age * 1e3:.0f} ms after its stamp (more than '
+                        f'{LATE_S * 1e3:.0f} ms): the node or its publisher falls behind',
+                        throttle_duration_sec=5.0)
         p, v, w = msg.position, msg.velocity, msg.spin
         if max(abs(p.x), abs(p.y), abs(p.z)) > ROOM_HALF_EXTENT_M:
             self._drop(position_error((p.x, p.y, p.z), 'position'))
