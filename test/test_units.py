@@ -36,6 +36,8 @@ def test_position_error_names_the_field_and_the_first_bad_row():
     text = position_error([[0.0, 0.0, 0.2], [0.0, -1525.0, 0.2]], 'x, y, z')
     assert text.startswith('x, y, z = [0, -1525, 0.2] (row 2): outside the room')
     assert 'millimetres' in text
+    # A track in centimetres (a ball 1.5 m out: 150) was told only of millimetres.
+    assert 'centimetres' in position_error([150.0, 10.0, 30.0])
 
 
 def test_translation_error_is_a_camera_beyond_twenty_metres():

@@ -34,7 +34,7 @@ def position_error(positions, field='p'):
     -------
     str
         ``'"p" = [1600, 100, 300]: outside the room (|coordinate| > 10 m): positions are in
-        metres, not millimetres'`` or ''.
+        metres, not millimetres or centimetres'`` or ''.
     """
     p = np.asarray(positions, dtype=float).reshape(-1, 3)
     big = np.abs(np.where(np.isfinite(p), p, 0.0)) > ROOM_HALF_EXTENT_M
@@ -44,7 +44,8 @@ def position_error(positions, field='p'):
     shown = '[' + ', '.join(f'{v:.6g}' for v in row) + ']'
     where = '' if p.shape[0] == 1 else f' (row {int(np.flatnonzero(big.any(axis=1))[0]) + 1})'
     return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
-            f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres')
+            f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres or '
+            'centimetres')
 
 
 def time_error(times, field='t'):
@@ -89,4 +90,5 @@ def translation_error(translation, field='translation'):
         return ''
     shown = '[' + ', '.join(f'{v:.6g}' for v in t) + ']'
     return (f'{field} {shown} puts the camera {dist:.4g} m from the table (more than '
-            f'{RIG_MAX_TRANSLATION_M:g} m): translations are in metres, not millimetres')
+            f'{RIG_MAX_TRANSLATION_M:g} m): translations are in metres, not millimetres or '
+            'centimetres')
