@@ -461,19 +461,31 @@ def test_a_late_state_is_dropped_and_its_track_keeps_its_bounce(graph):
                          sample_times=[predict(GOOD).bounce.t + 0.05])
     first, last = _past_its_bounce(graph, 3, (samples[0], -0.01))
     assert graph.node.n_dropped == 1 and len(graph.predictions) == 3
+    assert list(graph.node.tracks) == [3]
     assert last.status == 'ok' and last.bounce_time == first.bounce_time
     assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
 
 
-def test_one_state_off_the_path_is_an_outlier_and_the_track_keeps_its_bounce(graph):
+def test_a_state_delivered_twice_is_predicted_once(graph):
+    # A redelivered state (its stamp the track's last) was predicted and published again.
+    graph.pub.publish(graph.state(GOOD, track_id=6))
+    graph.pub.publish(graph.state(GOOD, track_id=6))
+    graph.spin_until(lambda: graph.node.n_received == 2, 10.0, 'both states')
+    graph.spin_until(lambda: graph.predictions, 10.0, 'the prediction')
+    assert (graph.node.n_dropped, graph.node.n_predicted) == (1, 1)
+
+
+@pytest.mark.parametrize('ahead', [0.005, 0.05])
+def test_one_state_off_the_path_is_an_outlier_and_the_track_keeps_its_bounce(graph, ahead):
     # One state 1 m to the side (a mismatched detection) between two of the ball past its
     # bounce: it started a new track, and the ball's next state, far from it, another one:
-    # the bounce was lost for the rest of the flight (no_bounce, no hit).
+    # the bounce was lost for the rest of the flight (no_bounce, no hit). Stamped 50 ms
+    # after the first, 40 ms after the next (a review): that one was then out of order.
     _, samples = rollout(np.array(GOOD), ModelParams(),
-                         sample_times=[predict(GOOD).bounce.t + 0.065])
+                         sample_times=[predict(GOOD).bounce.t + 0.06 + ahead])
     outlier = samples[0].copy()
     outlier[1] += 1.0
-    first, last = _past_its_bounce(graph, 4, (outlier, 0.005))
+    first, last = _past_its_bounce(graph, 4, (outlier, ahead))
     assert last.status == 'ok' and last.bounce_time == first.bounce_time
     assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
 

@@ -57,8 +57,9 @@ more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ba
 after 0.2 s without the ball; a ball flies from the opponent's racket to the robot's in
 under a second."""
 OUT_OF_ORDER_S = 0.1
-"""A state stamped up to this much before its track's last state is a late one of the same
-ball (best effort delivers out of order; a second publisher), s: dropped with a warning.
+"""A state stamped up to this much before its track's last state (or at its stamp) is a late
+or repeated one of the same ball (best effort delivers out of order; a second publisher), s:
+dropped with a warning.
 Taken for a new ball, it lost the track's bounce and every later state of the ball was
 predicted as before it (no_bounce, no hit)."""
 TRACK_JUMP_M = 0.3
@@ -309,29 +310,32 @@ class PredictionNode(Node):
 
     def _track(self, track_id, state, stamp_ns):
         """The remembered track ``state`` belongs to, made the latest updated (a new one for
-        another ball under a used id), or None: a late state, dropped (OUT_OF_ORDER_S)."""
+        another ball under a used id), or None: a late or repeated state, dropped
+        (OUT_OF_ORDER_S)."""
         gravity = self.params.gravity
-        track = self.tracks.pop(track_id, None)
+        track = self.tracks.get(track_id)
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:
                 self.tracks.pop(next(iter(self.tracks)))     # the one updated longest ago
             track = _Track()
-        elif -OUT_OF_ORDER_S * 1e9 <= stamp_ns - track.last_ns < 0:
-            self.tracks[track_id] = track
-            self._drop(f'track {track_id}: stamp {(track.last_ns - stamp_ns) * 1e-6:.1f} ms '
-                       "before the track's last state: out of order")
-            return None
-        elif track.continues(state, stamp_ns, gravity):
-            track.replaced = None           # not an outlier: the track it replaced is gone
         elif track.replaced is not None and track.replaced.continues(state, stamp_ns, gravity):
+            # The state before this one was far off, this one carries on from the track
+            # before it: that one was an outlier (even stamped ahead of this one).
             self.get_logger().warning(
                 f'track {track_id}: one state off its path (an outlier); the track goes on',
                 throttle_duration_sec=1.0)
             track = track.replaced
+        elif -OUT_OF_ORDER_S * 1e9 <= stamp_ns - track.last_ns <= 0:
+            self._drop(f'track {track_id}: stamp {(track.last_ns - stamp_ns) * 1e-6:.1f} ms '
+                       "before the track's last state: out of order or repeated")
+            return None
+        elif track.continues(state, stamp_ns, gravity):
+            track.replaced = None           # not an outlier: the track it replaced is gone
         else:
-            track.replaced, replaced = None, track      # another ball under a used id
-            track = _Track()
+            replaced, track = track, _Track()       # another ball under a used id
+            replaced.replaced = None
             track.replaced = replaced
+        self.tracks.pop(track_id, None)
         self.tracks[track_id] = track
         return track
 
