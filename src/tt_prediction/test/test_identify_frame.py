@@ -120,6 +120,11 @@ def test_a_dropped_track_says_what_removed_its_samples_and_they_are_counted():
     assert dropped == {'roll.csv': f'0 samples over 0.000 s left after cleaning '
                                    f'(samples_rolling {len(t)})'}
     assert notes.get('samples_rolling', 0) >= len(t)
+    # A track too short after cleaning: the samples it had left are counted too.
+    short = Track('short.csv', t[:7], rolling[:7] + [0.0, 0.0, 0.2], None)
+    _, dropped, notes = prepare([short], TRUE.radius)
+    assert dropped['short.csv'] == '7 samples over 0.025 s left after cleaning'
+    assert notes == {'samples_of_dropped_tracks': 7}
 
 
 @pytest.mark.parametrize('change, words', [

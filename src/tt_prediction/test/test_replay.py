@@ -526,6 +526,20 @@ def test_the_lift_of_the_balls_is_learned_from_their_flights_and_grip_bounces(c_
     assert lift['final'] == pytest.approx(c_m, abs=0.004)
     assert lift['per_track'][tracks[0][0]] == 0.069               # nothing learned before it
     assert lift['tracks_informing'] >= 15
+    assert len(set(lift['per_track'].values())) >= 5            # it moves, track by track
+    # Causal: the last track's own data change no track's C_M (its own included).
+    name, t, p, _ = tracks[-1]
+    changed = tracks[:-1] + [(name, t, p * [1.0, 1.0, 1.02], None)]
+    _, other = replay.replay_tracks(changed, ModelParams(), config, PLANE, textbook=False)
+    assert other['lift_learned']['per_track'] == lift['per_track']
+    assert other['lift_learned']['final'] != lift['final']
+    # With C_M a line in the spin ratio (the effect lift_spin_ratio, tt-identify's), the
+    # flight reads the spin through that line: no single C_M to learn.
+    name, t, p, _ = tracks[0]
+    rp = replay.replay_track(name, t, p, ModelParams(), config, PLANE)
+    assert replay.lift_observation(rp, ModelParams(), config) is not None
+    sloped = ModelParams(c_m_spin_ratio_slope=0.2)
+    assert replay.lift_observation(rp, sloped, config) is None
 
     class Held(replay.LiftLearner):
         def observe(self, observation):

@@ -11,6 +11,7 @@ When FOLDER holds tt-identify's ``report.md``, its "Hit-point error against lead
 
 import argparse
 import json
+import math
 import os
 import sys
 
@@ -69,13 +70,16 @@ def table(result):
     learned = final.get('spin_prior_learned')
     if learned:
         lines.append('')
-        lines.append('Spin prior, accel_noise and the table restitution learned causally from '
-                     'the tracks before each one (docs/prediction.md); at the end (final '
-                     'model): top/back, side, '
+        lift = final.get('lift_learned', {})
+        lines.append('Spin prior, accel_noise, the table restitution and the Magnus '
+                     'coefficient learned causally from the tracks before each one '
+                     '(docs/prediction.md); at the end (final model): top/back, side, '
                      f"along v {', '.join(f'{v:g}' for v in learned['final_mean'])} rad/s "
                      f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
                      f"(standard deviation), accel_noise {learned['accel_noise_final']:g} "
-                     f"m/s^2/sqrt(Hz), e_t {final['restitution_learned']['final']:g}.")
+                     f"m/s^2/sqrt(Hz), e_t {final['restitution_learned']['final']:g}, C_M "
+                     f"{lift.get('final', math.nan):g} (from {lift.get('tracks_informing', 0)} "
+                     'gripping bounces).')
     return '\n'.join(lines)
 
 

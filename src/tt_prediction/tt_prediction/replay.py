@@ -477,17 +477,24 @@ def lift_observation(rp, params, config):
     A flight's curvature shows only the product C_M w (eq. 8's k_M w x v): the filter over
     the samples before the bounce (``config``'s prior, :func:`_before_bounce`), taken to the
     model's contact, turns it into a spin with ``params``' C_M, and gives the incoming
-    velocity v. The bounce shows the spin itself where the ball grips the table: eqs. 1-6
-    with alpha = 2/5 (1 + e_t_tangential) give r w x n = (v_T' - (1 - alpha) v_T) / alpha,
-    with the rebound velocity v' measured apart from the filter (:func:`_rebound_velocity`).
-    It grips where the change of tangential velocity is below :data:`GRIP_MARGIN` of the
-    sliding one, mu (1 + e) |v_z| (``params``' mu, without its effects; e = -v_z'/v_z), by
-    2 of its standard errors. Both spins are projected on the top/back axis
-    n x v_T / |v_T|, the one component both see; where both are significant
-    (:data:`MIN_SPIN_SIGNIFICANCE`) and of one sign, C_M = params' C_M x flight / bounce.
-    A sliding bounce shows only the slip's direction, and a weak spin's curvature only
-    noise: None then.
+    velocity v (v_h: its horizontal part, of the ball's centre). The bounce shows the spin
+    itself where the ball grips the table: there eqs. 1-6 with alpha = 2/5 (1 +
+    e_t_tangential) give v_h' = (1 - alpha) v_h + alpha r w x n, so
+    r w x n = (v_h' - (1 - alpha) v_h) / alpha, with the rebound velocity v' measured apart
+    from the filter (:func:`_rebound_velocity`). It grips where the change of horizontal
+    velocity is below :data:`GRIP_MARGIN` of the sliding one, mu (1 + e) |v_z| (``params``'
+    mu, without its effects; e = -v_z'/v_z), by 2 of its standard errors. Both spins are
+    projected on the top/back axis n x v_h / |v_h|, the one component both see; where both
+    are significant (:data:`MIN_SPIN_SIGNIFICANCE`) and of one sign,
+    C_M = params' C_M x flight / bounce. Its standard error is taken at flight = bounce
+    (the prior's C_M), so that it does not lean with the value: params' C_M
+    hypot(sd_flight, sd_bounce) / |bounce|; the bounce's includes the rebound's own noise
+    (``bounce_velocity_noise``), as :func:`bounce_spin_observation`'s does. A sliding bounce
+    shows only the slip's direction, and a weak spin's curvature only noise: None then; so
+    with the effect lift_spin_ratio on (C_M a line in the spin ratio, tt-identify's).
     """
+    if params.c_m_spin_ratio_slope != 0.0:
+        return None
     before = _before_bounce(rp, params, config)
     rebound = _rebound_velocity(rp, config) if before is not None else None
     if rebound is None:
@@ -502,7 +509,7 @@ def lift_observation(rp, params, config):
     if v_in[2] > -MIN_IMPACT_SPEED or v_out[2] <= 0.0 or speed < MIN_IMPACT_SPEED:
         return None
     along = v_in[:2] / speed
-    axis = np.array([-along[1], along[0], 0.0])             # n x v_T: top/back spin
+    axis = np.array([-along[1], along[0], 0.0])             # n x v_h: top/back spin
     var_in = float(along @ bf.P[3:5, 3:5] @ along)
     change_sd = math.sqrt(var_in + var_out)
     sliding = params.mu * (1.0 - v_out[2] / v_in[2]) * -v_in[2]
@@ -511,14 +518,15 @@ def lift_observation(rp, params, config):
     grip = 0.4 * (1.0 + params.e_t_tangential)
     radius = params.radius
     bounce = float((v_out[:2] - (1.0 - grip) * v_in[:2]) @ along) / (grip * radius)
-    bounce_sd = math.sqrt(var_out + (1.0 - grip) ** 2 * var_in) / (grip * radius)
+    bounce_sd = math.sqrt(var_out + (1.0 - grip) ** 2 * var_in
+                          + config.bounce_velocity_noise ** 2) / (grip * radius)
     flight = float(bf.x[6:9] @ axis)
     flight_sd = math.sqrt(float(axis @ bf.P[6:9, 6:9] @ axis))
     if (abs(flight) < MIN_SPIN_SIGNIFICANCE * flight_sd
             or abs(bounce) < MIN_SPIN_SIGNIFICANCE * bounce_sd or flight * bounce <= 0.0):
         return None
-    c_m = params.c_m * flight / bounce
-    return c_m, c_m * math.hypot(flight_sd / flight, bounce_sd / bounce)
+    return (params.c_m * flight / bounce,
+            params.c_m * math.hypot(flight_sd, bounce_sd) / abs(bounce))
 
 
 class LiftLearner(PooledLearner):

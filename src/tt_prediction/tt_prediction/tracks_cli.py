@@ -167,8 +167,8 @@ def _main(argv=None):
                         help='skip the textbook reference predictor in summary.json')
     parser.add_argument('--no-learn', action='store_true',
                         help="keep the configured spin prior, accel_noise and the model's "
-                             'table restitution (default: learn them from the tracks before '
-                             'each one, docs/prediction.md)')
+                             'table restitution and Magnus coefficient (default: learn them '
+                             'from the tracks before each one, docs/prediction.md)')
     args = parser.parse_args(argv)
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:

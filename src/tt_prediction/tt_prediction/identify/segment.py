@@ -230,11 +230,13 @@ def _first_rolling(t, low):
 
 def _too_little(t, notes, notes_out):
     """Why a track is dropped (one line: what is left, and what each step removed), the
-    step counts added to ``notes_out`` (a dict, or None)."""
+    step counts and the samples left (``samples_of_dropped_tracks``) added to ``notes_out``
+    (a dict, or None)."""
     removed = {k: n for k, n in notes.items() if n}
     if notes_out is not None:
-        for key, n in removed.items():
-            notes_out[key] = notes_out.get(key, 0) + n
+        for key, n in list(removed.items()) + [('samples_of_dropped_tracks', len(t))]:
+            if n:
+                notes_out[key] = notes_out.get(key, 0) + n
     steps = ', '.join(f'{k} {n}' for k, n in removed.items())
     return (f'{len(t)} samples over {np.ptp(t) if len(t) else 0.0:.3f} s left after cleaning'
             + (f' ({steps})' if steps else ''))
