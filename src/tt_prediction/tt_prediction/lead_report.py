@@ -74,7 +74,7 @@ def table(result):
         lines.append('Spin prior, accel_noise, the table restitution and the Magnus '
                      'coefficient learned causally from the tracks before each one '
                      '(docs/prediction.md); at the end (final model): top/back, side, '
-                     f"along v {', '.join(f'{v:g}' for v in learned['final_mean'])} rad/s "
+                     f"along v {', '.join(f'{v + 0.0:g}' for v in learned['final_mean'])} rad/s "
                      f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
                      f"(standard deviation), accel_noise {learned['accel_noise_final']:g} "
                      f"m/s^2/sqrt(Hz), e_t {final['restitution_learned']['final']:g}, C_M "

@@ -466,8 +466,8 @@ for their ratio to say anything of C_M."""
 GRIP_MARGIN = 0.5
 """A bounce is taken to grip where its change of tangential velocity is below this fraction
 of the sliding one with the model's mu, as a table's mu may be well below the model's 0.25:
-mpi_pam's sliding bounces change by 0.70-0.84 of it (its mu is about 0.2), mpi_launcher's by
-0.86-1.17, and mpi_launcher's gripping ones by 0.04-0.32."""
+mpi_pam's sliding bounces change by 0.70-0.85 of it (its mu is about 0.2), mpi_launcher's by
+0.78-1.17, and mpi_launcher's gripping ones by 0.03-0.35."""
 
 
 def lift_observation(rp, params, config):
