@@ -49,3 +49,26 @@ def interface_file(pkg, kind, name, ament_prefix_path=None):
     if prefix is None:
         return None
     return os.path.join(prefix, 'share', pkg, kind, f'{name}.{kind}')
+
+
+def interfaces(ament_prefix_path=None):
+    """Sorted ``'pkg/kind/Name'`` of every interface (kind 'msg', 'srv' or 'action') the
+    ament index registers (``rosidl_interfaces`` resources: one ``kind/Name.idl`` or
+    ``.msg`` ... line per file); the first prefix registering a package wins."""
+    found, seen = set(), set()
+    for prefix in prefixes(ament_prefix_path):
+        index = os.path.join(prefix, 'share', 'ament_index', 'resource_index',
+                             'rosidl_interfaces')
+        if not os.path.isdir(index):
+            continue
+        for pkg in sorted(os.listdir(index)):
+            if pkg in seen:
+                continue
+            seen.add(pkg)
+            with open(os.path.join(index, pkg), encoding='utf-8') as f:
+                for line in f.read().split('\n'):
+                    kind, _, name = line.strip().partition('/')
+                    stem, dot, _ = name.rpartition('.')
+                    if kind in ('msg', 'srv', 'action') and dot and stem:
+                        found.add(f'{pkg}/{kind}/{stem}')
+    return sorted(found)

@@ -247,6 +247,33 @@ def test_interface_show_prints_the_msg_file_with_nested_definitions():
     assert '#' not in out
 
 
+def test_interface_list_and_package_name_what_the_index_installs():
+    # `ros2 interface list` (a ROS user's first look at a stack's messages) was not there.
+    # Every listed type imports (its generated class exists); tt_msgs' are the .msg files
+    # installed in its share folder.
+    rc, out, err = ros2('interface', 'list')
+    assert rc == 0, err
+    lines = out.splitlines()
+    assert [x for x in lines if not x.startswith('    ')] == ['Messages:', 'Services:',
+                                                              'Actions:']
+    msgs = lines[1:lines.index('Services:')]
+    srvs = lines[lines.index('Services:') + 1:lines.index('Actions:')]
+    assert '    tt_msgs/msg/BallState' in msgs and '    rcl_interfaces/srv/GetParameters' in srvs
+    assert all(x.split('/')[1] == 'msg' for x in msgs)
+    assert all(x.split('/')[1] == 'srv' for x in srvs)
+    for name in ('    rcl_interfaces/msg/ParameterValue', '    tt_msgs/msg/StrikeCommand'):
+        assert import_message_type(name.strip()).get_fields_and_field_types()
+    rc, out, _ = ros2('interface', 'list', '-m')
+    assert out.splitlines() == lines[:lines.index('Services:')]
+    share = os.path.dirname(interface_file('tt_msgs', 'msg', 'BallState'))
+    installed = sorted(f'tt_msgs/msg/{f[:-4]}' for f in os.listdir(share) if f.endswith('.msg'))
+    rc, out, err = ros2('interface', 'package', 'tt_msgs')
+    assert rc == 0 and out.splitlines() == installed, err
+    rc, out, err = ros2('interface', 'package', 'no_such_pkg')
+    assert rc == 1 and out == '' and error_lines(err) == [
+        "ros2 interface: Unknown package 'no_such_pkg'"]
+
+
 def test_interface_show_of_a_service_and_bad_names():
     rc, out, err = ros2('interface', 'show', 'rcl_interfaces/srv/GetParameters', '--no-comments')
     assert rc == 0, err

@@ -1,4 +1,5 @@
-"""``ros2 interface show`` and ``ros2 pkg executables`` (pure: no rclpy, files only).
+"""``ros2 interface show | list | package`` and ``ros2 pkg executables`` (pure: no rclpy,
+files only).
 
 ``interface show pkg/msg/Type`` prints the installed ``.msg`` (``.srv``, ``.action``) file as
 ros2cli does: the file's own comments and blank lines, then, under each field of a message
@@ -9,7 +10,7 @@ type, that type's definition indented by one tab per level (without its comments
 import os
 
 from rosidl_adapter.parser import parse_message_string
-from tt_ros.index import interface_file, package_prefix, packages
+from tt_ros.index import interface_file, interfaces, package_prefix, packages
 
 from tt_tools.output import write
 from tt_tools.run import RunError, executables
@@ -82,6 +83,32 @@ def interface_show(args):
     return 0
 
 
+def interface_list(args):
+    """``ros2 interface list``: the interfaces of the ament index under ``Messages:``,
+    ``Services:``, ``Actions:``, four spaces in, as ros2cli prints them (``-m``, ``-s``,
+    ``-a``: only those)."""
+    names = interfaces()
+    only = [k for k, on in (('msg', args.only_msgs), ('srv', args.only_srvs),
+                            ('action', args.only_actions)) if on]
+    lines = []
+    for kind, title in (('msg', 'Messages'), ('srv', 'Services'), ('action', 'Actions')):
+        if only and kind not in only:
+            continue
+        lines.append(f'{title}:')
+        lines += [f'    {n}' for n in names if n.split('/')[1] == kind]
+    write(''.join(line + '\n' for line in lines))
+    return 0
+
+
+def interface_package(args):
+    """``ros2 interface package PACKAGE``: its interfaces, one per line."""
+    if package_prefix(args.package) is None:
+        raise ValueError(f"Unknown package '{args.package}'")
+    names = [n for n in interfaces() if n.split('/')[0] == args.package]
+    write(''.join(n + '\n' for n in names))
+    return 0
+
+
 def pkg_executables(args):
     try:
         names = [args.package] if args.package else packages()
@@ -108,8 +135,8 @@ def pkg_list(args):
 
 
 def add_arguments(interface_sub, pkg_sub):
-    """Register ``interface show`` and ``pkg executables | list | prefix`` on argparse
-    sub-parsers."""
+    """Register ``interface show | list | package`` and ``pkg executables | list | prefix``
+    on argparse sub-parsers."""
     p = interface_sub.add_parser('show', help='print the definition of a msg, srv or action')
     p.add_argument('type', help="interface name, e.g. 'tt_msgs/msg/BallState'")
     group = p.add_mutually_exclusive_group()
@@ -118,6 +145,16 @@ def add_arguments(interface_sub, pkg_sub):
     group.add_argument('--no-comments', action='store_true',
                        help='no comments and no blank lines')
     p.set_defaults(func=interface_show)
+
+    p = interface_sub.add_parser('list', help='list the installed msg, srv and action types')
+    p.add_argument('-m', '--only-msgs', action='store_true', help='only the messages')
+    p.add_argument('-s', '--only-srvs', action='store_true', help='only the services')
+    p.add_argument('-a', '--only-actions', action='store_true', help='only the actions')
+    p.set_defaults(func=interface_list)
+
+    p = interface_sub.add_parser('package', help='list the interfaces of one package')
+    p.add_argument('package', help='the package, e.g. tt_msgs')
+    p.set_defaults(func=interface_package)
 
     p = pkg_sub.add_parser('executables', help="print '<package> <executable>' lines")
     p.add_argument('package', nargs='?', help='only this package')
