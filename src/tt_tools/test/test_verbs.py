@@ -31,10 +31,12 @@ from tt_msgs.msg import BallPrediction, BallState
 pytestmark = pytest.mark.graph
 
 
-def run_all(graph, *commands, timeout=120, env=None):
+def run_all(graph, *commands, timeout=300, env=None):
     """Run ``ros2`` commands concurrently while the test's graph spins (its node answers
     service calls); [(exit code, stdout, stderr)] in the order given. ``env``: extra
-    environment variables."""
+    environment variables. ``timeout`` only guards against a command that never ends: 14 of
+    them starting at once on this 2-core machine, at half its speed of 27 Nov (29 Nov 2026),
+    took over 120 s once."""
     procs = [Ros2Process(*c, env=env) for c in commands]
     try:
         graph.spin_until(lambda: all(p.proc.poll() is not None for p in procs), timeout,
