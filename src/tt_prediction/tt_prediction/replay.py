@@ -307,7 +307,25 @@ def _rebound_velocity(rp, config):
     return coef[1], config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
 
 
-def bounce_spin_observation(rp, params, config):
+def bounce_reading(rp, params, config):
+    """What a finished track shows at its located bounce on the robot's half, read once for
+    :func:`bounce_spin_observation` and :func:`lift_observation`: ``(filter, start
+    velocity, rebound velocity, its variance per axis)``, the filter (a BallFilter,
+    ``config``'s prior) taken over the samples before the bounce (:func:`_before_bounce`)
+    and on to the model's contact, the start velocity the axes of its spin prior, the
+    rebound velocity :func:`_rebound_velocity`'s; or None where either is None."""
+    before = _before_bounce(rp, params, config)
+    rebound = _rebound_velocity(rp, config) if before is not None else None
+    if rebound is None:
+        return None
+    tf, tc = before
+    bf = BallFilter(params, config)
+    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
+    bf.predict(tc, contact_z=-math.inf)         # the same flight, up to the contact only
+    return bf, tf.filter.start_velocity, rebound[0], rebound[1]
+
+
+def bounce_spin_observation(rp, params, config, reading=None):
     """Per-axis measurement of a finished track's pre-bounce spin: ``(y (3,), s2 (3,))`` in
     the velocity frame (top/back, side, along v; rad/s, (rad/s)^2), or None.
 
@@ -319,20 +337,13 @@ def bounce_spin_observation(rp, params, config):
     joint Gaussian of (pre-bounce spin, rebound velocity) on it gives the spin's posterior
     given the whole track: flight's curvature for the spin across v, eqs. 1-2's change of
     tangential velocity (r w x n) for the spin along v. The track's prior is divided out
-    (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`).
+    (:func:`tt_prediction.ball_filter.spin_likelihood_per_axis`). ``reading``: the
+    track's :func:`bounce_reading`, when made already.
     """
-    before = _before_bounce(rp, params, config)
-    if before is None:
+    reading = reading or bounce_reading(rp, params, config)
+    if reading is None:
         return None
-    rebound = _rebound_velocity(rp, config)
-    if rebound is None:
-        return None
-    v_meas, var_fit = rebound
-    tf, tc = before
-    v0 = tf.filter.start_velocity       # the prior's axes: the velocity the filter started from
-    bf = BallFilter(params, config)
-    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
-    bf.predict(tc, contact_z=-math.inf)         # the same flight, up to the contact only
+    bf, v0, v_meas, var_fit = reading     # v0: the prior's axes (the filter's start velocity)
     xc, Cc = bf.x.copy(), bf.P
     xc[2] = params.radius
     x_out, S = rebound_map(xc, bf.P_model)
@@ -470,7 +481,7 @@ mpi_pam's sliding bounces change by 0.70-0.85 of it (its mu is about 0.2), mpi_l
 0.78-1.17, and mpi_launcher's gripping ones by 0.03-0.35."""
 
 
-def lift_observation(rp, params, config):
+def lift_observation(rp, params, config, reading=None):
     """The Magnus coefficient C_M (eq. 8) that a finished track's flight and bounce on the
     robot's half show together, and its standard error: ``(c_m, sd)``, or None.
 
@@ -492,18 +503,14 @@ def lift_observation(rp, params, config):
     (``bounce_velocity_noise``), as :func:`bounce_spin_observation`'s does. A sliding bounce
     shows only the slip's direction, and a weak spin's curvature only noise: None then; so
     with the effect lift_spin_ratio on (C_M a line in the spin ratio, tt-identify's).
+    ``reading``: the track's :func:`bounce_reading`, when made already.
     """
     if params.c_m_spin_ratio_slope != 0.0:
         return None
-    before = _before_bounce(rp, params, config)
-    rebound = _rebound_velocity(rp, config) if before is not None else None
-    if rebound is None:
+    reading = reading or bounce_reading(rp, params, config)
+    if reading is None:
         return None
-    tf, tc = before
-    v_out, var_out = rebound
-    bf = BallFilter(params, config)
-    bf.x, bf.P, bf.t = tf.filter.x, tf.filter.P, tf.filter.t
-    bf.predict(tc, contact_z=-math.inf)         # the flight up to the contact
+    bf, _, v_out, var_out = reading
     v_in = bf.x[3:6]
     speed = math.hypot(v_in[0], v_in[1])
     if v_in[2] > -MIN_IMPACT_SPEED or v_out[2] <= 0.0 or speed < MIN_IMPACT_SPEED:
@@ -694,10 +701,12 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
         if learner is not None:
             noise.observe(rp.nis)
             restitution.observe(restitution_observation(rp, model))
-            lift.observe(lift_observation(rp, model, generic))
-            obs = bounce_spin_observation(rp, model, generic)
-            if obs is not None:
-                learner.observe(*obs)
+            reading = bounce_reading(rp, model, generic)       # once for the two below
+            if reading is not None:
+                lift.observe(lift_observation(rp, model, generic, reading))
+                obs = bounce_spin_observation(rp, model, generic, reading)
+                if obs is not None:
+                    learner.observe(*obs)
     errors = lead_time_errors(replays, params, hit_plane_x, leads_ms, textbook)
     rng = np.random.default_rng(0)
     floor = np.concatenate([np.zeros(0)] + [
