@@ -294,3 +294,30 @@ def test_a_small_balls_bright_part_is_not_wider_than_the_ball_behind_jpeg():
         widths.append((dets[0].width, dets[0].bright_width))
     widths = np.array(widths) / (2 * radius)
     assert np.all(widths[:, 1] <= 1.0)
+
+
+def test_the_fits_linear_solver_solves_and_names_a_singular_system():
+    """The outline fit's compiled solver (it runs without the GIL, so not LAPACK's) gives
+    numpy's solution on systems of its sizes, pivoting where a zero leads, and says when the
+    matrix is singular (a row of zeros, two equal rows) instead of returning garbage."""
+    from tt_perception.detect import _solve
+    rng = np.random.default_rng(3)
+    for n in (6, 8):
+        for _ in range(20):
+            a = rng.normal(size=(n, n))
+            a = a @ a.T + 0.1 * np.eye(n)               # a normal matrix, as the fit's
+            b = rng.normal(size=n)
+            x, ok = _solve(a, b)
+            assert ok
+            np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-9, atol=1e-12)
+        swapped = np.eye(n)[::-1] * 2.0                 # a zero on every diagonal entry
+        x, ok = _solve(swapped, np.arange(1.0, n + 1))
+        assert ok
+        np.testing.assert_allclose(x, np.arange(1.0, n + 1)[::-1] / 2.0)
+        singular = rng.normal(size=(n, n))
+        singular[2] = 0.0
+        assert not _solve(singular, np.ones(n))[1]
+        singular = rng.normal(size=(n, n))
+        singular[3] = singular[1]
+        # Elimination of an exact copy leaves an exact zero row.
+        assert not _solve(singular, np.ones(n))[1]

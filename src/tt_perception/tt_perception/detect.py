@@ -277,6 +277,17 @@ def _whiten(outline):
     return (vecs / np.sqrt(vals)) @ vecs.T
 
 
+def _sampling(ball, image_blur):
+    """How :func:`ball_model` samples ``ball``: (positions over the exposure, sub-samples per
+    pixel along each axis, Gaussian spread of the outline in pixels or 0 for the ramps)."""
+    steps = max(1, int(np.ceil(np.hypot(ball.blur[0], ball.blur[1]) / BLUR_STEP)))
+    if image_blur > 0.0:
+        # One sample per pixel, at its centre: a Gaussian edge averaged over the pixel's
+        # width is close to a Gaussian of the variances' sum (the box's: 1/12 px^2).
+        return steps, 1, math.sqrt(image_blur ** 2 + 1.0 / 12.0)
+    return steps, SUBPIXELS, 0.0
+
+
 def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     """The image of the ball ``ball`` (:class:`BallImage`) with its centre at ``centre`` at
     mid-exposure, at the pixels (xs, ys) (1-D float arrays of pixel centres): its mean
@@ -294,21 +305,15 @@ def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     deviation in pixels across the outline: each pixel is sampled once, at its centre,
     covered by Phi(-s / sqrt(image_blur^2 + 1/12)) of its signed distance s (the camera's
     blur and the pixel's width) instead of the ramps."""
-    blur = ball.blur
-    steps = max(1, int(np.ceil(np.hypot(blur[0], blur[1]) / BLUR_STEP)))
     n = xs.size
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     if whitening is None:
         whitening = _whiten(ball.outline)
-    if image_blur > 0.0:
-        # One sample per pixel, at its centre: a Gaussian edge averaged over the pixel's
-        # width is close to a Gaussian of the variances' sum (the box's: 1/12 px^2).
-        sub, spread = 1, math.sqrt(image_blur ** 2 + 1.0 / 12.0)
-    else:
-        sub, spread = SUBPIXELS, 0.0
+    steps, sub, spread = _sampling(ball, image_blur)
     _render(xs, ys, float(centre[0]), float(centre[1]), whitening,
-            float(blur[0]), float(blur[1]), steps, sub, spread, cover, dcover, basis, dbasis)
+            float(ball.blur[0]), float(ball.blur[1]), steps, sub, spread, cover, dcover, basis,
+            dbasis)
     return cover, basis, dcover, dbasis
 
 
@@ -318,11 +323,105 @@ def curvature_penalty(basis, weight):
     P pixels of the quadratic terms' image once its best linear fit (the first three terms)
     is taken out. Zero on the linear terms; independent of the brightness's units and of the
     number of pixels."""
-    linear, quadratic = basis[:, :3], basis[:, 3:]
-    beyond = quadratic - linear @ np.linalg.lstsq(linear, quadratic, rcond=None)[0]
+    return _curvature_penalty(np.ascontiguousarray(basis, dtype=float), float(weight))
+
+
+@njit(cache=True, nogil=True)
+def _curvature_penalty(basis, weight):
+    linear = np.ascontiguousarray(basis[:, :3])
+    quadratic = np.ascontiguousarray(basis[:, 3:])
+    beyond = quadratic - linear @ np.linalg.lstsq(linear, quadratic)[0]
     out = np.zeros((N_SHADING, N_SHADING))
     out[3:, 3:] = weight * (beyond.T @ beyond)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _solve(m, b):
+    """x with m x = b (small, square; Gaussian elimination with partial pivoting), and False
+    when m is singular (an exactly zero pivot, as LAPACK's), in which case x is undefined."""
+    n = b.size
+    a = m.copy()
+    x = b.copy()
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if a[pivot, col] == 0.0:
+            return x, False
+        if pivot != col:
+            for j in range(n):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+            x[col], x[pivot] = x[pivot], x[col]
+        for row in range(col + 1, n):
+            f = a[row, col] / a[col, col]
+            if f != 0.0:
+                for j in range(col, n):
+                    a[row, j] -= f * a[col, j]
+                x[row] -= f * x[col]
+    for col in range(n - 1, -1, -1):
+        acc = x[col]
+        for j in range(col + 1, n):
+            acc -= a[col, j] * x[j]
+        x[col] = acc / a[col, col]
+    return x, True
+
+
+@njit(cache=True, nogil=True)
+def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, iterations,
+         converged):
+    """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost)."""
+    n = xs.size
+    k = N_SHADING + 2
+    cover, dcover = np.empty(n), np.empty((n, 2))
+    basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
+    _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
+    penalty = np.zeros((k, k))
+    if curvature_weight > 0.0:
+        penalty[:N_SHADING, :N_SHADING] = _curvature_penalty(basis, curvature_weight)
+    ridge = np.ascontiguousarray(penalty[:N_SHADING, :N_SHADING])
+    target = obs - bg * (1.0 - cover)
+    shading, ok = _solve(basis.T @ basis + ridge, basis.T @ target)
+    if not ok:
+        shading = np.linalg.lstsq(basis, target)[0]
+    jac = np.empty((n, k))
+    res = np.empty(n)
+    for _ in range(iterations):
+        # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading,
+        # minimising |res|^2 + shading^T W shading.
+        for p in range(n):
+            r = obs[p] - bg[p] * (1.0 - cover[p])
+            for j in range(N_SHADING):
+                r -= basis[p, j] * shading[j]
+                jac[p, j] = basis[p, j]
+            res[p] = r
+            for m in range(2):
+                d = -bg[p] * dcover[p, m]
+                for j in range(N_SHADING):
+                    d += dbasis[p, m, j] * shading[j]
+                jac[p, N_SHADING + m] = d
+        gradient = jac.T @ res
+        gradient[:N_SHADING] -= ridge @ shading
+        step, ok = _solve(jac.T @ jac + penalty, gradient)
+        if not ok:
+            return False, cx, cy, 0.0
+        length = math.hypot(step[N_SHADING], step[N_SHADING + 1])
+        if length > 1.0:
+            step = step / length
+        shading = shading + step[:N_SHADING]
+        cx += step[N_SHADING]
+        cy += step[N_SHADING + 1]
+        _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
+        if length < converged:
+            break
+    cost = 0.0
+    for p in range(n):
+        r = obs[p] - bg[p] * (1.0 - cover[p])
+        for j in range(N_SHADING):
+            r -= basis[p, j] * shading[j]
+        cost += r * r
+    return True, cx, cy, cost + shading @ ridge @ shading
 
 
 def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0,
@@ -346,58 +445,54 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
     ``curvature_weight`` > 0 adds the penalty s^T W s of :func:`curvature_penalty` (W from
     the pixels' basis at ``start``) to the squared residuals: a ridge on the brightness's
     curvature beyond a linear shading (:attr:`DetectorConfig.curvature_weight`).
-    ``image_blur``: the camera's blur, px (:func:`ball_model`)."""
-    ys, xs = np.nonzero(usable)
-    if xs.size < 12:
-        return None
-    obs = grey[ys, xs].astype(float)
-    bg = background[ys, xs].astype(float)
-    xs, ys = xs.astype(float), ys.astype(float)
+    ``image_blur``: the camera's blur, px (:func:`ball_model`).
 
-    centre = np.array(start, float)
-    whitening = _whiten(ball.outline)
-    cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening, image_blur)
-    penalty = np.zeros((N_SHADING + 2, N_SHADING + 2))
-    if curvature_weight > 0.0:
-        penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
-    ridge = penalty[:N_SHADING, :N_SHADING]
-    try:
-        shading = np.linalg.solve(basis.T @ basis + ridge,
-                                  basis.T @ (obs - bg * (1.0 - cover)))
-    except np.linalg.LinAlgError:
-        shading = np.linalg.lstsq(basis, obs - bg * (1.0 - cover), rcond=None)[0]
-    for _ in range(iterations):
-        # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading,
-        # minimising |res|^2 + shading^T W shading.
-        res = obs - bg * (1.0 - cover) - basis @ shading
-        jac = np.concatenate([basis, dbasis @ shading - bg[:, None] * dcover], axis=1)
-        gradient = jac.T @ res
-        gradient[:N_SHADING] -= ridge @ shading
-        try:
-            step = np.linalg.solve(jac.T @ jac + penalty, gradient)
-        except np.linalg.LinAlgError:
+    The whole fit is one compiled kernel (numba, run without the GIL, so that the camera
+    threads fit in parallel)."""
+    return OutlineFit(grey, background, usable, ball, iterations, curvature_weight,
+                      image_blur).fit(start)
+
+
+class OutlineFit:
+    """:func:`fit_outline` on one patch from as many starts as wanted (:meth:`fit`): the
+    patch's usable pixels are gathered once."""
+
+    def __init__(self, grey, background, usable, ball, iterations=6, curvature_weight=0.0,
+                 image_blur=0.0):
+        ys, xs = np.nonzero(usable)
+        self.obs = grey[ys, xs].astype(float)
+        self.bg = background[ys, xs].astype(float)
+        self.xs, self.ys = xs.astype(float), ys.astype(float)
+        self.whitening = _whiten(ball.outline)
+        self.blur = (float(ball.blur[0]), float(ball.blur[1]))
+        self.sampling = _sampling(ball, image_blur)
+        self.options = (float(curvature_weight), int(iterations), CONVERGED)
+        self.scale = np.sqrt(abs(np.linalg.det(ball.outline)))
+
+    def fit(self, start):
+        """(centre, cost) of the fit from ``start`` (patch pixels), or None
+        (:func:`fit_outline`)."""
+        if self.xs.size < 12:
             return None
-        move = step[N_SHADING:]
-        length = np.hypot(move[0], move[1])
-        if length > 1.0:
-            step = step / length
-            move = step[N_SHADING:]
-        shading = shading + step[:N_SHADING]
-        centre = centre + move
-        cover, basis, dcover, dbasis = ball_model(xs, ys, centre, ball, whitening, image_blur)
-        if length < CONVERGED:
-            break
-    res = obs - bg * (1.0 - cover) - basis @ shading
-    scale = np.sqrt(abs(np.linalg.det(ball.outline)))
-    if not np.all(np.isfinite(centre)) or np.hypot(*(centre - start)) > max(scale, 1.0):
-        return None
-    return centre, float(res @ res + shading @ ridge @ shading)
+        ok, u, v, cost = _fit(self.obs, self.bg, self.xs, self.ys, float(start[0]),
+                              float(start[1]), self.whitening, *self.blur, *self.sampling,
+                              *self.options)
+        centre = np.array([u, v])
+        if (not ok or not np.all(np.isfinite(centre))
+                or np.hypot(*(centre - start)) > max(self.scale, 1.0)):
+            return None
+        return centre, float(cost)
 
 
 def warm_up():
-    """Load the compiled kernel of :func:`ball_model` (numba) before the first ball needs it."""
-    ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0),
-               BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0])))
+    """Load the compiled kernels of :func:`ball_model` and :func:`fit_outline` (numba) before
+    the first ball needs them."""
+    ball = BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0]))
+    ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0), ball)
+    patch = np.zeros((9, 9))
+    patch[2:7, 2:7] = 100.0
+    fit_outline(patch, np.zeros((9, 9)), np.ones((9, 9), bool), (4.0, 4.0), ball,
+                curvature_weight=1.0)
 
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
@@ -608,19 +703,19 @@ class BallDetector:
         if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
             grey = 255.0 * (grey * (1.0 / 255.0)) ** gamma
             background = 255.0 * (background * (1.0 / 255.0)) ** gamma
-        options = {'curvature_weight': self.config.curvature_weight,
-                   'image_blur': self.config.image_blur}
-        best = fit_outline(grey, background, usable, (u - ax, v - ay), ball, **options)
+        fitter = OutlineFit(grey, background, usable, ball,
+                            curvature_weight=self.config.curvature_weight,
+                            image_blur=self.config.image_blur)
+        best = fitter.fit((u - ax, v - ay))
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
-            fit = fit_outline(grey, background, usable, predicted, ball, **options)
+            fit = fitter.fit(predicted)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
         if search:
-            step = SEARCH_STEP * np.sqrt(abs(np.linalg.det(ball.outline)))
+            step = SEARCH_STEP * fitter.scale
             for du, dv in SEARCH_OFFSETS:
-                fit = fit_outline(grey, background, usable,
-                                  (u - ax + step * du, v - ay + step * dv), ball, **options)
+                fit = fitter.fit((u - ax + step * du, v - ay + step * dv))
                 if fit is not None and (best is None or fit[1] < best[1]):
                     best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)
