@@ -321,3 +321,62 @@ def test_the_fits_linear_solver_solves_and_names_a_singular_system():
         singular[3] = singular[1]
         # Elimination of an exact copy leaves an exact zero row.
         assert not _solve(singular, np.ones(n))[1]
+
+
+def _silhouette_by_opencv(patch, background, seed, sx, sy, threshold):
+    """The silhouette's coverage centroid and second moments as the detector's docstring
+    defines them, with OpenCV's connected components, erosion and box filter."""
+    change = patch.astype(np.float32) - background
+    size = np.abs(change).max(axis=2)
+    sil = ((size > threshold) & (change.max(axis=2) >= 0.0)).astype(np.uint8)
+    grown = np.zeros_like(sil)
+    grown[sy:sy + seed.shape[0], sx:sx + seed.shape[1]] = seed
+    sil |= grown
+    _, labels = cv2.connectedComponents(sil, connectivity=8)
+    region = np.isin(labels, np.unique(labels[grown > 0])).astype(np.uint8)
+    interior = cv2.erode(region, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    inner = interior.astype(np.float32)
+    near_sum = cv2.boxFilter(size * inner, -1, (5, 5), normalize=False)
+    near_n = cv2.boxFilter(inner, -1, (5, 5), normalize=False)
+    outline = (region > 0) & (interior == 0)
+    local = np.where(near_n > 0, near_sum / np.maximum(near_n, 1e-6),
+                     np.median(size[grown > 0]))
+    cover = inner.copy()
+    cover[outline] = np.clip(size[outline] / np.maximum(local[outline], 1e-6), 0.0, 1.0)
+    m = cv2.moments(cover)
+    return np.array([m['m10'] / m['m00'], m['m01'] / m['m00'], m['mu20'] / m['m00'],
+                     m['mu02'] / m['m00'], m['mu11'] / m['m00']])
+
+
+def test_the_silhouettes_compiled_kernel_is_its_definition():
+    """The silhouette's centre and moments (a compiled kernel) against the same definition
+    written with OpenCV's operations, on lit and shaded balls with a contact shadow, noise,
+    a second object touching the ball and balls cut by the patch's edge."""
+    from tt_perception.detect import _silhouette_moments
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        h, w = rng.integers(14, 30, size=2)
+        background = rng.uniform(40, 120, size=(h, w, 3)).astype(np.float32)
+        patch = background + rng.normal(0, 4, size=(h, w, 3))
+        cx, cy = rng.uniform(-2, w + 2), rng.uniform(-2, h + 2)
+        radius = rng.uniform(2.0, 6.0)
+        yy, xx = np.mgrid[0:h, 0:w]
+        inside = np.hypot(xx - cx, yy - cy) < radius
+        lit = (yy - cy) < rng.uniform(-1, 2)
+        patch[inside & lit] += rng.uniform(40, 120)
+        patch[inside & ~lit] += rng.uniform(-10, 20)
+        shadow = np.hypot(xx - cx - 1, yy - cy - radius) < radius
+        patch[shadow & ~inside] -= 25.0                     # darker in all three: not ball
+        if trial % 3 == 0:
+            patch[:, int(w / 2):int(w / 2) + 1] += 60.0   # a line through the patch
+        patch = np.clip(patch, 0, 255).astype(np.uint8)
+        ys, xs = np.nonzero(inside & lit & (np.abs(patch - background).max(axis=2) > 22))
+        if xs.size == 0:
+            continue
+        sx, sy = xs.min(), ys.min()
+        seed = np.zeros((ys.max() - sy + 1, xs.max() - sx + 1), np.uint8)
+        seed[ys - sy, xs - sx] = 1
+        got = _silhouette_moments(patch, background, seed, sx, sy, 14.0)
+        np.testing.assert_allclose(
+            got, _silhouette_by_opencv(patch, background, seed, sx, sy, 14.0),
+            rtol=1e-4, atol=1e-4)

@@ -485,17 +485,117 @@ class OutlineFit:
 
 
 def warm_up():
-    """Load the compiled kernels of :func:`ball_model` and :func:`fit_outline` (numba) before
-    the first ball needs them."""
+    """Load the compiled kernels (numba) of :func:`ball_model`, :func:`fit_outline` and the
+    silhouette's centre before the first ball needs them."""
     ball = BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0]))
     ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0), ball)
     patch = np.zeros((9, 9))
     patch[2:7, 2:7] = 100.0
     fit_outline(patch, np.zeros((9, 9)), np.ones((9, 9), bool), (4.0, 4.0), ball,
                 curvature_weight=1.0)
+    colour = np.repeat(patch.astype(np.uint8)[:, :, None], 3, axis=2)
+    _silhouette_moments(colour, np.zeros((9, 9, 3), np.float32), np.ones((2, 2), np.uint8), 4,
+                        4, 14.0)
 
 
-_KERNEL3 = np.ones((3, 3), np.uint8)
+@njit(cache=True, nogil=True)
+def _silhouette_moments(patch, background, seed, sx, sy, threshold):
+    """Kernel of :meth:`BallDetector._silhouette_centre` on a BGR ``patch`` (uint8) and its
+    colour ``background`` (float32), the blob ``seed`` (uint8) at (sx, sy) in it: the
+    centroid (u, v) of the silhouette's coverage and its central second moments over its
+    weight (cxx, cyy, cxy), patch pixels; or None when its weight is 0.
+
+    The silhouette: the pixels whose largest change over B, G, R exceeds ``threshold`` and
+    that are not darker in all three (a shadow), 8-connected to the seed (which belongs to
+    it). Coverage: 1 inside (the pixels whose 3 x 3 neighbourhood, edges replicated, is all
+    silhouette); on its outline the pixel's change over the mean change of the inside pixels
+    in its 5 x 5 neighbourhood (edges mirrored), clipped to [0, 1] (a mixed pixel changes in
+    proportion to the part the ball covers, lit or shaded), or over the seed's median change
+    when no inside pixel is near."""
+    h, w = patch.shape[0], patch.shape[1]
+    size = np.empty((h, w))
+    sil = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            largest = -np.inf
+            biggest = 0.0
+            for c in range(3):
+                d = float(patch[y, x, c]) - float(background[y, x, c])
+                largest = max(largest, d)
+                biggest = max(biggest, abs(d))
+            size[y, x] = biggest
+            sil[y, x] = biggest > threshold and largest >= 0.0
+    # The silhouette's part connected to the seed: a flood fill from the seed's pixels.
+    region = np.zeros((h, w), np.bool_)
+    stack = np.empty(h * w, np.int64)
+    top = 0
+    seed_sizes = np.empty(seed.size)
+    n_seed = 0
+    for y in range(seed.shape[0]):
+        for x in range(seed.shape[1]):
+            if seed[y, x]:
+                seed_sizes[n_seed] = size[sy + y, sx + x]
+                n_seed += 1
+                sil[sy + y, sx + x] = True
+                if not region[sy + y, sx + x]:
+                    region[sy + y, sx + x] = True
+                    stack[top] = (sy + y) * w + sx + x
+                    top += 1
+    while top > 0:
+        top -= 1
+        y, x = divmod(stack[top], w)
+        for yy in range(max(y - 1, 0), min(y + 2, h)):
+            for xx in range(max(x - 1, 0), min(x + 2, w)):
+                if sil[yy, xx] and not region[yy, xx]:
+                    region[yy, xx] = True
+                    stack[top] = yy * w + xx
+                    top += 1
+    inner = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            if region[y, x]:
+                inside = True
+                for yy in range(y - 1, y + 2):
+                    for xx in range(x - 1, x + 2):
+                        if not region[min(max(yy, 0), h - 1), min(max(xx, 0), w - 1)]:
+                            inside = False
+                inner[y, x] = inside
+    fallback = np.median(seed_sizes[:n_seed]) if n_seed else 0.0
+    m00 = m10 = m01 = 0.0
+    cover = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            if inner[y, x]:
+                cover[y, x] = 1.0
+            elif region[y, x]:
+                near, count = 0.0, 0
+                for yy in range(y - 2, y + 3):
+                    ry = -yy if yy < 0 else (2 * h - 2 - yy if yy >= h else yy)
+                    ry = min(max(ry, 0), h - 1)
+                    for xx in range(x - 2, x + 3):
+                        rx = -xx if xx < 0 else (2 * w - 2 - xx if xx >= w else xx)
+                        rx = min(max(rx, 0), w - 1)
+                        if inner[ry, rx]:
+                            near += size[ry, rx]
+                            count += 1
+                local = near / count if count else fallback
+                cover[y, x] = min(max(size[y, x] / max(local, 1e-6), 0.0), 1.0)
+            m00 += cover[y, x]
+            m10 += x * cover[y, x]
+            m01 += y * cover[y, x]
+    if not m00 > 0.0:
+        return None
+    cu, cv = m10 / m00, m01 / m00
+    cxx = cyy = cxy = 0.0
+    for y in range(h):
+        for x in range(w):
+            c = cover[y, x]
+            if c != 0.0:
+                cxx += c * (x - cu) ** 2
+                cyy += c * (y - cv) ** 2
+                cxy += c * (x - cu) * (y - cv)
+    return cu, cv, cxx / m00, cyy / m00, cxy / m00
+
 
 
 def _grey(image):
@@ -613,8 +713,9 @@ class BallDetector:
                         continue
                     sure = False
             if self._bg_colour is not None and frame.ndim == 3:
-                cu, cv, width = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
-                cu, cv = cu - x0, cv - y0
+                silhouette = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
+                if silhouette is not None:
+                    cu, cv, width = silhouette[0] - x0, silhouette[1] - y0, silhouette[2]
             fitted = None
             blob_u, blob_v = float(cu + x0), float(cv + y0)
             if expected is not None:
@@ -632,45 +733,20 @@ class BallDetector:
         ``sub`` at (x0, y0): every pixel near it whose colour differs from the colour
         background by more than ``silhouette_threshold`` in some channel and is not a shadow
         (darker in all three channels), connected to the blob. The silhouette's centroid does
-        not lean toward the lit side as a difference-weighted centroid does."""
+        not lean toward the lit side as a difference-weighted centroid does. None when the
+        silhouette has no weight."""
         h, w = frame.shape[:2]
         bh, bw = sub.shape
         m = max(bw, bh) + 2           # the unlit part may reach a diameter beyond the lit one
         ax, ay = max(x0 - m, 0), max(y0 - m, 0)
         bx, by = min(x0 + bw + m, w), min(y0 + bh + m, h)
-        img = frame[ay:by, ax:bx].astype(np.float32)
-        bg = self._bg_colour[ay:by, ax:bx]
-        change = img - bg
-        size = np.abs(change).max(axis=2)
-        sil = ((size > self.config.silhouette_threshold)
-               & (change.max(axis=2) >= 0.0)).astype(np.uint8)    # not darker in all three
-        seed = np.zeros_like(sil)
-        seed[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
-        sil |= seed
-        _, labels = cv2.connectedComponents(sil, connectivity=8)
-        keep = np.unique(labels[(seed > 0) & (labels > 0)])
-        region = (labels == keep[0]) if len(keep) == 1 else np.isin(labels, keep)
-        # Coverage: full inside the silhouette, the shaded side included; on its outline
-        # (anti-aliased, blurred) the pixel's change over that of the ball's pixels next to it
-        # (a mixed pixel changes in proportion to the part the ball covers, lit or shaded).
-        region = region.astype(np.uint8)
-        interior = cv2.erode(region, _KERNEL3, borderType=cv2.BORDER_REPLICATE)
-        inner = interior.astype(np.float32)
-        near_sum = cv2.boxFilter(size * inner, -1, (5, 5), normalize=False)
-        near_n = cv2.boxFilter(inner, -1, (5, 5), normalize=False)
-        outline = (region > 0) & (interior == 0)
-        cover = inner
-        if outline.any():
-            local = near_sum[outline]
-            n_near = near_n[outline]
-            fallback = float(np.median(size[seed > 0]))
-            local = np.where(n_near > 0, local / np.maximum(n_near, 1e-6), fallback)
-            cover[outline] = np.clip(size[outline] / np.maximum(local, 1e-6), 0.0, 1.0)
-        mom = cv2.moments(cover)
-        total = mom['m00']
-        cu, cv = mom['m10'] / total, mom['m01'] / total
-        return (ax + cu, ay + cv,
-                _width_from_moments(mom['mu20'] / total, mom['mu02'] / total, mom['mu11'] / total))
+        moments = _silhouette_moments(
+            frame[ay:by, ax:bx], self._bg_colour[ay:by, ax:bx],
+            np.ascontiguousarray(sub), x0 - ax, y0 - ay, float(self.config.silhouette_threshold))
+        if moments is None:
+            return None
+        cu, cv, cxx, cyy, cxy = moments
+        return ax + cu, ay + cv, _width_from_moments(cxx, cyy, cxy)
 
     def _fit_centre(self, frame, u, v, ball, search=False):
         """:func:`fit_outline` for a candidate whose first centre is (u, v): (u, v) or None.
