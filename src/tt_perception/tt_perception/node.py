@@ -21,6 +21,7 @@ import contextlib
 import gc
 import math
 import os
+import sys
 import threading
 import time
 
@@ -76,6 +77,9 @@ dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
 CAMERA_BUFFERS = 8
 """Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
 emulates them): how long a camera thread may stall before frames are lost."""
+GIL_SWITCH_S = 5e-4
+"""The interpreter's thread switch interval while cameras are read in-process, s (Python's
+default 5 ms)."""
 
 
 # Read once at start (the rig and the pipeline are built from them): read-only.
@@ -302,6 +306,11 @@ class PerceptionNode(Node):
             # the other core, and a call split over two threads waits for the slower one,
             # which on a busy machine may not be running at all.
             cv2.setNumThreads(1)
+            # The processing thread waits for frames; each time one comes it needs the GIL
+            # from a camera thread busy in Python, which by default keeps it up to 5 ms
+            # (sys.getswitchinterval): at 300 frames/s the queue then fills although a core
+            # is idle (camrate bench: exposure -> /ball/state p50 42 ms; 12 ms at 0.5 ms).
+            sys.setswitchinterval(GIL_SWITCH_S)
             self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
