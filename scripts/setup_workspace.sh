@@ -133,4 +133,19 @@ if [ "${1:-}" != '--no-build' ]; then
       --event-handlers console_direct- console_stderr+ >&2
   )
 fi
+# 5. The perception kernels (numba) compiled into their caches once here, not by the first
+#    perception_node or tt-perceive to start (half a minute on a slow machine).
+if [ "${1:-}" != '--no-build' ]; then
+  say 'numba kernels'
+  (
+    set +u
+    # shellcheck disable=SC1091
+    . "$top/env.sh"
+    set -u
+    python -c 'from tt_perception.camstream import warm_up
+from tt_prediction.ball_filter import FilterConfig
+from tt_prediction.params import ModelParams
+warm_up(ModelParams(), FilterConfig())'
+  )
+fi
 say "ready: source $top/env.sh"

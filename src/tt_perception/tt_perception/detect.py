@@ -327,12 +327,49 @@ def curvature_penalty(basis, weight):
 
 
 @njit(cache=True, nogil=True)
+def _gram(a, b):
+    """a^T b of two (P, n) and (P, m) arrays."""
+    out = np.zeros((a.shape[1], b.shape[1]))
+    for p in range(a.shape[0]):
+        for i in range(a.shape[1]):
+            for j in range(b.shape[1]):
+                out[i, j] += a[p, i] * b[p, j]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _gram_vector(a, b):
+    """a^T b of a (P, n) array and a (P,) vector."""
+    out = np.zeros(a.shape[1])
+    for p in range(a.shape[0]):
+        for i in range(a.shape[1]):
+            out[i] += a[p, i] * b[p]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _curvature_penalty(basis, weight):
-    linear = np.ascontiguousarray(basis[:, :3])
-    quadratic = np.ascontiguousarray(basis[:, 3:])
-    beyond = quadratic - linear @ np.linalg.lstsq(linear, quadratic)[0]
+    # The quadratic terms' least-squares fit by the linear ones (normal equations; a ridge of
+    # 1e-12 of their scale where the linear terms are degenerate).
+    linear, quadratic = basis[:, :3], basis[:, 3:]
+    normal = _gram(linear, linear)
+    scale = 1e-12 * (normal[0, 0] + normal[1, 1] + normal[2, 2]) + 1e-300
+    for i in range(3):
+        normal[i, i] += scale
+    cross = _gram(linear, quadratic)
+    coef = np.empty((3, 3))
+    for j in range(3):
+        coef[:, j] = _solve(normal, cross[:, j].copy())[0]
+    beyond = np.empty((basis.shape[0], 3))
+    for p in range(basis.shape[0]):
+        for j in range(3):
+            beyond[p, j] = (quadratic[p, j] - linear[p, 0] * coef[0, j]
+                            - linear[p, 1] * coef[1, j] - linear[p, 2] * coef[2, j])
     out = np.zeros((N_SHADING, N_SHADING))
-    out[3:, 3:] = weight * (beyond.T @ beyond)
+    product = _gram(beyond, beyond)
+    for i in range(3):
+        for j in range(3):
+            out[3 + i, 3 + j] = weight * product[i, j]
     return out
 
 
@@ -382,9 +419,9 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         penalty[:N_SHADING, :N_SHADING] = _curvature_penalty(basis, curvature_weight)
     ridge = np.ascontiguousarray(penalty[:N_SHADING, :N_SHADING])
     target = obs - bg * (1.0 - cover)
-    shading, ok = _solve(basis.T @ basis + ridge, basis.T @ target)
-    if not ok:
-        shading = np.linalg.lstsq(basis, target)[0]
+    shading, ok = _solve(_gram(basis, basis) + ridge, _gram_vector(basis, target))
+    if not ok:          # no pixel the ball may cover: nothing to fit
+        return False, cx, cy, 0.0
     jac = np.empty((n, k))
     res = np.empty(n)
     for _ in range(iterations):
@@ -401,9 +438,9 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
                 for j in range(N_SHADING):
                     d += dbasis[p, m, j] * shading[j]
                 jac[p, N_SHADING + m] = d
-        gradient = jac.T @ res
-        gradient[:N_SHADING] -= ridge @ shading
-        step, ok = _solve(jac.T @ jac + penalty, gradient)
+        gradient = _gram_vector(jac, res)
+        gradient[:N_SHADING] -= _gram_vector(ridge, shading)       # ridge is symmetric
+        step, ok = _solve(_gram(jac, jac) + penalty, gradient)
         if not ok:
             return False, cx, cy, 0.0
         length = math.hypot(step[N_SHADING], step[N_SHADING + 1])
@@ -421,7 +458,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         for j in range(N_SHADING):
             r -= basis[p, j] * shading[j]
         cost += r * r
-    return True, cx, cy, cost + shading @ ridge @ shading
+    return True, cx, cy, cost + np.sum(shading * _gram_vector(ridge, shading))
 
 
 def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0,
