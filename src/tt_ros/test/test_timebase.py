@@ -25,3 +25,19 @@ def test_each_other_time_base_is_warned_of_once():
     assert len(warnings) == 2
     assert warnings[0].startswith('stamps are -7200 s from the node clock')
     assert warnings[1].startswith('stamps are 7200 s from the node clock')
+
+
+def test_stamps_scattered_over_hours_warn_a_bounded_number_of_times():
+    # A clock sending garbage: stamps hours apart, each on a time base of its own. Each of
+    # the first MAX_TIME_BASES is told once, then one line says no more are, and none is
+    # kept beyond those (the check's memory does not grow with the garbage).
+    from tt_ros.timebase import MAX_TIME_BASES
+    warnings = []
+    check = TimeBaseCheck(warnings.append)
+    for hours in range(2, 500):
+        assert not check(NOW + hours * 2.5 * TIME_BASE_MISMATCH_S, NOW)
+    assert len(warnings) == MAX_TIME_BASES + 1
+    assert all(w.startswith('stamps are ') for w in warnings[:-1])
+    assert warnings[-1].startswith(f'stamps on more than {MAX_TIME_BASES} other time bases')
+    assert len(check.warned) == MAX_TIME_BASES
+    assert check(NOW + 1.0, NOW)                        # the clock's own still pass

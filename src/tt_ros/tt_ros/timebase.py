@@ -9,6 +9,8 @@ checks of age or lead time against the clock mean nothing for it.
 
 TIME_BASE_MISMATCH_S = 3600.0
 """A stamp this far from the node clock, either way, is on another time base, s."""
+MAX_TIME_BASES = 4
+"""Other time bases a :class:`TimeBaseCheck` warns of, one warning each."""
 
 
 def same_time_base(stamp_s, now_s):
@@ -30,11 +32,14 @@ class TimeBaseCheck:
     stamp on another time base than a running clock is reported through ``warn`` (a
     logger's warning) with :func:`mismatch_warning`, and so is the first on each other time
     base after it (an offset from the node clock more than TIME_BASE_MISMATCH_S from every
-    one warned of: stamps 2 h ahead after stamps 2 h behind were not reported)."""
+    one warned of: stamps 2 h ahead after stamps 2 h behind were not reported), up to
+    :data:`MAX_TIME_BASES`; then one last warning says that no more are told (stamps
+    scattered over hours, a clock sending garbage, would otherwise warn on every message)."""
 
     def __init__(self, warn):
         self._warn = warn
-        self.warned = []            # the offsets warned of, s
+        self.warned = []            # the offsets warned of, s (at most MAX_TIME_BASES)
+        self.silent = False         # more time bases than those: no more warnings
 
     def __call__(self, stamp_s, now_s):
         """Whether ``stamp_s`` can be compared with the node clock's ``now_s`` (s, 0: no
@@ -42,7 +47,14 @@ class TimeBaseCheck:
         if same_time_base(stamp_s, now_s):
             return True
         offset = stamp_s - now_s
-        if now_s and all(abs(offset - w) > TIME_BASE_MISMATCH_S for w in self.warned):
-            self.warned.append(offset)
-            self._warn(mismatch_warning(offset))
+        if (now_s and not self.silent
+                and all(abs(offset - w) > TIME_BASE_MISMATCH_S for w in self.warned)):
+            if len(self.warned) < MAX_TIME_BASES:
+                self.warned.append(offset)
+                self._warn(mismatch_warning(offset))
+            else:
+                self.silent = True
+                self._warn(f'stamps on more than {MAX_TIME_BASES} other time bases (now '
+                           f'{offset:.0f} s from the node clock): a clock sending garbage? '
+                           'No more warnings of time bases')
         return False
