@@ -192,7 +192,7 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
         # The exit summary says which balls came and what was sent for each.
         counts, times, tracks = g.node.work_summary().split('; ', 2)
         assert counts == ('3 predictions, 1 commands, 2 dropped, 0 too late, 0 after their '
-                          'stroke was sent')
+                          'stroke was sent, 0 struck balls lost before the plane')
         assert re.fullmatch(r'callback median [\d.]+ ms, p99 [\d.]+ ms, max [\d.]+ ms '
                             r'\(last 3\)', times), times
         assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
@@ -502,3 +502,26 @@ def test_start_up_compiles_what_a_ball_keeping_its_hit_time_runs():
                          timeout=120)
     assert out.returncode == 0, out.stderr
     assert int(out.stdout.split()[-1]) >= 1
+
+
+def test_a_struck_ball_lost_before_the_plane_is_told_when_its_hit_time_is_past():
+    # Ball 8's only prediction came 0.6 s before it reached the hitting plane, and nothing
+    # after (perception lost it): the arm struck where that prediction put it, and the node
+    # said nothing. Ball 9 was followed to 10 ms before the plane: not lost.
+    g = Graph()
+    try:
+        lost = prediction_msg(8)
+        followed = prediction_msg(9)
+        followed.header.stamp.nanosec = 590_000_000
+        g.pub.publish(lost)
+        g.pub.publish(followed)
+        g.spin_until(lambda: len(g.commands) == 2, 20.0, 'both commands')
+        assert all(c.feasible for c in g.commands)
+        assert g.node.n_lost == 0 and not g.node.tracks[8].checked
+        g.set_clock(max(seconds(c.hit_time) for c in g.commands) + 0.5)
+        g.spin_until(lambda: g.node.tracks[8].checked and g.node.tracks[9].checked, 20.0,
+                     'the struck balls checked')
+        assert g.node.n_lost == 1
+        assert '1 struck balls lost before the plane' in g.node.work_summary()
+    finally:
+        g.close()

@@ -39,7 +39,7 @@ from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import due
-from tt_ros.timebase import TimeBaseCheck
+from tt_ros.timebase import TimeBaseCheck, same_time_base
 from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -136,6 +136,13 @@ noise moves), is of another ball under a used id (perception numbers its tracks 
 again when it restarts; a ball thrown again): its hit time is chosen afresh. Unlike
 prediction_node, it does not see a ball's state jump (a new ball thrown before the old
 one's kept hit time keeps the old time)."""
+LOST_BEFORE_PLANE_S = 0.1
+"""A ball struck (a feasible stroke sent) whose last prediction came more than this before its
+predicted crossing of the hitting plane was lost on the way (perception or prediction stopped
+following it): once its hit time is past by the node clock it is warned of, s. A ball followed
+to the plane has predictions to within a few frames of it."""
+STROKE_CHECK_S = 0.1
+"""Period of that check, s."""
 
 
 @dataclasses.dataclass
@@ -154,6 +161,10 @@ class TrackTally:
     """The hit time of the last feasible stroke, s (kept: tt_strike.hitpoint)."""
     stamp: float = -math.inf
     """The stamp of the track's last prediction, s."""
+    plane_t: float = None
+    """Its last prediction's hit time (the ball's crossing of the hitting plane), s."""
+    checked: bool = False
+    """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
     probability: tuple = None
     """The last in-zone probability worked out for it: (zone, point), stamp (ns), value."""
 
@@ -182,6 +193,7 @@ class StrikeNode(Node):
             choose(warm, self.params, self.workspace, target_zone=5, bounced=True,
                    keep_t=plan.hit.t)
         self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
+        self.n_lost = 0                   # struck balls lost before the plane
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -193,6 +205,7 @@ class StrikeNode(Node):
                                    self.on_prediction, reliable)
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
+        self.create_timer(STROKE_CHECK_S, self._check_strokes)
         self.get_logger().info(f'striking {self.sub.topic_name} -> {self.pub.topic_name}, '
                                f'target {self._target_text()}, {self._reach_text()}')
 
@@ -282,7 +295,8 @@ class StrikeNode(Node):
         times = self.work.latest_ms()
         return (f'{self.n_received} predictions, {self.n_commands} commands, '
                 f'{self.n_dropped} dropped, {self.n_too_late} too late, {self.n_committed} '
-                f'after their stroke was sent; callback median '
+                f'after their stroke was sent, {self.n_lost} struck balls lost before the '
+                f'plane; callback median '
                 f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
                 f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
                 f"first command's status; {ok} with an ok stroke): {tracks}")
@@ -330,7 +344,9 @@ class StrikeNode(Node):
         if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
                 or (tally.hit_t is not None and stamp > tally.hit_t + KEPT_HIT_MARGIN_S)):
             tally.hit_t = tally.probability = None   # another ball under a used id
+            tally.checked = False
         tally.stamp = stamp
+        tally.plane_t = hit_t
         cov = None
         if self.p.in_zone_probability and (
                 settings.aim_inside_zone or self._probability_due(tally, aim, stamp_ns)):
@@ -379,6 +395,25 @@ class StrikeNode(Node):
                                       throttle_duration_sec=1.0)
         if self.p.publish_markers and sol.normal is not None:
             self.pub_markers.publish(self._markers(msg, sol))
+
+    def _check_strokes(self):
+        """Each struck ball whose hit time is past by the node clock, once: warned of when its
+        predictions stopped more than LOST_BEFORE_PLANE_S before it reached the plane (the
+        arm struck where it was last predicted)."""
+        now = self.get_clock().now().nanoseconds * 1e-9
+        for track_id, tally in self.tracks.items():
+            if (tally.hit_t is None or tally.checked or not same_time_base(tally.hit_t, now)
+                    or now < tally.hit_t):
+                continue
+            tally.checked = True
+            early = tally.plane_t - tally.stamp
+            if early > LOST_BEFORE_PLANE_S:
+                self.n_lost += 1
+                self.get_logger().warning(
+                    f'track {track_id}: struck at {tally.hit_t:.3f} s, but its last '
+                    f'prediction came {1e3 * early:.0f} ms before it reached the hitting '
+                    'plane: the ball was lost on the way (no state from perception or no '
+                    'prediction since), the stroke went on that prediction')
 
     def _too_late(self, tally, why):
         """A strike too close to its hit time: not sent. Counted and logged, unless a feasible
