@@ -321,6 +321,29 @@ def test_the_fits_linear_solver_solves_and_names_a_singular_system():
         singular[3] = singular[1]
         # Elimination of an exact copy leaves an exact zero row.
         assert not _solve(singular, np.ones(n))[1]
+        # Singular in exact arithmetic, not in floating point: the Gauss-Newton matrix of
+        # fewer pixels than unknowns (rank 5 of n). Its pivots come out near 1e-17, not 0.
+        jac = rng.normal(size=(5, n))
+        assert not _solve(jac.T @ jac, np.ones(n))[1]
+
+
+def test_a_fit_on_fewer_covered_pixels_than_unknowns_is_not_posed():
+    """A ball whose usable pixels it covers are fewer than the fit's unknowns (six of shading,
+    two of centre) has no fitted centre (the caller keeps the blob's); with the disc's
+    pixels usable the same ball is found."""
+    from tt_perception.detect import fit_outline
+    ys, xs = np.mgrid[0:21, 0:21]
+    ball = BallImage(10.3, 9.8, np.eye(2) * 4.0, np.zeros(2))
+    inside = np.hypot(xs - 10.3, ys - 9.8) < 4.0
+    grey = np.where(inside, 200.0, 60.0)
+    background = np.full(grey.shape, 60.0)
+    usable = np.hypot(xs - 10.3, ys - 9.8) <= 6.5
+    centre, _ = fit_outline(grey, background, usable, (10.0, 10.0), ball)
+    np.testing.assert_allclose(centre, (10.3, 9.8), atol=0.05)
+    # The background beyond its outline's pixels, and 5 of its own pixels.
+    few = usable & (np.hypot(xs - 10.3, ys - 9.8) > 5.5)
+    few[10, 8:13] = True
+    assert fit_outline(grey, background, few, (10.0, 10.0), ball) is None
 
 
 def _silhouette_by_opencv(patch, background, seed, sx, sy, threshold):

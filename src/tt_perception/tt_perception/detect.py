@@ -376,16 +376,18 @@ def _curvature_penalty(basis, weight):
 @njit(cache=True, nogil=True)
 def _solve(m, b):
     """x with m x = b (small, square; Gaussian elimination with partial pivoting), and False
-    when m is singular (an exactly zero pivot, as LAPACK's), in which case x is undefined."""
+    when m is singular to working precision (a pivot within n eps of m's largest entry), in
+    which case x is undefined."""
     n = b.size
     a = m.copy()
     x = b.copy()
+    tolerance = n * 2.220446049250313e-16 * np.abs(a).max()
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
             if abs(a[row, col]) > abs(a[pivot, col]):
                 pivot = row
-        if a[pivot, col] == 0.0:
+        if not abs(a[pivot, col]) > tolerance:
             return x, False
         if pivot != col:
             for j in range(n):
@@ -408,12 +410,16 @@ def _solve(m, b):
 @njit(cache=True, nogil=True)
 def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, iterations,
          converged):
-    """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost)."""
+    """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost).
+    Not ok when a system is singular or the ball covers fewer pixels than there are unknowns
+    (the shading's N_SHADING and the centre's 2): the fit is not posed."""
     n = xs.size
     k = N_SHADING + 2
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
+    if np.count_nonzero(cover) < k:
+        return False, cx, cy, 0.0
     penalty = np.zeros((k, k))
     if curvature_weight > 0.0:
         penalty[:N_SHADING, :N_SHADING] = _curvature_penalty(basis, curvature_weight)
@@ -450,6 +456,8 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         cx += step[N_SHADING]
         cy += step[N_SHADING + 1]
         _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
+        if np.count_nonzero(cover) < k:
+            return False, cx, cy, 0.0
         if length < converged:
             break
     cost = 0.0
@@ -550,6 +558,8 @@ def _silhouette_moments(patch, background, seed, sx, sy, threshold):
     proportion to the part the ball covers, lit or shaded), or over the seed's median change
     when no inside pixel is near."""
     h, w = patch.shape[0], patch.shape[1]
+    if sx < 0 or sy < 0 or sx + seed.shape[1] > w or sy + seed.shape[0] > h:
+        raise ValueError('the seed is not inside the patch')
     size = np.empty((h, w))
     sil = np.zeros((h, w), np.bool_)
     for y in range(h):
@@ -777,9 +787,11 @@ class BallDetector:
         m = max(bw, bh) + 2           # the unlit part may reach a diameter beyond the lit one
         ax, ay = max(x0 - m, 0), max(y0 - m, 0)
         bx, by = min(x0 + bw + m, w), min(y0 + bh + m, h)
+        # Contiguous arrays and Python ints: the kernel's one compiled signature (warm_up).
         moments = _silhouette_moments(
-            frame[ay:by, ax:bx], self._bg_colour[ay:by, ax:bx],
-            np.ascontiguousarray(sub), x0 - ax, y0 - ay, float(self.config.silhouette_threshold))
+            np.ascontiguousarray(frame[ay:by, ax:bx]),
+            np.ascontiguousarray(self._bg_colour[ay:by, ax:bx]), np.ascontiguousarray(sub),
+            int(x0 - ax), int(y0 - ay), float(self.config.silhouette_threshold))
         if moments is None:
             return None
         cu, cv, cxx, cyy, cxy = moments
