@@ -3,7 +3,8 @@
 1. Builds (once, cached) the demo recording: two synthetic 150 fps cameras watching several
    incoming balls, as MJPG videos and as a rosbag2 bag (sensor_msgs/Image + CameraInfo), with
    the truth.
-2. Starts prediction, strike and `ros2 bag record` on their outputs with `ros2 run`, then
+2. Starts prediction, strike and `ros2 bag record` on their outputs with `ros2 run` (nice 5:
+   they and this collector yield the cores to perception's cameras, YIELD_NICE), then
    perception: on the robot's configuration (``--source video``, the default) it reads the
    videos itself as cameras at 1.0x real time (frames paced at 150 fps, stamped with the
    wall-clock exposure time); with ``--source topics`` it subscribes the image topics and the
@@ -29,6 +30,10 @@ from tt_prediction.cli import hit_plane_error
 from .procs import ProcessGroup, ros_env, wait_until
 
 OUTPUT_TOPICS = ('/ball/state', '/ball/prediction', '/strike/command')
+YIELD_NICE = 5
+"""Niceness of prediction, strike, the recorder and this collector while perception reads the
+cameras (at 1.0x): the camera path loses frames when it waits for a core; the others only
+answer a little later. On the robot give perception its cores (docs/perception.md)."""
 
 
 def parse_args(argv):
@@ -94,14 +99,15 @@ def start_outputs(group, session, args, wall_stamps):
     the states are stamped with the wall-clock exposure time, as on the robot; otherwise
     (video time, or the recording's stamps replayed at ``--rate``) prediction has no
     ``stale_after_s`` and strike no ``check_hit_time``."""
-    group.start('prediction', ['ros2', 'run', 'tt_prediction', 'prediction_node',
+    nice = ['nice', '-n', str(YIELD_NICE)]          # perception comes first
+    group.start('prediction', [*nice, 'ros2', 'run', 'tt_prediction', 'prediction_node',
                                '--ros-args', '-p', f'hit_plane_x:={args.hit_plane_x}']
                 + ([] if wall_stamps else ['-p', 'stale_after_s:=0.0']))
     # The report strikes the true ball at the prediction's plane: use_hit_plane.
-    group.start('strike', ['ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
+    group.start('strike', [*nice, 'ros2', 'run', 'tt_strike', 'strike_node', '--ros-args',
                            '-p', f'target_zone:={args.target_zone}', '-p', 'use_hit_plane:=true']
                 + ([] if wall_stamps else ['-p', 'check_hit_time:=false']))
-    group.start('record', ['ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
+    group.start('record', [*nice, 'ros2', 'bag', 'record', '-o', str(session), *OUTPUT_TOPICS])
 
 
 def run_graph_video(rec, session, log_dir, args, collector):
@@ -129,6 +135,7 @@ def run_graph_video(rec, session, log_dir, args, collector):
             '-p', f'rig_file:={rec.video_rig}', '-p', f'video_rate:={args.rate}',
             '-p', f'video_clock:={"wall" if live else "video"}',
             '-p', 'wait_for_subscribers:=3'])
+        os.nice(YIELD_NICE)      # this collector too yields to the cameras
         wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == cameras,
                    600.0, f'perception to play the videos (see {log_dir}/perception.log)')
         say('videos done')
