@@ -426,7 +426,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     ridge = np.ascontiguousarray(penalty[:N_SHADING, :N_SHADING])
     target = obs - bg * (1.0 - cover)
     shading, ok = _solve(_gram(basis, basis) + ridge, _gram_vector(basis, target))
-    if not ok:          # no pixel the ball may cover: nothing to fit
+    if not ok:          # the shading is not determined by these pixels
         return False, cx, cy, 0.0
     jac = np.empty((n, k))
     res = np.empty(n)
