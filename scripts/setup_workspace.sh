@@ -136,7 +136,7 @@ fi
 # 5. The perception kernels (numba) compiled into their caches once here, not by the first
 #    perception_node or tt-perceive to start (half a minute on a slow machine).
 if [ "${1:-}" != '--no-build' ]; then
-  say 'numba kernels'
+  say 'numba kernels (compiled once: about 30 s on a slow machine, then cached)'
   (
     set +u
     # shellcheck disable=SC1091

@@ -139,8 +139,11 @@ one's kept hit time keeps the old time)."""
 LOST_BEFORE_PLANE_S = 0.1
 """A ball struck (a feasible stroke sent) whose last prediction came more than this before its
 predicted crossing of the hitting plane was lost on the way (perception or prediction stopped
-following it): once its hit time is past by the node clock it is warned of, s. A ball followed
-to the plane has predictions to within a few frames of it."""
+following it), s. A ball followed to the plane has predictions to within a few frames of it."""
+LOST_JUDGED_AFTER_S = 0.5
+"""Such a ball is judged (and warned of) once its hit time is this much past by the node
+clock, s, or when another ball takes its track id: predictions up to this late (a busy
+machine's queues) still count as following it."""
 STROKE_CHECK_S = 0.1
 """Period of that check, s."""
 
@@ -343,6 +346,7 @@ class StrikeNode(Node):
         stamp = stamp_ns * 1e-9
         if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
                 or (tally.hit_t is not None and stamp > tally.hit_t + KEPT_HIT_MARGIN_S)):
+            self._judge_stroke(msg.track_id, tally)   # the old ball is over
             tally.hit_t = tally.probability = None   # another ball under a used id
             tally.checked = False
         tally.stamp = stamp
@@ -397,23 +401,29 @@ class StrikeNode(Node):
             self.pub_markers.publish(self._markers(msg, sol))
 
     def _check_strokes(self):
-        """Each struck ball whose hit time is past by the node clock, once: warned of when its
-        predictions stopped more than LOST_BEFORE_PLANE_S before it reached the plane (the
-        arm struck where it was last predicted)."""
+        """Each struck ball whose hit time is LOST_JUDGED_AFTER_S past by the node clock:
+        :meth:`_judge_stroke`."""
         now = self.get_clock().now().nanoseconds * 1e-9
         for track_id, tally in self.tracks.items():
-            if (tally.hit_t is None or tally.checked or not same_time_base(tally.hit_t, now)
-                    or now < tally.hit_t):
-                continue
-            tally.checked = True
-            early = tally.plane_t - tally.stamp
-            if early > LOST_BEFORE_PLANE_S:
-                self.n_lost += 1
-                self.get_logger().warning(
-                    f'track {track_id}: struck at {tally.hit_t:.3f} s, but its last '
-                    f'prediction came {1e3 * early:.0f} ms before it reached the hitting '
-                    'plane: the ball was lost on the way (no state from perception or no '
-                    'prediction since), the stroke went on that prediction')
+            if (tally.hit_t is not None and same_time_base(tally.hit_t, now)
+                    and now >= tally.hit_t + LOST_JUDGED_AFTER_S):
+                self._judge_stroke(track_id, tally)
+
+    def _judge_stroke(self, track_id, tally):
+        """Once per struck ball: warned of when its predictions stopped more than
+        LOST_BEFORE_PLANE_S before it reached the plane (the arm struck where it was last
+        predicted)."""
+        if tally.hit_t is None or tally.checked:
+            return
+        tally.checked = True
+        early = tally.plane_t - tally.stamp
+        if early > LOST_BEFORE_PLANE_S:
+            self.n_lost += 1
+            self.get_logger().warning(
+                f'track {track_id}: struck at {tally.hit_t:.3f} s, but its last prediction '
+                f'came {1e3 * early:.0f} ms before it reached the hitting plane: the ball was '
+                'lost on the way (no state from perception or no prediction since), the '
+                'stroke went on that prediction')
 
     def _too_late(self, tally, why):
         """A strike too close to its hit time: not sent. Counted and logged, unless a feasible
