@@ -468,14 +468,17 @@ class Pipeline:
         """One line when the cameras saw a ball together at many instants (20 or more) but
         almost never (under a tenth) did their rays meet within ``max_reprojection``: a pose
         in another convention, a transposed rotation or a wrong ``time_offset``, which gave
-        no track without a word; else None."""
+        no track without a word (or detections that are not the ball: a wrong colour, a
+        ball too small to be seen); else None."""
         if self.seen_by_two < 20 or self.triangulated >= 0.1 * self.seen_by_two:
             return None
         return (f'two cameras or more saw a ball at {self.seen_by_two} instants but their rays '
                 f'met (within max_reprojection {self.config.max_reprojection:g} px) at only '
                 f"{self.triangulated}: check the rig's poses (rotation and translation take "
                 'table points into the camera frame: x_cam = R x_table + t) and each '
-                "camera's time_offset (its clock minus camera 0's)")
+                "camera's time_offset (its clock minus camera 0's), or whether what they saw "
+                'is the ball (another colour than colour, or a ball of a pixel or two, is '
+                'matched to other things)')
 
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
