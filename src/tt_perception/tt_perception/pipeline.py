@@ -477,8 +477,8 @@ class Pipeline:
                 f"{self.triangulated}: check the rig's poses (rotation and translation take "
                 'table points into the camera frame: x_cam = R x_table + t) and each '
                 "camera's time_offset (its clock minus camera 0's), or whether what they saw "
-                'is the ball (another colour than colour, or a ball of a pixel or two, is '
-                'matched to other things)')
+                'is the ball (one of another colour than the colour setting, or of a pixel or '
+                'two, is matched to other things)')
 
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
