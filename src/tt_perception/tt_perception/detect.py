@@ -317,15 +317,6 @@ def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     return cover, basis, dcover, dbasis
 
 
-def curvature_penalty(basis, weight):
-    """(N_SHADING, N_SHADING) matrix W of the penalty s^T W s on the shading s of
-    :func:`ball_model`'s ``basis`` (P, N_SHADING): ``weight`` times the squared norm over the
-    P pixels of the quadratic terms' image once its best linear fit (the first three terms)
-    is taken out. Zero on the linear terms; independent of the brightness's units and of the
-    number of pixels."""
-    return _curvature_penalty(np.ascontiguousarray(basis, dtype=float), float(weight))
-
-
 @njit(cache=True, nogil=True)
 def _gram(a, b):
     """a^T b of two (P, n) and (P, m) arrays."""
@@ -348,7 +339,12 @@ def _gram_vector(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _curvature_penalty(basis, weight):
+def curvature_penalty(basis, weight):
+    """(N_SHADING, N_SHADING) matrix W of the penalty s^T W s on the shading s of
+    :func:`ball_model`'s ``basis`` (P, N_SHADING, float): ``weight`` times the squared norm
+    over the P pixels of the quadratic terms' image once its best linear fit (the first
+    three terms) is taken out. Zero on the linear terms; independent of the brightness's
+    units and of the number of pixels."""
     # The quadratic terms' least-squares fit by the linear ones (normal equations; a ridge of
     # 1e-12 of their scale where the linear terms are degenerate).
     linear, quadratic = basis[:, :3], basis[:, 3:]
@@ -408,6 +404,17 @@ def _solve(m, b):
 
 
 @njit(cache=True, nogil=True)
+def _residuals(obs, bg, cover, basis, shading, res):
+    """Fills ``res`` with each pixel's observed minus modelled value,
+    I - G (1 - c) - basis @ shading (:func:`ball_model`)."""
+    for p in range(obs.size):
+        r = obs[p] - bg[p] * (1.0 - cover[p])
+        for j in range(N_SHADING):
+            r -= basis[p, j] * shading[j]
+        res[p] = r
+
+
+@njit(cache=True, nogil=True)
 def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, iterations,
          converged):
     """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost).
@@ -422,7 +429,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         return False, cx, cy, 0.0
     penalty = np.zeros((k, k))
     if curvature_weight > 0.0:
-        penalty[:N_SHADING, :N_SHADING] = _curvature_penalty(basis, curvature_weight)
+        penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
     ridge = np.ascontiguousarray(penalty[:N_SHADING, :N_SHADING])
     target = obs - bg * (1.0 - cover)
     shading, ok = _solve(_gram(basis, basis) + ridge, _gram_vector(basis, target))
@@ -433,12 +440,10 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     for _ in range(iterations):
         # Gauss-Newton on the shading and the centre together: I = G (1 - c) + basis @ shading,
         # minimising |res|^2 + shading^T W shading.
+        _residuals(obs, bg, cover, basis, shading, res)
         for p in range(n):
-            r = obs[p] - bg[p] * (1.0 - cover[p])
             for j in range(N_SHADING):
-                r -= basis[p, j] * shading[j]
                 jac[p, j] = basis[p, j]
-            res[p] = r
             for m in range(2):
                 d = -bg[p] * dcover[p, m]
                 for j in range(N_SHADING):
@@ -460,13 +465,8 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
             return False, cx, cy, 0.0
         if length < converged:
             break
-    cost = 0.0
-    for p in range(n):
-        r = obs[p] - bg[p] * (1.0 - cover[p])
-        for j in range(N_SHADING):
-            r -= basis[p, j] * shading[j]
-        cost += r * r
-    return True, cx, cy, cost + np.sum(shading * _gram_vector(ridge, shading))
+    _residuals(obs, bg, cover, basis, shading, res)
+    return True, cx, cy, np.sum(res * res) + np.sum(shading * _gram_vector(ridge, shading))
 
 
 def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0,
