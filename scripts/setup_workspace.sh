@@ -131,17 +131,9 @@ if [ "${1:-}" != '--no-build' ]; then
       --build-base "$top/build" --install-base "$top/install" \
       --cmake-args -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF \
       --event-handlers console_direct- console_stderr+ >&2
-  )
-fi
-# 5. The perception kernels (numba) compiled into their caches once here, not by the first
-#    perception_node or tt-perceive to start (half a minute on a slow machine).
-if [ "${1:-}" != '--no-build' ]; then
-  say 'numba kernels (compiled once: about 30 s on a slow machine, then cached)'
-  (
-    set +u
-    # shellcheck disable=SC1091
-    . "$top/env.sh"
-    set -u
+    # The perception kernels (numba) compiled into their caches once here, not by the
+    # first perception_node or tt-perceive to start (half a minute on a slow machine).
+    say 'numba kernels (compiled once: about 30 s on a slow machine, then cached)'
     python -c 'from tt_perception.camstream import warm_up
 from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.params import ModelParams
