@@ -134,6 +134,10 @@ if [ "${1:-}" != '--no-build' ]; then
     # The perception kernels (numba) compiled into their caches once here, not by the
     # first perception_node or tt-perceive to start (half a minute on a slow machine).
     say 'numba kernels (compiled once: about 30 s on a slow machine, then cached)'
+    set +u
+    # shellcheck disable=SC1091
+    . "$top/env.sh"      # again: on a first build the packages were not installed before
+    set -u
     python -c 'from tt_perception.camstream import warm_up
 from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.params import ModelParams
