@@ -5,7 +5,7 @@ half as dark as the table."""
 import cv2
 import numpy as np
 import pytest
-from tt_perception.detect import BallDetector, BallImage, DetectorConfig
+from tt_perception.detect import BallDetector, BallImage, DetectorConfig, _outline_extent, _whiten
 from tt_perception.pipeline import ball_image
 
 from tt_perception import synth
@@ -229,6 +229,20 @@ def test_expected_ball_image_is_the_projection_of_the_sphere():
             # The support of the ellipse {d: d^T a d = 1} along e.
             support = np.sqrt(e @ np.linalg.inv(a) @ e)
             assert abs(reach - support) < 0.01 * support
+
+
+def test_the_outlines_whitening_and_extent_against_numpys_decompositions():
+    """The 2 x 2 closed forms: (M M^T)^(-1/2) against numpy's eigendecomposition, the
+    largest semi-axis against the largest singular value, the mean one sqrt |det M|."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        outline = rng.normal(size=(2, 2)) * rng.uniform(0.5, 12.0)
+        vals, vecs = np.linalg.eigh(outline @ outline.T)
+        whitening = _whiten(outline)
+        assert np.allclose(whitening, (vecs / np.sqrt(vals)) @ vecs.T, rtol=1e-9, atol=0.0)
+        largest, mean = _outline_extent(outline)
+        assert largest == pytest.approx(np.linalg.svd(outline, compute_uv=False)[0], rel=1e-12)
+        assert mean == pytest.approx(np.sqrt(abs(np.linalg.det(outline))), rel=1e-9)
 
 
 @pytest.mark.parametrize('radius, image_blur', [(3.2, 0.3), (3.2, 0.6), (6.5, 0.4)])

@@ -272,9 +272,24 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
 
 
 def _whiten(outline):
-    """A = (M M^T)^(-1/2) of an outline M: |A d| = 1 on the outline, d from the centre."""
-    vals, vecs = np.linalg.eigh(outline @ outline.T)
-    return (vecs / np.sqrt(vals)) @ vecs.T
+    """A = (M M^T)^(-1/2) of an outline M: |A d| = 1 on the outline, d from the centre.
+
+    Written out for 2 x 2: with S = M M^T, s = sqrt(det S) and q = sqrt(tr S + 2 s),
+    S^(1/2) = (S + s I) / q, so S^(-1/2) = ((tr S + s) I - S) / (s q)."""
+    m = outline @ outline.T
+    s = math.sqrt(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+    trace = m[0, 0] + m[1, 1]
+    return ((trace + s) * np.eye(2) - m) / (s * math.sqrt(trace + 2.0 * s))
+
+
+def _outline_extent(outline):
+    """The largest and the geometric mean of the semi-axes of an outline M (its singular
+    values' largest and sqrt |det M|), pixels."""
+    m = outline @ outline.T
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    half_trace = 0.5 * (m[0, 0] + m[1, 1])
+    largest = math.sqrt(half_trace + math.sqrt(max(half_trace * half_trace - det, 0.0)))
+    return largest, math.sqrt(math.sqrt(max(det, 0.0)))
 
 
 def _sampling(ball, image_blur):
@@ -512,7 +527,7 @@ class OutlineFit:
         self.blur = (float(ball.blur[0]), float(ball.blur[1]))
         self.sampling = _sampling(ball, image_blur)
         self.options = (float(curvature_weight), int(iterations), CONVERGED)
-        self.scale = np.sqrt(abs(np.linalg.det(ball.outline)))
+        self.scale = _outline_extent(ball.outline)[1]
 
     def fit(self, start):
         """(centre, cost) of the fit from ``start`` (patch pixels), or None
@@ -806,7 +821,7 @@ class BallDetector:
         (:data:`SEARCH_OFFSETS`): a blob's centre leans toward the lit side by up to a third
         of a radius, and from there the fit can stop in a minimum of its own."""
         h, w = frame.shape[:2]
-        reach = np.linalg.svd(ball.outline, compute_uv=False)[0] + 0.5 * np.hypot(*ball.blur)
+        reach = _outline_extent(ball.outline)[0] + 0.5 * math.hypot(*ball.blur)
         half = int(np.ceil(reach + 2.0))
         ax, ay = int(round(u)) - half, int(round(v)) - half
         bx, by = ax + 2 * half + 1, ay + 2 * half + 1

@@ -29,6 +29,7 @@ import collections
 import copy
 import dataclasses
 import itertools
+import math
 
 import numpy as np
 from tt_prediction.ball import ModelParams
@@ -132,18 +133,22 @@ def ball_image(cam, position, velocity, radius, exposure):
     where the lines of sight touch the sphere, through the lens distortion; an ellipse,
     longer along the radius of the image off the axis) and of its motion over the exposure."""
     c = cam.R @ position + cam.t
-    d = np.linalg.norm(c)
-    axis = c / d
-    e1 = np.cross(axis, (0.0, 1.0, 0.0))
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
+    d = math.sqrt(c @ c)
+    ax, ay, az = c / d
+    # Two directions across the line of sight: e1 = axis x (0, 1, 0), e2 = axis x e1
+    # (written out: numpy's cross costs more than the rest of this function).
+    across = math.hypot(ax, az)
+    e1 = np.array([-az, 0.0, ax]) / across
+    e2 = np.array([ax * ay, -across * across, ay * az]) / across
     # The outline: the circle of radius r sqrt(d^2 - r^2) / d at (d^2 - r^2) / d along the axis.
-    ring = radius * np.sqrt(d * d - radius * radius) / d
-    mid = (d * d - radius * radius) / d * axis
+    ring = radius * math.sqrt(d * d - radius * radius) / d
+    mid = (d * d - radius * radius) / (d * d) * c
     half = 0.5 * exposure * velocity
-    pts = np.stack([c, mid + ring * e1, mid + ring * e2, mid - ring * e1, mid - ring * e2])
-    table = (pts - cam.t) @ cam.R
-    table = np.vstack([table, position - half, position + half])
+    table = np.empty((7, 3))
+    table[0] = position
+    table[1:5] = (mid - cam.t + ring * np.array([e1, e2, -e1, -e2])) @ cam.R
+    table[5] = position - half
+    table[6] = position + half
     uv = cam.project(table)
     # Four points a quarter turn apart on the projected circle: c + M (cos, sin).
     m = 0.5 * np.column_stack([uv[1] - uv[3], uv[2] - uv[4]])
