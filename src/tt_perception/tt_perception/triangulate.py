@@ -8,13 +8,100 @@ covariance is that of the pixel noise propagated through the rays. A camera whos
 error exceeds the gate is dropped when at least two others remain.
 """
 
+import math
+
+from numba import njit
 import numpy as np
+
+_NJIT = {'cache': True, 'nogil': True}
+"""The kernels below are compiled (numba) and run without the GIL: a ball's point is
+triangulated on every camera frame, beside the camera threads."""
+
+MAX_CONDITION = 1e10
+"""Largest condition number of J^T W J (:func:`refine`) taken as fixing a point: two cameras
+a metre apart give under 10, a 1 cm baseline at 3 m ~5e5, two cameras at one place ~1e16
+(singular to working precision: a point anywhere on the ray)."""
+
+MIN_DEPTH = 0.05
+"""Nearest a triangulated point may be to a camera along its axis, m (:func:`triangulate`)."""
 
 
 def _stack(cameras):
     """Rotations (N, 3, 3), translations (N, 3) and focal lengths (N,) of the cameras."""
-    return (np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
-            np.array([c.focal for c in cameras]))
+    return (np.array([c.R for c in cameras], dtype=float),
+            np.array([c.t for c in cameras], dtype=float),
+            np.array([c.focal for c in cameras], dtype=float))
+
+
+@njit(**_NJIT)
+def _dlt(R, t, xy):
+    """:func:`dlt` on stacked cameras: the normal equations of the 2N rows, solved."""
+    ata = np.zeros((3, 3))
+    atb = np.zeros(3)
+    a = np.empty(3)
+    for k in range(R.shape[0]):
+        for row in range(2):
+            c = xy[k, row]
+            for j in range(3):
+                a[j] = c * R[k, 2, j] - R[k, row, j]
+            b = t[k, row] - c * t[k, 2]
+            for i in range(3):
+                atb[i] += a[i] * b
+                for j in range(3):
+                    ata[i, j] += a[i] * a[j]
+    return np.linalg.solve(ata, atb)
+
+
+@njit(**_NJIT)
+def _refine(R, t, f, xy, w, X, iterations):
+    """:func:`refine` on stacked cameras with weights ``w`` (1 / sigma per camera):
+    (X, covariance, residuals (N,) pixels, fixed). ``fixed`` False: J^T W J is singular to
+    working precision (:data:`MAX_CONDITION`; the covariance is then undefined)."""
+    n = R.shape[0]
+    jw = np.empty((2 * n, 3))      # the weighted Jacobian of the pixel projections
+    rw = np.empty(2 * n)           # the weighted pixel residuals, x rows then y rows
+    X = X.copy()
+    for it in range(iterations + 1):
+        for k in range(n):
+            xc = R[k] @ X + t[k]
+            x, y = xc[0] / xc[2], xc[1] / xc[2]
+            # d(x/z)/dX = (R1 - (x/z) R3) / z, scaled to pixels by f.
+            scale = f[k] / xc[2] * w[k]
+            for j in range(3):
+                jw[k, j] = scale * (R[k, 0, j] - x * R[k, 2, j])
+                jw[n + k, j] = scale * (R[k, 1, j] - y * R[k, 2, j])
+            rw[k] = f[k] * (xy[k, 0] - x) * w[k]
+            rw[n + k] = f[k] * (xy[k, 1] - y) * w[k]
+        info = jw.T @ jw
+        if not np.linalg.cond(info) < MAX_CONDITION:
+            return X, info, rw[:n], False
+        if it < iterations:
+            X = X + np.linalg.solve(info, jw.T @ rw)
+    residual = np.empty(n)
+    for k in range(n):
+        residual[k] = math.hypot(rw[k], rw[n + k]) / w[k]
+    return X, np.linalg.inv(info), residual, True
+
+
+@njit(**_NJIT)
+def _triangulate(R, t, f, xy, w):
+    """:func:`dlt` then :func:`refine` on stacked cameras: (X, covariance, residuals,
+    status), status 0 when fixed, 1 when the point is not finite or not in front of every
+    camera (:data:`MIN_DEPTH`), 2 when the rays fix no point."""
+    X = _dlt(R, t, xy)
+    if not np.all(np.isfinite(X)):
+        return X, np.zeros((3, 3)), np.zeros(R.shape[0]), 1
+    for k in range(R.shape[0]):
+        if not (R[k, 2] @ X + t[k, 2]) > MIN_DEPTH:
+            return X, np.zeros((3, 3)), np.zeros(R.shape[0]), 1
+    X, cov, residual, fixed = _refine(R, t, f, xy, w, X, 1)
+    return X, cov, residual, 0 if fixed else 2
+
+
+def _weights(pixel_sigma, n):
+    """1 / sigma per camera (C-contiguous, as the kernels were compiled for)."""
+    return np.ascontiguousarray(1.0 / np.broadcast_to(np.asarray(pixel_sigma, dtype=float),
+                                                      (n,)))
 
 
 def dlt(cameras, normalised):
@@ -25,38 +112,7 @@ def dlt(cameras, normalised):
     which holds for a point in front of the cameras).
     """
     R, t, _ = _stack(cameras)
-    x, y = normalised[:, 0:1], normalised[:, 1:2]
-    A = np.vstack([x * R[:, 2] - R[:, 0], y * R[:, 2] - R[:, 1]])
-    b = np.concatenate([t[:, 0] - x[:, 0] * t[:, 2], t[:, 1] - y[:, 0] * t[:, 2]])
-    return np.linalg.solve(A.T @ A, A.T @ b)
-
-
-MAX_CONDITION = 1e10
-"""Largest condition number of J^T W J (:func:`refine`) taken as fixing a point: two cameras
-a metre apart give under 10, a 1 cm baseline at 3 m ~5e5, two cameras at one place ~1e16
-(singular to working precision: a point anywhere on the ray)."""
-
-
-def _information(Jw):
-    """J^T W J (3, 3) of the weighted Jacobian ``Jw``; raises ``numpy.linalg.LinAlgError``
-    when it is singular to working precision (:data:`MAX_CONDITION`; NaN too)."""
-    info = Jw.T @ Jw
-    if not np.linalg.cond(info) < MAX_CONDITION:
-        raise np.linalg.LinAlgError('the rays fix no point (singular system)')
-    return info
-
-
-def _reprojection(R, t, f, normalised, X):
-    """Pixel residuals (2N,) and their Jacobian (2N, 3) with respect to X."""
-    Xc = R @ X + t
-    z = Xc[:, 2:3]
-    uv = Xc[:, :2] / z
-    # d(x/z)/dX = (R1 - (x/z) R3) / z, scaled to pixels by f.
-    scale = (f[:, None] / z)
-    jx = scale * (R[:, 0] - uv[:, 0:1] * R[:, 2])
-    jy = scale * (R[:, 1] - uv[:, 1:2] * R[:, 2])
-    r = f[:, None] * (normalised - uv)
-    return np.concatenate([r[:, 0], r[:, 1]]), np.vstack([jx, jy])
+    return _dlt(R, t, np.ascontiguousarray(normalised, dtype=float))
 
 
 def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
@@ -69,17 +125,12 @@ def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
     :data:`MAX_CONDITION`).
     """
     R, t, f = _stack(cameras)
-    n = len(cameras)
-    w = 1.0 / np.broadcast_to(np.asarray(pixel_sigma, dtype=float), (n,))
-    w = np.concatenate([w, w])[:, None]
-    for _ in range(iterations):
-        r, J = _reprojection(R, t, f, normalised, X)
-        Jw = J * w
-        X = X + np.linalg.solve(Jw.T @ Jw, Jw.T @ (r * w[:, 0]))   # checked below
-    r, J = _reprojection(R, t, f, normalised, X)
-    Jw = J * w
-    residual = np.hypot(r[:n], r[n:])
-    return X, np.linalg.inv(_information(Jw)), residual
+    X, cov, residual, fixed = _refine(R, t, f, np.ascontiguousarray(normalised, dtype=float),
+                                      _weights(pixel_sigma, len(cameras)),
+                                      np.asarray(X, dtype=float), int(iterations))
+    if not fixed:
+        raise np.linalg.LinAlgError('the rays fix no point (singular system)')
+    return X, cov, residual
 
 
 def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
@@ -94,16 +145,16 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
     rays: a singular system).
     """
     used = list(range(len(cameras)))
-    normalised = np.asarray(normalised, dtype=float)
-    sigmas = np.broadcast_to(np.asarray(pixel_sigma, dtype=float), (len(cameras),))
+    R, t, f = _stack(cameras)
+    xy = np.ascontiguousarray(normalised, dtype=float)
+    w = _weights(pixel_sigma, len(cameras))
     while len(used) >= 2:
-        cams = [cameras[i] for i in used]
         try:
-            X = dlt(cams, normalised[used])
-            if not np.all(np.isfinite(X)) or any((c.R @ X + c.t)[2] <= 0.05 for c in cams):
-                return None
-            X, cov, residual = refine(cams, normalised[used], X, sigmas[used])
-        except np.linalg.LinAlgError:
+            X, cov, residual, status = _triangulate(R[used], t[used], f[used], xy[used],
+                                                    w[used])
+        except np.linalg.LinAlgError:      # exactly singular normal equations
+            return None
+        if status != 0:
             return None
         worst = int(np.argmax(residual))
         if residual[worst] <= max_reprojection:
@@ -112,6 +163,17 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
             return None
         used.pop(worst)
     return None
+
+
+def warm_up():
+    """Load the compiled kernels (numba) before the first ball needs them: two cameras a
+    metre apart and a point 3 m in front of them."""
+    R = np.array([np.eye(3), np.eye(3)])
+    t = np.array([[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    xy = np.array([[0.0, 0.0], [-1.0 / 3.0, 0.0]])
+    X, _, _, _ = _triangulate(R, t, np.full(2, 500.0), xy, np.ones(2))
+    _refine(R, t, np.full(2, 500.0), xy, np.ones(2), X, 1)
+    _dlt(R, t, xy)
 
 
 def relative_pose(cam_a, cam_b):
