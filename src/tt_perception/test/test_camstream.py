@@ -237,6 +237,44 @@ def test_detection_in_the_camera_thread_gives_the_same_states():
     assert split.process(1.0, 0, None, bad) == [] and 'frame size' in split.last_error
 
 
+def test_after_warm_up_a_ball_through_the_pipeline_compiles_nothing():
+    # The node warms the compiled kernels (numba) before its cameras start: a kernel first
+    # called with the ball holds the processing thread for its compilation, or for 30 ms
+    # loading it from numba's cache, and frames queue up behind it. The triangulation's
+    # covariance came back in Fortran order, and the filter's update loaded a second signature
+    # of its kernel on the first ball (27 ms). A fresh process: only warm_up (and the scene's
+    # rendering) has compiled.
+    import subprocess
+    import sys
+    code = (
+        'import sys\n'
+        'from numba.core.registry import CPUDispatcher\n'
+        'from tt_prediction.ball_filter import FilterConfig\n'
+        'from tt_prediction.params import ModelParams\n'
+        'from tt_perception import camstream, detect, pipeline, synth, triangulate\n'
+        'from tt_prediction import ball_filter\n'
+        'rig = synth.demo_rig()\n'
+        'frames, _ = synth.render_balls(rig, [synth.incoming_ball(speed=8.0, topspin_rps=30.0)],\n'
+        '                               [0.0], duration=0.5, lead_in=0.05)\n'
+        'camstream.warm_up(ModelParams(), FilterConfig())\n'
+        'def signatures():\n'
+        '    return {f"{m.__name__}.{n}": len(f.signatures) for m in (detect, triangulate,\n'
+        '            ball_filter) for n, f in vars(m).items() if isinstance(f, CPUDispatcher)}\n'
+        'before = signatures()\n'
+        'p = pipeline.Pipeline(rig, tracker_config=pipeline.TrackerConfig(backfill=False))\n'
+        'states = 0\n'
+        'for t, k, frame in frames:\n'
+        '    states += len(p.process(t, k, None, p.detect(t, k, frame, p.tracker.snapshot())))\n'
+        'after = signatures()\n'
+        'print(states, [n for n in after if after[n] != before[n]])\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    states, compiled = out.stdout.strip().split(' ', 1)
+    assert int(states) > 30
+    assert compiled == '[]'
+
+
 def test_absent_device_is_retried_and_loses_nothing():
     # A V4L2 camera that is not there: grab says so (-1) and why, and no frame counts as lost.
     from tt_perception.camstream import open_v4l2

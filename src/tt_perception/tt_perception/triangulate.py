@@ -80,7 +80,9 @@ def _refine(R, t, f, xy, w, X, iterations):
     residual = np.empty(n)
     for k in range(n):
         residual[k] = math.hypot(rw[k], rw[n + k]) / w[k]
-    return X, np.linalg.inv(info), residual, True
+    # C order, as numpy's inverse is (LAPACK's is Fortran): the filter's kernels that take
+    # the covariance are compiled for C-ordered arrays (camstream.warm_up).
+    return X, np.ascontiguousarray(np.linalg.inv(info)), residual, True
 
 
 @njit(**_NJIT)
