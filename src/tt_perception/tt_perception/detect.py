@@ -202,6 +202,9 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
         dcover[p, 0] = dcover[p, 1] = 0.0
         for j in range(N_SHADING):
             basis[p, j] = dbasis[p, 0, j] = dbasis[p, 1, j] = 0.0
+        # Samples inside the outline, fully covered: only their w and w w^T are summed here,
+        # and their share of the basis and its derivative added after the pixel's loop.
+        full = sum_x = sum_y = sum_xx = sum_xy = sum_yy = 0.0
         for k in range(steps):
             s = (k + 0.5) / steps - 0.5
             for iy in range(sub):
@@ -234,6 +237,14 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                             dcx, dcy = sub * gx / g, sub * gy / g
                         else:
                             c, dcx, dcy = min(c, 1.0), 0.0, 0.0
+                    if c == 1.0 and dcx == 0.0 and dcy == 0.0 and norm <= 1.0:
+                        full += 1.0
+                        sum_x += wx
+                        sum_y += wy
+                        sum_xx += wx * wx
+                        sum_xy += wx * wy
+                        sum_yy += wy * wy
+                        continue
                     # d w / d centre = -A; an outline sample takes the limb's w / |w|.
                     d00, d01, d10, d11 = -a[0, 0], -a[0, 1], -a[1, 0], -a[1, 1]
                     if norm > 1.0:
@@ -262,6 +273,23 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                         basis[p, j] += c * t[j]
                         dbasis[p, 0, j] += dcx * t[j] + c * dt[j, 0]
                         dbasis[p, 1, j] += dcy * t[j] + c * dt[j, 1]
+        if full > 0.0:
+            # t = (1, wx, wy, wx^2, wx wy, wy^2) and, with d w / d centre = -A inside,
+            # d t / d centre_m = (0, dwx, dwy, 2 wx dwx, dwx wy + wx dwy, 2 wy dwy).
+            cover[p] += full
+            basis[p, 0] += full
+            basis[p, 1] += sum_x
+            basis[p, 2] += sum_y
+            basis[p, 3] += sum_xx
+            basis[p, 4] += sum_xy
+            basis[p, 5] += sum_yy
+            for m in range(2):
+                dwx, dwy = -a[0, m], -a[1, m]
+                dbasis[p, m, 1] += full * dwx
+                dbasis[p, m, 2] += full * dwy
+                dbasis[p, m, 3] += 2.0 * dwx * sum_x
+                dbasis[p, m, 4] += dwx * sum_y + dwy * sum_x
+                dbasis[p, m, 5] += 2.0 * dwy * sum_y
         cover[p] *= inv
         dcover[p, 0] *= inv
         dcover[p, 1] *= inv
