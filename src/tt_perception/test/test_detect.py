@@ -229,6 +229,10 @@ def test_expected_ball_image_is_the_projection_of_the_sphere():
             # The support of the ellipse {d: d^T a d = 1} along e.
             support = np.sqrt(e @ np.linalg.inv(a) @ e)
             assert abs(reach - support) < 0.01 * support
+    # A ball whose centre is within its radius of the lens has no outline.
+    inside = cam.R.T @ (np.array([0.0, 0.0, 0.5 * radius]) - cam.t)
+    assert np.linalg.norm(cam.R @ inside + cam.t) < radius
+    assert ball_image(cam, inside, np.zeros(3), radius, 2e-3) is None
 
 
 def test_the_outlines_whitening_and_extent_against_numpys_decompositions():
@@ -243,6 +247,9 @@ def test_the_outlines_whitening_and_extent_against_numpys_decompositions():
         largest, mean = _outline_extent(outline)
         assert largest == pytest.approx(np.linalg.svd(outline, compute_uv=False)[0], rel=1e-12)
         assert mean == pytest.approx(np.sqrt(abs(np.linalg.det(outline))), rel=1e-9)
+    # An outline of no area (rounding may make its determinant negative) has no whitening.
+    for flat in (np.outer([0.35, 0.82], [0.33, -1.3]), np.zeros((2, 2))):
+        assert np.all(np.isnan(_whiten(flat)))
 
 
 @pytest.mark.parametrize('radius, image_blur', [(3.2, 0.3), (3.2, 0.6), (6.5, 0.4)])

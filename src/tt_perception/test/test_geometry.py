@@ -233,6 +233,41 @@ def test_refined_point_and_covariance_against_the_pinhole_by_finite_differences(
                            atol=1e-9)
 
 
+def test_triangulation_inputs_of_any_layout_and_bad_shapes():
+    """The compiled kernels index their arrays unchecked and were compiled for one layout:
+    read-only or strided inputs give the same point and compile nothing new; a shape that is
+    not one (x, y) row per camera is a one-line ValueError, not memory past the array; a
+    camera of infinite sigma counts for nothing instead of dividing by zero."""
+    from tt_perception import triangulate as tri
+    rig = synth.demo_rig()
+    X = np.array([-0.5, 0.1, 0.3])
+    obs = np.array([c.normalise(c.project(X))[0] for c in rig.cameras])
+    tri.warm_up()
+    refine(rig.cameras, obs, X)
+    compiled = (len(tri._dlt.signatures), len(tri._refine.signatures),
+                len(tri._triangulate.signatures))
+    frozen = obs.copy()
+    frozen.flags.writeable = False
+    strided = np.zeros((2, 4))
+    strided[:, ::2] = obs
+    start = np.repeat(X + 0.001, 2)[::2]
+    start.flags.writeable = False
+    for inputs in (frozen, strided[:, ::2], obs.astype(np.float32), obs.tolist()):
+        assert np.allclose(triangulate(rig.cameras, inputs)[0], X, atol=1e-6)
+        assert np.allclose(refine(rig.cameras, inputs, start, iterations=3)[0], X, atol=1e-6)
+        assert np.allclose(dlt(rig.cameras, inputs), X, atol=1e-6)
+    assert compiled == (len(tri._dlt.signatures), len(tri._refine.signatures),
+                        len(tri._triangulate.signatures))
+    for bad in (obs[:1], obs[:, :1], obs.ravel()):
+        with pytest.raises(ValueError, match=r'for 2 cameras \(expected \(2, 2\)\)'):
+            triangulate(rig.cameras, bad)
+    third = synth.demo_rig(1280, 720).cameras[1]
+    third.name = 'cam2'
+    wrong = third.normalise(third.project(X) + [15.0, -10.0])[0]
+    result = triangulate(rig.cameras + [third], np.vstack([obs, wrong]), [0.5, 0.5, np.inf])
+    assert np.allclose(result[0], X, atol=1e-7) and result[3] == [0, 1]      # 18 px off
+
+
 def test_filter_prediction_follows_the_model_through_a_bounce():
     params = ModelParams()
     state = synth.incoming_ball(speed=8.0, topspin_rps=30.0, sidespin_rps=15.0)

@@ -303,9 +303,13 @@ def _whiten(outline):
     """A = (M M^T)^(-1/2) of an outline M: |A d| = 1 on the outline, d from the centre.
 
     Written out for 2 x 2: with S = M M^T, s = sqrt(det S) and q = sqrt(tr S + 2 s),
-    S^(1/2) = (S + s I) / q, so S^(-1/2) = ((tr S + s) I - S) / (s q)."""
+    S^(1/2) = (S + s I) / q, so S^(-1/2) = ((tr S + s) I - S) / (s q). All nan for an
+    outline of no area (or not finite)."""
     m = outline @ outline.T
-    s = math.sqrt(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    if not (det > 0.0 and math.isfinite(det)):
+        return np.full((2, 2), np.nan)
+    s = math.sqrt(det)
     trace = m[0, 0] + m[1, 1]
     return ((trace + s) * np.eye(2) - m) / (s * math.sqrt(trace + 2.0 * s))
 

@@ -131,9 +131,12 @@ def ball_image(cam, position, velocity, radius, exposure):
     (3,) moving at ``velocity`` (3,) (table frame, m, m/s) in camera ``cam`` over an
     ``exposure`` (s): the projection of its centre, the projection of its outline (the circle
     where the lines of sight touch the sphere, through the lens distortion; an ellipse,
-    longer along the radius of the image off the axis) and of its motion over the exposure."""
+    longer along the radius of the image off the axis) and of its motion over the exposure.
+    None when the ball's centre is within its radius of the camera (no outline)."""
     c = cam.R @ position + cam.t
     d = math.sqrt(c @ c)
+    if not d > radius:
+        return None
     ax, ay, az = c / d
     # Two directions across the line of sight: e1 = axis x (0, 1, 0), e2 = axis x e1
     # (written out: numpy's cross costs more than the rest of this function).
@@ -521,6 +524,7 @@ class Pipeline:
             # predicted centre is rough (Tracker.rough) the fit searches around the blob's.
             expected = ball_image(cam, motion[0], motion[1], self.params.radius,
                                   self.detectors[k].config.exposure)
+        if expected is not None:
             roi = (expected.u, expected.v)
         dets = self.detectors[k].detect(frame, roi, expected=expected,
                                         search=expected is not None and snap[2])

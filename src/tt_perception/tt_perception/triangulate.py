@@ -13,9 +13,10 @@ import math
 from numba import njit
 import numpy as np
 
-_NJIT = {'cache': True, 'nogil': True}
+_NJIT = {'cache': True, 'nogil': True, 'error_model': 'numpy'}
 """The kernels below are compiled (numba) and run without the GIL: a ball's point is
-triangulated on every camera frame, beside the camera threads."""
+triangulated on every camera frame, beside the camera threads. A division by zero gives inf
+or nan, as numpy's does, not ZeroDivisionError."""
 
 MAX_CONDITION = 1e10
 """Largest condition number of J^T W J (:func:`refine`) taken as fixing a point: two cameras
@@ -55,13 +56,15 @@ def _dlt(R, t, xy):
 @njit(**_NJIT)
 def _refine(R, t, f, xy, w, X, iterations):
     """:func:`refine` on stacked cameras with weights ``w`` (1 / sigma per camera):
-    (X, covariance, residuals (N,) pixels, fixed). ``fixed`` False: J^T W J is singular to
-    working precision (:data:`MAX_CONDITION`; the covariance is then undefined)."""
+    (X, covariance, residuals (N,) pixels, fixed). ``fixed`` False: J^T W J at the last X is
+    singular to working precision (:data:`MAX_CONDITION`; the covariance is then nan).
+    An exactly singular step raises ``numpy.linalg.LinAlgError`` (as numpy's solve)."""
     n = R.shape[0]
     jw = np.empty((2 * n, 3))      # the weighted Jacobian of the pixel projections
     rw = np.empty(2 * n)           # the weighted pixel residuals, x rows then y rows
+    residual = np.empty(n)         # each camera's pixel residual, unweighted
     X = X.copy()
-    for it in range(iterations + 1):
+    for it in range(max(iterations, 0) + 1):
         for k in range(n):
             xc = R[k] @ X + t[k]
             x, y = xc[0] / xc[2], xc[1] / xc[2]
@@ -70,16 +73,14 @@ def _refine(R, t, f, xy, w, X, iterations):
             for j in range(3):
                 jw[k, j] = scale * (R[k, 0, j] - x * R[k, 2, j])
                 jw[n + k, j] = scale * (R[k, 1, j] - y * R[k, 2, j])
-            rw[k] = f[k] * (xy[k, 0] - x) * w[k]
-            rw[n + k] = f[k] * (xy[k, 1] - y) * w[k]
+            rx, ry = f[k] * (xy[k, 0] - x), f[k] * (xy[k, 1] - y)
+            rw[k], rw[n + k] = rx * w[k], ry * w[k]
+            residual[k] = math.hypot(rx, ry)
         info = jw.T @ jw
-        if not np.linalg.cond(info) < MAX_CONDITION:
-            return X, info, rw[:n], False
         if it < iterations:
             X = X + np.linalg.solve(info, jw.T @ rw)
-    residual = np.empty(n)
-    for k in range(n):
-        residual[k] = math.hypot(rw[k], rw[n + k]) / w[k]
+    if not np.linalg.cond(info) < MAX_CONDITION:
+        return X, np.full((3, 3), np.nan), residual, False
     # C order, as numpy's inverse is (LAPACK's is Fortran): the filter's kernels that take
     # the covariance are compiled for C-ordered arrays (camstream.warm_up).
     return X, np.ascontiguousarray(np.linalg.inv(info)), residual, True
@@ -106,6 +107,16 @@ def _weights(pixel_sigma, n):
                                                       (n,)))
 
 
+def _observations(normalised, n):
+    """``normalised`` as a fresh C-ordered float (n, 2) array (the kernels' one compiled
+    signature; they index it unchecked); ValueError when it is not one row per camera."""
+    out = np.array(normalised, dtype=float, order='C')
+    if out.shape != (n, 2):
+        raise ValueError(f'normalised coordinates of shape {out.shape} for {n} cameras '
+                         f'(expected ({n}, 2))')
+    return out
+
+
 def dlt(cameras, normalised):
     """Linear N-view triangulation: table-frame point (3,) from normalised coordinates (N, 2).
 
@@ -114,7 +125,7 @@ def dlt(cameras, normalised):
     which holds for a point in front of the cameras).
     """
     R, t, _ = _stack(cameras)
-    return _dlt(R, t, np.ascontiguousarray(normalised, dtype=float))
+    return _dlt(R, t, _observations(normalised, len(cameras)))
 
 
 def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
@@ -123,13 +134,14 @@ def refine(cameras, normalised, X, pixel_sigma=0.5, iterations=1):
 
     Returns ``(X, covariance (3, 3) m^2, residuals (N,) pixels)``. The covariance is
     (J^T W J)^-1 with J the Jacobian of the pixel projections and W = diag(1 / sigma^2).
-    Raises ``numpy.linalg.LinAlgError`` when the rays fix no point (J^T W J singular,
-    :data:`MAX_CONDITION`).
+    Raises ``numpy.linalg.LinAlgError`` when the rays fix no point (J^T W J singular at the
+    last X, :data:`MAX_CONDITION`, or a step's system exactly singular).
     """
     R, t, f = _stack(cameras)
-    X, cov, residual, fixed = _refine(R, t, f, np.ascontiguousarray(normalised, dtype=float),
+    X, cov, residual, fixed = _refine(R, t, f, _observations(normalised, len(cameras)),
                                       _weights(pixel_sigma, len(cameras)),
-                                      np.asarray(X, dtype=float), int(iterations))
+                                      np.array(X, dtype=float, order='C').reshape(3),
+                                      int(iterations))
     if not fixed:
         raise np.linalg.LinAlgError('the rays fix no point (singular system)')
     return X, cov, residual
@@ -148,13 +160,13 @@ def triangulate(cameras, normalised, pixel_sigma=0.5, max_reprojection=2.0):
     """
     used = list(range(len(cameras)))
     R, t, f = _stack(cameras)
-    xy = np.ascontiguousarray(normalised, dtype=float)
+    xy = _observations(normalised, len(cameras))
     w = _weights(pixel_sigma, len(cameras))
     while len(used) >= 2:
         try:
             X, cov, residual, status = _triangulate(R[used], t[used], f[used], xy[used],
                                                     w[used])
-        except np.linalg.LinAlgError:      # exactly singular normal equations
+        except np.linalg.LinAlgError:      # exactly singular normal equations, or nan / inf
             return None
         if status != 0:
             return None
