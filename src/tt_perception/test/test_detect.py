@@ -392,6 +392,51 @@ def _silhouette_by_opencv(patch, background, seed, sx, sy, threshold):
                      m['mu02'] / m['m00'], m['mu11'] / m['m00']])
 
 
+def _blob_by_opencv(sub, diff, patch, background, px, py, threshold):
+    """What ``_blob_measures`` returns, written with OpenCV's operations on the patch."""
+    bh, bw = sub.shape
+    weighted = cv2.moments(cv2.multiply(diff, sub))
+    total = weighted['m00']
+    shape = cv2.moments(sub, binaryImage=True)
+    area = shape['m00']
+    grey = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+    inside = np.zeros(grey.shape, np.uint8)
+    inside[py:py + bh, px:px + bw] = sub
+    ring = cv2.dilate(inside, np.ones((3, 3), np.uint8)) - inside
+    level = int(round(cv2.mean(grey, mask=inside)[0]))
+    alike = cv2.absdiff(grey, np.full_like(grey, level)) < threshold
+    hidden = np.count_nonzero(alike & (ring > 0)) / max(cv2.countNonZero(ring), 1)
+    box = grey[py:py + bh, px:px + bw]
+    lit = ((sub > 0) & (box >= np.median(box[sub > 0]))).astype(np.uint8)
+    colour = cv2.mean(patch[py:py + bh, px:px + bw], mask=lit)[:3]
+    under = cv2.mean(background[py:py + bh, px:px + bw], mask=lit)[:3]
+    return [total, weighted['m10'] / total, weighted['m01'] / total, shape['mu20'] / area,
+            shape['mu02'] / area, shape['mu11'] / area, hidden, *colour, *under]
+
+
+def test_the_blobs_compiled_measures_are_their_definition():
+    """A blob's weighted centroid, shape moments, bright surroundings and lit colour (one
+    compiled kernel) against the same definitions written with OpenCV, on random blobs of
+    several parts with noise, touching the patch's edge or not."""
+    from tt_perception.detect import _blob_measures
+    rng = np.random.default_rng(8)
+    for _ in range(60):
+        bh, bw = rng.integers(1, 12, size=2)
+        px, py = rng.integers(0, 3, size=2)
+        h, w = py + bh + rng.integers(0, 3), px + bw + rng.integers(0, 3)
+        patch = rng.integers(0, 256, size=(h, w, 3)).astype(np.uint8)
+        background = rng.uniform(0, 255, size=(h, w, 3)).astype(np.float32)
+        sub = (rng.random((bh, bw)) < 0.7).astype(np.uint8)
+        sub[rng.integers(bh), rng.integers(bw)] = 1
+        diff = rng.integers(0, 256, size=(bh, bw)).astype(np.uint8)
+        grey = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+        got = _blob_measures(sub, diff, grey, patch, background, int(px), int(py), 22.0, True,
+                             True)
+        want = _blob_by_opencv(sub, diff, patch, background, px, py, 22.0)
+        np.testing.assert_allclose(got[:10], want[:10], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[10:], want[10:], rtol=1e-5)      # float32 sums
+
+
 def test_the_silhouettes_compiled_kernel_is_its_definition():
     """The silhouette's centre and moments (a compiled kernel) against the same definition
     written with OpenCV's operations, on lit and shaded balls with a contact shadow, noise,

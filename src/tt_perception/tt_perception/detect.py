@@ -547,14 +547,16 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
 
 class OutlineFit:
     """:func:`fit_outline` on one patch from as many starts as wanted (:meth:`fit`): the
-    patch's usable pixels are gathered once."""
+    patch's usable pixels are gathered once (``usable`` of ``grey`` and ``background``, or
+    given gathered: ``pixels`` = (observed, background, x, y), float64 arrays)."""
 
     def __init__(self, grey, background, usable, ball, iterations=6, curvature_weight=0.0,
-                 image_blur=0.0):
-        ys, xs = np.nonzero(usable)
-        self.obs = grey[ys, xs].astype(float)
-        self.bg = background[ys, xs].astype(float)
-        self.xs, self.ys = xs.astype(float), ys.astype(float)
+                 image_blur=0.0, pixels=None):
+        if pixels is None:
+            ys, xs = np.nonzero(usable)
+            pixels = (grey[ys, xs].astype(float), background[ys, xs].astype(float),
+                      xs.astype(float), ys.astype(float))
+        self.obs, self.bg, self.xs, self.ys = pixels
         self.whitening = _whiten(ball.outline)
         self.blur = (float(ball.blur[0]), float(ball.blur[1]))
         self.sampling = _sampling(ball, image_blur)
@@ -577,8 +579,9 @@ class OutlineFit:
 
 
 def warm_up():
-    """Load the compiled kernels (numba) of :func:`ball_model`, :func:`fit_outline` and the
-    silhouette's centre before the first ball needs them."""
+    """Load the compiled kernels (numba) of :func:`ball_model`, :func:`fit_outline`, the
+    silhouette's centre, the blobs' measures and the fit's pixels before the first ball
+    needs them."""
     ball = BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0]))
     ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0), ball)
     patch = np.zeros((9, 9))
@@ -588,6 +591,11 @@ def warm_up():
     colour = np.repeat(patch.astype(np.uint8)[:, :, None], 3, axis=2)
     _silhouette_moments(colour, np.zeros((9, 9, 3), np.float32), np.ones((2, 2), np.uint8), 4,
                         4, 14.0)
+    seed = np.ones((2, 2), np.uint8)
+    _blob_measures(seed, seed, np.zeros((6, 6), np.uint8), np.zeros((6, 6, 3), np.uint8),
+                   np.zeros((6, 6, 3), np.float32), 2, 2, 22.0, True, True)
+    _usable_pixels(np.zeros((6, 6), np.uint8), _NO_PATCH, _NO_BACKGROUND,
+                   np.zeros((6, 6), np.float32), 2.5, 2.5, 3.0, False)
 
 
 @njit(cache=True, nogil=True)
@@ -696,6 +704,133 @@ def _grey(image):
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
+HIDDEN_MARGIN = 2
+"""Pixels around a blob's box that :func:`_blob_measures` reads (its 3 x 3 dilation's ring)."""
+_NO_PATCH = np.zeros((1, 1, 3), np.uint8)
+_NO_BACKGROUND = np.zeros((1, 1, 3), np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour,
+                   with_background):
+    """What :meth:`BallDetector._blobs` measures of one blob, in one compiled call: ``sub``
+    (uint8, 1 on the blob) and ``diff`` (uint8, its change against the background) on the
+    blob's box; ``grey`` (uint8), ``patch`` (BGR uint8) and ``background`` (the colour
+    background, float32) on the box and a margin, the box at (px, py) in them.
+
+    Returns (total, cu, cv, cxx, cyy, cxy, hidden, B, G, R, bg B, bg G, bg R):
+    - total, (cu, cv): the sum of the blob's change and its change-weighted centroid in the
+      box (cv2.moments of diff * sub);
+    - cxx, cyy, cxy: the blob's central second moments over its area (cv2.moments of sub,
+      the same sums and formulas);
+    - hidden: the fraction of the pixels around the blob (its 3 x 3 dilation's ring) whose
+      grey level is within ``threshold`` of the blob's mean (rounded): background as bright
+      as the ball, where the blob may have lost part of it;
+    - with ``colour``: the mean colour of the blob's lit half (its pixels at least as bright
+      as their median grey level) and, ``with_background``, the background's mean there."""
+    bh, bw = sub.shape
+    out = np.zeros(13)
+    # Sums of integers: exact in float64, as OpenCV's moments are.
+    m00 = m10 = m01 = 0.0
+    s00 = s10 = s01 = s20 = s11 = s02 = 0.0
+    grey_sum = 0.0
+    values = np.empty(bh * bw, np.uint8)
+    for y in range(bh):
+        for x in range(bw):
+            if sub[y, x]:
+                v = float(diff[y, x])
+                m00 += v
+                m10 += x * v
+                m01 += y * v
+                s00 += 1.0
+                s10 += x
+                s01 += y
+                s20 += x * x
+                s11 += x * y
+                s02 += y * y
+                g = grey[py + y, px + x]
+                values[int(s00) - 1] = g
+                grey_sum += g
+    if m00 <= 0.0 or s00 == 0.0:
+        return out
+    out[0] = m00
+    out[1] = m10 / m00
+    out[2] = m01 / m00
+    inv = 1.0 / s00
+    cx, cy = s10 * inv, s01 * inv
+    out[3] = (s20 - s10 * cx) / s00
+    out[4] = (s02 - s01 * cy) / s00
+    out[5] = (s11 - s10 * cy) / s00
+    # The ring: pixels 8-adjacent to the blob, not in it, within the patch.
+    level = np.rint(grey_sum * inv)
+    h, w = grey.shape
+    ring = alike = 0
+    for y in range(max(py - 1, 0), min(py + bh + 1, h)):
+        for x in range(max(px - 1, 0), min(px + bw + 1, w)):
+            by, bx = y - py, x - px
+            if 0 <= by < bh and 0 <= bx < bw and sub[by, bx]:
+                continue
+            near = False
+            for yy in range(max(by - 1, 0), min(by + 2, bh)):
+                for xx in range(max(bx - 1, 0), min(bx + 2, bw)):
+                    if sub[yy, xx]:
+                        near = True
+            if near:
+                ring += 1
+                if abs(float(grey[y, x]) - level) < threshold:
+                    alike += 1
+    out[6] = alike / ring if ring else 0.0
+    if colour:
+        ordered = np.sort(values[:int(s00)])
+        n = ordered.size
+        median = (float(ordered[n // 2]) if n % 2 else
+                  0.5 * (float(ordered[n // 2 - 1]) + float(ordered[n // 2])))
+        lit = 0.0
+        sums = np.zeros(6)
+        for y in range(bh):
+            for x in range(bw):
+                if sub[y, x] and grey[py + y, px + x] >= median:
+                    lit += 1.0
+                    for c in range(3):
+                        sums[c] += patch[py + y, px + x, c]
+                        if with_background:
+                            sums[3 + c] += background[py + y, px + x, c]
+        for c in range(6):
+            out[7 + c] = sums[c] * (1.0 / lit)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _usable_pixels(grey, patch, colour_background, background, u, v, reach, shadows):
+    """The pixels of a patch a fit may use (:meth:`BallDetector._fit_centre`), gathered:
+    (grey level, background level) as float32 and (x, y) as float64, of the pixels within
+    ``reach`` of (u, v) (patch pixels) and, with ``shadows``, not darker than the colour
+    background in all three channels of the BGR ``patch`` (a shadow)."""
+    h, w = grey.shape
+    obs = np.empty(h * w, np.float32)
+    bg = np.empty(h * w, np.float32)
+    xs = np.empty(h * w)
+    ys = np.empty(h * w)
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if not math.hypot(x - u, y - v) <= reach:
+                continue
+            if shadows:
+                lit = False
+                for c in range(3):
+                    if np.float32(patch[y, x, c]) >= colour_background[y, x, c]:
+                        lit = True
+                if not lit:
+                    continue
+            obs[n] = grey[y, x]
+            bg[n] = background[y, x]
+            xs[n] = x
+            ys[n] = y
+            n += 1
+    return obs[:n], bg[:n], xs[:n], ys[:n]
+
+
 class BallDetector:
     """Detector of one camera (it keeps that camera's background)."""
 
@@ -769,45 +904,50 @@ class BallDetector:
         cfg = self.config
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         h, w = mask.shape
+        fh, fw = frame.shape[:2]
+        colour_frame = frame.ndim == 3
+        with_colour = cfg.colour != 'any' and colour_frame
         out = []
         for i in range(1, n):
             area = stats[i, cv2.CC_STAT_AREA]
             if area < cfg.min_area or area > cfg.max_area:
                 continue
-            bx, by, bw, bh = stats[i, :4]
+            bx, by, bw, bh = (int(v) for v in stats[i, :4])
             if ((cut[0] and bx == 0) or (cut[1] and by == 0) or (cut[2] and bx + bw == w)
                     or (cut[3] and by + bh == h)):
                 continue
             sub = (labels[by:by + bh, bx:bx + bw] == i).astype(np.uint8)
-            weighted = cv2.moments(cv2.multiply(diff[by:by + bh, bx:bx + bw], sub))
-            total = weighted['m00']
+            # The blob's box and HIDDEN_MARGIN pixels around it, within the frame.
+            ux, uy = x0 + bx, y0 + by
+            ax, ay = max(ux - HIDDEN_MARGIN, 0), max(uy - HIDDEN_MARGIN, 0)
+            ex, ey = min(ux + bw + HIDDEN_MARGIN, fw), min(uy + bh + HIDDEN_MARGIN, fh)
+            patch = np.ascontiguousarray(frame[ay:ey, ax:ex])
+            known = with_colour and self._bg_colour is not None
+            background = (np.ascontiguousarray(self._bg_colour[ay:ey, ax:ex]) if known
+                          else _NO_BACKGROUND)
+            m = _blob_measures(sub, np.ascontiguousarray(diff[by:by + bh, bx:bx + bw]),
+                               _grey(patch), patch if colour_frame else _NO_PATCH,
+                               background, ux - ax, uy - ay, float(cfg.diff_threshold),
+                               with_colour, known)
+            total, cu, cv, cxx, cyy, cxy, hidden = m[:7]
             if total <= 0.0:
                 continue
-            cu = bx + weighted['m10'] / total       # difference-weighted centroid
-            cv = by + weighted['m01'] / total
-            shape = cv2.moments(sub, binaryImage=True)
-            width = bright_width = _width_from_moments(
-                shape['mu20'] / area, shape['mu02'] / area, shape['mu11'] / area)
+            cu, cv = bx + cu, by + cv                 # difference-weighted centroid
+            width = bright_width = _width_from_moments(cxx, cyy, cxy)
             if width > cfg.max_width:
                 continue
             sure = True
-            if cfg.colour != 'any' and frame.ndim == 3:
+            if with_colour:
                 # The colour of the lit half of the blob: the shaded half and the outline
                 # take the background's colour (JPEG's halved chroma resolution spreads it).
-                patch = frame[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
-                grey = _grey(patch)
-                lit = ((sub > 0) & (grey >= np.median(grey[sub > 0]))).astype(np.uint8)
-                colour = cv2.mean(patch, mask=lit)[:3]
-                change = None
-                if self._bg_colour is not None:
-                    bg = self._bg_colour[y0 + by:y0 + by + bh, x0 + bx:x0 + bx + bw]
-                    change = np.asarray(colour) - cv2.mean(bg, mask=lit)[:3]
+                colour = m[7:10]
+                change = colour - m[10:13] if known else None
                 if not colour_matches(colour, cfg.colour, change):
                     if not colour_possible(change, cfg.colour):
                         continue
                     sure = False
-            if self._bg_colour is not None and frame.ndim == 3:
-                silhouette = self._silhouette_centre(frame, sub, x0 + bx, y0 + by)
+            if self._bg_colour is not None and colour_frame:
+                silhouette = self._silhouette_centre(frame, sub, ux, uy)
                 if silhouette is not None:
                     cu, cv, width = silhouette[0] - x0, silhouette[1] - y0, silhouette[2]
             fitted = None
@@ -816,9 +956,8 @@ class BallDetector:
                 fitted = self._fit_centre(frame, blob_u, blob_v, expected, search)
             u, v = (blob_u, blob_v) if fitted is None else fitted
             out.append(Detection(float(u), float(v), float(area), float(width),
-                                 float(total / area),
-                                 self._hidden(frame, sub, x0 + bx, y0 + by),
-                                 fitted is not None, blob_u, blob_v, sure, bright_width))
+                                 float(total / area), float(hidden), fitted is not None,
+                                 blob_u, blob_v, sure, bright_width))
         out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
         return out[:cfg.max_candidates]
 
@@ -859,25 +998,24 @@ class BallDetector:
         bx, by = ax + 2 * half + 1, ay + 2 * half + 1
         if ax < 0 or ay < 0 or bx > w or by > h:
             return None
-        patch = frame[ay:by, ax:bx]
-        grey = _grey(patch).astype(np.float32)
+        patch = np.ascontiguousarray(frame[ay:by, ax:bx])
         # The pixels the ball may cover for a centre within a pixel of (u, v), but a shadow's.
-        yy, xx = np.mgrid[ay:by, ax:bx]
-        usable = np.hypot(xx - u, yy - v) <= reach + 1.5
-        if self._bg_colour is not None and patch.ndim == 3:
-            change = patch.astype(np.float32) - self._bg_colour[ay:by, ax:bx]
-            usable &= change.max(axis=2) >= 0.0          # a shadow: darker in all three
+        shadows = self._bg_colour is not None and patch.ndim == 3
+        obs, background, xs, ys = _usable_pixels(
+            _grey(patch), patch if shadows else _NO_PATCH,
+            np.ascontiguousarray(self._bg_colour[ay:by, ax:bx]) if shadows else _NO_BACKGROUND,
+            np.ascontiguousarray(self.background[ay:by, ax:bx]), float(u - ax), float(v - ay),
+            float(reach + 1.5), shadows)
+        gamma = self.config.response_gamma
+        if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
+            obs = 255.0 * (obs * (1.0 / 255.0)) ** gamma
+            background = 255.0 * (background * (1.0 / 255.0)) ** gamma
+        fitter = OutlineFit(None, None, None, ball, curvature_weight=self.config.curvature_weight,
+                            image_blur=self.config.image_blur,
+                            pixels=(obs.astype(float), background.astype(float), xs, ys))
         # From the candidate's own centre; on a ball of a few pixels JPEG's blocks can leave
         # a second minimum a pixel or two away, so when that fit ends more than half a pixel
         # from the predicted centre, from there too, and the better fit.
-        background = self.background[ay:by, ax:bx]
-        gamma = self.config.response_gamma
-        if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
-            grey = 255.0 * (grey * (1.0 / 255.0)) ** gamma
-            background = 255.0 * (background * (1.0 / 255.0)) ** gamma
-        fitter = OutlineFit(grey, background, usable, ball,
-                            curvature_weight=self.config.curvature_weight,
-                            image_blur=self.config.image_blur)
         best = fitter.fit((u - ax, v - ay))
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
@@ -891,25 +1029,6 @@ class BallDetector:
                 if fit is not None and (best is None or fit[1] < best[1]):
                     best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)
-
-    def _hidden(self, frame, sub, x0, y0):
-        """Fraction of the pixels around a blob (``sub`` at x0, y0) as bright as the ball: there
-        the background looks like the ball, so the blob may have lost part of it."""
-        h, w = frame.shape[:2]
-        bh, bw = sub.shape
-        ax, ay = max(x0 - 2, 0), max(y0 - 2, 0)
-        bx, by = min(x0 + bw + 2, w), min(y0 + bh + 2, h)
-        grey = _grey(frame[ay:by, ax:bx])
-        inside = np.zeros(grey.shape, np.uint8)
-        inside[y0 - ay:y0 - ay + bh, x0 - ax:x0 - ax + bw] = sub
-        ring = cv2.dilate(inside, np.ones((3, 3), np.uint8)) - inside
-        n_ring = cv2.countNonZero(ring)
-        if n_ring == 0:
-            return 0.0
-        ball = cv2.mean(grey, mask=inside)[0]
-        alike = cv2.absdiff(grey, np.full_like(grey, int(round(ball)))) < \
-            self.config.diff_threshold
-        return float(np.count_nonzero(alike & (ring > 0)) / n_ring)
 
     def _update_background(self, gray, mask, x0, y0, frame=None):
         """Exponential average of the frame into the background, except under blobs."""
