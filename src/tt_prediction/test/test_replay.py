@@ -639,6 +639,53 @@ def test_ctrl_c_is_one_line_exit_130_and_no_output(data, tmp_path, capsys, monke
     assert list(tmp_path.iterdir()) == []
 
 
+def test_an_interrupt_inside_compiled_code_is_one_line_exit_130(data, tmp_path, capsys,
+                                                                monkeypatch):
+    # Ctrl-C landing inside a numba function reaches Python as a SystemError ("returned a
+    # result with an exception set") whose context is the KeyboardInterrupt: it printed a
+    # 40-line traceback and exit 1 (a new user's walk-through, one interrupt in five).
+    from tt_prediction import tracks_cli
+
+    def interrupted(*args, **kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError('CPUDispatcher(<function _predict_to>) returned a result with '
+                              'an exception set') from None
+
+    def broken(*args, **kwargs):
+        raise SystemError('a real fault')
+
+    folder, _ = data
+    out = tmp_path / 'out'
+    monkeypatch.setattr(tracks_cli, 'replay_tracks', interrupted)
+    assert main(['--tracks', str(folder), '--out', str(out)]) == 130
+    assert capsys.readouterr().err == 'tt-predict: interrupted\n'
+    monkeypatch.setattr(tracks_cli, 'replay_tracks', broken)
+    with pytest.raises(SystemError, match='a real fault'):
+        main(['--tracks', str(folder), '--out', str(out)])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_files_rows_in_any_order_give_the_sorted_files_result(data, tmp_path):
+    # The measurement noise was estimated from a file's rows in file order: shuffled rows
+    # gave 50 mm instead of 0.5 mm, and every number of summary.json with it, without a
+    # warning (a new user's walk-through).
+    folder, tracks = data
+    rng = np.random.default_rng(3)
+    shuffled = []
+    for name, t, p in tracks:
+        order = rng.permutation(len(t))
+        shuffled.append((name, t[order], p[order]))
+    _write(tmp_path / 'shuffled', shuffled)
+    for name, source in (('a', folder), ('b', tmp_path / 'shuffled')):
+        assert main(['--tracks', str(source), '--out', str(tmp_path / name),
+                     '--hit-plane-x', str(PLANE), '--no-textbook']) == 0
+    a, b = (json.loads((tmp_path / n / 'summary.json').read_text()) for n in 'ab')
+    assert b['filter_config'] == a['filter_config']
+    assert b['hit_error'] == a['hit_error'] and b['spin_prior_learned'] == a['spin_prior_learned']
+
+
 def test_a_track_left_out_of_the_score_says_why(data):
     """A user's tracks without a measured crossing were left out of the hit error silently:
     summary.json names each with its reason (data ending before the bounce or before the

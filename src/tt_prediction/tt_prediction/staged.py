@@ -16,12 +16,27 @@ import tempfile
 def interruptible(tool, body, argv=None):
     """``body(argv)``, a command's work; Ctrl-C (KeyboardInterrupt) ends it with the line
     ``<tool>: interrupted`` on stderr and exit status 130, as a shell reports a SIGINT, and
-    no traceback (a staged output is then not moved into place)."""
+    no traceback (a staged output is then not moved into place). A KeyboardInterrupt raised
+    inside a compiled (numba) function reaches here as the SystemError it caused; so does it
+    count."""
     try:
         return body(argv)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if not _caused_by_interrupt(exc):
+            raise
         print(f'{tool}: interrupted', file=sys.stderr)
         return 130
+
+
+def _caused_by_interrupt(exc):
+    """True when ``exc`` is a KeyboardInterrupt or was raised while handling one."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def output_folder_error(out, ours, tool, csv_header=None):
