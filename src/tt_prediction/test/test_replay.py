@@ -686,6 +686,34 @@ def test_a_files_rows_in_any_order_give_the_sorted_files_result(data, tmp_path):
     assert b['hit_error'] == a['hit_error'] and b['spin_prior_learned'] == a['spin_prior_learned']
 
 
+def test_a_ball_that_bounces_twice_on_the_robots_half_is_no_hit():
+    # A short ball: it bounces at x = -0.16 and again at -0.75 (0.38 s later), then crosses
+    # the plane. Between the bounces no hit was predicted (double_bounce), but after the second
+    # the rows predicted an ordinary hit and the track was scored as a crossing (a new user's
+    # walk-through): a ball that bounced twice on the robot's half is not one to return.
+    from tt_prediction.replay import no_crossing_reason, replay_track
+    state = np.array([0.3, 0.0, 0.25, -2.2, 0.0, 0.0, 0.0, -50.0, 0.0])
+    events, _ = rollout(state, ModelParams(), t_max=1.5, stop_at_net=False, max_bounces=3,
+                        stop_at_plane=False)
+    second = events[1]
+    assert events[0].state[0] < 0.0 and -1.2 < second.state[0] < 0.0   # both on our half
+    t = np.arange(0.0, 1.0, 1.0 / RATE)
+    _, s = rollout(state, ModelParams(), sample_times=t, stop_at_plane=False,
+                   stop_at_net=False, max_bounces=3, t_max=1.0)
+    ok = np.isfinite(s[:, 0]) & (s[:, 0] > -1.6)
+    t, p = t[ok], s[ok, :3] + np.random.default_rng(2).normal(0.0, 5e-4, (ok.sum(), 3))
+    assert p[-1, 0] < PLANE                                 # the data cross the plane
+    rp = replay_track('short.csv', t, p, ModelParams(), hit_plane_x=PLANE)
+    after = rp.rows[:, 0] > second.t + 0.03
+    assert after.sum() > 20 and np.all(np.isnan(rp.rows[after, 13]))
+    before = (rp.rows[:, 0] > events[0].t + 0.03) & (rp.rows[:, 0] < second.t - 0.03)
+    assert np.all(np.isnan(rp.rows[before, 13]))            # double_bounce predicted
+    assert np.all(np.isfinite(rp.rows[after, 10]))          # the first bounce kept
+    assert np.allclose(rp.rows[after, 11], events[0].state[0], atol=0.02)
+    assert rp.crossing is None
+    assert no_crossing_reason(rp, PLANE).startswith("bounces twice on the robot's half")
+
+
 def test_a_track_left_out_of_the_score_says_why(data):
     """A user's tracks without a measured crossing were left out of the hit error silently:
     summary.json names each with its reason (data ending before the bounce or before the

@@ -653,6 +653,11 @@ def smooth(steps, params=None, config=None):
 # A stream of measured positions
 
 
+SAME_BOUNCE_S = 0.03
+"""Two contacts on the robot's half closer in time than this are one bounce (placed again by
+a kink), s; a ball's second bounce comes 0.1 s or more after its first."""
+
+
 class TrackFilter:
     """Runs a :class:`BallFilter` over one ball's stream of measured positions.
 
@@ -660,7 +665,9 @@ class TrackFilter:
     time (duplicate, out of order) is skipped (the filter coasts); a sample failing the gate
     is rejected; after ``max_rejects`` rejections in a row or a gap over ``max_gap`` the
     filter restarts from the last two samples. ``robot_bounced`` says whether the ball has
-    bounced on the robot's half (x < 0) on its way in (reset once it moves away, vx > 0).
+    bounced on the robot's half (x < 0) on its way in (reset once it moves away, vx > 0);
+    ``robot_bounces`` how many times (a second one before the stroke: a double bounce, not a
+    ball the robot may return).
     """
 
     SKIPPED, COASTED, REJECTED, ACCEPTED, STARTED = range(5)
@@ -674,6 +681,8 @@ class TrackFilter:
         self.last_accept = -math.inf
         self.robot_bounced = False
         self.robot_bounce = None
+        self.robot_bounces = 0
+        self._counted_t = -math.inf   # time of the last bounce counted in robot_bounces
         self.nis = []              # squared Mahalanobis distances of the accepted samples
         self._last = None          # the latest valid sample (t, p)
         self._before = None        # the one before it
@@ -708,6 +717,8 @@ class TrackFilter:
             if old.x[2] < self.params.radius + 0.05 and p[0] < 0.0 and v[2] > 0.0:
                 self.robot_bounced = True
                 self.robot_bounce = (float(t1), float(p1[0]), float(p1[1]))
+                self.robot_bounces = 1
+                self._counted_t = float(t1)
         self.filter = f
         self.updates = 1
         self.rejects = 0
@@ -774,10 +785,18 @@ class TrackFilter:
         if f.x[3] > 0.0:
             self.robot_bounced = False          # moving away (returned): a new ball comes
             self.robot_bounce = None
+            self.robot_bounces = 0
         elif (f.last_bounce is not None and f.last_bounce is not self._seen_bounce
                 and f.last_bounce[1] < 0.0):
+            # A contact re-placed by a kink (update's rebounce) is the same bounce again.
+            again = (self.robot_bounce is not None
+                     and abs(f.last_bounce[0] - self._counted_t) < SAME_BOUNCE_S)
+            if not again:
+                self.robot_bounces += 1
+                self._counted_t = f.last_bounce[0]
+            if self.robot_bounces <= 1:
+                self.robot_bounce = f.last_bounce
             self.robot_bounced = True
-            self.robot_bounce = f.last_bounce
         if f.last_bounce is not None:
             self._seen_bounce = f.last_bounce
 

@@ -124,7 +124,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         elif pred.bounce is not None and pred.bounce.half < 0:
             rows[k, 10] = pred.bounce.t
             rows[k, 11:13] = pred.bounce.p[:2]
-        if pred.hit is not None:
+        if pred.hit is not None and tf.robot_bounces < 2:    # not after a double bounce
             rows[k, 13] = pred.hit.t
             rows[k, 14:17] = pred.hit.p
     return rows, tf.nis
@@ -134,9 +134,10 @@ def measured_crossing(t, p, bounce_times, plane_x):
     """First crossing of x = plane_x after the first bounce on the robot's half: (t, p).
 
     Local quadratic fits in time (CROSSING_WINDOW samples each side) average the measurement
-    noise; None when the data does not cross the plane after such a bounce.
+    noise; None when the data does not cross the plane after such a bounce, or bounces on
+    the robot's half a second time before it (a double bounce: no ball to return).
     """
-    robot = [tb for tb, xb in bounce_times if xb < 0.0]
+    robot = sorted(tb for tb, xb in bounce_times if xb < 0.0)
     if not robot:
         return None
     after = t > robot[0]
@@ -145,6 +146,8 @@ def measured_crossing(t, p, bounce_times, plane_x):
     if not len(idx):
         return None
     i = idx[0]
+    if len(robot) > 1 and robot[1] < t[i + 1]:
+        return None
     lo = max(i - CROSSING_WINDOW + 1, int(np.argmax(after)))
     hi = min(i + CROSSING_WINDOW + 1, len(t))
     w = g[i] / (g[i] - g[i + 1])
@@ -230,6 +233,10 @@ def no_crossing_reason(rp, plane_x):
         return (f"no bounce located on the robot's half (the cleaned track ends at t = "
                 f'{rp.t[-1]:.3f} s, x = {rp.p[-1, 0]:.2f} m)')
     tb = rp.robot_bounce.t
+    robot = sorted(t for t, x in rp.bounce_times if x < 0.0)
+    if len(robot) > 1 and not np.any(rp.p[(rp.t > tb) & (rp.t < robot[1]), 0] <= plane_x):
+        return (f"bounces twice on the robot's half (t = {robot[0]:.3f} and {robot[1]:.3f} s) "
+                'before the plane')
     x = rp.p[rp.t > tb, 0]
     if not len(x) or np.all(x > plane_x):
         end = x.min() if len(x) else rp.p[-1, 0]
