@@ -490,6 +490,34 @@ def test_one_state_off_the_path_is_an_outlier_and_the_track_keeps_its_bounce(gra
     assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
 
 
+def test_a_ball_past_its_second_bounce_on_the_robots_half_stays_double_bounce():
+    # A short ball (first seen past the net) bounces at x = -0.16 and again at -0.75 before
+    # the plane at -1.2: the node said double_bounce until the second bounce, then, from a
+    # state rising off it, an ordinary hit (status ok) for the arm to strike (tt-predict's
+    # replay did the same; a new user's walk-through).
+    short = np.array([0.3, 0.0, 0.25, -2.2, 0.0, 0.0, 0.0, -50.0, 0.0])
+    events, _ = rollout(short, ModelParams(), t_max=1.5, stop_at_net=False, max_bounces=3,
+                        stop_at_plane=False)
+    first, second = events[0].t, events[1].t
+    assert events[0].state[0] < 0.0 and -1.2 < events[1].state[0] < 0.0
+    times = [0.16, first + 0.06, 0.5 * (first + second), second + 0.06, second + 0.12]
+    _, states = rollout(short, ModelParams(), sample_times=times, stop_at_net=False,
+                        max_bounces=3, stop_at_plane=False)
+    g = Graph([rclpy.parameter.Parameter('hit_plane_x', value=-1.2)])
+    try:
+        for k, (t, values) in enumerate(zip(times, states, strict=True), start=1):
+            g.pub.publish(g.state(values, stamp_ns=T0 + round(t * 1e9), track_id=7))
+            g.spin_until(lambda k=k: len(g.predictions) == k, 10.0, f'prediction {k}')
+        statuses = [p.status for p in g.predictions]
+        assert statuses == ['double_bounce'] * 5
+        assert not any(p.hit_valid for p in g.predictions)
+        assert all(p.bounce_time == g.predictions[0].bounce_time for p in g.predictions)
+        # Without the track's memory the state after the second bounce is a hit.
+        assert predict(states[3], hit_plane_x=-1.2, bounced=True).status == 'ok'
+    finally:
+        g.close()
+
+
 def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):
     t0 = T0
     before = predict(GOOD)

@@ -7,6 +7,7 @@ markers follow at a lower rate. Invalid or stale states are dropped with a throt
 (nothing is published for them).
 """
 
+import dataclasses
 import gc
 import sys
 import threading
@@ -103,12 +104,13 @@ PARAMETERS = (
 class _Track:
     """What the node remembers of one track: its predicted bounce and last uncertainty."""
 
-    __slots__ = ('bounce', 'bounce_ns', 'uncertainty', 'uncertainty_ns', 'last_ns', 'state',
-                 'predicted_ns', 'replaced')
+    __slots__ = ('bounce', 'bounce_ns', 'second_ns', 'uncertainty', 'uncertainty_ns',
+                 'last_ns', 'state', 'predicted_ns', 'replaced')
 
     def __init__(self):
         self.bounce = None
         self.bounce_ns = None
+        self.second_ns = None           # a second bounce on the robot's half it predicted
         self.uncertainty = None
         self.uncertainty_ns = None
         self.last_ns = None
@@ -295,9 +297,18 @@ class PredictionNode(Node):
         if not bounced:
             track.bounce = None
             track.bounce_ns = None
+            track.second_ns = None
             if pred.bounce is not None and pred.bounce.half < 0:
                 track.bounce = pred.bounce
                 track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
+        elif pred.status == 'double_bounce':
+            track.second_ns = stamp_ns + round(pred.stop_t * 1e9)
+        elif track.second_ns is not None and stamp_ns > track.second_ns + margin_ns:
+            # Past the second bounce on the robot's half it foresaw: from there the ball flies
+            # to the plane as if it had bounced once, but it is no ball to return.
+            pred = dataclasses.replace(
+                pred, status='double_bounce', hit=None,
+                explanation="bounced a second time on the robot's half before the plane")
         out = self._prediction_msg(msg, stamp_ns, pred, track, plane_x)
         request = self._add_uncertainty(out, msg, state, stamp_ns, track, plane_x, bounced)
         self.pub.publish(out)

@@ -122,7 +122,8 @@ class Prediction:
     x = 0 (m, NaN when it does not cross; :func:`predict_landing` only); ``path`` (k, 3)
     ball centres at the requested sample times until the flight stops, or None;
     ``hit_path`` (k, 10) rows [t, p, v, w] after the bounce on the robot's half (predict with
-    hit_path only).
+    hit_path only); ``stop_t`` the time the outcome is met (the contact, crossing or stop
+    that decided the status; for ``double_bounce`` the second bounce), s (NaN: invalid).
     """
 
     status: str
@@ -132,6 +133,7 @@ class Prediction:
     net_clearance: float = math.nan
     path: np.ndarray = None
     hit_path: np.ndarray = None
+    stop_t: float = math.nan
     explanation: str = dataclasses.field(default='', repr=False)
     _why: tuple = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -707,7 +709,8 @@ def _to_prediction(row, plane_x, outgoing=False, path=None):
     contact = _contact(row)
     return Prediction(status=STATUSES[status], bounce=None if outgoing else contact,
                       hit=_hit(row), landing=contact, net_clearance=float(row[_O_NET_Z]),
-                      path=path, _why=(status, row, contact, plane_x, outgoing))
+                      path=path, stop_t=float(row[_O_STOP_T]),
+                      _why=(status, row, contact, plane_x, outgoing))
 
 
 def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounced=False,
