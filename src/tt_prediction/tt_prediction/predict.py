@@ -133,7 +133,7 @@ class Prediction:
     net_clearance: float = math.nan
     path: np.ndarray = None
     hit_path: np.ndarray = None
-    stop_t: float = math.nan
+    stop_t: float = dataclasses.field(default=math.nan, compare=False)
     explanation: str = dataclasses.field(default='', repr=False)
     _why: tuple = dataclasses.field(default=None, repr=False, compare=False)
 
