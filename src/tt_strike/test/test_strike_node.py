@@ -231,7 +231,13 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         unstamped.hit_time.sec, unstamped.hit_time.nanosec = 0, 700_000_000
         g.pub.publish(unstamped)
         g.spin_until(lambda: g.node.n_received == 6, 10.0, 'the unstamped prediction')
-        assert g.node.n_dropped == 6 and g.commands == []
+        # A hit six years after its stamp (a walk-through's hand-made message) was struck
+        # 'ok': no flight is predicted beyond predict.T_MAX.
+        far = prediction_msg(9)
+        far.hit_time.sec += 189_000_000
+        g.pub.publish(far)
+        g.spin_until(lambda: g.node.n_received == 7, 10.0, 'the far prediction')
+        assert g.node.n_dropped == 7 and g.commands == []
         assert reasons[0].startswith('hit_covariance is not symmetric (')
         assert reasons[1] == 'hit_covariance is not positive semi-definite (eigenvalue -1e-06)'
         assert reasons[2] == 'hit_covariance is not finite'
@@ -239,6 +245,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
                               'beyond 1 m (all zeros means unknown)')
         assert reasons[4] == 'hit_time precedes header.stamp (the state it was predicted from)'
         assert reasons[5].startswith('header.stamp is 0: not set')
+        assert reasons[6].startswith('hit_time 1.89e+08 s after header.stamp: beyond the 3 s')
         # All zeros (unknown: the position taken as exact), and an asymmetry of rounding,
         # are taken.
         zeros, rounded = prediction_msg(4), prediction_msg(5)
@@ -251,7 +258,7 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
         g.spin_until(lambda: len(g.commands) == 2, 20.0, 'two commands')
         for cmd, msg in zip(g.commands, (zeros, rounded), strict=True):
             check_command(cmd, msg, 5)
-        assert g.node.n_dropped == 6
+        assert g.node.n_dropped == 7
     finally:
         g.close()
 

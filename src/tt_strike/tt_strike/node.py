@@ -31,7 +31,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
-from tt_prediction.predict import Hit
+from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
@@ -332,6 +332,11 @@ class StrikeNode(Node):
             return
         if to_ns(msg.hit_time) < to_ns(msg.header.stamp):
             self._drop('hit_time precedes header.stamp (the state it was predicted from)')
+            return
+        ahead = (to_ns(msg.hit_time) - to_ns(msg.header.stamp)) * 1e-9
+        if ahead > T_MAX:
+            self._drop(f'hit_time {ahead:.4g} s after header.stamp: beyond the {T_MAX:g} s of '
+                       'flight a prediction covers (another clock?)')
             return
         try:       # zeros (unknown): the position taken as exact, only v and w uncertain
             check_covariance(np.array(msg.hit_covariance, dtype=float).reshape(3, 3),
