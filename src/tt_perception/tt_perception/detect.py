@@ -734,7 +734,8 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
     m00 = m10 = m01 = 0.0
     s00 = s10 = s01 = s20 = s11 = s02 = 0.0
     grey_sum = 0.0
-    values = np.empty(bh * bw, np.uint8)
+    values = np.empty(bh * bw, np.uint8)     # the blob's grey levels
+    n = 0
     for y in range(bh):
         for x in range(bw):
             if sub[y, x]:
@@ -749,9 +750,10 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
                 s11 += x * y
                 s02 += y * y
                 g = grey[py + y, px + x]
-                values[int(s00) - 1] = g
+                values[n] = g
+                n += 1
                 grey_sum += g
-    if m00 <= 0.0 or s00 == 0.0:
+    if m00 <= 0.0 or n == 0:
         return out
     out[0] = m00
     out[1] = m10 / m00
@@ -781,8 +783,7 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
                     alike += 1
     out[6] = alike / ring if ring else 0.0
     if colour:
-        ordered = np.sort(values[:int(s00)])
-        n = ordered.size
+        ordered = np.sort(values[:n])
         median = (float(ordered[n // 2]) if n % 2 else
                   0.5 * (float(ordered[n // 2 - 1]) + float(ordered[n // 2])))
         lit = 0.0
@@ -907,6 +908,7 @@ class BallDetector:
         fh, fw = frame.shape[:2]
         colour_frame = frame.ndim == 3
         with_colour = cfg.colour != 'any' and colour_frame
+        known = with_colour and self._bg_colour is not None     # the background's colour
         out = []
         for i in range(1, n):
             area = stats[i, cv2.CC_STAT_AREA]
@@ -922,7 +924,6 @@ class BallDetector:
             ax, ay = max(ux - HIDDEN_MARGIN, 0), max(uy - HIDDEN_MARGIN, 0)
             ex, ey = min(ux + bw + HIDDEN_MARGIN, fw), min(uy + bh + HIDDEN_MARGIN, fh)
             patch = np.ascontiguousarray(frame[ay:ey, ax:ex])
-            known = with_colour and self._bg_colour is not None
             background = (np.ascontiguousarray(self._bg_colour[ay:ey, ax:ex]) if known
                           else _NO_BACKGROUND)
             m = _blob_measures(sub, np.ascontiguousarray(diff[by:by + bh, bx:bx + bw]),

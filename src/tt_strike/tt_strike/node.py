@@ -330,10 +330,10 @@ class StrikeNode(Node):
         if not np.all(np.isfinite(state)):
             self._drop('hit point, velocity or spin is not finite')
             return
-        if to_ns(msg.hit_time) < to_ns(msg.header.stamp):
+        ahead = (to_ns(msg.hit_time) - stamp_ns) * 1e-9
+        if ahead < 0.0:
             self._drop('hit_time precedes header.stamp (the state it was predicted from)')
             return
-        ahead = (to_ns(msg.hit_time) - to_ns(msg.header.stamp)) * 1e-9
         if ahead > T_MAX:
             self._drop(f'hit_time {ahead:.4g} s after header.stamp: beyond the {T_MAX:g} s of '
                        'flight a prediction covers (another clock?)')
