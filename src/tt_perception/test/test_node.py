@@ -6,6 +6,7 @@ image has reached the node (no sleeps)."""
 import contextlib
 import os
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -21,12 +22,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
+from tt_prediction.ball import load_model
 from tt_ros.executor import StartupError
 import yaml
 
 from tt_msgs.msg import BallState
 from tt_perception import node as node_module
 from tt_perception import synth
+from tt_prediction import tracks_cli
 from tt_ros import testing
 
 T0 = 1000.0      # stamp of the scene's time 0, s
@@ -347,3 +350,36 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
         i = int(np.argmin(np.abs(tr['t'] - t)))
         p = np.array([msg.position.x, msg.position.y, msg.position.z])
         assert abs(tr['t'][i] - t) < 1e-5 and np.linalg.norm(p - tr['state'][i, :3]) < 0.005
+
+
+def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(graph, tmp_path):
+    """`tt-predict --tracks` writes params.yaml: perception_node started with it
+    (`--params-file`, as docs/prediction.md says) runs its filter with the spin prior and
+    accel_noise the replay ended with and reads the model.yaml written beside it."""
+    launcher = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..',
+                            'data', 'mpi_launcher')
+    data = tmp_path / 'data'
+    data.mkdir()
+    for k in range(25):             # enough bounces for the spin prior to be learned
+        shutil.copy(os.path.join(launcher, f'{k:04d}.csv'), data)
+    out = tmp_path / 'replay'
+    assert tracks_cli.main(['--tracks', str(data), '--out', str(out), '--hit-plane-x', '-1.2',
+                            '--no-textbook']) == 0
+    params = yaml.safe_load((out / 'params.yaml').read_text())
+    mine = params['perception_node']['ros__parameters']
+    defaults = {p.name: p.default for p in node_module.PARAMETERS}
+    for name in ('accel_noise', 'spin_prior', 'spin_prior_mean'):      # learned
+        assert mine[name] != defaults[name]
+    rig_path = synth.make_rig(str(tmp_path), sources=unique_topics()[1])
+    node = graph.add(PerceptionNode(
+        context=graph.context,
+        cli_args=['--ros-args', '--params-file', str(out / 'params.yaml')],
+        parameter_overrides=[Parameter('rig_file', value=rig_path)]))
+    cfg = node.pipeline.tracker.filter_config
+    assert cfg.accel_noise == mine['accel_noise']
+    assert list(cfg.spin_prior_axes()) == [mine['spin_prior'], mine['spin_prior_side'],
+                                           mine['spin_prior_along']]
+    assert list(cfg.spin_prior_mean) == mine['spin_prior_mean']
+    assert node.pipeline.params == load_model(str(out / 'model.yaml'))
+    for name in ('prediction_node', 'strike_node'):
+        assert params[name]['ros__parameters'] == {'model_file': str(out / 'model.yaml')}

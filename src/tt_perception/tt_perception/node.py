@@ -107,7 +107,16 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
     ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
-    ('spin_prior', 250.0, 'Prior standard deviation of each spin component', 'rad/s', 1, 5000),
+    ('spin_prior', 250.0, 'Prior standard deviation of the top/back spin (about the horizontal '
+     "axis across the velocity at a track's start), and of every spin component unless "
+     'spin_prior_side or spin_prior_along is set', 'rad/s', 1, 5000),
+    ('spin_prior_side', 0.0, 'Prior standard deviation of the side spin (about the axis across '
+     'the velocity in the vertical plane); 0: spin_prior', 'rad/s', 0, 5000),
+    ('spin_prior_along', 0.0, 'Prior standard deviation of the spin along the velocity (which '
+     'flight cannot show); 0: spin_prior', 'rad/s', 0, 5000),
+    ('spin_prior_mean', [0.0, 0.0, 0.0], 'Prior mean of the spin on the axes top/back '
+     "(topspin positive), side, along the velocity at a track's start (as tt-predict "
+     '--tracks learns it)', 'rad/s', -5000, 5000, (), 3),
     ('measured_spin_topic', '', 'geometry_msgs/Vector3Stamped topic of a measured spin '
      '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
@@ -246,7 +255,10 @@ class PerceptionNode(Node):
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
             curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'))
-        filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'))
+        filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'),
+                            spin_prior_side=self._p('spin_prior_side') or None,
+                            spin_prior_along=self._p('spin_prior_along') or None,
+                            spin_prior_mean=tuple(self._p('spin_prior_mean')))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
@@ -314,8 +326,9 @@ class PerceptionNode(Node):
             self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
         names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
+        model = self._p('model_file') or 'nominal'
         self.get_logger().info(f'rig {rig.path}: {names}; publishing '
-                               f'{self.publisher.topic_name}')
+                               f'{self.publisher.topic_name}; model {model}')
 
     # --- frames in ---------------------------------------------------------------------
 

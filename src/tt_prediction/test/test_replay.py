@@ -15,6 +15,7 @@ from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
 from tt_prediction.replay import COLUMNS, LEADS_MS, crossing_noise, measured_crossing
+import yaml
 
 PLANE = -1.2
 RATE = 180.0
@@ -391,6 +392,10 @@ def test_a_common_gyro_spin_is_learned_and_moves_the_predicted_bounce(tmp_path):
             tracks.append((f'{i:04d}.csv', *_track(s, rng, noise=5e-4)))
     learned, generic = _with_and_without_learning(tracks, tmp_path)
     assert learned['spin_prior_learned']['final_mean'][2] == pytest.approx(-80.0, abs=20.0)
+    # params.yaml hands the learned prior to perception_node; --no-learn the configured one.
+    for out, along in (('out0', pytest.approx(-80.0, abs=20.0)), ('out1', 0.0)):
+        nodes = yaml.safe_load((tmp_path / out / 'params.yaml').read_text())
+        assert nodes['perception_node']['ros__parameters']['spin_prior_mean'][2] == along
     means = learned['spin_prior_learned']['per_track_mean']
     assert means[tracks[0][0]] == [0.0, 0.0, 0.0]             # nothing learned before it
     medians = [s['hit_error']['300']['median_mm'] for s in (learned, generic)]
@@ -408,6 +413,12 @@ def test_a_table_that_gives_back_less_is_learned_from_its_bounces(tmp_path):
     learned, generic = _with_and_without_learning(tracks, tmp_path)
     restitution = learned['restitution_learned']
     assert restitution['final'] == pytest.approx(0.86, abs=0.01)
+    # model.yaml holds it for the nodes (params.yaml points them to it); --no-learn: 0.93.
+    for out, e_t in (('out0', pytest.approx(0.86, abs=0.01)), ('out1', 0.93)):
+        assert ModelParams.load(str(tmp_path / out / 'model.yaml')).e_t == e_t
+        nodes = yaml.safe_load((tmp_path / out / 'params.yaml').read_text())
+        assert {n['ros__parameters']['model_file'] for n in nodes.values()} == {
+            str(tmp_path / out / 'model.yaml')}
     assert restitution['per_track'][tracks[0][0]] == 0.93        # nothing learned before it
     assert restitution['tracks_informing'] >= 15
     medians = [s['hit_error']['300']['median_mm'] for s in (learned, generic)]

@@ -562,6 +562,44 @@ class LiftLearner(PooledLearner):
         super().__init__(generic, prior_sd, default_sd, spread, reject, bounds)
 
 
+class Learning:
+    """What the replay learns from finished tracks, for the tracks after them: the spin prior
+    (:class:`tt_prediction.ball_filter.SpinPriorLearner`, :func:`bounce_spin_observation`),
+    ``accel_noise`` (:class:`tt_prediction.ball_filter.AccelNoiseLearner`), the table's
+    restitution e_t (:class:`RestitutionLearner`, :func:`restitution_observation`) and the
+    Magnus coefficient C_M (:class:`LiftLearner`, :func:`lift_observation`), each starting
+    from ``config``'s (FilterConfig) and ``params``' (ModelParams) values."""
+
+    def __init__(self, config, params):
+        self.noise = AccelNoiseLearner(config.accel_noise)
+        self.spin = SpinPriorLearner(generic=config.spin_prior_axes(),
+                                     generic_mean=config.spin_prior_mean)
+        self.restitution = RestitutionLearner(params.e_t)
+        self.lift = LiftLearner(params.c_m)
+
+    def config(self, base):
+        """``base`` (FilterConfig) with the learned spin prior and accel_noise."""
+        return dataclasses.replace(self.spin.config(base), accel_noise=self.noise.value)
+
+    def model(self, base):
+        """``base`` (ModelParams) with the learned e_t and C_M."""
+        return self.lift.params(self.restitution.params(base))
+
+    def observe(self, rp, model, base):
+        """Learn from the finished replay ``rp``, run with ``model``; ``base``: the
+        FilterConfig the tracks are configured with (its spin prior, not the learned one,
+        reads the bounce)."""
+        generic = dataclasses.replace(base, accel_noise=self.noise.value)   # rp's own
+        self.noise.observe(rp.nis)
+        self.restitution.observe(restitution_observation(rp, model))
+        reading = bounce_reading(rp, model, generic)       # once for the two below
+        if reading is not None:
+            self.lift.observe(lift_observation(rp, model, generic, reading))
+            obs = bounce_spin_observation(rp, model, generic, reading)
+            if obs is not None:
+                self.spin.observe(*obs)
+
+
 # ----------------------------------------------------------------------------------------------
 # The textbook reference
 
@@ -673,47 +711,32 @@ def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=T
 
 
 def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
-                  leads_ms=LEADS_MS, textbook=True, learn=True):
+                  leads_ms=LEADS_MS, textbook=True, learn=True, learning=None):
     """Replay every track and score it.
 
     ``tracks``: iterable of (name, t (n,), p (n, 3), spin (3,) or None) as measured, in the
     order a robot would have seen them. With ``learn`` each track is replayed with what the
     tracks before it taught (causal: never its own data; the config's and the model's values
-    until enough was seen): the spin prior of a
-    :class:`tt_prediction.ball_filter.SpinPriorLearner` (:func:`bounce_spin_observation`),
-    the accel_noise of an :class:`tt_prediction.ball_filter.AccelNoiseLearner`, the table
-    restitution of a :class:`RestitutionLearner` (:func:`restitution_observation`) and the
-    Magnus coefficient of a :class:`LiftLearner` (:func:`lift_observation`). The
-    textbook reference keeps ``params``. Returns ``(replays, summary)``: the
-    :class:`TrackReplay` list and a JSON-ready dict.
+    until enough was seen; :class:`Learning`): the spin prior, accel_noise, the table's
+    restitution and the Magnus coefficient. ``learning``: the :class:`Learning` to use, which
+    then holds what the whole set taught (None: a new one). The textbook reference keeps
+    ``params``. Returns ``(replays, summary)``: the :class:`TrackReplay` list and a
+    JSON-ready dict.
     """
     config = config or FilterConfig()
-    learner = noise = restitution = lift = None
-    if learn:
-        noise = AccelNoiseLearner(config.accel_noise)
-        generic = config
-        learner = SpinPriorLearner(generic=config.spin_prior_axes(),
-                                   generic_mean=config.spin_prior_mean)
-        restitution = RestitutionLearner(params.e_t)
-        lift = LiftLearner(params.c_m)
+    if learn and learning is None:
+        learning = Learning(config, params)
+    elif not learn:
+        learning = None
     replays = []
     for name, t, p, spin in tracks:
         cfg, model = config, params
-        if learner is not None:
-            cfg = dataclasses.replace(learner.config(config), accel_noise=noise.value)
-            generic = dataclasses.replace(config, accel_noise=noise.value)
-            model = lift.params(restitution.params(params))
+        if learning is not None:
+            cfg, model = learning.config(config), learning.model(params)
         rp = replay_track(name, t, p, model, cfg, hit_plane_x, spin)
         replays.append(rp)
-        if learner is not None:
-            noise.observe(rp.nis)
-            restitution.observe(restitution_observation(rp, model))
-            reading = bounce_reading(rp, model, generic)       # once for the two below
-            if reading is not None:
-                lift.observe(lift_observation(rp, model, generic, reading))
-                obs = bounce_spin_observation(rp, model, generic, reading)
-                if obs is not None:
-                    learner.observe(*obs)
+        if learning is not None:
+            learning.observe(rp, model, config)
     errors = lead_time_errors(replays, params, hit_plane_x, leads_ms, textbook)
     rng = np.random.default_rng(0)
     floor = np.concatenate([np.zeros(0)] + [
@@ -737,7 +760,9 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
             'p90_mm': round(float(np.percentile(floor, 90)) * 1e3, 2) if len(floor) else None,
         },
     }
-    if learner is not None:
+    if learning is not None:
+        learner, noise = learning.spin, learning.noise
+        restitution, lift = learning.restitution, learning.lift
         final_mean, final_sd = learner.moments()
         summary['spin_prior_learned'] = {
             'rule': 'causal: each track uses the prior learned from the tracks before it '

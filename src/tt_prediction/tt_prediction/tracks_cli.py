@@ -5,9 +5,11 @@ index.csv with measured spin). For every input sample OUT/<track file name> gets
 ``t,x,y,z,vx,vy,vz,wx,wy,wz,bounce_t,bounce_x,bounce_y,hit_t,hit_x,hit_y,hit_z`` (empty where
 there is no estimate or prediction) and OUT/summary.json the hit-point error against each
 track's measured crossing of the hitting plane at lead times 300, 200, 150, 100 and 50 ms,
-for this filter + predictor and for the textbook refit. Everything is read and checked before
-anything is written; the output is written to a temporary folder and renamed into place, so
-a file that cannot be read leaves no partial output (one-line error naming it, exit 2).
+for this filter + predictor and for the textbook refit; OUT/model.yaml and OUT/params.yaml
+(a ROS 2 parameters file) hand what the replay learned to the nodes. Everything is read and
+checked before anything is written; the output is written to a temporary folder and renamed
+into place, so a file that cannot be read leaves no partial output (one-line error naming
+it, exit 2).
 """
 
 import argparse
@@ -27,7 +29,7 @@ from .cli import add_version, hit_plane_error
 from .identify.data import DataError, folder_tracks, read_track_csv
 from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
-from .replay import COLUMNS, replay_tracks
+from .replay import COLUMNS, Learning, replay_tracks
 from .staged import interruptible, output_folder_error, staged_folder
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
@@ -123,9 +125,14 @@ def load_filter_config(path, tracks):
     return config
 
 
-OUTPUT_FILE = re.compile(r'(?!index\.csv$).+\.csv|summary\.json', re.IGNORECASE)
-"""The files tt-predict --tracks writes: one CSV per track (not a data set's index.csv) and
-summary.json."""
+LEARNED_MODEL = 'model.yaml'
+NODE_PARAMS = 'params.yaml'
+NODES_WITH_MODEL = ('perception_node', 'prediction_node', 'strike_node')
+"""The nodes that read a model_file (their default names), in NODE_PARAMS."""
+OUTPUT_FILE = re.compile(r'(?!index\.csv$).+\.csv|summary\.json|model\.yaml|params\.yaml',
+                         re.IGNORECASE)
+"""The files tt-predict --tracks writes: one CSV per track (not a data set's index.csv),
+summary.json, model.yaml and params.yaml."""
 
 
 def write_rows(path, rows):
@@ -137,13 +144,43 @@ def write_rows(path, rows):
                              for fmt, v in zip(_FORMATS, row, strict=True)) + '\n')
 
 
-def write_output(out_dir, replays, summary):
-    """Write the rows and summary.json into a temporary folder, then move them into place."""
+def node_params(config, model_path, command):
+    """The ROS 2 parameters file of what the replay ended with, for the nodes: perception_node's
+    filter settings that the replay learns (accel_noise, the spin prior's standard deviations
+    and mean on the axes of the velocity) and, for each node that reads one, ``model_path``.
+    ``command``: the tt-predict command line, in the header comment. A YAML string."""
+    top, side, along = config.spin_prior_axes()
+    perception = {
+        'model_file': model_path,
+        'accel_noise': float(config.accel_noise),
+        'spin_prior': float(top), 'spin_prior_side': float(side),
+        'spin_prior_along': float(along),
+        'spin_prior_mean': [float(v) for v in config.spin_prior_mean],
+    }
+    nodes = {name: {'ros__parameters': perception if name == 'perception_node'
+                    else {'model_file': model_path}} for name in NODES_WITH_MODEL}
+    header = (f'# Written by {command}\n'
+              '# What the replay ended with (learned from every track unless --no-learn; '
+              'docs/prediction.md),\n'
+              f'# for: ros2 run <package> <node> --ros-args --params-file {NODE_PARAMS}\n')
+    return header + yaml.safe_dump(nodes, sort_keys=False, default_flow_style=None)
+
+
+def write_output(out_dir, replays, summary, final=None):
+    """Write the rows and summary.json into a temporary folder, then move them into place.
+    ``final``: (FilterConfig, ModelParams, meta, command) the replay ended with, written as
+    model.yaml and params.yaml (:func:`node_params`)."""
     with staged_folder(out_dir, 'tt-predict', replace_folder=False) as tmp:
         for rp in replays:
             write_rows(os.path.join(tmp, rp.name), rp.rows)
         with open(os.path.join(tmp, 'summary.json'), 'w') as f:
             json.dump(summary, f, indent=2)
+        if final is not None:
+            config, model, meta, command = final
+            model.save(os.path.join(tmp, LEARNED_MODEL), meta=meta)
+            model_path = os.path.join(os.path.abspath(out_dir), LEARNED_MODEL)
+            with open(os.path.join(tmp, NODE_PARAMS), 'w') as f:
+                f.write(node_params(config, model_path, command))
 
 
 def main(argv=None):
@@ -191,14 +228,23 @@ def _main(argv=None):
         return 2
     warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params,
                               args.hit_plane_x)
+    learning = None if args.no_learn else Learning(config, params)
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
-                                     learn=not args.no_learn)
+                                     learn=not args.no_learn, learning=learning)
     summary['warnings'] = warnings
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
+    final_config, final_model = config, params
+    if learning is not None:
+        final_config, final_model = learning.config(config), learning.model(params)
+    meta = {'written_by': 'tt-predict --tracks', 'sources': [args.tracks],
+            'model': args.model or 'nominal',
+            'learned': [] if learning is None else ['e_t', 'c_m']}
+    command = ' '.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
     try:
-        write_output(args.out, replays, summary)
+        write_output(args.out, replays, summary,
+                     (final_config, final_model, meta, command))
     except OSError as exc:
         print(f'tt-predict: {args.out}: cannot write: {exc.strerror}', file=sys.stderr)
         return 2
