@@ -144,3 +144,23 @@ def test_planted_lift_coefficient_without_measured_spin_is_identified_through_th
                 if e['name'] == 'lift_from_bounces' and e.get('round') == 1]
     assert entry['pays']
     assert abs(entry['params']['c_m'] - true) <= 0.5 * abs(true - nominal)
+
+
+def test_rebound_correlations_carry_the_t_test_p_value_and_the_report_says_if_significant():
+    """The restitution residual's correlations: p from Student's t with n - 2 degrees of
+    freedom, t = r sqrt(n - 2) / sqrt(1 - r^2); the report calls r = -0.35 from 16 bounces
+    not significant (p = 0.18) and r = -0.8 from 16 significant."""
+    from scipy import stats
+    from tt_prediction.identify import diagnose, report
+
+    rng = np.random.default_rng(4)
+    for n in (5, 16, 40):
+        a, b = rng.normal(size=n), rng.normal(size=n)
+        r = np.corrcoef(a, b)[0, 1]
+        t = r * np.sqrt(n - 2) / np.sqrt(1 - r * r)
+        assert diagnose._corr_p(a, b) == pytest.approx(2 * stats.t.sf(abs(t), n - 2), rel=1e-9)
+    assert diagnose._corr_p(np.ones(5), rng.normal(size=5)) == 1.0
+    weak = report._correlation(-0.35, 0.18, 16)
+    assert 'n = 16' in weak and 'not significant' in weak
+    assert 'not significant' not in report._correlation(-0.8, 0.0002, 16)
+    assert report._correlation(-0.35, None, 16) == 'r = -0.35 (n = 16)'

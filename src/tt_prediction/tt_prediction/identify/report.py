@@ -43,6 +43,19 @@ def _fmt(value, nd=3):
     return str(value)
 
 
+SIGNIFICANCE = 0.05
+"""A correlation with a larger two-sided p-value is reported as not significant."""
+
+
+def _correlation(r, p, n):
+    """'r = -0.35 (n = 16, p = 0.18: not significant)'; p None (a report.json written before
+    p-values were) gives r and n alone."""
+    if p is None:
+        return f'r = {r} (n = {n})'
+    verdict = 'significant' if p < SIGNIFICANCE else 'not significant'
+    return f'r = {r} (n = {n}, p = {p:.2g}: {verdict} at {SIGNIFICANCE:.0%})'
+
+
 def markdown(r):
     """The human-readable report (tables of errors, parameters, effects, plots)."""
     d, b, f = r['data'], r['baseline'], r['final']
@@ -92,8 +105,13 @@ def markdown(r):
                      f"{_fmt(s['acc_std'])} | {c['t']} | {c['speed']} | {c['spin']} | "
                      f"{c['spin_ratio']} | {c['heading']} |")
     if reb:
-        lines += ['', f"Rebound: restitution residual correlates with impact speed "
-                      f"r = {reb['corr_impact_speed']}, with spin r = {reb['corr_spin']}."]
+        lines += ['', 'Rebound: restitution residual correlates with impact speed '
+                      + _correlation(reb['corr_impact_speed'], reb.get('corr_impact_speed_p'),
+                                     reb['n_bounces'])
+                      + ', with spin '
+                      + _correlation(reb['corr_spin'], reb.get('corr_spin_p'),
+                                     reb.get('n_bounces_with_spin', reb['n_bounces']))
+                      + '.']
     lines += ['', '## Effects tested', '', r['selection_rule'] + '.', '',
               '| effect | round | fitted parameters (all tracks) | held-out gain | '
               'penalty | effect size mm | pays |', '|---|---|---|---|---|---|---|']
