@@ -63,6 +63,29 @@ def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):
         VideoFileSource(str(tmp_path / 'absent.avi'), 100.0).open()
 
 
+def test_a_folder_of_images_numbered_from_100_with_a_gap_keeps_each_frames_time(tmp_path,
+                                                                                   capfd):
+    """Images 100..105 without 102 (a frame the grabber lost) at 100 fps: frame n is image
+    100 + n at n / 100 s, the missing one is a lost frame named at the end, and the images
+    after it keep their times. FFmpeg's image2 reader, which the folder went to before,
+    wanted a first number within 0-4 (exit 2) and stopped at the first gap (129 of 180
+    frames thrown away: a new user's walk-through, 29 Nov 2026)."""
+    for i in (100, 101, 103, 104, 105):
+        cv2.imwrite(str(tmp_path / f'img_{i:06d}.png'), np.full((6, 8), i, np.uint8))
+    src = VideoFileSource(str(tmp_path), 100.0).open()
+    got = [src.read() for _ in range(7)]
+    assert [t for t, _ in got[:6]] == pytest.approx([0.0, 0.01, 0.02, 0.03, 0.04, 0.05])
+    assert [None if f is None else int(f[0, 0, 0]) for _, f in got[:6]] == [
+        100, 101, None, 103, 104, 105]
+    assert got[1][1].shape == (6, 8, 3)                 # grey files read as BGR
+    assert got[6] == (None, None)
+    assert src.damage() == f'{tmp_path}: 1 of its 6 frames missing or unreadable: skipped, ' \
+        'the others at their times'
+    assert capfd.readouterr().err == ''
+    (tmp_path / 'notes.txt').write_text('not an image')          # other files are ignored
+    assert VideoFileSource(str(tmp_path), 100.0).open().read()[1] is not None
+
+
 def test_a_pattern_matching_no_image_is_one_line_without_ffmpeg_log(tmp_path, capfd):
     # FFmpeg's image2 demuxer logs '[image2 @ 0x...] Could find no file ...' on the process's
     # stderr before OpenCV says the capture is not open; the user is told once, by the error.
@@ -221,3 +244,19 @@ def test_absent_v4l2_device_is_reported_and_retried(capfd):
     assert 'no such V4L2 device' in src.status
     # Only the node's line: OpenCV's own warning came at every try, twice a second.
     assert 'WARN' not in capfd.readouterr().err
+
+
+def test_a_video_without_a_frame_is_refused_naming_it(tmp_path):
+    """cam1's file is a valid AVI of 0 frames (a recording that never started): the node's
+    start-up check and tt-perceive's reader name it; both ran with no word and no state (a
+    new user's walk-through, 29 Nov 2026)."""
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
+    cam1 = str(tmp_path / 'video' / 'cam1.avi')
+    cv2.VideoWriter(cam1, cv2.VideoWriter_fourcc(*'MJPG'), 100.0, (64, 48)).release()
+    expect = f'camera cam1: {cam1}: no frame can be read (an empty or broken video)'
+    assert file_sources_error(rig) == expect
+    with pytest.raises(OSError) as refused:
+        list(file_frames(rig, []))
+    assert str(refused.value) == expect

@@ -20,12 +20,18 @@ happened last, for the caller to report. A :class:`V4L2Source` also reads in two
 
 import itertools
 import os
+import re
 import struct
 import threading
 import time
 
 import cv2
 import numpy as np
+
+# FFmpeg's own log lines ('[mjpeg @ 0x...] overread 8', 32 of them around one damaged frame)
+# on stderr, beside the one line that names the damage (VideoFileSource.damage): quiet
+# unless the user set a level. OpenCV reads it when its FFmpeg backend first opens a file.
+os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
 
 SOURCE_KINDS = ('v4l2', 'file', 'topic')
 """What :func:`source_kind` tells apart (docs/DEVELOPING.md: adding a camera source)."""
@@ -147,6 +153,74 @@ def _sequence_starts(pattern):
         return True
 
 
+IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.bmp', '.tif', '.tiff')
+"""Files of a folder of images (:class:`ImageFolderCapture`)."""
+
+
+class ImageFolderCapture:
+    """A folder of numbered images behind the part of ``cv2.VideoCapture`` that
+    :class:`VideoFileSource` and :class:`tt_perception.camstream.PacedVideoSource` use.
+
+    Frame n is the image numbered first + n (the digits of its name; in name order when a
+    name has none), so that a missing number is a lost frame and the images after it keep
+    their times (FFmpeg's image2 reader stopped at the first gap and wanted the first number
+    within 0-4). A missing or unreadable image fails its ``grab``/``read`` alone. Images are
+    read with ``cv2.imread`` as 8-bit BGR. Written here: OpenCV reads a folder only as
+    FFmpeg's printf pattern."""
+
+    def __init__(self, folder, names):
+        numbers = [_name_number(n) for n in names]
+        if None in numbers:
+            files = [os.path.join(folder, n) for n in sorted(names)]
+        else:
+            first = min(numbers)
+            files = [None] * (max(numbers) - first + 1)
+            for n, name in sorted(zip(numbers, names, strict=True)):
+                files[n - first] = os.path.join(folder, name)
+        self.files = files
+        self.pos = -1
+        self.size = (0, 0)
+        for path in files:
+            image = None if path is None else cv2.imread(path, cv2.IMREAD_COLOR)
+            if image is not None:
+                self.size = (image.shape[1], image.shape[0])
+                break
+
+    def isOpened(self):   # noqa: N802 (cv2.VideoCapture's name)
+        return self.size != (0, 0)
+
+    def grab(self):
+        self.pos += 1
+        return self.pos < len(self.files) and self.files[self.pos] is not None
+
+    def retrieve(self):
+        if not 0 <= self.pos < len(self.files) or self.files[self.pos] is None:
+            return False, None
+        image = cv2.imread(self.files[self.pos], cv2.IMREAD_COLOR)
+        return image is not None, image
+
+    def read(self):
+        return self.retrieve() if self.grab() else (False, None)
+
+    def get(self, prop):
+        values = {cv2.CAP_PROP_FRAME_COUNT: len(self.files), cv2.CAP_PROP_PTS: self.pos,
+                  cv2.CAP_PROP_FRAME_WIDTH: self.size[0],
+                  cv2.CAP_PROP_FRAME_HEIGHT: self.size[1]}
+        return float(values.get(prop, 0.0))
+
+    def set(self, prop, value):
+        return False
+
+    def release(self):
+        self.files = []
+
+
+def _name_number(name):
+    """The number in a file name's stem (its last run of digits), or None."""
+    digits = re.findall(r'\d+', os.path.splitext(name)[0])
+    return int(digits[-1]) if digits else None
+
+
 class VideoFileSource(FrameSource):
     """A video file or an image sequence (printf pattern or a directory of images).
 
@@ -166,18 +240,19 @@ class VideoFileSource(FrameSource):
 
     def open(self):
         path = self.path
+        self.index = self.unreadable = 0
+        self.first_pts = None
         if os.path.isdir(path):
-            names = sorted(n for n in os.listdir(path)
-                           if os.path.splitext(n)[1].lower() in VIDEO_EXTENSIONS)
+            names = [n for n in os.listdir(path)
+                     if os.path.splitext(n)[1].lower() in IMAGE_EXTENSIONS]
             if not names:
                 raise OSError(f'{path}: no images in the directory')
-            path = os.path.join(path, names[0])
-            digits = ''.join(c for c in os.path.splitext(names[0])[0] if c.isdigit())
-            if digits:
-                stem = os.path.splitext(names[0])[0]
-                path = os.path.join(self.path, stem[:-len(digits)] + f'%0{len(digits)}d'
-                                    + os.path.splitext(names[0])[1])
-        elif '%' not in path and not os.path.isfile(path):
+            self.capture, self.by_index = ImageFolderCapture(path, names), True
+            if not self.capture.isOpened():
+                raise OSError(f'{path}: none of its images can be read')
+            self.declared = len(self.capture.files)
+            return self
+        if '%' not in path and not os.path.isfile(path):
             raise OSError(f'{path}: no such video file')
         elif '%' in path and not _sequence_starts(path):
             # Checked here: FFmpeg would log '[image2 @ 0x...] Could find no file ...' on
@@ -186,8 +261,6 @@ class VideoFileSource(FrameSource):
         self.capture, self.by_index = _open_capture(path)
         if not self.capture.isOpened():
             raise OSError(f'{path}: cannot be opened as a video or image sequence')
-        self.index = self.unreadable = 0
-        self.first_pts = None
         self.declared = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
         return self
 
@@ -226,8 +299,10 @@ class VideoFileSource(FrameSource):
             return text + (f', {self.unreadable} of them unreadable' if self.unreadable
                            else '')
         if self.unreadable:
-            return (f'{self.path}: {self.unreadable} of its {self.index} frames unreadable '
-                    '(corrupt?): skipped, the others at their times')
+            what = ('missing or unreadable' if os.path.isdir(self.path)
+                    else 'unreadable (corrupt?)')
+            return (f'{self.path}: {self.unreadable} of its {self.index} frames {what}: '
+                    'skipped, the others at their times')
         return ''
 
     def read(self):
@@ -383,9 +458,9 @@ def rates_error(rig, sources):
 
 def file_sources_error(rig):
     """Why the rig's video files cannot be used, in one line, or '': a camera's file missing,
-    unreadable or of another frame size than its calibration ('camera NAME: <path>: no such
-    video file', :meth:`VideoFileSource.disagreement`), or two files at different rates
-    (:func:`rates_error`). Each file is opened once and closed again."""
+    unreadable, without a frame or of another frame size than its calibration ('camera NAME:
+    <path>: no such video file', :meth:`VideoFileSource.disagreement`), or two files at
+    different rates (:func:`rates_error`). Each file is opened once and closed again."""
     base = os.path.dirname(rig.path)
     sources = {}
     try:
@@ -399,10 +474,15 @@ def file_sources_error(rig):
             error, _ = sources[k].disagreement(cam, rig.fps)
             if error:
                 return f'camera {cam.name}: {error}'
+            if not sources[k].capture.grab():       # a video of 0 frames ran without a word
+                return f'camera {cam.name}: {sources[k].path}: {NO_FRAME}'
         return rates_error(rig, sources)
     finally:
         for src in sources.values():
             src.close()
+
+
+NO_FRAME = 'no frame can be read (an empty or broken video)'
 
 
 def file_frames(rig, notes=None):
@@ -411,9 +491,9 @@ def file_frames(rig, notes=None):
     decoded is left out (the others keep their times). Raises OSError naming the camera when
     a source is not a file or cannot be read, or its frames are not of its calibration's size
     (:meth:`VideoFileSource.disagreement`), or naming two cameras whose files run at
-    different rates (:func:`rates_error`). A video whose own rate is not the rig's, that ends
-    before its header's frame count or has frames that cannot be decoded adds a line naming
-    the camera to the list ``notes``.
+    different rates (:func:`rates_error`), or when one gives no frame at all. A video whose
+    own rate is not the rig's, that ends before its header's frame count or has frames that
+    cannot be decoded adds a line naming the camera to the list ``notes``.
     """
     base = os.path.dirname(rig.path)
     sources = {}
@@ -433,17 +513,21 @@ def file_frames(rig, notes=None):
         error = rates_error(rig, sources)
         if error:
             raise OSError(error)
+        given = dict.fromkeys(sources, 0)
         while sources:
             for k in sorted(sources):
                 t, frame = sources[k].read()
                 if t is None:
                     ended = sources.pop(k)
                     ended.close()
+                    if not given[k]:
+                        raise OSError(f'camera {rig.cameras[k].name}: {ended.path}: {NO_FRAME}')
                     damage = ended.damage()
                     if notes is not None and damage:
                         notes.append(f'camera {rig.cameras[k].name}: {damage}')
                     continue
                 if frame is not None:
+                    given[k] += 1
                     yield t, k, frame
     finally:
         for src in sources.values():
