@@ -234,7 +234,8 @@ def test_detection_in_the_camera_thread_gives_the_same_states():
         assert np.array_equal(x.covariance, y.covariance) and x.track_id == y.track_id
     bad = split.detect(1.0, 0, np.zeros((4, 4, 3), np.uint8))
     assert isinstance(bad, ValueError)
-    assert split.process(1.0, 0, None, bad) == [] and 'frame size' in split.last_error
+    assert split.process(1.0, 0, None, bad) == [] and 'frame 4x4, its calibration' in \
+        split.last_error
 
 
 def test_after_warm_up_a_ball_through_the_pipeline_compiles_nothing():

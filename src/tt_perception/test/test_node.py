@@ -164,6 +164,9 @@ def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
     # Paced both at the rig's 100 fps: cam1's frames drifted off cam0's, no state.
     ({'rig_file': 'VIDEO_RATES'}, r'cameras cam0 and cam1 run at different rates: '
                                   r'.*/cam0\.avi is 100 fps, .*/cam1\.avi 80 fps'),
+    # No blob could pass: 0 states and no word (a new user's walk-through, 29 Nov 2026).
+    ({'rig_file': 'RIG', 'min_area': 1000, 'max_area': 500},
+     r'min_area \(1000 pixels\) must not exceed max_area \(500 pixels\)'),
 ])
 def test_a_bad_rig_model_or_topic_stops_the_node_at_start(graph, tmp_path, overrides, words):
     # As prediction_node and strike_node do (one line, exit 2 under ros2 run, and bringup

@@ -221,6 +221,23 @@ def test_time_offset_of_unsynchronised_videos_is_estimated(tmp_path, capsys):
     assert_matches_truth(read_track(out / 'track_001.csv'), truth[0], -LEAD_IN)
 
 
+def test_a_camera_that_never_sees_the_ball_gets_a_warning_not_a_crash(scene, tmp_path, capsys):
+    """Camera 1's video shows only the empty table (a camera pointed elsewhere, a lens cap):
+    its time offset cannot be estimated, which is one warning line, exit 0 and no track (an
+    IndexError with a traceback before: a new user's walk-through, 29 Nov 2026)."""
+    base, rig_path, frames, truth = scene
+    empty = next(frame for t, k, frame in frames if k == 1)       # before the launch
+    blind = [(t, k, empty if k == 1 else frame) for t, k, frame in frames]
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, blind, None)
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
+    err = capsys.readouterr().err
+    assert 'Traceback' not in err
+    assert any(line.startswith('tt-perceive: warning: cam1: too few ball detections')
+               for line in err.splitlines()), err
+    assert sorted(p.name for p in out.iterdir()) == ['index.csv']
+
+
 def test_time_offset_without_a_colour_is_estimated_from_the_ball_and_not_the_rest(tmp_path,
                                                                                    capsys):
     """An orange ball under the hall's light, the swinging racket and sleeve in view, and
@@ -314,9 +331,11 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
      '--out-bag {tmp}/empty.yaml/states: cannot write: Not a directory'),
     (['--rig', '{rig}', '--out-bag', '{tmp}/out/states'], 2, 'inside --out'),
     (['--rig', '{dup}'], 2, 'cameras cam0 and cam1 are 0.000 m apart'),
+    (['--rig', '{nosrc}'], 2, 'cameras[1] (cam1): no source'),
 ], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
         'missing model', 'existing output bag', 'dangling link as output bag',
-        'output bag under a file', 'output bag inside --out', 'two cameras at one place'])
+        'output bag under a file', 'output bag inside --out', 'two cameras at one place',
+        'camera without a source'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
     """Checked before any work (the rig's topics without --bag would fail later, exit 1)."""
     base, rig_path, _, _ = scene
@@ -329,8 +348,14 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     for key in ('rotation', 'translation'):          # a camera block copied, renamed
         rig['cameras'][1][key] = rig['cameras'][0][key]
     (dup / 'rig.yaml').write_text(yaml.safe_dump(rig))
+    # No source: the rig's own folder (its calibration images) was read as a video.
+    rig = yaml.safe_load(pathlib.Path(rig_path).read_text())
+    del rig['cameras'][1]['source']
+    nosrc = pathlib.Path(rig_path).parent / 'nosrc.yaml'
+    nosrc.write_text(yaml.safe_dump(rig))
     expect = expect.format(tmp=tmp_path)
-    args = [a.format(tmp=tmp_path, rig=rig_path, dup=dup / 'rig.yaml') for a in args]
+    args = [a.format(tmp=tmp_path, rig=rig_path, dup=dup / 'rig.yaml', nosrc=nosrc)
+            for a in args]
     args += ['--out', str(out)]
     assert cli.main(args) == code
     err = capsys.readouterr().err.strip().splitlines()

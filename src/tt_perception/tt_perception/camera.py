@@ -242,13 +242,14 @@ def _known_keys(mapping, known, where):
                                f"{', '.join(known)})")
 
 
-def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
+def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
     """Read and validate a rig file (DESIGN.md) and its camera_info files -> :class:`Rig`.
 
     Raises :class:`CalibrationError` with one line naming the file and the field at fault,
     when the rig has fewer than ``min_cameras`` cameras, or when two cameras' optical centres
     are less than ``min_baseline`` (m, :data:`MIN_BASELINE`; 0: not checked, for the pose
-    command, which sets the poses of a rig whose cameras may all start at one place) apart.
+    command, which sets the poses of a rig whose cameras may all start at one place) apart,
+    or, with ``need_source`` (perception_node, tt-perceive), when a camera has no source.
     """
     data = read_yaml(path, 'rig')
     base = os.path.dirname(os.path.abspath(path))
@@ -304,7 +305,12 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE):
                 raise CalibrationError(
                     f'{where} ({name}): time_offset {offset:g} s is not within '
                     f'+-{MAX_TIME_OFFSET_S:g} s (seconds, not milliseconds)')
-        source = str(entry.get('source', ''))
+        source = entry.get('source')
+        source = '' if source is None else str(source).strip()      # 0: /dev/video0
+        if need_source and not source:
+            # An empty source was the rig's own folder, read as a sequence of its images.
+            raise CalibrationError(f'{where} ({name}): no source (a video file, a folder of '
+                                   'images, a V4L2 device or an image topic)')
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
                               R, t, source=source, time_offset=offset,
                               info_file=str(entry['camera_info'])))

@@ -145,8 +145,8 @@ def estimate_offsets(rig, colour, detector_config=None):
         tried = [t for t in tried if t[0] is not None]
         if not tried:
             cam.time_offset = 0.0
-            notes.append(f'{cam.name}: too few ball detections to estimate its time offset, '
-                         'taken as 0')
+            notes.append(f'warning: {cam.name}: too few ball detections to estimate its time '
+                         'offset, taken as 0 (set time_offset in the rig file)')
             continue
         offset, cost, used = min(tried, key=lambda t: t[1])
         cam.time_offset = float(offset)
@@ -350,7 +350,7 @@ def _main(argv=None):
         print(f'tt-perceive: {out_error}', file=sys.stderr)
         return 2
     try:
-        rig = load_rig(args.rig, min_cameras=2)
+        rig = load_rig(args.rig, min_cameras=2, need_source=True)
     except CalibrationError as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 2

@@ -166,6 +166,15 @@ def ball_state_message(est, t_ref, frame_id):
     return msg
 
 
+def check_parameters(values):
+    """perception_node's cross-parameter rule on all its ``values``: the one-line reason they
+    are refused, or None (min_area above max_area let no blob pass: 0 states, no word)."""
+    if values['min_area'] > values['max_area']:
+        return (f"min_area ({values['min_area']} pixels) must not exceed max_area "
+                f"({values['max_area']} pixels)")
+    return None
+
+
 class PerceptionNode(Node):
     """Cameras in, /ball/state out (see the module docstring). ``monotonic``: the clock (s)
     of the camera watchdog, which reports a camera without frames for ``camera_timeout``."""
@@ -173,7 +182,7 @@ class PerceptionNode(Node):
     def __init__(self, *, monotonic=time.monotonic, **kwargs):
         super().__init__('perception_node', **kwargs)
         self._monotonic = monotonic
-        self.p = Parameters(self, PARAMETERS)
+        self.p = Parameters(self, PARAMETERS, check=check_parameters)
         self.publisher = self.create_publisher(BallState, STATE_TOPIC, qos_profile_sensor_data)
         self.clock_pub = None
         self.clock_msg = ClockMsg()
@@ -219,7 +228,7 @@ class PerceptionNode(Node):
             raise StartupError('rig_file is empty: give the rig (-p rig_file:=RIG.yaml, or '
                                'bringup --rig RIG.yaml)')
         try:
-            rig = load_rig(rig_file, min_cameras=2)
+            rig = load_rig(rig_file, min_cameras=2, need_source=True)
         except CalibrationError as exc:
             raise StartupError(str(exc)) from None
         try:

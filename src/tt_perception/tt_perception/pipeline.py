@@ -442,6 +442,10 @@ class Pipeline:
         detector is used) while another thread processes."""
         if frame is None:
             return ValueError('no frame')
+        cam = self.cameras[k]
+        if frame.shape[:2] != (cam.height, cam.width):     # pixels the calibration misreads
+            return ValueError(f'frame {frame.shape[1]}x{frame.shape[0]}, its calibration '
+                              f'{cam.width}x{cam.height}: frames of another size are skipped')
         t = float(t) - self.offsets[k]
         try:
             return self._detect(t, k, frame, snapshot)

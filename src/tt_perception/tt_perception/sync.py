@@ -19,6 +19,8 @@ def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
     """Median epipolar distance of camera-0 detections (t0 (n,), x0 (n, 2) normalised) to
     camera k's (tk, xk) interpolated at t0 + offset, under the essential matrix ``E`` (3, 3)
     of the two poses; ``inf`` when fewer than 8 pairs exist."""
+    if len(tk) < 2:                 # nothing to interpolate (a camera that never saw a ball)
+        return np.inf
     q = t0 + offset
     j = np.searchsorted(tk, q)
     ok = (j > 0) & (j < len(tk))
