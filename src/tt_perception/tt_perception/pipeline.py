@@ -118,6 +118,15 @@ class TrackerConfig:
     as around a ball of 2-3 px radius behind JPEG q30 the silhouette takes in its compression
     block's ringing (twice the ball's width) while its bright part is no wider than the
     ball."""
+    kink_window: float = 0.1
+    kink_velocity_noise: float = 1.0
+    kink_spin_noise: float = 200.0
+    """A confirmed track's point that fails the gate within ``kink_window`` s after the
+    filter's bounce is tried again with the rebound's velocity and spin that much more
+    uncertain (m/s, rad/s; :meth:`tt_prediction.ball_filter.BallFilter.update_after_bounce`):
+    the kink observed, so that a rebound the model got wrong (a flight model that read the
+    spin wrong: an independent renderer's Magnus five times the model's put 550 rad/s for
+    120 on a ball, and its track ended at the bounce) does not end the track."""
     narrow_weight: float = 30.0
     """A blob narrower than the ball by a fraction f has its own centre's sigma times
     1 + narrow_weight f (not a centre fitted to the ball's outline)."""
@@ -262,6 +271,7 @@ class Tracker:
         self.seeds = []
         self.early = []            # times of the running track's frames before confirmation
         self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
+        self.kink = None           # the last update's extra covariance (a rebound's kink)
 
     @property
     def active(self):
@@ -369,7 +379,25 @@ class Tracker:
             return False
         _, point, blob = best
         if confirmed:
-            return f.update(*point, rebounce=True)
+            if f.update(*point, rebounce=True):
+                return True
+            cfg = self.config
+            if f.last_bounce is None or f.t - f.last_bounce[0] > cfg.kink_window:
+                return False
+            noise = (cfg.kink_velocity_noise, cfg.kink_spin_noise)
+            if not f.update_after_bounce(*point, f.rebound_noise(*noise)):
+                return False
+            if cfg.smooth:
+                # For the smoother the rebound's noise enters at the first step past the
+                # contact (the updates since it were made with the rebound as predicted).
+                steps = self.runs[self.track_id][1]
+                after = [i for i, step in enumerate(steps) if step[0] > f.last_bounce[0]]
+                if after:
+                    step = steps[after[0]]
+                    steps[after[0]] = (*step[:4], f.rebound_noise(*noise, t=step[0]))
+                else:
+                    self.kink = f.rebound_noise(*noise)     # the step this update makes
+            return True
         trial = copy.copy(f)                    # update() replaces arrays, never writes them
         if not trial.update(*blob, rebounce=True):
             return False
@@ -387,9 +415,11 @@ class Tracker:
         return True
 
     def _step(self):
-        """The running filter's (t, x, P, contact_z), as :func:`smooth` takes them."""
+        """The running filter's (t, x, P, contact_z, Q), as :func:`smooth` takes them (Q: the
+        kink's extra covariance of the update just made, or None)."""
         f = self.filter
-        return f.t, f.x.copy(), f.P.copy(), f.contact_z
+        step, self.kink = (f.t, f.x.copy(), f.P.copy(), f.contact_z, self.kink), None
+        return step
 
     def _seed(self, t, points):
         """Start a track from a previous point and one of ``points`` at a plausible speed."""
@@ -581,8 +611,12 @@ class Pipeline:
                              for cam in cams])
         ratio = obs[:, WIDTH] / diameter
         bright = obs[:, BRIGHT_WIDTH] / diameter
-        if np.any(ratio < cfg.width_ratio[0]) or np.any(np.fmin(ratio, bright)
-                                                        > cfg.width_ratio[1]):
+        # Too narrow is not asked of a centre fitted to the ball's outline: a ball darker than
+        # the background behind it keeps only its lit edge in the silhouette (shadow-like
+        # pixels are left out), while the fit places the whole ball.
+        fitted = np.any(centres != obs[:, BLOB_XY], axis=1)
+        if np.any((ratio < cfg.width_ratio[0]) & ~fitted) or np.any(np.fmin(ratio, bright)
+                                                                     > cfg.width_ratio[1]):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
         # may have lost part of it (a white line behind a white ball): its own centre may be

@@ -564,6 +564,38 @@ class BallFilter:
         self.last_bounce = (float(bounce[0]), float(bounce[1]), float(bounce[2]))
         return True
 
+    def rebound_noise(self, velocity_noise, spin_noise, t=None):
+        """The covariance (9, 9) at ``t`` (s; None: now) of extra standard deviations
+        ``velocity_noise`` (m/s) and ``spin_noise`` (rad/s) of the last bounce's rebound,
+        injected at the contact and carried to ``t`` as a free flight would (a velocity error
+        dv there is a position error dv (t - t_contact) at t); None when there was no
+        bounce."""
+        if self.last_bounce is None:
+            return None
+        dt = (self.t if t is None else t) - self.last_bounce[0]
+        eye = np.eye(3) * velocity_noise ** 2
+        Q = np.zeros((9, 9))
+        Q[:3, :3] = dt * dt * eye
+        Q[:3, 3:6] = Q[3:6, :3] = dt * eye
+        Q[3:6, 3:6] = eye
+        Q[6:, 6:] = np.eye(3) * spin_noise ** 2
+        return Q
+
+    def update_after_bounce(self, z, R, Q):
+        """Fuse a position ``z`` (3,), m, covariance ``R`` (3, 3), that :meth:`update` gated
+        out after a bounce, as the observed kink: with the covariance ``Q`` (9, 9) added, the
+        rebound's own error (:meth:`rebound_noise`), for a rebound the model got wrong (a
+        flight model that read the spin wrong, a table of another grip). Returns False (and
+        leaves the state) when it still fails the gate. :func:`smooth` takes ``Q`` as a
+        step's extra process noise."""
+        cfg = self.config
+        x, P, d2, ok = _fuse_position(self.x, self.P + Q, np.asarray(z, dtype=float),
+                                      np.asarray(R, dtype=float), cfg.gate, cfg.robust)
+        if ok:
+            self.x, self.P = x, P
+            self.last_d2 = d2
+        return ok
+
     def update_spin(self, w, R):
         """Fuse a measured spin ``w`` (3,), rad/s, covariance ``R`` (3, 3) (e.g. from a marked
         ball); it fills in the component along the velocity that flight cannot observe."""
@@ -615,10 +647,12 @@ def smooth(steps, params=None, config=None):
 
     Parameters
     ----------
-    steps : list of (t, x, P, contact_z)
+    steps : list of (t, x, P, contact_z[, Q])
         The filter's time (s), state (9,) and covariance (9, 9) at its start and after each
         update that followed, in time order, and the :attr:`BallFilter.contact_z` of the
-        prediction that led to each (the start's is not used).
+        prediction that led to each (the start's is not used); ``Q`` (9, 9), where given and
+        not None, the extra covariance that update added to the prediction
+        (:meth:`BallFilter.update_after_bounce`).
     params, config : ModelParams, FilterConfig
         Those the filter ran with.
 
@@ -638,9 +672,11 @@ def smooth(steps, params=None, config=None):
     out[-1] = (steps[-1][1].copy(), steps[-1][2].copy())
     bounce = np.zeros(4)
     for k in range(len(steps) - 2, -1, -1):
-        t0, x0, C0, _ = steps[k]
-        t1, _, _, contact_z = steps[k + 1]
+        t0, x0, C0 = steps[k][:3]
+        t1, _, _, contact_z, *extra = steps[k + 1]
         x_pred, C_pred, n = _predict_to(x0, C0, t0, t1, f.P_model, f._cfg, contact_z, bounce)
+        if extra and extra[0] is not None:
+            C_pred = C_pred + extra[0]
         F = _flight_map_jacobian(x0, t0, t1, f.P_model, f._cfg, contact_z, x_pred, n)
         G = np.linalg.solve(C_pred, F @ C0).T          # C0 F^T C_pred^-1 (both symmetric)
         x_next, C_next = out[k + 1]
