@@ -405,3 +405,27 @@ def test_filter_with_a_ball_rolling_on_the_table_does_not_bounce_forever():
     f.predict(0.1)
     assert f.t == pytest.approx(0.1) and f.bounces == 0
     assert f.x[2] == pytest.approx(0.02) and f.x[5] >= 0.0
+
+
+def test_image_tracks_separate_two_moving_things_and_drop_a_still_one():
+    """Three detections a frame, given in shuffled order: a ball crossing the image, a disc
+    swinging the other way that passes it, and a still speck. The ball's and the disc's
+    detections are linked into one track each (their points in time order, none swapped at
+    the crossing, where they are 0.02 apart and each moves 0.015 a frame), the speck (no
+    motion: no timing) is left out."""
+    from tt_perception.sync import image_tracks
+
+    period = 1.0 / 150.0
+    t = np.arange(40) * period
+    ball = np.stack([-0.3 + 0.015 * np.arange(40), np.full(40, 0.01)], axis=1)
+    disc = np.stack([0.3 - 0.015 * np.arange(40), np.full(40, -0.01)], axis=1)
+    speck = np.tile([0.2, 0.2], (40, 1))
+    times = np.concatenate([t, t, t])
+    points = np.concatenate([ball, disc, speck])
+    order = np.random.default_rng(3).permutation(len(times))
+    tracks = image_tracks(times[order], points[order], period)
+    assert len(tracks) == 2
+    for tt, x in tracks:
+        assert np.array_equal(tt, t)
+        assert np.allclose(x, ball) or np.allclose(x, disc)
+    assert not np.allclose(tracks[0][1], tracks[1][1])

@@ -48,7 +48,7 @@ from .camera import CalibrationError, load_rig
 from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, BallDetector, DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
 from .sources import file_frames, image_to_bgr
-from .sync import estimate_offset
+from .sync import estimate_offset, estimate_offset_tracks, image_tracks
 
 
 class InputError(Exception):
@@ -100,9 +100,11 @@ def bag_frames(rig, bag, notes=None):
 
 
 def detections_per_camera(rig, frames, colours, detector_config=None):
-    """Single-candidate detections per camera over all frames, for each ball colour of
+    """Detections sure of their colour per camera over all frames, for each ball colour of
     ``colours`` (each frame decoded once, looked at by one detector per colour; the other
-    settings from ``detector_config``): {colour: [(times, normalised (n, 2)) per camera]}."""
+    settings from ``detector_config``): {colour: [(single, tracks) per camera]}, ``single``
+    the frames with one detection, (times, normalised (n, 2)), and ``tracks`` every
+    detection linked into image tracks (:func:`tt_perception.sync.image_tracks`)."""
     base = detector_config or DetectorConfig()
     detectors = {c: [BallDetector(dataclasses.replace(base, colour=c)) for _ in rig.cameras]
                  for c in colours}
@@ -110,12 +112,30 @@ def detections_per_camera(rig, frames, colours, detector_config=None):
     for t, k, frame in frames:
         for c in colours:
             dets = detectors[c][k].detect(frame) if frame is not None else []
-            dets = [d for d in dets if d.colour_sure]
-            if len(dets) == 1:
-                found[c][k][0].append(t)
-                found[c][k][1].append(rig.cameras[k].normalise([[dets[0].u, dets[0].v]])[0])
-    return {c: [(np.array(t), np.array(x).reshape(-1, 2)) for t, x in found[c]]
-            for c in colours}
+            for d in dets:
+                if d.colour_sure:
+                    found[c][k][0].append(t)
+                    found[c][k][1].append(rig.cameras[k].normalise([[d.u, d.v]])[0])
+    out = {c: [] for c in colours}
+    for c in colours:
+        for t, x in found[c]:
+            t, x = np.array(t), np.array(x).reshape(-1, 2)
+            times, counts = np.unique(t, return_counts=True)
+            single = np.isin(t, times[counts == 1])
+            out[c].append(((t[single], x[single]), image_tracks(t, x, 1.0 / rig.fps)))
+    return out
+
+
+def _offset(cam0, camk, found0, foundk, fps):
+    """(offset, cost) of camera k from the frames where each camera has a single detection;
+    where they give none or an unreliable one (another moving thing in view beside the ball
+    leaves too few such frames: a swinging disc put a 5 ms offset at -27 ms, a new user's
+    walk-through, 29 Nov 2026), from image tracks (:func:`sync.estimate_offset_tracks`)."""
+    offset, cost = estimate_offset(cam0, camk, *found0[0], *foundk[0], fps)
+    if offset is not None and cost * camk.focal <= UNRELIABLE_OFFSET_PX:
+        return offset, cost
+    tracked = estimate_offset_tracks(cam0, camk, found0[1], foundk[1], fps)
+    return tracked if tracked[1] < cost else (offset, cost)
 
 
 UNRELIABLE_OFFSET_PX = 3.0
@@ -140,8 +160,8 @@ def estimate_offsets(rig, colour, detector_config=None):
     notes = []
     for k in missing:
         cam = rig.cameras[k]
-        tried = [(*estimate_offset(rig.cameras[0], cam, *found[c][0], *found[c][k], rig.fps),
-                  c) for c in colours]
+        tried = [(*_offset(rig.cameras[0], cam, found[c][0], found[c][k], rig.fps), c)
+                 for c in colours]
         tried = [t for t in tried if t[0] is not None]
         if not tried:
             cam.time_offset = 0.0
@@ -155,9 +175,13 @@ def estimate_offsets(rig, colour, detector_config=None):
         notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
                      f'{which}ball (median epipolar distance {px:.2f} px)')
         if px > UNRELIABLE_OFFSET_PX:
-            # With a colour given, the detections are the ball's: the rays do not meet.
+            # With a colour given, the detections are the ball's: the rays do not meet. Not
+            # used: a wrong offset matched a few frames by chance into a short false track,
+            # and the poses' warning below was not given.
+            cam.time_offset = 0.0
             notes.append(f'warning: {cam.name}: that time offset is unreliable (above '
-                         f'{UNRELIABLE_OFFSET_PX:g} px): set time_offset in the rig file'
+                         f'{UNRELIABLE_OFFSET_PX:g} px) and not used (taken as 0): set '
+                         'time_offset in the rig file'
                          + (' or give --colour' if colour == 'any' else '')
                          + " (or the rig's poses are off: a transposed rotation, a pose "
                          'in the other convention)')

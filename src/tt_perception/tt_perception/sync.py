@@ -1,6 +1,14 @@
 """Time offset between unsynchronised cameras, from the ball itself (video files carry no
 clock).
 
+Each camera's detections are first linked into image tracks (:func:`image_tracks`: a
+detection continues the track whose last point is nearest, within a step and a gap), so that
+frames with other moving things beside the ball (a racket, a swinging disc) still count;
+every pair of moving tracks of camera 0 and camera k is then tried
+(:func:`estimate_offset_tracks`) and the offset that puts its pairs nearest the epipolar
+lines kept (two views of one object agree at the right offset, two different objects at
+none).
+
 For a candidate offset d (camera k's clock minus camera 0's), camera k's detections are
 interpolated linearly in time to the instants of camera 0's detections; a right offset puts
 each pair on each other's epipolar line, x_k^T E x_0 = 0 with the essential matrix
@@ -38,11 +46,12 @@ def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
     return float(np.median(dist))
 
 
-def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_S):
+def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_S,
+                    centre=0.0):
     """Offset (s) of camera k's clock against camera 0's and its median epipolar distance.
 
     ``t0``, ``tk``: detection times (s, each camera's own clock), ``x0``, ``xk``: normalised
-    coordinates (n, 2). Searched within +-``max_offset`` s.
+    coordinates (n, 2). Searched within ``centre`` +-``max_offset`` s.
     """
     t0, x0 = np.asarray(t0, float), np.asarray(x0, float)
     order = np.argsort(tk)
@@ -55,7 +64,7 @@ def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_
     def cost(d):
         return epipolar_cost(E, t0, x0, tk, xk, d, gap)
 
-    grid = np.arange(-max_offset, max_offset + 1e-12, 0.5 * period)
+    grid = centre + np.arange(-max_offset, max_offset + 1e-12, 0.5 * period)
     costs = np.array([cost(d) for d in grid])
     if not np.isfinite(costs).any():
         return None, np.inf
@@ -75,3 +84,91 @@ def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_
             fb = cost(b)
     d = 0.5 * (lo + hi)
     return d, cost(d)
+
+
+AGREE_PX = 3.0
+"""A pair of image tracks agrees with the best pair's offset when its own is within a frame
+period of it and its median epipolar distance within twice the best's or this many pixels
+(:func:`estimate_offset_tracks`)."""
+MAX_STEP = 0.06
+"""Largest move of a detection between a track's frames, normalised image units per frame
+(about 50 pixels at f = 800: a 20 m/s ball 2.5 m away at 150 fps moves 43)."""
+MIN_MOTION = 0.01
+"""An image track that moves less than this over its frames (normalised units, about 8
+pixels) says nothing of time: left out."""
+
+
+def image_tracks(times, points, period, max_step=MAX_STEP, max_gap=2.5):
+    """Detections of one camera linked into image tracks: ``times`` (n,) s and ``points``
+    (n, 2) normalised, several per frame allowed, in any order; a detection continues the
+    track whose last point is nearest, within ``max_step`` per frame period (``period``, s)
+    and ``max_gap`` periods, nearest pairs first. Returns [(t (m,), x (m, 2))] of the tracks
+    of 8 points or more that move at least :data:`MIN_MOTION`."""
+    times, points = np.asarray(times, float), np.asarray(points, float).reshape(-1, 2)
+    order = np.argsort(times, kind='stable')
+    tracks = []                     # [[times], [points]]
+    i = 0
+    while i < len(order):
+        j = i
+        while j < len(order) and times[order[j]] == times[order[i]]:
+            j += 1
+        t = times[order[i]]
+        frame = [points[k] for k in order[i:j]]
+        live = [tr for tr in tracks if 0.0 < t - tr[0][-1] <= max_gap * period]
+        pairs = sorted((float(np.linalg.norm(x - tr[1][-1])), a, b)
+                       for a, x in enumerate(frame) for b, tr in enumerate(live)
+                       if np.linalg.norm(x - tr[1][-1])
+                       <= max_step * max(1.0, (t - tr[0][-1]) / period))
+        used_x, used_tr = set(), set()
+        for _, a, b in pairs:
+            if a in used_x or b in used_tr:
+                continue
+            used_x.add(a)
+            used_tr.add(b)
+            live[b][0].append(t)
+            live[b][1].append(frame[a])
+        tracks += [[[t], [x]] for a, x in enumerate(frame) if a not in used_x]
+        i = j
+    out = []
+    for t, x in tracks:
+        x = np.array(x)
+        if len(t) >= 8 and np.ptp(x, axis=0).max() >= MIN_MOTION:
+            out.append((np.array(t), x))
+    return out
+
+
+def estimate_offset_tracks(cam0, camk, tracks0, tracksk, fps, max_offset=MAX_TIME_OFFSET_S):
+    """Offset (s) of camera k's clock against camera 0's, and its median epipolar distance,
+    from image tracks of each (``tracks0``, ``tracksk``: :func:`image_tracks`).
+
+    Each pair of tracks gets its own :func:`estimate_offset`; the pair that agrees best
+    gives the offset. The tracks of every pair that agrees with it too (its own offset
+    within a frame period, its distance within twice the best's or AGREE_PX: one object's
+    track broken where another crossed it) are then taken together and the offset
+    searched again within a frame period of it. ``(None, inf)`` when no pair has 8 frames
+    together at any offset."""
+    pairs = []
+    for i, (t0, x0) in enumerate(tracks0):
+        for j, (tk, xk) in enumerate(tracksk):
+            offset, cost = estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset)
+            if offset is not None:
+                pairs.append((cost, offset, i, j))
+    if not pairs:
+        return None, np.inf
+    cost, offset, _, _ = min(pairs)
+    period = 1.0 / fps
+    near = max(2.0 * cost, AGREE_PX / camk.focal)
+    agree = [(i, j) for c, o, i, j in pairs if abs(o - offset) <= period and c <= near]
+
+    def joined(tracks, chosen):
+        t = np.concatenate([tracks[i][0] for i in chosen])
+        x = np.concatenate([tracks[i][1] for i in chosen])
+        t, first = np.unique(t, return_index=True)      # one point an instant: interpolable
+        return t, x[first]
+
+    t0, x0 = joined(tracks0, sorted({i for i, _ in agree}))
+    tk, xk = joined(tracksk, sorted({j for _, j in agree}))
+    refined, refined_cost = estimate_offset(cam0, camk, t0, x0, tk, xk, fps, period, offset)
+    if refined is None or refined_cost > near:
+        return offset, cost
+    return refined, refined_cost
