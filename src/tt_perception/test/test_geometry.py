@@ -96,13 +96,17 @@ def test_rig_round_trip(tmp_path):
     # Published states in 'world', each dropped by prediction_node ("is not 'table'").
     (lambda rig, info: _edit(rig, lambda d: d.update(frame_id='world')),
      "frame_id 'world': the poses are in the table frame (MODEL.md), frame_id 'table'"),
+    # Read as 1 fps and as 640 pixels (a new user's walk-through, 29 Nov 2026).
+    (lambda rig, info: _edit(rig, lambda d: d.update(fps=True)), 'fps is not a number'),
+    (lambda rig, info: _edit(info, lambda d: d.update(image_width=640.5)),
+     'image_width/image_height missing or not integers'),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
         'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'no distortion',
         'no translation', 'principal point off',
         'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
         'misspelt key',
-        'unknown rig key', 'frame not the table'])
+        'unknown rig key', 'frame not the table', 'fps true', 'width not whole'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'
     synth.make_rig(str(tmp_path))

@@ -148,7 +148,10 @@ def load_camera_info(path):
     """
     data = read_yaml(path, 'camera_info')
     try:
-        width, height = int(data['image_width']), int(data['image_height'])
+        size = data['image_width'], data['image_height']
+        if any(isinstance(v, bool) or not float(v).is_integer() for v in size):
+            raise ValueError        # 640.5 was cut to 640, true read as 1
+        width, height = (int(v) for v in size)
     except (KeyError, TypeError, ValueError):
         raise CalibrationError(
             f'camera_info {path}: image_width/image_height missing or not integers') from None
@@ -255,7 +258,10 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
     base = os.path.dirname(os.path.abspath(path))
     _known_keys(data, RIG_KEYS, f'rig {path}')
     try:
-        fps = float(data.get('fps', 0.0))
+        fps = data.get('fps', 0.0)
+        if isinstance(fps, bool):
+            raise TypeError         # YAML's true was read as 1 fps
+        fps = float(fps)
     except (TypeError, ValueError):
         raise CalibrationError(f'rig {path}: fps is not a number') from None
     if not (math.isfinite(fps) and fps > 0.0):
