@@ -260,3 +260,18 @@ def test_a_video_without_a_frame_is_refused_naming_it(tmp_path):
     with pytest.raises(OSError) as refused:
         list(file_frames(rig, []))
     assert str(refused.value) == expect
+
+
+@pytest.mark.parametrize('names', [['img_1.png', 'img_1000000.png', 'img_2000000.png'],
+                                   ['a_001.png', 'b_001.png', 'c_002.png']])
+def test_a_folder_whose_numbers_are_no_frame_counts_is_read_in_name_order(tmp_path, names):
+    """Stamps in the names (more than half the numbers missing) or one number twice: the
+    images are the frames in name order, none lost (numbers taken as frame counts made a
+    million lost frames of three images)."""
+    for i, name in enumerate(names):
+        cv2.imwrite(str(tmp_path / name), np.full((6, 8, 3), 10 * i, np.uint8))
+    src = VideoFileSource(str(tmp_path), 100.0).open()
+    got = [src.read() for _ in range(4)]
+    assert [t for t, _ in got[:3]] == pytest.approx([0.0, 0.01, 0.02])
+    assert [int(f[0, 0, 0]) for _, f in got[:3]] == [0, 10, 20]
+    assert got[3] == (None, None) and src.damage() == ''

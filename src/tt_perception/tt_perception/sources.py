@@ -161,16 +161,20 @@ class ImageFolderCapture:
     """A folder of numbered images behind the part of ``cv2.VideoCapture`` that
     :class:`VideoFileSource` and :class:`tt_perception.camstream.PacedVideoSource` use.
 
-    Frame n is the image numbered first + n (the digits of its name; in name order when a
-    name has none), so that a missing number is a lost frame and the images after it keep
-    their times (FFmpeg's image2 reader stopped at the first gap and wanted the first number
-    within 0-4). A missing or unreadable image fails its ``grab``/``read`` alone. Images are
+    Frame n is the image numbered first + n (the last digits of its name; in name order when
+    a name has none, two names share a number, or more than half the numbers are missing:
+    those are no frame counts), so that a missing number is a lost frame and the images after
+    it keep their times (FFmpeg's image2 reader stopped at the first gap and wanted the first
+    number within 0-4). A missing or unreadable image fails its ``grab``/``read`` alone. Images are
     read with ``cv2.imread`` as 8-bit BGR. Written here: OpenCV reads a folder only as
     FFmpeg's printf pattern."""
 
     def __init__(self, folder, names):
         numbers = [_name_number(n) for n in names]
-        if None in numbers:
+        if (None in numbers or len(set(numbers)) < len(numbers)
+                or max(numbers) - min(numbers) + 1 > 2 * len(numbers)):
+            # In name order: a name without a number, one number twice, or numbers that
+            # are not frame counts (more than half of them missing: stamps in the names).
             files = [os.path.join(folder, n) for n in sorted(names)]
         else:
             first = min(numbers)
