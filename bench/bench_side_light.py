@@ -109,7 +109,7 @@ def perceive_command():
 
 
 def perceive(case_dir, tracks, opts):
-    """tt-perceive on the case's rig (as stress/run_case.sh runs it); returns seconds."""
+    """tt-perceive on the case's rig, as a user runs it; returns seconds."""
     cmd = [*perceive_command(), '--rig', str(case_dir / 'rig.yaml'), '--out', str(tracks),
            '--colour', opts['colour'], '--exposure', repr(max(opts['exposure'], 1e-4))]
     start = time.perf_counter()
@@ -164,8 +164,7 @@ def stats(mask, state, truth, bounces):
 
 
 def score(case_dir, tracks_dir):
-    """The numbers of the module docstring for tt-perceive's tracks of one case (a port of
-    the stress test's score.py)."""
+    """The numbers of the module docstring for tt-perceive's tracks of one case."""
     meta = json.loads((case_dir / 'meta.json').read_text())
     fps = meta['opts']['fps']
     truth = load_csv(case_dir / 'truth.csv')

@@ -263,15 +263,20 @@ def test_a_video_without_a_frame_is_refused_naming_it(tmp_path):
 
 
 @pytest.mark.parametrize('names', [['img_1.png', 'img_1000000.png', 'img_2000000.png'],
-                                   ['a_001.png', 'b_001.png', 'c_002.png']])
+                                   ['0.png', '33.png', '66.png', '99.png', '132.png'],
+                                   ['a_001.png', 'a_002.png', 'b_001.png']])
 def test_a_folder_whose_numbers_are_no_frame_counts_is_read_in_name_order(tmp_path, names):
     """Stamps in the names (more than half the numbers missing) or one number twice: the
-    images are the frames in name order, none lost (numbers taken as frame counts made a
-    million lost frames of three images)."""
+    images are the frames in name order, digits compared as numbers (33 before 132), none
+    lost (numbers taken as frame counts made a million lost frames of three images), and
+    the reader says so."""
     for i, name in enumerate(names):
         cv2.imwrite(str(tmp_path / name), np.full((6, 8, 3), 10 * i, np.uint8))
     src = VideoFileSource(str(tmp_path), 100.0).open()
-    got = [src.read() for _ in range(4)]
-    assert [t for t, _ in got[:3]] == pytest.approx([0.0, 0.01, 0.02])
-    assert [int(f[0, 0, 0]) for _, f in got[:3]] == [0, 10, 20]
-    assert got[3] == (None, None) and src.damage() == ''
+    got = [src.read() for _ in range(len(names) + 1)]
+    assert [t for t, _ in got[:-1]] == pytest.approx(np.arange(len(names)) * 0.01)
+    assert [int(f[0, 0, 0]) for _, f in got[:-1]] == [10 * i for i in range(len(names))]
+    assert got[-1] == (None, None) and src.damage() == ''
+    camera = load_rig(synth.make_rig(str(tmp_path / 'calib'), 8, 6, 100.0)).cameras[0]
+    error, warning = VideoFileSource(str(tmp_path), 100.0).open().disagreement(camera, 100.0)
+    assert error == '' and 'read in name order' in warning

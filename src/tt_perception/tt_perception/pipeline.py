@@ -118,6 +118,12 @@ class TrackerConfig:
     as around a ball of 2-3 px radius behind JPEG q30 the silhouette takes in its compression
     block's ringing (twice the ball's width) while its bright part is no wider than the
     ball."""
+    fitted_width_min: float = 0.1
+    """Too narrow for a centre fitted to the ball's outline: its silhouette narrower than this
+    part of the ball's expected diameter (``width_ratio``'s lower bound is the blob's own
+    centre's: a ball darker than the background behind it keeps only its lit edge in the
+    silhouette, 0.14-0.3 of its width on a third renderer's light floor, while the fit
+    places the whole ball to 0.3 px)."""
     kink_window: float = 0.1
     kink_velocity_noise: float = 1.0
     kink_spin_noise: float = 200.0
@@ -272,6 +278,7 @@ class Tracker:
         self.early = []            # times of the running track's frames before confirmation
         self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
         self.kink = None           # the last update's extra covariance (a rebound's kink)
+        self.kinked = None         # the bounce (t, x, y) whose kink was taken
 
     @property
     def active(self):
@@ -382,11 +389,13 @@ class Tracker:
             if f.update(*point, rebounce=True):
                 return True
             cfg = self.config
-            if f.last_bounce is None or f.t - f.last_bounce[0] > cfg.kink_window:
+            if (f.last_bounce is None or f.t - f.last_bounce[0] > cfg.kink_window
+                    or self.kinked == f.last_bounce):      # once a bounce
                 return False
             noise = (cfg.kink_velocity_noise, cfg.kink_spin_noise)
             if not f.update_after_bounce(*point, f.rebound_noise(*noise)):
                 return False
+            self.kinked = f.last_bounce
             if cfg.smooth:
                 # For the smoother the rebound's noise enters at the first step past the
                 # contact (the updates since it were made with the rebound as predicted).
@@ -473,7 +482,8 @@ class Pipeline:
         if frame is None:
             return ValueError('no frame')
         cam = self.cameras[k]
-        if frame.shape[:2] != (cam.height, cam.width):     # pixels the calibration misreads
+        if (getattr(frame, 'ndim', 0) in (2, 3)         # else _detect names what it is
+                and frame.shape[:2] != (cam.height, cam.width)):  # pixels misread
             return ValueError(f'frame {frame.shape[1]}x{frame.shape[0]}, its calibration '
                               f'{cam.width}x{cam.height}: frames of another size are skipped')
         t = float(t) - self.offsets[k]
@@ -611,12 +621,10 @@ class Pipeline:
                              for cam in cams])
         ratio = obs[:, WIDTH] / diameter
         bright = obs[:, BRIGHT_WIDTH] / diameter
-        # Too narrow is not asked of a centre fitted to the ball's outline: a ball darker than
-        # the background behind it keeps only its lit edge in the silhouette (shadow-like
-        # pixels are left out), while the fit places the whole ball.
+        # Too narrow is less asked of a centre fitted to the ball's outline (fitted_width_min).
         fitted = np.any(centres != obs[:, BLOB_XY], axis=1)
-        if np.any((ratio < cfg.width_ratio[0]) & ~fitted) or np.any(np.fmin(ratio, bright)
-                                                                     > cfg.width_ratio[1]):
+        least = np.where(fitted, cfg.fitted_width_min, cfg.width_ratio[0])
+        if np.any(ratio < least) or np.any(np.fmin(ratio, bright) > cfg.width_ratio[1]):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
         # may have lost part of it (a white line behind a white ball): its own centre may be
@@ -624,7 +632,7 @@ class Pipeline:
         # models the background, and a blob that lost the shaded side does not move it.
         weak = (1.0 + cfg.narrow_weight * np.maximum(0.0, 1.0 - ratio)
                 + cfg.hidden_weight * obs[:, HIDDEN])
-        weak[np.any(centres != obs[:, BLOB_XY], axis=1)] = 1.0
+        weak[fitted] = 1.0
         if np.any(weak > 1.0):
             try:
                 X, cov, _ = refine(cams, centres, X, cfg.pixel_sigma * weak)

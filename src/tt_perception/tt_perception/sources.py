@@ -161,21 +161,24 @@ class ImageFolderCapture:
     """A folder of numbered images behind the part of ``cv2.VideoCapture`` that
     :class:`VideoFileSource` and :class:`tt_perception.camstream.PacedVideoSource` use.
 
-    Frame n is the image numbered first + n (the last digits of its name; in name order when
-    a name has none, two names share a number, or more than half the numbers are missing:
-    those are no frame counts), so that a missing number is a lost frame and the images after
-    it keep their times (FFmpeg's image2 reader stopped at the first gap and wanted the first
-    number within 0-4). A missing or unreadable image fails its ``grab``/``read`` alone. Images are
-    read with ``cv2.imread`` as 8-bit BGR. Written here: OpenCV reads a folder only as
-    FFmpeg's printf pattern."""
+    Frame n is the image numbered first + n (the last digits of its name), so that a missing
+    number is a lost frame and the images after it keep their times (FFmpeg's image2 reader
+    stopped at the first gap and wanted the first number within 0-4). Where the numbers are
+    no frame counts (a name without one, one number twice, more than half of them missing)
+    the images are the frames in name order, digits compared as numbers (``by_name``). A
+    missing or unreadable image fails its ``grab``/``read`` alone. Images are read with
+    ``cv2.imread`` as 8-bit BGR. Written here: OpenCV reads a folder only as FFmpeg's printf
+    pattern."""
 
     def __init__(self, folder, names):
+        self.by_name = False
         numbers = [_name_number(n) for n in names]
         if (None in numbers or len(set(numbers)) < len(numbers)
                 or max(numbers) - min(numbers) + 1 > 2 * len(numbers)):
             # In name order: a name without a number, one number twice, or numbers that
             # are not frame counts (more than half of them missing: stamps in the names).
-            files = [os.path.join(folder, n) for n in sorted(names)]
+            files = [os.path.join(folder, n) for n in sorted(names, key=_natural)]
+            self.by_name = True
         else:
             first = min(numbers)
             files = [None] * (max(numbers) - first + 1)
@@ -217,6 +220,14 @@ class ImageFolderCapture:
 
     def release(self):
         self.files = []
+        self.size = (0, 0)
+
+
+def _natural(name):
+    """Sort key of a file name with its runs of digits compared as numbers (frame_2 before
+    frame_10)."""
+    return [(0, int(part), '') if part.isdigit() else (1, 0, part)
+            for part in re.split(r'(\d+)', name) if part]
 
 
 def _name_number(name):
@@ -290,6 +301,10 @@ class VideoFileSource(FrameSource):
         if fps > 0.0 and abs(fps - rig_fps) > 0.01 * rig_fps:
             warning = (f"{self.path} is {fps:g} fps, the rig's fps {rig_fps:g}: its frames "
                        "are timed at the rig's")
+        if getattr(cap, 'by_name', False):
+            warning = (f'{self.path}: its images are read in name order, one frame each, '
+                       'their numbers taken for no frame counts (a name without one, one '
+                       'number twice, or more than half of them missing)')
         return error, warning
 
     def damage(self):

@@ -23,27 +23,31 @@ from .camera import MAX_TIME_OFFSET_S
 from .triangulate import relative_pose
 
 
-def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
-    """Median epipolar distance of camera-0 detections (t0 (n,), x0 (n, 2) normalised) to
-    camera k's (tk, xk) interpolated at t0 + offset, under the essential matrix ``E`` (3, 3)
-    of the two poses; ``inf`` when fewer than 8 pairs exist."""
+def epipolar_distances(E, t0, x0, tk, xk, offset, max_gap):
+    """Epipolar distances (normalised units) of camera-0 detections (t0 (n,), x0 (n, 2)
+    normalised) to camera k's (tk sorted, xk) interpolated at t0 + ``offset``, under the
+    essential matrix ``E`` (3, 3) of the two poses; only where camera k has detections on
+    both sides within ``max_gap`` s."""
     if len(tk) < 2:                 # nothing to interpolate (a camera that never saw a ball)
-        return np.inf
+        return np.empty(0)
     q = t0 + offset
     j = np.searchsorted(tk, q)
     ok = (j > 0) & (j < len(tk))
     j = np.clip(j, 1, len(tk) - 1)
     ok &= (tk[j] - tk[j - 1]) <= max_gap
-    if ok.sum() < 8:
-        return np.inf
     j = j[ok]
     frac = ((q[ok] - tk[j - 1]) / (tk[j] - tk[j - 1]))[:, None]
     xi = xk[j - 1] + frac * (xk[j] - xk[j - 1])
     a = np.column_stack([x0[ok], np.ones(ok.sum())])
     b = np.column_stack([xi, np.ones(ok.sum())])
     line = a @ E.T                          # epipolar lines in camera k
-    dist = np.abs(np.sum(line * b, axis=1)) / np.hypot(line[:, 0], line[:, 1])
-    return float(np.median(dist))
+    return np.abs(np.sum(line * b, axis=1)) / np.hypot(line[:, 0], line[:, 1])
+
+
+def epipolar_cost(E, t0, x0, tk, xk, offset, max_gap):
+    """Median of :func:`epipolar_distances`; ``inf`` when fewer than 8 pairs exist."""
+    dist = epipolar_distances(E, t0, x0, tk, xk, offset, max_gap)
+    return float(np.median(dist)) if len(dist) >= 8 else np.inf
 
 
 def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_S,
@@ -86,10 +90,11 @@ def estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset=MAX_TIME_OFFSET_
     return d, cost(d)
 
 
-AGREE_PX = 3.0
-"""A pair of image tracks agrees with the best pair's offset when its own is within a frame
-period of it and its median epipolar distance within twice the best's or this many pixels
-(:func:`estimate_offset_tracks`)."""
+AGREE_PX = 1.5
+"""A frame supports an offset when its pair is within this many pixels of the epipolar line
+(:func:`estimate_offset_tracks`; a right offset on a detected ball gives under a pixel)."""
+MIN_SUPPORT = 15
+"""Frames a pair of image tracks must support its offset with to count."""
 MAX_STEP = 0.06
 """Largest move of a detection between a track's frames, normalised image units per frame
 (about 50 pixels at f = 800: a 20 m/s ball 2.5 m away at 150 fps moves 43)."""
@@ -106,7 +111,7 @@ def image_tracks(times, points, period, max_step=MAX_STEP, max_gap=2.5):
     of 8 points or more that move at least :data:`MIN_MOTION`."""
     times, points = np.asarray(times, float), np.asarray(points, float).reshape(-1, 2)
     order = np.argsort(times, kind='stable')
-    tracks = []                     # [[times], [points]]
+    tracks, live = [], []           # [[times], [points]]: all, and those that may go on
     i = 0
     while i < len(order):
         j = i
@@ -114,7 +119,7 @@ def image_tracks(times, points, period, max_step=MAX_STEP, max_gap=2.5):
             j += 1
         t = times[order[i]]
         frame = [points[k] for k in order[i:j]]
-        live = [tr for tr in tracks if 0.0 < t - tr[0][-1] <= max_gap * period]
+        live = [tr for tr in live if t - tr[0][-1] <= max_gap * period]
         pairs = sorted((float(np.linalg.norm(x - tr[1][-1])), a, b)
                        for a, x in enumerate(frame) for b, tr in enumerate(live)
                        if np.linalg.norm(x - tr[1][-1])
@@ -127,7 +132,9 @@ def image_tracks(times, points, period, max_step=MAX_STEP, max_gap=2.5):
             used_tr.add(b)
             live[b][0].append(t)
             live[b][1].append(frame[a])
-        tracks += [[[t], [x]] for a, x in enumerate(frame) if a not in used_x]
+        new = [[[t], [x]] for a, x in enumerate(frame) if a not in used_x]
+        tracks += new
+        live += new
         i = j
     out = []
     for t, x in tracks:
@@ -141,24 +148,43 @@ def estimate_offset_tracks(cam0, camk, tracks0, tracksk, fps, max_offset=MAX_TIM
     """Offset (s) of camera k's clock against camera 0's, and its median epipolar distance,
     from image tracks of each (``tracks0``, ``tracksk``: :func:`image_tracks`).
 
-    Each pair of tracks gets its own :func:`estimate_offset`; the pair that agrees best
-    gives the offset. The tracks of every pair that agrees with it too (its own offset
-    within a frame period, its distance within twice the best's or AGREE_PX: one object's
-    track broken where another crossed it) are then taken together and the offset
-    searched again within a frame period of it. ``(None, inf)`` when no pair has 8 frames
-    together at any offset."""
+    Each pair of tracks gets its own :func:`estimate_offset`, and its support: the frames it
+    pairs within :data:`AGREE_PX` of the epipolar lines at that offset. The pair with the most
+    support (at least :data:`MIN_SUPPORT` frames: a short pair reaches a small median by
+    chance among many offsets) gives the offset. The tracks of every pair that agrees with it
+    too (its own offset within a frame period, its support at least MIN_SUPPORT: one
+    object's track broken where another crossed it) are then taken together and the offset
+    searched again within a frame period; kept when it has at least the pair's support.
+    ``(None, inf)`` when no pair has that support."""
+    period = 1.0 / fps
+    R, t = relative_pose(cam0, camk)
+    E = np.cross(np.eye(3), t) @ R
+    tol = AGREE_PX / camk.focal
+
+    def support(t0, x0, tk, xk, offset):
+        """Frames within AGREE_PX of the epipolar lines at ``offset``."""
+        return int(np.sum(epipolar_distances(E, t0, x0, tk, xk, offset, 2.5 * period) <= tol))
+
     pairs = []
+    span = MIN_SUPPORT * period         # the least time two tracks must share
     for i, (t0, x0) in enumerate(tracks0):
         for j, (tk, xk) in enumerate(tracksk):
-            offset, cost = estimate_offset(cam0, camk, t0, x0, tk, xk, fps, max_offset)
+            # Only offsets at which the two share MIN_SUPPORT frames can win.
+            lo = max(tk[0] - t0[-1] + span, -max_offset)
+            hi = min(tk[-1] - t0[0] - span, max_offset)
+            if min(len(t0), len(tk)) < MIN_SUPPORT or lo > hi:
+                continue
+            offset, cost = estimate_offset(cam0, camk, t0, x0, tk, xk, fps,
+                                           0.5 * (hi - lo) + period, 0.5 * (lo + hi))
             if offset is not None:
-                pairs.append((cost, offset, i, j))
+                n = support(t0, x0, tk, xk, offset)
+                if n >= MIN_SUPPORT:
+                    pairs.append((n, -cost, offset, i, j))
     if not pairs:
         return None, np.inf
-    cost, offset, _, _ = min(pairs)
-    period = 1.0 / fps
-    near = max(2.0 * cost, AGREE_PX / camk.focal)
-    agree = [(i, j) for c, o, i, j in pairs if abs(o - offset) <= period and c <= near]
+    n, cost, offset, _, _ = max(pairs)
+    cost = -cost
+    agree = [(i, j) for _, _, o, i, j in pairs if abs(o - offset) <= period]
 
     def joined(tracks, chosen):
         t = np.concatenate([tracks[i][0] for i in chosen])
@@ -169,6 +195,6 @@ def estimate_offset_tracks(cam0, camk, tracks0, tracksk, fps, max_offset=MAX_TIM
     t0, x0 = joined(tracks0, sorted({i for i, _ in agree}))
     tk, xk = joined(tracksk, sorted({j for _, j in agree}))
     refined, refined_cost = estimate_offset(cam0, camk, t0, x0, tk, xk, fps, period, offset)
-    if refined is None or refined_cost > near:
+    if refined is None or support(t0, x0, tk, xk, refined) < n:
         return offset, cost
     return refined, refined_cost

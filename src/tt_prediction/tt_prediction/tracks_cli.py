@@ -18,6 +18,7 @@ import json
 import math
 import os
 import re
+import shlex
 import sys
 
 import numpy as np
@@ -238,10 +239,13 @@ def _main(argv=None):
     final_config, final_model = config, params
     if learning is not None:
         final_config, final_model = learning.config(config), learning.model(params)
+    learned = [] if learning is None else [
+        name for name, learner in (('e_t', learning.restitution), ('c_m', learning.lift))
+        if learner.count]
     meta = {'written_by': 'tt-predict --tracks', 'sources': [args.tracks],
-            'model': args.model or 'nominal',
-            'learned': [] if learning is None else ['e_t', 'c_m']}
-    command = ' '.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
+            'model': args.model or 'nominal', 'learned': learned}
+    command = shlex.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
+    command = command.replace('\n', '\\n')        # one comment line in params.yaml
     try:
         write_output(args.out, replays, summary,
                      (final_config, final_model, meta, command))

@@ -135,9 +135,9 @@ def rebound_summary(tracks, globals_, states):
         'mu_mean': round(float(mu.mean()), 4), 'mu_std': round(float(mu.std()), 4),
         'restitution_residual_mean': round(float(res.mean()), 4),
         'corr_impact_speed': round(_corr(res, speed), 3),
-        'corr_impact_speed_p': float(f'{_corr_p(res, speed):.2g}'),
+        'corr_impact_speed_p': _corr_p(res, speed),
         'corr_spin': round(_corr(res[ok], spin[ok]), 3),
-        'corr_spin_p': float(f'{_corr_p(res[ok], spin[ok]):.2g}'),
+        'corr_spin_p': _corr_p(res[ok], spin[ok]),
         'n_bounces_with_spin': int(ok.sum()),
         'impact_speed': speed.tolist(), 'e_t_measured': e.tolist(),
     }
