@@ -1,13 +1,12 @@
 """Time offset between unsynchronised cameras, from the ball itself (video files carry no
 clock).
 
-Each camera's detections are first linked into image tracks (:func:`image_tracks`: a
-detection continues the track whose last point is nearest, within a step and a gap), so that
-frames with other moving things beside the ball (a racket, a swinging disc) still count;
-every pair of moving tracks of camera 0 and camera k is then tried
-(:func:`estimate_offset_tracks`) and the offset that puts its pairs nearest the epipolar
-lines kept (two views of one object agree at the right offset, two different objects at
-none).
+Where frames with a single detection are too few (other moving things beside the ball: a
+racket, a swinging disc), each camera's detections are linked into image tracks
+(:func:`image_tracks`: a detection continues the track whose last point is nearest, within
+a step and a gap), every pair of moving tracks of camera 0 and camera k is tried
+(:func:`estimate_offset_tracks`), and the offset the most frames support kept (two views of
+one object agree at the right offset, two different objects at none).
 
 For a candidate offset d (camera k's clock minus camera 0's), camera k's detections are
 interpolated linearly in time to the instants of camera 0's detections; a right offset puts
