@@ -128,9 +128,10 @@ class TrackerConfig:
     kink_velocity_noise: float = 1.0
     kink_spin_noise: float = 200.0
     """A confirmed track's point that fails the gate within ``kink_window`` s after the
-    filter's bounce is tried again with the rebound's velocity and spin that much more
-    uncertain (m/s, rad/s; :meth:`tt_prediction.ball_filter.BallFilter.update_after_bounce`):
-    the kink observed, so that a rebound the model got wrong (a flight model that read the
+    filter's bounce is tried again (once a bounce) with the rebound's velocity and spin that
+    much more uncertain (m/s, rad/s;
+    :meth:`tt_prediction.ball_filter.BallFilter.update_after_bounce`): the kink observed, so
+    that a rebound the model got wrong (a flight model that read the
     spin wrong: an independent renderer's Magnus five times the model's put 550 rad/s for
     120 on a ball, and its track ended at the bounce) does not end the track."""
     narrow_weight: float = 30.0
