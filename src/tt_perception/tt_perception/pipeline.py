@@ -394,19 +394,21 @@ class Tracker:
                     or self.kinked == f.last_bounce):      # once a bounce
                 return False
             noise = (cfg.kink_velocity_noise, cfg.kink_spin_noise)
-            if not f.update_after_bounce(*point, f.rebound_noise(*noise)):
+            Q = f.rebound_noise(*noise)
+            if not f.update_after_bounce(*point, Q):
                 return False
             self.kinked = f.last_bounce
             if cfg.smooth:
                 # For the smoother the rebound's noise enters at the first step past the
                 # contact (the updates since it were made with the rebound as predicted).
                 steps = self.runs[self.track_id][1]
-                after = [i for i, step in enumerate(steps) if step[0] > f.last_bounce[0]]
-                if after:
-                    step = steps[after[0]]
-                    steps[after[0]] = (*step[:4], f.rebound_noise(*noise, t=step[0]))
+                after = next((i for i, step in enumerate(steps)
+                              if step[0] > f.last_bounce[0]), None)
+                if after is None:
+                    self.kink = Q                   # the step this update makes
                 else:
-                    self.kink = f.rebound_noise(*noise)     # the step this update makes
+                    steps[after] = (*steps[after][:4],
+                                    f.rebound_noise(*noise, t=steps[after][0]))
             return True
         trial = copy.copy(f)                    # update() replaces arrays, never writes them
         if not trial.update(*blob, rebounce=True):

@@ -229,26 +229,22 @@ def _main(argv=None):
         return 2
     warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params,
                               args.hit_plane_x)
-    learning = None if args.no_learn else Learning(config, params)
+    learning = Learning(config, params)     # with --no-learn unused: the configured values
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
                                      learn=not args.no_learn, learning=learning)
     summary['warnings'] = warnings
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
-    final_config, final_model = config, params
-    if learning is not None:
-        final_config, final_model = learning.config(config), learning.model(params)
-    learned = [] if learning is None else [
-        name for name, learner in (('e_t', learning.restitution), ('c_m', learning.lift))
-        if learner.count]
+    learned = [name for name, learner in (('e_t', learning.restitution),
+                                          ('c_m', learning.lift)) if learner.count]
     meta = {'written_by': 'tt-predict --tracks', 'sources': [args.tracks],
             'model': args.model or 'nominal', 'learned': learned}
     command = shlex.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
     command = command.replace('\n', '\\n')        # one comment line in params.yaml
     try:
         write_output(args.out, replays, summary,
-                     (final_config, final_model, meta, command))
+                     (learning.config(config), learning.model(params), meta, command))
     except OSError as exc:
         print(f'tt-predict: {args.out}: cannot write: {exc.strerror}', file=sys.stderr)
         return 2
