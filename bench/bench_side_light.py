@@ -18,7 +18,7 @@ topspin, backspin with sidespin) with its own drag, Magnus and bounce. Cases (th
 
 The renderer's self-check (:func:`side_light_scene.check`) runs first; the bench stops if it
 fails. Each case is rendered once into ``bench/results/side_light_scene/CASE`` (about 380 MB
-for the five; a ``.gitignore`` of ``*`` is written into the folder) and re-rendered only when
+for the five; the root .gitignore keeps it out of git) and re-rendered only when
 the case's options or the renderer's source change. ``tt-perceive`` runs on it as its own
 process, with ``--colour`` the ball's colour and ``--exposure`` the case's exposure (at least
 0.1 ms), the other options at their defaults (the states as the live node publishes them);
@@ -80,10 +80,7 @@ def case_options(name):
 def make_scene(name, folder=SCENES):
     """``folder/name``, rendered unless a render of the same request is there; returns
     (its path, render seconds or None when cached)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    ignore = folder / '.gitignore'
-    if not ignore.exists():
-        ignore.write_text('# Rendered by bench/bench_side_light.py: never committed.\n*\n')
+    folder.mkdir(parents=True, exist_ok=True)     # in the root .gitignore: never committed
     request = {'version': VERSION, 'case': name, 'opts': case_options(name),
                'renderer_sha256': hashlib.sha256(
                    pathlib.Path(scene.__file__).read_bytes()).hexdigest()}
