@@ -414,6 +414,27 @@ def _blob_by_opencv(sub, diff, patch, background, px, py, threshold):
             shape['mu02'] / area, shape['mu11'] / area, hidden, *colour, *under]
 
 
+def test_a_fit_knows_a_ball_lit_from_below():
+    """A ball whose brightness grows toward the image of the world's down by more than a
+    tenth of its own (the model's linear shading, eq. of :func:`ball_model`) is lit from
+    below; toward the side or the up, or with the up unknown, it is not."""
+    from tt_perception.detect import OutlineFit, ball_model
+    ys, xs = np.mgrid[0:21, 0:21].astype(float)
+    xs, ys = xs.ravel(), ys.ravel()
+    outline = np.eye(2) * 3.0
+    background = np.full(xs.size, 20.0)
+    cases = {(0.0, 40.0): True, (0.0, -40.0): False, (40.0, 0.0): False, (0.0, 2.0): False}
+    for (gx, gy), below in cases.items():
+        for up in (np.array([0.0, -1.0]), None):
+            ball = BallImage(10.0, 10.0, outline, np.zeros(2), up)
+            cover, basis, _, _ = ball_model(xs, ys, (10.0, 10.0), ball)
+            grey = background * (1.0 - cover) + basis @ [100.0, gx, gy, 0.0, 0.0, 0.0]
+            fitter = OutlineFit(None, None, None, ball, pixels=(grey, background, xs, ys))
+            centre, _, lit_from_below = fitter.fit((10.2, 9.9))
+            np.testing.assert_allclose(centre, (10.0, 10.0), atol=0.01)
+            assert lit_from_below == (below and up is not None), (gx, gy, up)
+
+
 def test_the_blobs_compiled_measures_are_their_definition():
     """A blob's weighted centroid, shape moments, bright surroundings and lit colour (one
     compiled kernel) against the same definitions written with OpenCV, on random blobs of

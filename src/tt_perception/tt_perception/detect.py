@@ -79,6 +79,15 @@ class DetectorConfig:
     fitted outline slide toward the lit side where the shaded side is invisible (a second
     minimum 0.4 radius up, docs/perception.md). 0: a free quadratic, the least biased under
     a single compact light with no ambient (a sharp terminator)."""
+    light_from_above: bool = True
+    """The hall's lights are above the table, so that the ball's top is brighter than its
+    bottom. On a ball of 2-3 px radius whose shaded half is as dark as the background, the
+    outline fit has two minima of nearly equal cost: the true centre with the lit top seen,
+    and a centre up to a radius higher with the same pixels taken for a bottom lit from below
+    (independent scenes, orange 640x480 at a track's start: 2.4 px up, 17 mm high after
+    triangulation). With it, of the fits from several starts (:meth:`BallDetector.
+    _fit_centre`) one whose brightness grows more than 60 degrees downward
+    (:data:`LIT_FROM_BELOW_COS`) is kept only when every fit is so. False: any lighting."""
     image_blur: float = 0.0
     """The camera's own blur across an edge, pixels: the standard deviation of a Gaussian
     point spread (a Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's
@@ -135,6 +144,10 @@ class BallImage:
     """2 x 2 matrix M: the outline is the ellipse {c + M (cos a, sin a)} around the centre c."""
     blur: np.ndarray
     """(2,) the centre's displacement over the exposure, pixels."""
+    up: np.ndarray = None
+    """(2,) unit vector: the image of the world's up (+z) at the ball, or None when not
+    known. Under overhead light the ball's top is its lit side (:attr:`DetectorConfig.
+    light_from_above`)."""
 
 
 def colour_matches(bgr, colour, change=None):
@@ -182,6 +195,13 @@ N_SHADING = 6
 """Terms of the model of the ball's brightness over its image (a quadratic)."""
 CONVERGED = 0.03
 """A Gauss-Newton step of the centre shorter than this ends the fit, pixels."""
+LIT_FROM_BELOW_COS = 0.5
+"""A fitted ball is lit from below when its brightness gradient points within 60 degrees of
+the image's down (the cosine of its angle to the world's up below -0.5) and changes its
+brightness from the centre to the outline by more than :data:`SHADING_MIN` of the centre's."""
+SHADING_MIN = 0.1
+"""Below this change of brightness over the ball, in parts of its centre's, a fit's shading
+has no direction that counts (a ball lit evenly)."""
 SEARCH_STEP = 0.5
 """Distance of the extra starts of a fit with a rough prediction from the blob's centre,
 in ball radii (:meth:`BallDetector._fit_centre`)."""
@@ -464,16 +484,18 @@ def _residuals(obs, bg, cover, basis, shading, res):
 @njit(cache=True, nogil=True)
 def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, iterations,
          converged):
-    """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost).
-    Not ok when a system is singular or the ball covers fewer pixels than there are unknowns
-    (the shading's N_SHADING and the centre's 2): the fit is not posed."""
+    """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost,
+    shading), shading the N_SHADING terms of the ball's brightness. Not ok when a system is
+    singular or the ball covers fewer pixels than there are unknowns (the shading's N_SHADING
+    and the centre's 2): the fit is not posed."""
     n = xs.size
     k = N_SHADING + 2
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
+    none = np.zeros(N_SHADING)
     if np.count_nonzero(cover) < k:
-        return False, cx, cy, 0.0
+        return False, cx, cy, 0.0, none
     penalty = np.zeros((k, k))
     if curvature_weight > 0.0:
         penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
@@ -481,7 +503,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     target = obs - bg * (1.0 - cover)
     shading, ok = _solve(_gram(basis, basis) + ridge, _gram_vector(basis, target))
     if not ok:          # the shading is not determined by these pixels
-        return False, cx, cy, 0.0
+        return False, cx, cy, 0.0, none
     jac = np.empty((n, k))
     res = np.empty(n)
     for _ in range(iterations):
@@ -500,7 +522,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         gradient[:N_SHADING] -= _gram_vector(ridge, shading)       # ridge is symmetric
         step, ok = _solve(_gram(jac, jac) + penalty, gradient)
         if not ok:
-            return False, cx, cy, 0.0
+            return False, cx, cy, 0.0, none
         length = math.hypot(step[N_SHADING], step[N_SHADING + 1])
         if length > 1.0:
             step = step / length
@@ -509,11 +531,12 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         cy += step[N_SHADING + 1]
         _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
         if np.count_nonzero(cover) < k:
-            return False, cx, cy, 0.0
+            return False, cx, cy, 0.0, none
         if length < converged:
             break
     _residuals(obs, bg, cover, basis, shading, res)
-    return True, cx, cy, np.sum(res * res) + np.sum(shading * _gram_vector(ridge, shading))
+    return (True, cx, cy, np.sum(res * res) + np.sum(shading * _gram_vector(ridge, shading)),
+            shading)
 
 
 def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_weight=0.0,
@@ -541,8 +564,9 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
 
     The whole fit is one compiled kernel (numba, run without the GIL, so that the camera
     threads fit in parallel)."""
-    return OutlineFit(grey, background, usable, ball, iterations, curvature_weight,
-                      image_blur).fit(start)
+    fit = OutlineFit(grey, background, usable, ball, iterations, curvature_weight,
+                     image_blur).fit(start)
+    return None if fit is None else fit[:2]
 
 
 class OutlineFit:
@@ -562,20 +586,32 @@ class OutlineFit:
         self.sampling = _sampling(ball, image_blur)
         self.options = (float(curvature_weight), int(iterations), CONVERGED)
         self.scale = _outline_extent(ball.outline)[1]
+        self.up = None if ball.up is None else np.asarray(ball.up, dtype=float)
 
     def fit(self, start):
-        """(centre, cost) of the fit from ``start`` (patch pixels), or None
-        (:func:`fit_outline`)."""
+        """(centre, cost, lit_from_below) of the fit from ``start`` (patch pixels), or None
+        (:func:`fit_outline`); ``lit_from_below`` (:data:`LIT_FROM_BELOW_COS`) only when the
+        ball's ``up`` is known, else False."""
         if self.xs.size < 12:
             return None
-        ok, u, v, cost = _fit(self.obs, self.bg, self.xs, self.ys, float(start[0]),
-                              float(start[1]), self.whitening, *self.blur, *self.sampling,
-                              *self.options)
+        ok, u, v, cost, shading = _fit(self.obs, self.bg, self.xs, self.ys, float(start[0]),
+                                       float(start[1]), self.whitening, *self.blur,
+                                       *self.sampling, *self.options)
         centre = np.array([u, v])
         if (not ok or not np.all(np.isfinite(centre))
                 or np.hypot(*(centre - start)) > max(self.scale, 1.0)):
             return None
-        return centre, float(cost)
+        return centre, float(cost), self._lit_from_below(shading)
+
+    def _lit_from_below(self, shading):
+        if self.up is None:
+            return False
+        # The brightness's gradient over the image: d/d(pixel offset) of s1 wx + s2 wy, w = A d.
+        across = shading[1:3]
+        gradient = self.whitening.T @ across
+        size = math.hypot(*gradient)
+        return bool(math.hypot(*across) > SHADING_MIN * abs(shading[0])
+                    and gradient @ self.up < -LIT_FROM_BELOW_COS * size)
 
 
 def warm_up():
@@ -1014,20 +1050,33 @@ class BallDetector:
         fitter = OutlineFit(None, None, None, ball, curvature_weight=self.config.curvature_weight,
                             image_blur=self.config.image_blur,
                             pixels=(obs.astype(float), background.astype(float), xs, ys))
+        lit = self.config.light_from_above
+
+        def better(fit, best):
+            """Whether ``fit`` beats ``best``: not lit from below when ``best`` is (with
+            light_from_above), else of lower cost."""
+            if fit is None:
+                return False
+            if best is None:
+                return True
+            if lit and fit[2] != best[2]:
+                return best[2]
+            return fit[1] < best[1]
+
         # From the candidate's own centre; on a ball of a few pixels JPEG's blocks can leave
         # a second minimum a pixel or two away, so when that fit ends more than half a pixel
-        # from the predicted centre, from there too, and the better fit.
+        # from the predicted centre (or lit from below), from there too, and the better fit.
         best = fitter.fit((u - ax, v - ay))
         predicted = (ball.u - ax, ball.v - ay)
-        if best is None or np.hypot(*(best[0] - predicted)) > 0.5:
+        if best is None or np.hypot(*(best[0] - predicted)) > 0.5 or (lit and best[2]):
             fit = fitter.fit(predicted)
-            if fit is not None and (best is None or fit[1] < best[1]):
+            if better(fit, best):
                 best = fit
         if search:
             step = SEARCH_STEP * fitter.scale
             for du, dv in SEARCH_OFFSETS:
                 fit = fitter.fit((u - ax + step * du, v - ay + step * dv))
-                if fit is not None and (best is None or fit[1] < best[1]):
+                if better(fit, best):
                     best = fit
         return None if best is None else (best[0][0] + ax, best[0][1] + ay)
 

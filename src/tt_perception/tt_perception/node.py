@@ -103,6 +103,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'ambient)', '', 0.0, 100.0),
     ('image_blur', 0.0, "The cameras' own blur across an edge (demosaicing, JPEG, lens), a "
      'Gaussian standard deviation; 0: sharp', 'pixels', 0.0, 5.0),
+    ('light_from_above', True, "The lights are above the table (the ball's top is its lit "
+     'side): of two fits of a small ball, the one lit from below is dropped; false: any '
+     'lighting'),
     ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),
@@ -263,7 +266,8 @@ class PerceptionNode(Node):
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
-            curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'))
+            curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'),
+            light_from_above=self._p('light_from_above'))
         filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'),
                             spin_prior_side=self._p('spin_prior_side') or None,
                             spin_prior_along=self._p('spin_prior_along') or None,

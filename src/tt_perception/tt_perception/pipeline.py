@@ -163,15 +163,19 @@ def ball_image(cam, position, velocity, radius, exposure):
     ring = radius * math.sqrt(d * d - radius * radius) / d
     mid = (d * d - radius * radius) / (d * d) * c
     half = 0.5 * exposure * velocity
-    table = np.empty((7, 3))
+    table = np.empty((8, 3))
     table[0] = position
     table[1:5] = (mid - cam.t + ring * np.array([e1, e2, -e1, -e2])) @ cam.R
     table[5] = position - half
     table[6] = position + half
+    table[7] = position + (0.0, 0.0, radius)
     uv = cam.project(table)
     # Four points a quarter turn apart on the projected circle: c + M (cos, sin).
     m = 0.5 * np.column_stack([uv[1] - uv[3], uv[2] - uv[4]])
-    return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5])
+    up = uv[7] - uv[0]
+    norm = math.hypot(*up)
+    return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5],
+                     up / norm if norm > 0.0 else None)
 
 
 class Matcher:
