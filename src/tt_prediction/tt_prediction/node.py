@@ -23,7 +23,7 @@ from tt_ros.markers import add_marker
 from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
-from tt_ros.ratelimit import due
+from tt_ros.ratelimit import ThrottledLog, due
 from tt_ros.timebase import TimeBaseCheck
 from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
@@ -197,6 +197,7 @@ class PredictionNode(Node):
         self.n_dropped = 0
         self.n_late = 0
         self.time_base = TimeBaseCheck(self.get_logger().warning)
+        self.warn = ThrottledLog(self.get_logger().warning)
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         # Names relative to the node's namespace (/ball/prediction in the root one).
@@ -213,7 +214,7 @@ class PredictionNode(Node):
 
     def _drop(self, why):
         self.n_dropped += 1
-        self.get_logger().warning(f'ball state dropped: {why}', throttle_duration_sec=1.0)
+        self.warn('drop', 1.0, f'ball state dropped: {why}')
 
     def on_state(self, msg):
         self.work.call(self._on_state, msg)
@@ -262,10 +263,9 @@ class PredictionNode(Node):
                     return
                 if age > LATE_S:
                     self.n_late += 1
-                    self.get_logger().warning(
-                        f'a state received {age * 1e3:.0f} ms after its stamp (more than '
-                        f'{LATE_S * 1e3:.0f} ms): the node or its publisher falls behind',
-                        throttle_duration_sec=5.0)
+                    self.warn('late', 5.0,
+                              f'a state received {age * 1e3:.0f} ms after its stamp (more than '
+                              f'{LATE_S * 1e3:.0f} ms): the node or its publisher falls behind')
         p, v, w = msg.position, msg.velocity, msg.spin
         if max(abs(p.x), abs(p.y), abs(p.z)) > ROOM_HALF_EXTENT_M:
             self._drop(position_error((p.x, p.y, p.z), 'position'))
@@ -332,9 +332,8 @@ class PredictionNode(Node):
         elif track.replaced is not None and track.replaced.continues(state, stamp_ns, gravity):
             # The state before this one was far off, this one carries on from the track
             # before it: that one was an outlier (even stamped ahead of this one).
-            self.get_logger().warning(
-                f'track {track_id}: one state off its path (an outlier); the track goes on',
-                throttle_duration_sec=1.0)
+            self.warn('outlier', 1.0,
+                      f'track {track_id}: one state off its path (an outlier); the track goes on')
             track = track.replaced
         elif -OUT_OF_ORDER_S * 1e9 <= stamp_ns - track.last_ns <= 0:
             self._drop(f'track {track_id}: stamp {(track.last_ns - stamp_ns) * 1e-6:.1f} ms '
@@ -423,7 +422,7 @@ class PredictionNode(Node):
         except ValueError as exc:
             track.uncertainty = None
             self.n_bad_covariance += 1
-            self.get_logger().warning(f'covariance ignored: {exc}', throttle_duration_sec=1.0)
+            self.warn('covariance', 1.0, f'covariance ignored: {exc}')
 
     def _publish_path(self, request):
         """Path worker: /ball/predicted_path and the markers.

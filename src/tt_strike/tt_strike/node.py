@@ -38,7 +38,7 @@ from tt_ros.markers import add_marker
 from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
-from tt_ros.ratelimit import due
+from tt_ros.ratelimit import ThrottledLog, due
 from tt_ros.timebase import TimeBaseCheck, same_time_base
 from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
@@ -200,6 +200,7 @@ class StrikeNode(Node):
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
+        self.warn = ThrottledLog(self.get_logger().warning)
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         # Names relative to the node's namespace (/strike/command in the root one).
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
@@ -261,7 +262,7 @@ class StrikeNode(Node):
 
     def _drop(self, why):
         self.n_dropped += 1
-        self.get_logger().warning(f'prediction dropped: {why}', throttle_duration_sec=1.0)
+        self.warn('drop', 1.0, f'prediction dropped: {why}')
 
     def _covariance(self, msg, state):
         """9x9 covariance at the hit point: the prediction's position block, and velocity and
@@ -400,8 +401,7 @@ class StrikeNode(Node):
         tally.ok = tally.ok or status == 'ok'
         tally.first_status = tally.first_status or status
         if status != 'ok':
-            self.get_logger().warning(f'no feasible stroke ({status}): {reason}',
-                                      throttle_duration_sec=1.0)
+            self.warn('infeasible', 1.0, f'no feasible stroke ({status}): {reason}')
         if self.p.publish_markers and sol.normal is not None:
             self.pub_markers.publish(self._markers(msg, sol))
 
@@ -437,8 +437,7 @@ class StrikeNode(Node):
             self.n_committed += 1
             return
         self.n_too_late += 1
-        self.get_logger().warning(f'strike not sent, too late ({self.n_too_late} so far): '
-                                  f'{why}', throttle_duration_sec=1.0)
+        self.warn('too_late', 1.0, f'strike not sent, too late ({self.n_too_late} so far): {why}')
 
     def _command(self, msg, sol, hit, status, reason):
         out = StrikeCommand()
