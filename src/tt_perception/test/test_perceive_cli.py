@@ -87,6 +87,28 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
     assert_matches_truth(tracks['webcam'], truth, -LEAD_IN)
 
 
+@pytest.mark.parametrize('option, lit_from_above', [([], True), (['--any-lighting'], False)])
+def test_the_lighting_option_reaches_the_detector(scene, tmp_path, monkeypatch, option,
+                                                  lit_from_above):
+    # The outline fit's choice between a ball lit from above and one lit from below
+    # (perception_node's light_from_above) is tt-perceive's too; the track is the same on
+    # this evenly lit scene.
+    base, rig_path, frames, truth = scene
+    made = []
+    pipeline = cli.Pipeline
+
+    def recording(*args, **kwargs):
+        made.append(kwargs['detector_config'])
+        return pipeline(*args, **kwargs)
+
+    monkeypatch.setattr(cli, 'Pipeline', recording)
+    rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', rig, '--out', str(out), *option]) == 0
+    assert made and all(c.light_from_above == lit_from_above for c in made)
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+
+
 def test_a_video_overwritten_mid_flight_gives_the_track_and_names_the_frame(scene, tmp_path,
                                                                            capsys):
     # FFmpeg skipped the damaged frame without a word and the frames after it were each timed

@@ -1,7 +1,8 @@
 """tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
 
     tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
-                [--out-bag BAG] [--response-gamma G] [--exposure S] [--smooth]
+                [--out-bag BAG] [--response-gamma G] [--exposure S] [--any-lighting]
+                [--smooth]
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
@@ -362,6 +363,10 @@ def _main(argv=None):
                         default=DetectorConfig.exposure, metavar='S',
                         help="the cameras' exposure time, s: the ball's motion blur "
                              "(perception_node's exposure; default 0.002)")
+    parser.add_argument('--any-lighting', action='store_true',
+                        help="the ball may be lit from any side (perception_node's "
+                             'light_from_above false; default: the lights are above the '
+                             "table, the ball's top its lit side)")
     parser.add_argument('--smooth', action='store_true',
                         help="each state from all of its track's frames, the later ones too "
                              '(fixed-interval smoother; default: as perception_node publishes '
@@ -387,7 +392,8 @@ def _main(argv=None):
         return 2
     try:
         detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
-                                  exposure=args.exposure)
+                                  exposure=args.exposure,
+                                  light_from_above=not args.any_lighting)
         if not args.bag:
             for note in estimate_offsets(rig, args.colour, detector):
                 print(f'tt-perceive: {note}', file=sys.stderr)
