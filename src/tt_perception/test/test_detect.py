@@ -229,6 +229,11 @@ def test_expected_ball_image_is_the_projection_of_the_sphere():
             # The support of the ellipse {d: d^T a d = 1} along e.
             support = np.sqrt(e @ np.linalg.inv(a) @ e)
             assert abs(reach - support) < 0.01 * support
+        # The image of the world's up at the ball: a unit vector, up the image (v falls)
+        # for this camera, which looks at the table from above its edge.
+        top = cam.project((position + [0.0, 0.0, 1e-4])[None])[0] - centre
+        assert np.linalg.norm(ball.up) == pytest.approx(1.0)
+        assert ball.up @ (top / np.linalg.norm(top)) > 0.9999 and ball.up[1] < 0.0
     # A ball whose centre is within its radius of the lens has no outline.
     inside = cam.R.T @ (np.array([0.0, 0.0, 0.5 * radius]) - cam.t)
     assert np.linalg.norm(cam.R @ inside + cam.t) < radius
@@ -415,24 +420,36 @@ def _blob_by_opencv(sub, diff, patch, background, px, py, threshold):
 
 
 def test_a_fit_knows_a_ball_lit_from_below():
-    """A ball whose brightness grows toward the image of the world's down by more than a
-    tenth of its own (the model's linear shading, eq. of :func:`ball_model`) is lit from
-    below; toward the side or the up, or with the up unknown, it is not."""
+    """A ball whose brightness grows within 60 degrees of the image of the world's down, by
+    more than a tenth of its own, is lit from below; toward the side or the up, beyond 60
+    degrees from the down, or with the up unknown, it is not. The brightness is the model's
+    linear shading over the whitened offsets w = A d (:func:`ball_model`), so on a sheared
+    outline its gradient over the pixels, A^T (s_x, s_y), is not along (s_x, s_y): the
+    shading is given here by its gradient g over the pixels, (s_x, s_y) = A^-T g."""
     from tt_perception.detect import OutlineFit, ball_model
-    ys, xs = np.mgrid[0:21, 0:21].astype(float)
+    ys, xs = np.mgrid[0:25, 0:25].astype(float)
     xs, ys = xs.ravel(), ys.ravel()
-    outline = np.eye(2) * 3.0
     background = np.full(xs.size, 20.0)
-    cases = {(0.0, 40.0): True, (0.0, -40.0): False, (40.0, 0.0): False, (0.0, 2.0): False}
-    for (gx, gy), below in cases.items():
-        for up in (np.array([0.0, -1.0]), None):
-            ball = BallImage(10.0, 10.0, outline, np.zeros(2), up)
-            cover, basis, _, _ = ball_model(xs, ys, (10.0, 10.0), ball)
-            grey = background * (1.0 - cover) + basis @ [100.0, gx, gy, 0.0, 0.0, 0.0]
-            fitter = OutlineFit(None, None, None, ball, pixels=(grey, background, xs, ys))
-            centre, _, lit_from_below = fitter.fit((10.2, 9.9))
-            np.testing.assert_allclose(centre, (10.0, 10.0), atol=0.01)
-            assert lit_from_below == (below and up is not None), (gx, gy, up)
+    down = np.array([0.3, 1.0]) / np.hypot(0.3, 1.0)          # a camera rolled a little
+    across = np.array([-down[1], down[0]])
+    for outline in (np.eye(2) * 3.0, np.array([[3.5, 1.5], [0.0, 2.5]])):
+        a = _whiten(outline)
+        cases = {55.0: True, 65.0: False, 90.0: False, 180.0: False}    # degrees from down
+        for angle, below in cases.items():
+            rad = np.radians(angle)
+            for size, strong in ((12.0, True), (1.0, False)):   # per pixel; centre 100
+                g = size * (np.cos(rad) * down + np.sin(rad) * across)
+                shading = [100.0, *np.linalg.solve(a.T, g), 0.0, 0.0, 0.0]
+                for up in (-down, None):
+                    ball = BallImage(12.0, 12.0, outline, np.zeros(2), up)
+                    cover, basis, _, _ = ball_model(xs, ys, (12.0, 12.0), ball)
+                    grey = background * (1.0 - cover) + basis @ shading
+                    fitter = OutlineFit(None, None, None, ball,
+                                        pixels=(grey, background, xs, ys))
+                    centre, _, lit_from_below = fitter.fit((12.2, 11.9))
+                    np.testing.assert_allclose(centre, (12.0, 12.0), atol=0.01)
+                    expected = below and strong and up is not None
+                    assert lit_from_below == expected, (outline, angle, size, up)
 
 
 def test_the_blobs_compiled_measures_are_their_definition():

@@ -86,8 +86,9 @@ class DetectorConfig:
     and a centre up to a radius higher with the same pixels taken for a bottom lit from below
     (independent scenes, orange 640x480 at a track's start: 2.4 px up, 17 mm high after
     triangulation). With it, of the fits from several starts (:meth:`BallDetector.
-    _fit_centre`) one whose brightness grows more than 60 degrees downward
-    (:data:`LIT_FROM_BELOW_COS`) is kept only when every fit is so. False: any lighting."""
+    _fit_centre`) one lit from below (its brightness growing within 60 degrees of the
+    image's down, :data:`LIT_FROM_BELOW_COS`) is kept only when every fit is so. False: any
+    lighting."""
     image_blur: float = 0.0
     """The camera's own blur across an edge, pixels: the standard deviation of a Gaussian
     point spread (a Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's
@@ -1027,7 +1028,12 @@ class BallDetector:
         predicted centre, from there too. With ``search`` (the prediction is rough), also
         from the 4 points :data:`SEARCH_STEP` radii around (u, v) along the image axes
         (:data:`SEARCH_OFFSETS`): a blob's centre leans toward the lit side by up to a third
-        of a radius, and from there the fit can stop in a minimum of its own."""
+        of a radius, and from there the fit can stop in a minimum of its own.
+
+        With ``light_from_above``, a fit lit from below (:meth:`OutlineFit.fit`) loses to any
+        that is not, whatever their costs, and a first fit lit from below is tried again from
+        the predicted centre: on a ball of 2-3 px whose shaded half is as dark as the
+        background, a centre up to a radius too high, lit from below, fits about as well."""
         h, w = frame.shape[:2]
         reach = _outline_extent(ball.outline)[0] + 0.5 * math.hypot(*ball.blur)
         half = int(np.ceil(reach + 2.0))

@@ -104,8 +104,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('image_blur', 0.0, "The cameras' own blur across an edge (demosaicing, JPEG, lens), a "
      'Gaussian standard deviation; 0: sharp', 'pixels', 0.0, 5.0),
     ('light_from_above', True, "The lights are above the table (the ball's top is its lit "
-     'side): of two fits of a small ball, the one lit from below is dropped; false: any '
-     'lighting'),
+     'side): of the outline fits from several starts, one lit from below is kept only when '
+     'all are; false: any lighting'),
     ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
     ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
      0.1, 50),

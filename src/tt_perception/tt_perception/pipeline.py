@@ -172,10 +172,14 @@ def ball_image(cam, position, velocity, radius, exposure):
     uv = cam.project(table)
     # Four points a quarter turn apart on the projected circle: c + M (cos, sin).
     m = 0.5 * np.column_stack([uv[1] - uv[3], uv[2] - uv[4]])
+    # The image of the ball's top radius, over the ball's own radius in the image, is the
+    # sine of the angle between the line of sight and the vertical: under 0.5 (a camera
+    # looking within 30 degrees of straight down) it shows no direction worth trusting.
     up = uv[7] - uv[0]
     norm = math.hypot(*up)
+    steep = not norm > 0.5 * math.sqrt(abs(np.linalg.det(m)))
     return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5],
-                     up / norm if norm > 0.0 else None)
+                     None if steep else up / norm)
 
 
 class Matcher:
