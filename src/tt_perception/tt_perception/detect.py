@@ -494,9 +494,8 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
-    none = np.zeros(N_SHADING)
     if np.count_nonzero(cover) < k:
-        return False, cx, cy, 0.0, none
+        return False, cx, cy, 0.0, np.zeros(N_SHADING)
     penalty = np.zeros((k, k))
     if curvature_weight > 0.0:
         penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
@@ -504,7 +503,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     target = obs - bg * (1.0 - cover)
     shading, ok = _solve(_gram(basis, basis) + ridge, _gram_vector(basis, target))
     if not ok:          # the shading is not determined by these pixels
-        return False, cx, cy, 0.0, none
+        return False, cx, cy, 0.0, np.zeros(N_SHADING)
     jac = np.empty((n, k))
     res = np.empty(n)
     for _ in range(iterations):
@@ -523,7 +522,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         gradient[:N_SHADING] -= _gram_vector(ridge, shading)       # ridge is symmetric
         step, ok = _solve(_gram(jac, jac) + penalty, gradient)
         if not ok:
-            return False, cx, cy, 0.0, none
+            return False, cx, cy, 0.0, np.zeros(N_SHADING)
         length = math.hypot(step[N_SHADING], step[N_SHADING + 1])
         if length > 1.0:
             step = step / length
@@ -532,7 +531,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         cy += step[N_SHADING + 1]
         _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
         if np.count_nonzero(cover) < k:
-            return False, cx, cy, 0.0, none
+            return False, cx, cy, 0.0, np.zeros(N_SHADING)
         if length < converged:
             break
     _residuals(obs, bg, cover, basis, shading, res)

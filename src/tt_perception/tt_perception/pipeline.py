@@ -177,7 +177,7 @@ def ball_image(cam, position, velocity, radius, exposure):
     # looking within 30 degrees of straight down) it shows no direction worth trusting.
     up = uv[7] - uv[0]
     norm = math.hypot(*up)
-    steep = not norm > 0.5 * math.sqrt(abs(np.linalg.det(m)))
+    steep = not norm > 0.5 * math.sqrt(abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]))
     return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5],
                      None if steep else up / norm)
 

@@ -119,10 +119,14 @@ def image_tracks(times, points, period, max_step=MAX_STEP, max_gap=2.5):
         t = times[order[i]]
         frame = [points[k] for k in order[i:j]]
         live = [tr for tr in live if t - tr[0][-1] <= max_gap * period]
-        pairs = sorted((float(np.linalg.norm(x - tr[1][-1])), a, b)
-                       for a, x in enumerate(frame) for b, tr in enumerate(live)
-                       if np.linalg.norm(x - tr[1][-1])
-                       <= max_step * max(1.0, (t - tr[0][-1]) / period))
+        pairs = []
+        for b, tr in enumerate(live):
+            reach = max_step * max(1.0, (t - tr[0][-1]) / period)
+            for a, x in enumerate(frame):
+                d = float(np.linalg.norm(x - tr[1][-1]))
+                if d <= reach:
+                    pairs.append((d, a, b))
+        pairs.sort()
         used_x, used_tr = set(), set()
         for _, a, b in pairs:
             if a in used_x or b in used_tr:
