@@ -14,7 +14,14 @@ from tt_prediction.cli import main
 from tt_prediction.integrate import rollout
 from tt_prediction.params import ModelParams
 from tt_prediction.predict import predict
-from tt_prediction.replay import COLUMNS, LEADS_MS, crossing_noise, measured_crossing
+from tt_prediction.replay import (
+    COLUMNS,
+    LEADS_MS,
+    TrackReplay,
+    crossing_noise,
+    lead_time_errors,
+    measured_crossing,
+)
 import yaml
 
 PLANE = -1.2
@@ -295,6 +302,30 @@ def test_measured_crossing_of_a_sampled_parabola():
     tc, pc = measured_crossing(t, p, [(0.0, -0.5)], -0.5)
     assert tc == pytest.approx(0.125, abs=1e-9)
     assert pc == pytest.approx([-0.5, 0.1625, 0.3 + 0.125 - 4.9 * 0.125 ** 2], abs=1e-9)
+
+
+def test_the_lead_summary_gives_each_tracks_signed_offset_and_their_mean():
+    """A predictor off by a known vector on the hitting plane: each track's distance and its
+    y and z offsets (predicted minus measured) come out as planted, their mean is the bias
+    the distances hide, and the median distance is the per-track distances' median."""
+    crossing_t, lead = 0.5, 0.1
+    offsets = {'a.csv': (3.0, -4.0), 'b.csv': (-1.0, 0.0), 'c.csv': (2.0, 2.0)}   # mm
+    replays = []
+    for name, (dy, dz) in offsets.items():
+        t = np.arange(0.0, crossing_t, 0.01)
+        measured = np.array([PLANE, 0.1, 0.2])
+        rows = np.full((len(t), len(COLUMNS)), np.nan)
+        rows[:, 0] = t
+        rows[:, 14:17] = measured + np.array([0.0, dy, dz]) * 1e-3
+        replays.append(TrackReplay(name, rows, (crossing_t, measured), 0.0, t,
+                                   np.zeros((len(t), 3)), []))
+    stats = lead_time_errors(replays, ModelParams(), PLANE, leads_ms=(lead * 1e3,),
+                             textbook=False)['filter'][str(lead * 1e3)]
+    for name, (dy, dz) in offsets.items():
+        assert stats['errors_mm'][name] == pytest.approx([np.hypot(dy, dz), dy, dz], abs=0.01)
+    assert stats['mean_offset_mm'] == pytest.approx([4.0 / 3.0, -2.0 / 3.0], abs=0.01)
+    assert stats['median_mm'] == pytest.approx(np.hypot(2.0, 2.0), abs=0.01)
+    assert stats['count'] == 3 and stats['missing'] == 0
 
 
 def test_crossing_noise_is_that_of_a_six_sample_quadratic_fit():

@@ -671,12 +671,14 @@ def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=T
 
     Returns ``{'filter': {lead: stats}, 'textbook': {lead: stats}}`` with stats = median_mm,
     p90_mm, mean_mm, count (tracks evaluated), missing (no prediction although the track had
-    MIN_HISTORY of samples), too_short (less data than that: not counted) and the per-track
-    errors ``errors_mm``.
+    MIN_HISTORY of samples), too_short (less data than that: not counted),
+    ``mean_offset_mm`` (the mean of predicted minus measured hit point across the table and
+    up, [y, z]: a bias the distances hide) and ``errors_mm`` (track name -> [distance, y
+    offset, z offset] of each track evaluated).
     """
     out = {'filter': {}, 'textbook': {}} if textbook else {'filter': {}}
     for lead in leads_ms:
-        acc = {k: {'errors': [], 'missing': [], 'too_short': 0} for k in out}
+        acc = {k: {'errors': {}, 'missing': [], 'too_short': 0} for k in out}
         for rp in replays:
             if rp.crossing is None:
                 continue
@@ -688,24 +690,29 @@ def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=T
                 continue
             i = _row_at(rp.rows, tq)
             hit = rp.rows[i, 14:17] if i is not None else np.full(3, np.nan)
-            if np.all(np.isfinite(hit)):
-                acc['filter']['errors'].append(float(np.linalg.norm(hit - pc)))
-            else:
-                acc['filter']['missing'].append(rp.name)
+            hits = {'filter': hit if np.all(np.isfinite(hit)) else None}
             if textbook:
-                h = textbook_hit(rp.t, rp.p, rp.bounce_times, tq, params, hit_plane_x)
+                hits['textbook'] = textbook_hit(rp.t, rp.p, rp.bounce_times, tq, params,
+                                                hit_plane_x)
+            for k, h in hits.items():
                 if h is None:
-                    acc['textbook']['missing'].append(rp.name)
+                    acc[k]['missing'].append(rp.name)
                 else:
-                    acc['textbook']['errors'].append(float(np.linalg.norm(h - pc)))
+                    acc[k]['errors'][rp.name] = (h - pc) * 1e3
         for k, a in acc.items():
-            e = np.array(a['errors']) * 1e3
+            offsets = np.array(list(a['errors'].values())).reshape(-1, 3)
+            e = np.linalg.norm(offsets, axis=1)
             out[k][str(lead)] = {
                 'median_mm': round(float(np.median(e)), 2) if len(e) else None,
                 'p90_mm': round(float(np.percentile(e, 90)), 2) if len(e) else None,
                 'mean_mm': round(float(np.mean(e)), 2) if len(e) else None,
+                'mean_offset_mm': ([round(float(v), 2) for v in offsets[:, 1:].mean(axis=0)]
+                                   if len(e) else None),
                 'count': int(len(e)), 'missing': len(a['missing']),
                 'missing_tracks': a['missing'][:20], 'too_short': a['too_short'],
+                'errors_mm': {name: [round(float(np.linalg.norm(d)), 2), round(float(d[1]), 2),
+                                     round(float(d[2]), 2)]
+                              for name, d in a['errors'].items()},
             }
     return out
 
