@@ -210,7 +210,7 @@ def write_tracks(out, estimates, label, out_bag=None, frame_id='table'):
     names; raises :class:`OutputError` (nothing written)."""
     bag_placed = False
     try:
-        with staged_folder(out, 'tt-perceive', replace_folder=True) as tmp:
+        with staged_folder(out, 'tt-perceive') as tmp:
             names = _write_track_files(tmp, estimates, label)
             if out_bag:
                 from rosbags.rosbag2 import WriterError

@@ -269,6 +269,22 @@ def test_a_spin_prior_mean_in_the_filter_config_is_the_spin_a_track_starts_with(
     assert w @ v / np.linalg.norm(v) == pytest.approx(-40.0, rel=1e-2)
 
 
+def test_a_replay_into_an_earlier_replays_folder_leaves_only_its_own_rows(data, tmp_path):
+    """OUT holding the replay of a larger set: afterwards it holds this set's rows only, so
+    that every CSV in it is a track that summary.json counts (a new user's walk-through:
+    the other set's rows stayed beside a summary of this one)."""
+    folder, tracks = data
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--no-textbook']) == 0
+    smaller = tmp_path / 'smaller'
+    smaller.mkdir()
+    (smaller / tracks[0][0]).write_text((folder / tracks[0][0]).read_text())
+    assert main(['--tracks', str(smaller), '--out', str(out), '--no-textbook']) == 0
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['tracks'] == 1
+    assert sorted(p.name for p in out.glob('*.csv')) == [tracks[0][0]]
+
+
 @pytest.mark.parametrize('umask', [0o022, 0o077])
 def test_the_output_folder_mode_follows_the_umask(data, tmp_path, umask):
     """The rows are staged in a temporary folder: the folder that takes OUT's place has the

@@ -111,14 +111,12 @@ def replace_file(path, text):
 
 
 @contextlib.contextmanager
-def staged_folder(out_dir, prefix, replace_folder):
+def staged_folder(out_dir, prefix):
     """Yield a fresh temporary folder next to ``out_dir`` to write the outputs into.
 
-    When the block ends without an exception the outputs move into ``out_dir`` (created if
-    missing, with the mode of any new folder: 0777 less the umask): with ``replace_folder``
-    the whole folder is swapped for the new one (nothing of an earlier report stays),
-    otherwise each new file replaces the one of the same name and other files in ``out_dir``
-    are kept. On an exception the temporary folder is removed and ``out_dir`` is left as it
+    When the block ends without an exception the new folder takes the place of ``out_dir``
+    (with the mode of any new folder: 0777 less the umask); nothing of an earlier output
+    stays. On an exception the temporary folder is removed and ``out_dir`` is left as it
     was.
     """
     out_dir = os.path.abspath(out_dir)
@@ -133,7 +131,7 @@ def staged_folder(out_dir, prefix, replace_folder):
         yield tmp
         if not os.path.exists(out_dir):
             os.rename(tmp, out_dir)
-        elif replace_folder:
+        else:
             previous = os.path.join(holder, 'previous')
             os.rename(out_dir, previous)
             try:
@@ -141,8 +139,5 @@ def staged_folder(out_dir, prefix, replace_folder):
             except BaseException:
                 os.rename(previous, out_dir)
                 raise
-        else:
-            for name in os.listdir(tmp):
-                os.replace(os.path.join(tmp, name), os.path.join(out_dir, name))
     finally:
         shutil.rmtree(holder, ignore_errors=True)

@@ -168,10 +168,12 @@ def node_params(config, model_path, command):
 
 
 def write_output(out_dir, replays, summary, final=None):
-    """Write the rows and summary.json into a temporary folder, then move them into place.
-    ``final``: (FilterConfig, ModelParams, meta, command) the replay ended with, written as
-    model.yaml and params.yaml (:func:`node_params`)."""
-    with staged_folder(out_dir, 'tt-predict', replace_folder=False) as tmp:
+    """Write the rows and summary.json into a temporary folder, then put it in place of
+    ``out_dir`` (an earlier replay's rows of tracks this set does not have would sit beside
+    a summary that does not count them). ``final``: (FilterConfig, ModelParams, meta,
+    command) the replay ended with, written as model.yaml and params.yaml
+    (:func:`node_params`)."""
+    with staged_folder(out_dir, 'tt-predict') as tmp:
         for rp in replays:
             write_rows(os.path.join(tmp, rp.name), rp.rows)
         with open(os.path.join(tmp, 'summary.json'), 'w') as f:

@@ -22,7 +22,7 @@ PLOTS = ('residual_vs_time.png', 'residual_acceleration.png', 'landing_errors.pn
 
 def write_outputs(result, out_dir, sources):
     """Write the report of ``result`` (pipeline.identify) atomically into ``out_dir``."""
-    with staged_folder(out_dir, 'tt-identify', replace_folder=True) as tmp:
+    with staged_folder(out_dir, 'tt-identify') as tmp:
         public = {k: v for k, v in result.items() if not k.startswith('_')}
         public['sources'] = list(sources)
         with open(os.path.join(tmp, 'report.json'), 'w') as f:
