@@ -18,6 +18,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from tt_ros.testing import Graph, unique_domain
 from tt_tools.procs import ProcessGroup, ros_env
+import yaml
 
 pytestmark = pytest.mark.graph
 
@@ -168,8 +169,14 @@ def test_help_lists_every_parameter_with_its_range_and_starts_nothing(package, e
     out = proc.stdout.splitlines()
     assert out[0].startswith(f'usage: ros2 run {package} {executable} [--ros-args')
     for p in parameters:
-        assert any(line.startswith(f'  {p.name} = ') and p.expected() in line
-                   for line in out), p.name
+        line = next(line for line in out if line.startswith(f'  {p.name} = '))
+        assert p.expected() in line, p.name
+        # The default as -p NAME:=VALUE and a parameters file take it, spelt as ros2 param
+        # dump writes it (true, not Python's True).
+        shown = line[len(f'  {p.name} = '):].split(f': {p.expected()}')[0]
+        assert yaml.safe_load(shown) == p.default, (p.name, shown)
+        if isinstance(p.default, bool):
+            assert shown == ('true' if p.default else 'false'), (p.name, shown)
 
 
 def test_a_parameter_given_without_ros_args_is_named_in_a_warning():

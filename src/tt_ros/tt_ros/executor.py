@@ -190,6 +190,16 @@ def check_ros_args(args=None):
     return rest
 
 
+def yaml_value(value):
+    """``value`` as ``-p NAME:=VALUE`` and a parameters file spell it (YAML): true and false
+    for Python's booleans, lists in brackets, strings single-quoted."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return f"[{', '.join(yaml_value(v) for v in value)}]"
+    return repr(value)
+
+
 def node_help(name, parameters, package='<package>'):
     """What ``<node> --help`` prints: how to set the parameters, and each one
     (:class:`tt_ros.parameters.Param`) with its default and what it accepts."""
@@ -197,7 +207,7 @@ def node_help(name, parameters, package='<package>'):
              '[--params-file FILE]]', '', 'parameters (ros2 param describe shows the same):']
     for p in parameters:
         when = '; read at start-up only' if p.read_only else ''
-        lines.append(f'  {p.name} = {p.default!r}: {p.expected()}{when}')
+        lines.append(f'  {p.name} = {yaml_value(p.default)}: {p.expected()}{when}')
         lines.append(f'      {p.description}')
     return '\n'.join(lines)
 
