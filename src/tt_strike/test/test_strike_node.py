@@ -445,6 +445,23 @@ def test_start_up_names_the_reach_and_the_racket_speed_limit_that_applies(tmp_pa
         g.close()
 
 
+def test_start_up_names_the_model_the_strokes_are_solved_with(tmp_path):
+    # A new user's walk-through: prediction_node's start-up line named its model_file (given
+    # in a replay's params.yaml), strike_node's did not.
+    model = tmp_path / 'model.yaml'
+    ModelParams().save(str(model))
+    g = Graph([Parameter('model_file', value=str(model))])
+    try:
+        assert g.node._start_up_text().endswith(f', model {model}')
+    finally:
+        g.close()
+    g = Graph()
+    try:
+        assert g.node._start_up_text().endswith(', model nominal')
+    finally:
+        g.close()
+
+
 def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
     # A user's stream: ball 15 for 0.2 s, 1.2 s without it, ball 15 again. prediction_node
     # took it as a new ball (over 1 s after the track's last state); strike_node counted

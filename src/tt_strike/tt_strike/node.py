@@ -210,10 +210,16 @@ class StrikeNode(Node):
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
-        self.get_logger().info(f'striking {self.sub.topic_name} -> {self.pub.topic_name}, '
-                               f'target {self._target_text()}, {self._reach_text()}')
+        self.get_logger().info(self._start_up_text())
 
     # --- target and parameters ---------------------------------------------------------
+
+    def _start_up_text(self):
+        """The start-up line: topics, target, reach and the model the strokes are solved
+        with (a model_file from a params file is otherwise seen only by ros2 param get)."""
+        return (f'striking {self.sub.topic_name} -> {self.pub.topic_name}, target '
+                f'{self._target_text()}, {self._reach_text()}, model '
+                f'{self.p.model_file or "nominal"}')
 
     def _target_text(self):
         zone, point = self.target
