@@ -20,7 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
+from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import ThrottledLog, due
@@ -243,11 +243,9 @@ class PredictionNode(Node):
         if self.stamps_ns is None:
             self.stamps_ns = [stamp_ns, stamp_ns]
         self.stamps_ns[1] = stamp_ns
-        if stamp_ns == 0:
-            self._drop(UNSTAMPED)
-            return
-        if msg.header.frame_id not in ('', 'table'):
-            self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
+        why = header_problem(msg.header)
+        if why:
+            self._drop(why)
             return
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0

@@ -13,6 +13,16 @@ publishes a track from its third frame on; a bag of ``tt-perceive --out-bag`` ma
 track's seed frame at 0, which is then dropped."""
 
 
+def header_problem(header, frame='table'):
+    """Why a message with ``header`` is dropped, or None: stamped 0 (:data:`UNSTAMPED`), or in
+    another frame than ``frame`` (an empty frame_id is taken for it)."""
+    if stamp_ns(header.stamp) == 0:
+        return UNSTAMPED
+    if header.frame_id not in ('', frame):
+        return f"frame '{header.frame_id}' is not '{frame}'"
+    return None
+
+
 def point_msg(p):
     """geometry_msgs/Point of ``p`` (x, y[, z]), m; z 0 for a point on the table (2 numbers)."""
     return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]) if len(p) > 2 else 0.0)

@@ -35,7 +35,7 @@ from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import UNSTAMPED, point_msg, set_time, set_xyz
+from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import ThrottledLog, due
@@ -326,11 +326,9 @@ class StrikeNode(Node):
             self._drop(f'no hit point (prediction status {msg.status!r})')
             return
         stamp_ns = to_ns(msg.header.stamp)
-        if stamp_ns == 0:
-            self._drop(UNSTAMPED)
-            return
-        if msg.header.frame_id not in ('', 'table'):
-            self._drop(f"frame '{msg.header.frame_id}' is not 'table'")
+        why = header_problem(msg.header)
+        if why:
+            self._drop(why)
             return
         p, v, w = msg.hit_point, msg.hit_velocity, msg.hit_spin
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
