@@ -169,7 +169,9 @@ def test_help_lists_every_parameter_with_its_range_and_starts_nothing(package, e
     out = proc.stdout.splitlines()
     assert out[0].startswith(f'usage: ros2 run {package} {executable} [--ros-args')
     for p in parameters:
-        line = next(line for line in out if line.startswith(f'  {p.name} = '))
+        lines = [line for line in out if line.startswith(f'  {p.name} = ')]
+        assert len(lines) == 1, p.name
+        line = lines[0]
         assert p.expected() in line, p.name
         # The default as -p NAME:=VALUE and a parameters file take it, spelt as ros2 param
         # dump writes it (true, not Python's True).

@@ -332,7 +332,8 @@ def test_the_lead_summary_gives_each_tracks_signed_offset_and_their_mean():
         measured = np.array([PLANE, 0.1, 0.2])
         rows = np.full((len(t), len(COLUMNS)), np.nan)
         rows[:, 0] = t
-        rows[:, 14:17] = measured + np.array([0.0, dy, dz]) * 1e-3
+        hit = COLUMNS.index('hit_x')
+        rows[:, hit:hit + 3] = measured + np.array([0.0, dy, dz]) * 1e-3
         replays.append(TrackReplay(name, rows, (crossing_t, measured), 0.0, t,
                                    np.zeros((len(t), 3)), []))
     stats = lead_time_errors(replays, ModelParams(), PLANE, leads_ms=(lead * 1e3,),

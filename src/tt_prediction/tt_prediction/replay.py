@@ -710,9 +710,9 @@ def lead_time_errors(replays, params, hit_plane_x, leads_ms=LEADS_MS, textbook=T
                                    if len(e) else None),
                 'count': int(len(e)), 'missing': len(a['missing']),
                 'missing_tracks': a['missing'][:20], 'too_short': a['too_short'],
-                'errors_mm': {name: [round(float(np.linalg.norm(d)), 2), round(float(d[1]), 2),
+                'errors_mm': {name: [round(float(dist), 2), round(float(d[1]), 2),
                                      round(float(d[2]), 2)]
-                              for name, d in a['errors'].items()},
+                              for (name, d), dist in zip(a['errors'].items(), e, strict=True)},
             }
     return out
 

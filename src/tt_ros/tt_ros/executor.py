@@ -191,13 +191,11 @@ def check_ros_args(args=None):
 
 
 def yaml_value(value):
-    """``value`` as ``-p NAME:=VALUE`` and a parameters file spell it (YAML): true and false
-    for Python's booleans, lists in brackets, strings single-quoted."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        return f"[{', '.join(yaml_value(v) for v in value)}]"
-    return repr(value)
+    """``value`` as ``-p NAME:=VALUE`` and a parameters file spell it (YAML, one line): true
+    and false for Python's booleans, 1.0e-05 for 1e-05 (which YAML reads as a string), lists
+    in brackets."""
+    text = yaml.safe_dump(value, default_flow_style=True, width=float('inf'))
+    return text.removesuffix('\n...\n').strip()
 
 
 def node_help(name, parameters, package='<package>'):
