@@ -293,26 +293,34 @@ def test_time_offset_without_a_colour_is_estimated_from_the_ball_and_not_the_res
     assert len(rows) > 40 and np.median(err) < 2e-3
 
 
-def test_bag_of_images_gives_one_track(scene, tmp_path):
+def _image_bag(bag, frames, t0, only=(0, 1)):
+    """A bag of the frames as sensor_msgs/Image on /cam0/image_raw and /cam1/image_raw, stamped
+    t0 + t; the frames of the cameras not in ``only`` are left out (their topic declared)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
-    base, rig_path, frames, truth = scene
     store = get_typestore(Stores.ROS2_JAZZY)
     Image = store.types['sensor_msgs/msg/Image']
     Header = store.types['std_msgs/msg/Header']
     Time = store.types['builtin_interfaces/msg/Time']
-    bag = tmp_path / 'bag'
-    t0 = 500.0
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conns = [writer.add_connection(f'/cam{k}/image_raw', 'sensor_msgs/msg/Image',
                                        typestore=store) for k in range(2)]
         for t, k, frame in frames:
+            if k not in only:
+                continue
             ns = int(round((t0 + t) * 1e9))
             msg = Image(header=Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9),
                                       frame_id=f'cam{k}'),
                         height=frame.shape[0], width=frame.shape[1], encoding='bgr8',
                         is_bigendian=0, step=frame.shape[1] * 3, data=frame.reshape(-1))
             writer.write(conns[k], ns, store.serialize_cdr(msg, 'sensor_msgs/msg/Image'))
+
+
+def test_bag_of_images_gives_one_track(scene, tmp_path):
+    base, rig_path, frames, truth = scene
+    bag = tmp_path / 'bag'
+    t0 = 500.0
+    _image_bag(bag, frames, t0)
     out = tmp_path / 'out'
     states = tmp_path / 'states'
     assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag),
@@ -341,6 +349,29 @@ def test_bag_of_images_gives_one_track(scene, tmp_path):
     assert cli.main(['--rig', str(moved), '--out', str(tmp_path / 'out2'), '--bag',
                      str(bag)]) == 1
     assert not (tmp_path / 'out2').exists()
+
+
+def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, tmp_path,
+                                                                        capsys):
+    """A new user's walk-through: camera 1's topic declared in the bag with no image, or its
+    images half the calibration's size, gave 0 tracks and exit 0 (the second with a
+    warning); a video file of another size is refused. Now one line naming the camera,
+    exit 1, nothing written."""
+    base, rig_path, frames, _ = scene
+    few = frames[:12]
+    small = [(t, k, cv2.resize(f, (f.shape[1] // 2, f.shape[0] // 2)) if k == 1 else f)
+             for t, k, f in few]
+    for name, bag_frames, only, expect in (
+            ('declared', few, (0,), 'no sensor_msgs/Image for camera(s) cam1 (/cam1/image_raw)'),
+            ('small', small, (0, 1), 'camera cam1 (/cam1/image_raw): images 320x240, its '
+                                     'calibration 640x480')):
+        bag = tmp_path / f'bag_{name}'
+        _image_bag(bag, bag_frames, 500.0, only)
+        out = tmp_path / f'out_{name}'
+        assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expect in err[0], err
+        assert not out.exists()
 
 
 @pytest.mark.parametrize('args, code, expect', [

@@ -63,7 +63,9 @@ class OutputError(Exception):
 def bag_frames(rig, bag, notes=None):
     """(t, camera_index, frame) of the sensor_msgs/Image messages on the rig's image topics,
     in the bag's order, ``t`` the header stamp (s). InputError when fewer than two of the
-    rig's cameras have images in the bag; a camera without any adds a line to ``notes``."""
+    rig's cameras have images in the bag (a topic declared without a message has none), or
+    when a camera's first image is not of its calibration's size (as a video file's is
+    refused); a camera without any adds a line to ``notes``."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
@@ -77,7 +79,7 @@ def bag_frames(rig, bag, notes=None):
         raise InputError(f'{bag}: not a readable rosbag2 bag: {exc}') from None
     try:
         conns = [c for c in reader.connections
-                 if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image']
+                 if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image' and c.msgcount]
         lacking = sorted(set(topics) - {c.topic for c in conns})
         if lacking:
             present = ', '.join(sorted(c.topic for c in reader.connections)) or 'none'
@@ -88,6 +90,15 @@ def bag_frames(rig, bag, notes=None):
             if notes is not None:
                 notes.append(f'{bag}: no sensor_msgs/Image for camera(s) {names}: the '
                              'others triangulate alone')
+        for conn in conns:
+            for _, _, raw in reader.messages(connections=[conn]):
+                first = reader.deserialize(raw, conn.msgtype)
+                cam = rig.cameras[topics[conn.topic]]
+                if (first.width, first.height) != (cam.width, cam.height):
+                    raise InputError(f'{bag}: camera {cam.name} ({conn.topic}): images '
+                                     f'{first.width}x{first.height}, its calibration '
+                                     f'{cam.width}x{cam.height}')
+                break
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
