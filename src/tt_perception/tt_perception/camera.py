@@ -51,7 +51,8 @@ class Camera:
     """Translation (3,), m: X_cam = R X_table + t."""
     source: str = ''
     time_offset: float | None = None
-    """This camera's clock minus camera 0's, s (None: unknown)."""
+    """This camera's clock minus camera 0's, s (None: unknown); on camera 0, a delay of its
+    own stamps (each camera's stamps less it are the middle of its exposure)."""
     info_file: str = ''
     """The camera_info file as the rig names it (relative to the rig file)."""
 

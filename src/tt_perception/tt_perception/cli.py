@@ -166,6 +166,11 @@ def estimate_offsets(rig, colour, detector_config=None):
     missing = [k for k, cam in enumerate(rig.cameras) if k > 0 and cam.time_offset is None]
     if not missing:
         return []
+    # The files' clocks are compared; camera 0's own time_offset (a delay of its stamps, as
+    # a V4L2 driver's readout) is taken off its frames, so the others' includes it.
+    base = rig.cameras[0].time_offset or 0.0
+    included = f" (camera 0's {base * 1e3:+.3f} ms included)" if base else ''
+    as_camera_0 = "taken as camera 0's" if base else 'taken as 0'
     colours = ('white', 'orange') if colour == 'any' else (colour,)
     found = detections_per_camera(rig, file_frames(rig), colours,   # OSError: bad input
                                   detector_config)
@@ -176,23 +181,23 @@ def estimate_offsets(rig, colour, detector_config=None):
                  for c in colours]
         tried = [t for t in tried if t[0] is not None]
         if not tried:
-            cam.time_offset = 0.0
+            cam.time_offset = base
             notes.append(f'warning: {cam.name}: too few ball detections to estimate its time '
-                         'offset, taken as 0 (set time_offset in the rig file)')
+                         f'offset, {as_camera_0} (set time_offset in the rig file)')
             continue
         offset, cost, used = min(tried, key=lambda t: t[1])
-        cam.time_offset = float(offset)
+        cam.time_offset = float(offset) + base
         px = cost * cam.focal
         which = f'{used} ' if len(colours) > 1 else ''
-        notes.append(f'{cam.name}: time_offset {offset * 1e3:+.3f} ms estimated from the '
-                     f'{which}ball (median epipolar distance {px:.2f} px)')
+        notes.append(f'{cam.name}: time_offset {cam.time_offset * 1e3:+.3f} ms estimated from '
+                     f'the {which}ball{included} (median epipolar distance {px:.2f} px)')
         if px > UNRELIABLE_OFFSET_PX:
             # With a colour given, the detections are the ball's: the rays do not meet. Not
             # used: a wrong offset matched a few frames by chance into a short false track,
             # and the poses' warning below was not given.
-            cam.time_offset = 0.0
+            cam.time_offset = base
             notes.append(f'warning: {cam.name}: that time offset is unreliable (above '
-                         f'{UNRELIABLE_OFFSET_PX:g} px) and not used (taken as 0): set '
+                         f'{UNRELIABLE_OFFSET_PX:g} px) and not used ({as_camera_0}): set '
                          'time_offset in the rig file'
                          + (' or give --colour' if colour == 'any' else '')
                          + " (or the rig's poses are off: a transposed rotation, a pose "
