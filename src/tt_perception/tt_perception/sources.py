@@ -518,8 +518,11 @@ def file_frames(rig, notes=None):
     sources = {}
     try:
         for k, cam in enumerate(rig.cameras):
-            if source_kind(cam.source, base) != 'file':
-                raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file')
+            kind = source_kind(cam.source, base)
+            if kind != 'file':
+                raise OSError(f'camera {cam.name}: source {cam.source!r} is not a video file'
+                              + (' (an image topic: read from a bag, --bag)' if kind == 'topic'
+                                 else ''))
             try:
                 sources[k] = VideoFileSource(file_source_path(rig, cam), rig.fps).open()
             except OSError as exc:
