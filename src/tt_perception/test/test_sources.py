@@ -131,6 +131,23 @@ def test_a_video_cut_short_is_named_with_the_frames_it_lacks(tmp_path):
                      'header declares (cut or corrupt?)']
 
 
+def test_an_image_sequence_with_a_gap_is_named_without_a_header(tmp_path):
+    # A PNG pattern missing its 11th image: it was said to have ended 'after 10 of the 20
+    # frames its header declares' (a new user's walk-through); image files have no header.
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 10 * n + 20, np.uint8))
+              for n in range(20) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None,
+                                     fmt='png'))
+    (tmp_path / 'video' / 'cam0' / '000010.png').unlink()
+    notes = []
+    read = sum(k == 0 for _, k, _ in file_frames(rig, notes))
+    assert read == 10
+    assert notes == [f"camera cam0: {tmp_path / 'video' / 'cam0' / '%06d.png'}: image "
+                     'sequence ended after 10 images, at a gap in their numbers (the images '
+                     'after it are not read)']
+
+
 def overwrite_avi_frame(path, n, seed=0):
     """Overwrite frame ``n`` of the AVI file ``path`` (its chunk in the movi list, header and
     JPEG data) with random bytes, as a damaged disk or copy does in the middle of a file."""

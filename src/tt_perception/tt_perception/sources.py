@@ -311,10 +311,13 @@ class VideoFileSource(FrameSource):
         """After the end: one line when fewer frames were read than the file's header
         declares (a cut or corrupt file; a frame of slack: some containers' counts are
         estimates) or some could not be decoded, else ''."""
-        cut = self.declared > 0 and self.index < self.declared - 1
-        if cut:
-            text = (f'{self.path}: video ended after {self.index} of the {self.declared} '
-                    'frames its header declares (cut or corrupt?)')
+        if self.declared > 0 and self.index < self.declared - 1:
+            if '%' in self.path or os.path.isdir(self.path):       # no header: files
+                text = (f'{self.path}: image sequence ended after {self.index} images, at '
+                        'a gap in their numbers (the images after it are not read)')
+            else:
+                text = (f'{self.path}: video ended after {self.index} of the '
+                        f'{self.declared} frames its header declares (cut or corrupt?)')
             return text + (f', {self.unreadable} of them unreadable' if self.unreadable
                            else '')
         if self.unreadable:
