@@ -243,7 +243,7 @@ class PredictionNode(Node):
         if self.stamps_ns is None:
             self.stamps_ns = [stamp_ns, stamp_ns]
         self.stamps_ns[1] = stamp_ns
-        why = header_problem(msg.header)
+        why = header_problem(stamp_ns, msg.header.frame_id)
         if why:
             self._drop(why)
             return

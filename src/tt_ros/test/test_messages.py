@@ -1,7 +1,13 @@
 """tt_ros.messages: which headers the nodes drop, and why."""
 
 from std_msgs.msg import Header
-from tt_ros.messages import UNSTAMPED, header_problem
+from tt_ros.messages import UNSTAMPED, stamp_ns
+from tt_ros.messages import header_problem as problem
+
+
+def header_problem(header, **kwargs):
+    """What a node asks of a message's header (its stamp in ns, as it has it already)."""
+    return problem(stamp_ns(header.stamp), header.frame_id, **kwargs)
 
 
 def _header(sec, nanosec, frame_id):

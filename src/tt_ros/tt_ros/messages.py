@@ -13,13 +13,14 @@ publishes a track from its third frame on; a bag of ``tt-perceive --out-bag`` ma
 track's seed frame at 0, which is then dropped."""
 
 
-def header_problem(header, frame='table'):
-    """Why a message with ``header`` is dropped, or None: stamped 0 (:data:`UNSTAMPED`), or in
-    another frame than ``frame`` (an empty frame_id is taken for it)."""
-    if stamp_ns(header.stamp) == 0:
+def header_problem(stamp, frame_id, frame='table'):
+    """Why a message is dropped, or None, from its header's stamp (ns, :func:`stamp_ns`, which
+    the nodes have already) and ``frame_id``: stamped 0 (:data:`UNSTAMPED`), or in another
+    frame than ``frame`` (an empty frame_id is taken for it)."""
+    if stamp == 0:
         return UNSTAMPED
-    if header.frame_id not in ('', frame):
-        return f"frame '{header.frame_id}' is not '{frame}'"
+    if frame_id not in ('', frame):
+        return f"frame '{frame_id}' is not '{frame}'"
     return None
 
 

@@ -326,7 +326,7 @@ class StrikeNode(Node):
             self._drop(f'no hit point (prediction status {msg.status!r})')
             return
         stamp_ns = to_ns(msg.header.stamp)
-        why = header_problem(msg.header)
+        why = header_problem(stamp_ns, msg.header.frame_id)
         if why:
             self._drop(why)
             return
