@@ -118,26 +118,56 @@ def staged_folder(out_dir, prefix):
     (with the mode of any new folder: 0777 less the umask); nothing of an earlier output
     stays. On an exception the temporary folder is removed and ``out_dir`` is left as it
     was.
+
+    An existing ``out_dir`` that cannot be swapped (a mount point, or a parent folder that
+    takes no new folder) keeps its place and mode: the outputs are then written into a
+    temporary folder inside it, and only when they are all written do they replace its files
+    (the tools' output checks allow nothing else there), one by one.
     """
     out_dir = os.path.abspath(out_dir)
     parent = os.path.dirname(out_dir)
     os.makedirs(parent, exist_ok=True)
     # A private holder (mkdtemp: a unique name, mode 0700) next to out_dir; the folder that
     # becomes out_dir is made in it by mkdir, so that it gets the umask's mode, not 0700.
-    holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=parent)
+    try:
+        holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=parent)
+    except OSError:
+        if not os.path.isdir(out_dir):
+            raise
+        holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=out_dir)
     tmp = os.path.join(holder, 'new')
     try:
         os.mkdir(tmp)
         yield tmp
         if not os.path.exists(out_dir):
             os.rename(tmp, out_dir)
+        elif os.path.dirname(holder) == out_dir or os.path.ismount(out_dir):
+            _replace_contents(out_dir, tmp, holder)
         else:
             previous = os.path.join(holder, 'previous')
-            os.rename(out_dir, previous)
             try:
-                os.rename(tmp, out_dir)
-            except BaseException:
-                os.rename(previous, out_dir)
-                raise
+                os.rename(out_dir, previous)
+            except OSError:             # busy (a bind mount ismount does not see), denied
+                _replace_contents(out_dir, tmp, holder)
+            else:
+                try:
+                    os.rename(tmp, out_dir)
+                except BaseException:
+                    os.rename(previous, out_dir)
+                    raise
     finally:
         shutil.rmtree(holder, ignore_errors=True)
+
+
+def _replace_contents(out_dir, new, holder):
+    """Replace what ``out_dir`` holds (``holder`` aside) by the entries of ``new``."""
+    for name in os.listdir(out_dir):
+        path = os.path.join(out_dir, name)
+        if path == holder:
+            continue
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path)
+        else:
+            os.remove(path)
+    for name in os.listdir(new):
+        shutil.move(os.path.join(new, name), os.path.join(out_dir, name))

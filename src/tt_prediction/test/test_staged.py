@@ -1,0 +1,109 @@
+"""staged_folder: an output folder is replaced as a whole, or, where it cannot be swapped
+(a mount point, a parent that takes no new folder), its files are, once all are written."""
+
+import errno
+import os
+import tempfile
+
+import pytest
+from tt_prediction.staged import staged_folder
+
+from tt_prediction import staged
+
+
+def _earlier_output(tmp_path):
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'old.csv').write_text('old\n')
+    (out / 'summary.json').write_text('{"old": 1}\n')
+    return out
+
+
+def _write_new(folder):
+    with open(os.path.join(folder, 'summary.json'), 'w') as f:
+        f.write('{"new": 1}\n')
+    with open(os.path.join(folder, 'new.csv'), 'w') as f:
+        f.write('new\n')
+
+
+def _holds_only_the_new_output(out):
+    assert sorted(p.name for p in out.iterdir()) == ['new.csv', 'summary.json']
+    assert (out / 'summary.json').read_text() == '{"new": 1}\n'
+
+
+def test_an_earlier_output_is_replaced_as_a_whole(tmp_path):
+    out = _earlier_output(tmp_path)
+    with staged_folder(out, 'tool') as tmp:
+        _write_new(tmp)
+    _holds_only_the_new_output(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['out']      # no holder left
+
+
+def test_a_mount_point_keeps_its_place_and_gets_the_new_files(tmp_path, monkeypatch):
+    """A mount point cannot be renamed (EBUSY): a new user's walk-through gave one as --out."""
+    out = _earlier_output(tmp_path)
+    out.chmod(0o750)
+    inode = out.stat().st_ino
+    is_mount = os.path.ismount
+    monkeypatch.setattr(os.path, 'ismount', lambda p: p == str(out) or is_mount(p))
+    with staged_folder(out, 'tool') as tmp:
+        _write_new(tmp)
+    _holds_only_the_new_output(out)
+    assert out.stat().st_ino == inode
+    assert out.stat().st_mode & 0o777 == 0o750
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['out']
+
+
+def test_a_folder_that_cannot_be_renamed_gets_the_new_files(tmp_path, monkeypatch):
+    """A bind mount is busy although ismount does not see it: the rename's error is caught."""
+    out = _earlier_output(tmp_path)
+    rename = os.rename
+
+    def busy(src, dst):
+        if os.fspath(src) == str(out):
+            raise OSError(errno.EBUSY, os.strerror(errno.EBUSY), src)
+        return rename(src, dst)
+
+    monkeypatch.setattr(os, 'rename', busy)
+    with staged_folder(out, 'tool') as tmp:
+        _write_new(tmp)
+    _holds_only_the_new_output(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['out']
+
+
+def _parent_takes_no_folder(tmp_path, monkeypatch):
+    mkdtemp = tempfile.mkdtemp
+
+    def denied(*args, dir=None, **kwargs):
+        if dir == str(tmp_path):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), dir)
+        return mkdtemp(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(staged.tempfile, 'mkdtemp', denied)
+
+
+def test_a_parent_that_takes_no_folder_stages_inside_the_output(tmp_path, monkeypatch):
+    out = _earlier_output(tmp_path)
+    _parent_takes_no_folder(tmp_path, monkeypatch)
+    with staged_folder(out, 'tool') as tmp:
+        assert os.path.dirname(os.path.dirname(tmp)) == str(out)
+        _write_new(tmp)
+    _holds_only_the_new_output(out)
+
+
+def test_an_error_in_place_leaves_the_earlier_output(tmp_path, monkeypatch):
+    out = _earlier_output(tmp_path)
+    _parent_takes_no_folder(tmp_path, monkeypatch)
+    with pytest.raises(RuntimeError), staged_folder(out, 'tool') as tmp:
+        _write_new(tmp)
+        raise RuntimeError('failed half-way')
+    assert sorted(p.name for p in out.iterdir()) == ['old.csv', 'summary.json']
+    assert (out / 'summary.json').read_text() == '{"old": 1}\n'
+
+
+def test_a_missing_output_under_a_parent_that_takes_no_folder_is_an_error(tmp_path,
+                                                                         monkeypatch):
+    _parent_takes_no_folder(tmp_path, monkeypatch)
+    with pytest.raises(PermissionError), staged_folder(tmp_path / 'out', 'tool'):
+        pass
+    assert not (tmp_path / 'out').exists()
