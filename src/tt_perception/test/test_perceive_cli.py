@@ -405,6 +405,8 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{rig}'], 1,
      "source '/cam0/image_raw' is not a video file (an image topic: read from a bag, --bag)"),
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
+    (['--rig', '{rig}', '--bag', '{tmp}/badbag'], 1,
+     '{tmp}/badbag: not a readable rosbag2 bag: Could not load YAML'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
     (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, '--out-bag {tmp}: already exists'),
     (['--rig', '{rig}', '--out-bag', '{tmp}/dangling'], 2,
@@ -415,6 +417,7 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{dup}'], 2, 'cameras cam0 and cam1 are 0.000 m apart'),
     (['--rig', '{nosrc}'], 2, 'cameras[1] (cam1): no source'),
 ], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
+        'bag metadata not YAML',
         'missing model', 'existing output bag', 'dangling link as output bag',
         'output bag under a file', 'output bag inside --out', 'two cameras at one place',
         'camera without a source'])
@@ -424,6 +427,8 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     out = tmp_path / 'out'
     (tmp_path / 'empty.yaml').write_text('')
     (tmp_path / 'dangling').symlink_to(tmp_path / 'nowhere')
+    (tmp_path / 'badbag').mkdir()          # the YAML parser's error spans five lines
+    (tmp_path / 'badbag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [9\n')
     dup = tmp_path / 'calib'
     synth.make_rig(str(dup))
     rig = yaml.safe_load((dup / 'rig.yaml').read_text())
@@ -443,7 +448,7 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0]
     named = [a for a in args if str(tmp_path) in a and a != str(out)]
-    assert all(err[0].count(a) == 1 for a in named)          # each path said once
+    assert all(err[0].count(f'{a}:') == 1 for a in named)    # each path named once
     assert not out.exists()
 
 

@@ -25,6 +25,7 @@ import sys
 import cv2
 import numpy as np
 from tt_prediction.ball import HALF_LENGTH, HALF_WIDTH, NET_HALF_WIDTH, NET_HEIGHT
+from tt_ros.errors import one_line_reason
 
 from .camera import CalibrationError, file_error, load_rig, read_yaml, set_camera_pose
 
@@ -179,8 +180,7 @@ def main(argv=None):
                                    'px: the points do not fit the table')
         set_camera_pose(args.rig, index, R, t)
     except (CalibrationError, OSError, ValueError, cv2.error) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        print(f'tt_perception.calibrate: {first}', file=sys.stderr)
+        print(f'tt_perception.calibrate: {one_line_reason(exc)}', file=sys.stderr)
         return 1
     centre = -R.T @ t
     print(f'{cam.name}: camera at ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}) m, '

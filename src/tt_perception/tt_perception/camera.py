@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from tt_prediction.staged import replace_file
 from tt_prediction.units import translation_error
+from tt_ros.errors import one_line_reason
 import yaml
 
 # OpenCV 5 takes the criteria in undistortPoints; OpenCV 4 has them in undistortPointsIter.
@@ -116,8 +117,8 @@ def read_yaml(path, what):
         with open(path, encoding='utf-8') as f:
             data = yaml.safe_load(f)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise CalibrationError(f'{what} {path}: not readable YAML ({first})') from None
+        raise CalibrationError(
+            f'{what} {path}: not readable YAML ({one_line_reason(exc)})') from None
     if data is None:
         raise CalibrationError(f'{what} {path}: empty')
     if not isinstance(data, dict):

@@ -44,6 +44,7 @@ from tt_prediction.staged import (
     output_folder_error,
     staged_folder,
 )
+from tt_ros.errors import one_line_reason
 
 from .camera import CalibrationError, load_rig
 from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, BallDetector, DetectorConfig
@@ -76,7 +77,7 @@ def bag_frames(rig, bag, notes=None):
                            default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
     except Exception as exc:     # rosbags raises several unrelated types for a bad bag
-        raise InputError(f'{bag}: not a readable rosbag2 bag: {exc}') from None
+        raise InputError(f'{bag}: not a readable rosbag2 bag: {one_line_reason(exc)}') from None
     try:
         conns = [c for c in reader.connections
                  if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image' and c.msgcount]
@@ -236,23 +237,15 @@ def write_tracks(out, estimates, label, out_bag=None, frame_id='table'):
                         write_bag(bag_tmp, estimates, frame_id)
                     except (OSError, BagError, WriterError) as exc:
                         raise OutputError(f'--out-bag {out_bag}: cannot write: '
-                                          f'{_reason(exc)}') from None
+                                          f'{one_line_reason(exc)}') from None
                 bag_placed = True
     except BaseException as exc:    # the folder not moved in (Ctrl-C too): nor is the bag
         if bag_placed:
             shutil.rmtree(out_bag, ignore_errors=True)
         if isinstance(exc, OSError):
-            raise OutputError(f'--out {out}: cannot write: {_reason(exc)}') from None
+            raise OutputError(f'--out {out}: cannot write: {one_line_reason(exc)}') from None
         raise
     return names
-
-
-def _reason(exc):
-    """The one-line reason of an error: an OSError's strerror, else its first line."""
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 @contextlib.contextmanager
@@ -266,7 +259,7 @@ def _staged_bag(path):
         os.makedirs(parent, exist_ok=True)
         holder = tempfile.mkdtemp(prefix='.tt-perceive-bag-', dir=parent)
     except OSError as exc:
-        raise OutputError(f'--out-bag {path}: cannot write: {_reason(exc)}') from None
+        raise OutputError(f'--out-bag {path}: cannot write: {one_line_reason(exc)}') from None
     try:
         tmp = os.path.join(holder, os.path.basename(target))   # the bag's files take its name
         yield tmp
@@ -275,7 +268,7 @@ def _staged_bag(path):
         try:
             os.rename(tmp, target)
         except OSError as exc:
-            raise OutputError(f'--out-bag {path}: cannot write: {_reason(exc)}') from None
+            raise OutputError(f'--out-bag {path}: cannot write: {one_line_reason(exc)}') from None
     finally:
         shutil.rmtree(holder, ignore_errors=True)
 
@@ -402,7 +395,7 @@ def _main(argv=None):
     try:
         params = load_model(args.model)
     except Exception as exc:      # the model loader's own errors (file, YAML, values)
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = one_line_reason(exc)
         named = first if first.startswith(f'{args.model}: ') else f'{args.model}: {first}'
         print(f'tt-perceive: --model {named}', file=sys.stderr)
         return 2

@@ -37,6 +37,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
 from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
+from tt_ros.errors import one_line_reason
 from tt_ros.executor import StartupError, run_node
 from tt_ros.messages import set_time, set_xyz
 from tt_ros.names import name_error
@@ -237,8 +238,7 @@ class PerceptionNode(Node):
         try:
             params = load_model(self._p('model_file') or None)
         except Exception as exc:       # the model loader's own errors (file, YAML, values)
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise StartupError(f'model_file: {first}') from None
+            raise StartupError(f'model_file: {one_line_reason(exc)}') from None
         kinds = [source_kind(cam.source, os.path.dirname(rig.path)) for cam in rig.cameras]
         for cam, kind in zip(rig.cameras, kinds, strict=True):
             if kind == 'topic':

@@ -277,6 +277,21 @@ def test_a_bag_whose_recording_was_killed_is_named_so(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_bag_whose_metadata_is_not_yaml_is_one_line(tmp_path, capsys):
+    # The YAML parser's message spans five lines, with a caret under the place.
+    t = np.arange(0.0, 0.5, 1 / 150.0)
+    bag = tmp_path / 'bag'
+    _write_bag(bag, '/ball/position', 'geometry_msgs/msg/PointStamped',
+               _point_messages(t, np.column_stack([1.0 - 5.0 * t, 0 * t, 0.3 + 0 * t])))
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information:\n  version: [9\n')
+    out = tmp_path / 'out'
+    code, err = _run(capsys, [str(bag), '--out', str(out)])
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith(f'tt-identify: {bag}: not a readable rosbag2 bag: ')
+    assert 'metadata.yaml' in err[0]
+    assert not out.exists()
+
+
 def test_cleaning_sorts_and_merges_duplicate_stamps():
     t = np.array([0.02, 0.0, 0.01, 0.01, np.nan])
     p = np.array([[2.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [9.0, 0, 0]])

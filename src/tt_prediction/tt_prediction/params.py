@@ -20,6 +20,7 @@ import time
 
 import numba
 import numpy as np
+from tt_ros.errors import one_line_reason
 import yaml
 
 STALE_CACHE_AGE = 86400.0
@@ -456,7 +457,7 @@ class ModelParams:
         except OSError as exc:
             raise ValueError(f'{path}: cannot read model file: {exc.strerror}') from None
         except yaml.YAMLError as exc:
-            raise ValueError(f'{path}: not valid YAML: {str(exc).splitlines()[0]}') from None
+            raise ValueError(f'{path}: not valid YAML: {one_line_reason(exc)}') from None
         try:
             return cls.from_dict(data)
         except ValueError as exc:

@@ -22,6 +22,7 @@ import shlex
 import sys
 
 import numpy as np
+from tt_ros.errors import one_line_reason
 import yaml
 
 from .ball import load_model
@@ -65,7 +66,7 @@ def load_filter_config(path, tracks):
         except OSError as exc:
             raise DataError(f'{path}: cannot read filter config: {exc.strerror}') from None
         except yaml.YAMLError as exc:
-            raise DataError(f'{path}: not valid YAML: {str(exc).splitlines()[0]}') from None
+            raise DataError(f'{path}: not valid YAML: {one_line_reason(exc)}') from None
         if not isinstance(data, dict):
             raise DataError(f'{path}: filter config must be a mapping')
     names = {f.name for f in dataclasses.fields(FilterConfig)}

@@ -14,6 +14,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import yaml
 
+from tt_ros.errors import one_line_reason
 from tt_ros.index import interface_file
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -138,8 +139,7 @@ def open_bag(path):
             reader.close()
         except Exception:
             pass
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise BagError(f"bag '{path}' is truncated or corrupt: {reason}") from None
+        raise BagError(f"bag '{path}' is truncated or corrupt: {one_line_reason(exc)}") from None
     if counted != reader.message_count:
         reader.close()
         raise BagError(f"bag '{path}' is truncated or corrupt: metadata counts "

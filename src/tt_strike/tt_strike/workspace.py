@@ -22,6 +22,7 @@ import pathlib
 
 import numpy as np
 from tt_prediction.units import ROOM_HALF_EXTENT_M
+from tt_ros.errors import one_line_reason
 from tt_ros.index import package_prefix
 import yaml
 
@@ -194,8 +195,7 @@ def load_workspace(path=None):
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else 'bad YAML'
-        raise WorkspaceError(f'{path}: not YAML: {first}') from None
+        raise WorkspaceError(f'{path}: not YAML: {one_line_reason(exc)}') from None
     try:
         return parse_workspace(data)
     except WorkspaceError as exc:

@@ -19,6 +19,7 @@ from rosidl_parser.definition import (
     BoundedSequence,
     NamespacedType,
 )
+from tt_ros.errors import one_line_reason
 import yaml
 
 _INTEGER_RANGES = {
@@ -231,8 +232,7 @@ def parse_yaml_values(text):
     try:
         values = yaml.safe_load(text) if text and text.strip() else {}
     except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0]
-        raise ValueError(f'invalid YAML for the message: {first}') from None
+        raise ValueError(f'invalid YAML for the message: {one_line_reason(exc)}') from None
     if values is None:
         return {}
     if not isinstance(values, dict):

@@ -16,6 +16,7 @@ import os
 import pathlib
 
 import numpy as np
+from tt_ros.errors import one_line_reason
 
 from ..predict import MAX_SPIN
 from ..units import position_error, sample_time_error, time_error
@@ -258,7 +259,7 @@ def load_bag(path, topic=None):
         reader = AnyReader([pathlib.Path(path)], default_typestore=_bag_typestore())
         reader.open()
     except Exception as exc:     # rosbags raises several unrelated types for a bad bag
-        raise DataError(f'{path}: not a readable rosbag2 bag: {exc}') from None
+        raise DataError(f'{path}: not a readable rosbag2 bag: {one_line_reason(exc)}') from None
     try:
         conns = [c for c in reader.connections if c.msgtype in BAG_TYPES
                  and (topic is None or c.topic == topic)]
