@@ -386,8 +386,7 @@ def test_show_waits_for_its_subscriptions_before_the_next_node_starts(monkeypatc
     domain = unique_domain()
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     show = bringup.Show()
-    graph = Graph(domain_id=domain)
-    try:
+    with Graph(domain_id=domain) as graph:
         supervisor = bringup.Bringup(str(CONFIG / 'robot.yaml'), ['strike_node'])
         supervisor.show = show
         strike = supervisor.children[0]
@@ -402,8 +401,6 @@ def test_show_waits_for_its_subscriptions_before_the_next_node_starts(monkeypatc
                          "--show's /strike/command connected")
         assert supervisor._unconnected() == []
         assert show.unconnected({'strike_node', 'prediction_node'}) == ['/ball/prediction']
-    finally:
-        graph.close()
         show.close()
 
 

@@ -184,8 +184,7 @@ def test_a_prediction_carries_nothing_over_from_the_one_before(graph):
 def test_each_path_has_the_poses_of_its_own_flight():
     # A long flight, then a short one (the ball already near the plane), then the long one
     # again: every path has the poses of its prediction, none left over from the one before.
-    g = Graph(overrides=[rclpy.parameter.Parameter('path_rate_hz', value=0.0)])
-    try:
+    with Graph(overrides=[rclpy.parameter.Parameter('path_rate_hz', value=0.0)]) as g:
         near = [-1.0, 0.0, 0.3, -6.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         balls = [GOOD, near, GOOD]
         t0 = T0
@@ -200,8 +199,6 @@ def test_each_path_has_the_poses_of_its_own_flight():
             stamps = [ns(q.header.stamp) - ns(path.header.stamp) for q in path.poses]
             np.testing.assert_allclose(stamps, np.arange(len(got)) * 20_000_000, atol=1)
         assert len(g.paths[1].poses) < len(g.paths[0].poses)
-    finally:
-        g.close()
 
 
 def test_bad_and_stale_states_publish_nothing(graph):
@@ -301,8 +298,7 @@ def test_the_track_forgotten_first_is_the_one_updated_longest_ago():
     # Nine ids, the first updated all along: it kept its remembered bounce (it was the
     # oldest created, and forgotten when the ninth came).
     from tt_prediction.node import MAX_TRACKS
-    g = Graph()
-    try:
+    with Graph() as g:
         g.pub.publish(g.state(GOOD, track_id=1))
         g.spin_until(lambda: len(g.predictions) == 1, 10.0, 'the first prediction')
         remembered = g.node.tracks[1]
@@ -312,8 +308,6 @@ def test_the_track_forgotten_first_is_the_one_updated_longest_ago():
             g.spin_until(lambda k=k: len(g.predictions) == 2 * k - 1, 10.0, f'track {k}')
         assert g.node.tracks.get(1) is remembered and 2 not in g.node.tracks
         assert len(g.node.tracks) == MAX_TRACKS
-    finally:
-        g.close()
 
 
 @pytest.mark.parametrize('cov', [-np.eye(9), np.zeros((9, 9)), np.eye(9) * 1e300],
@@ -333,16 +327,13 @@ def test_a_bad_covariance_still_gives_the_prediction(graph, cov):
 
 
 def test_max_rate_skips_states_by_their_stamps():
-    g = Graph(overrides=[rclpy.parameter.Parameter('max_rate_hz', value=100.0)])
-    try:
+    with Graph(overrides=[rclpy.parameter.Parameter('max_rate_hz', value=100.0)]) as g:
         t0 = T0
         for k in range(11):                                  # 500 Hz by the stamps
             g.pub.publish(g.state(GOOD, stamp_ns=t0 + k * 2_000_000))
             g.spin_until(lambda k=k: g.node.n_received == k + 1, 10.0, f'state {k}')
         g.spin_until(lambda: len(g.predictions) == g.node.n_predicted, 10.0, 'predictions')
         assert [ns(p.header.stamp) - t0 for p in g.predictions] == [0, 10_000_000, 20_000_000]
-    finally:
-        g.close()
 
 
 def test_max_rate_holds_for_each_track_apart():
@@ -367,13 +358,10 @@ def test_max_rate_holds_for_each_track_apart():
 
 
 def test_the_config_file_sets_the_parameters():
-    g = Graph(args=['--ros-args', '--params-file', str(CONFIG)])
-    try:
+    with Graph(args=['--ros-args', '--params-file', str(CONFIG)]) as g:
         expected = yaml.safe_load(CONFIG.read_text())['prediction_node']['ros__parameters']
         for name, value in expected.items():
             assert g.node.get_parameter(name).value == value, name
-    finally:
-        g.close()
 
 
 def test_a_bad_model_file_stops_the_node_with_a_one_line_reason(tmp_path):
@@ -503,8 +491,7 @@ def test_a_ball_past_its_second_bounce_on_the_robots_half_stays_double_bounce():
     times = [0.16, first + 0.06, 0.5 * (first + second), second + 0.06, second + 0.12]
     _, states = rollout(short, ModelParams(), sample_times=times, stop_at_net=False,
                         max_bounces=3, stop_at_plane=False)
-    g = Graph([rclpy.parameter.Parameter('hit_plane_x', value=-1.2)])
-    try:
+    with Graph([rclpy.parameter.Parameter('hit_plane_x', value=-1.2)]) as g:
         for k, (t, values) in enumerate(zip(times, states, strict=True), start=1):
             g.pub.publish(g.state(values, stamp_ns=T0 + round(t * 1e9), track_id=7))
             g.spin_until(lambda k=k: len(g.predictions) == k, 10.0, f'prediction {k}')
@@ -514,8 +501,6 @@ def test_a_ball_past_its_second_bounce_on_the_robots_half_stays_double_bounce():
         assert all(p.bounce_time == g.predictions[0].bounce_time for p in g.predictions)
         # Without the track's memory the state after the second bounce is a hit.
         assert predict(states[3], hit_plane_x=-1.2, bounced=True).status == 'ok'
-    finally:
-        g.close()
 
 
 def test_a_track_followed_past_its_bounce_keeps_its_hit(graph):

@@ -10,8 +10,7 @@ def test_an_input_is_remapped_once_as_a_plain_subscription_is():
     # The topic was resolved (remaps applied) and then given to create_subscription, which
     # applied them again: with -r ball/state:=ball/raw -r /ball/raw:=/ball/other the input
     # listened on /ball/other while a plain subscription of the same name was on /ball/raw.
-    graph = Graph()
-    try:
+    with Graph() as graph:
         node = graph.add(rclpy.create_node(
             'remap_test', context=graph.context,
             cli_args=['--ros-args', '-r', 'ball/state:=ball/raw', '-r',
@@ -20,5 +19,3 @@ def test_an_input_is_remapped_once_as_a_plain_subscription_is():
         tt_input = subscribe_input(node, String, 'ball/state', lambda m: None, 10)
         assert plain.topic_name == '/ball/raw'
         assert tt_input.topic_name == plain.topic_name
-    finally:
-        graph.close()

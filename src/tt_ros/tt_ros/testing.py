@@ -46,7 +46,8 @@ class Graph:
     """Nodes in one fresh rclpy Context, spun by the test itself.
 
     ``args`` and ``domain_id`` go to ``rclpy.init``. Nodes given to :meth:`add` are spun by
-    :meth:`spin_until` and destroyed by :meth:`close`.
+    :meth:`spin_until` and destroyed by :meth:`close`, which the end of a ``with`` block
+    calls.
     """
 
     def __init__(self, args=None, domain_id=None):
@@ -74,8 +75,14 @@ class Graph:
                 raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
     def close(self):
-        """Destroy the nodes and shut the context down."""
+        """Destroy the nodes and shut the context down (also at the end of a ``with``)."""
         self.executor.shutdown()
         for node in self.nodes:
             node.destroy_node()

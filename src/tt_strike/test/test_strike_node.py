@@ -118,20 +118,16 @@ def check_command(cmd, prediction, zone):
 
 
 def test_prediction_gives_a_command_that_lands_in_the_zone():
-    g = Graph([Parameter('target_zone', value=3), Parameter('publish_markers', value=True)])
-    try:
+    with Graph([Parameter('target_zone', value=3), Parameter('publish_markers', value=True)]) as g:
         msg = prediction_msg(7)
         g.pub.publish(msg)
         g.spin_until(lambda: g.commands and g.markers, 20.0, 'a command and markers')
         check_command(g.commands[0], msg, 3)
         assert {m.ns for m in g.markers[0].markers} == {'strike'}
-    finally:
-        g.close()
 
 
 def test_target_topic_and_parameter_change_the_zone():
-    g = Graph()
-    try:
+    with Graph() as g:
         target = StrikeTarget()
         target.zone = 9
         g.pub_target.publish(target)
@@ -170,13 +166,10 @@ def test_target_topic_and_parameter_change_the_zone():
         assert g.node.get_parameter('target_zone').value == 0
         assert list(g.node.get_parameter('target_point').value) == [0.5, 0.3]
         assert g.commands[2].target_point.x == 0.5
-    finally:
-        g.close()
 
 
 def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
-    g = Graph([Parameter('max_racket_speed', value=0.2)])
-    try:
+    with Graph([Parameter('max_racket_speed', value=0.2)]) as g:
         g.pub.publish(prediction_msg(1, hit_valid=False))
         nan = prediction_msg(2)
         nan.hit_velocity.x = math.nan
@@ -197,8 +190,6 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
                             r'\(last 3\)', times), times
         assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
                           'stroke): 1: 1/0 -, 2: 1/0 -, 3: 1/1 infeasible')
-    finally:
-        g.close()
 
 
 def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
@@ -265,20 +256,16 @@ def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
 
 def test_config_file_matches_the_declared_parameters():
     config = yaml.safe_load(CONFIG.read_text())['strike_node']['ros__parameters']
-    g = Graph([Parameter(k, value=v) for k, v in config.items()])
-    try:
+    with Graph([Parameter(k, value=v) for k, v in config.items()]) as g:
         declared = set(g.node._parameters) - {'use_sim_time', 'start_type_description_service'}
         assert set(config) == declared
-    finally:
-        g.close()
 
 
 def test_probability_is_reused_within_its_period():
     # Same track and stamp: the second prediction's (much wider) covariance is not used at
     # 10 Hz; at 0 Hz (every prediction) it is, and the wider spread lowers the probability.
     for rate, same in ((10.0, True), (0.0, False)):
-        g = Graph([Parameter('probability_rate_hz', value=rate)])
-        try:
+        with Graph([Parameter('probability_rate_hz', value=rate)]) as g:
             narrow, wide = prediction_msg(4), prediction_msg(4)
             wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
             g.pub.publish(narrow)
@@ -286,13 +273,10 @@ def test_probability_is_reused_within_its_period():
             g.spin_until(lambda g=g: len(g.commands) == 2, 30.0, 'two commands')
             p1, p2 = (c.in_zone_probability for c in g.commands)
             assert (p1 == p2) == same and p2 <= p1
-        finally:
-            g.close()
 
 
 def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
-    g = Graph([Parameter('use_hit_plane', value=True)])
-    try:
+    with Graph([Parameter('use_hit_plane', value=True)]) as g:
         msg = prediction_msg(5)
         g.pub.publish(msg)
         g.spin_until(lambda: g.commands, 20.0, 'a command')
@@ -307,22 +291,17 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
         g.pub.publish(prediction_msg(6))
         g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
         assert len(g.commands) == 1 and g.node.n_received == 3 and g.node.n_committed == 1
-    finally:
-        g.close()
     # Along the path: decided 0.149 s before the ball leaves the reach (grown by r).
     msg = prediction_msg(7)
     at = np.concatenate([vec(msg.hit_point), vec(msg.hit_velocity), vec(msg.hit_spin)])
     t_exit = predict(at, PARAMS, t0=seconds(msg.hit_time), bounced=True,
                      hit_plane_x=WORKSPACE.x[0] - PARAMS.radius).hit.t
-    g = Graph()
-    try:
+    with Graph() as g:
         now = t_exit - WORKSPACE.min_time_before_hit + 1e-3
         g.set_clock(now)
         g.pub.publish(msg)
         g.spin_until(lambda: g.node.n_too_late == 1, 20.0, 'the too-late count')
         assert g.commands == []
-    finally:
-        g.close()
 
 
 def test_each_ball_keeps_the_hit_time_chosen_for_it():
@@ -331,8 +310,7 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
     # predictions. The node sends one hit time per ball, then nothing once it is closer
     # than min_time_before_hit (the arm is on its way: counted, not a too-late warning as
     # it was for every ball of the demo); another ball chooses afresh.
-    g = Graph()
-    try:
+    with Graph() as g:
         msg = prediction_msg(3)
         hit_t = seconds(msg.hit_time)
         n = 0
@@ -363,8 +341,6 @@ def test_each_ball_keeps_the_hit_time_chosen_for_it():
         g.spin_until(lambda: len(g.commands) == n + 1, 20.0, "the new ball's command")
         assert g.commands[-1].track_id == 3 and g.commands[-1].feasible
         assert (g.node.n_committed, g.node.n_too_late) == (1, 0)
-    finally:
-        g.close()
 
 
 def test_bad_workspace_file_stops_the_node(tmp_path):
@@ -433,16 +409,13 @@ def test_start_up_names_the_reach_and_the_racket_speed_limit_that_applies(tmp_pa
     slow = tmp_path / 'ws.yaml'
     slow.write_text('workspace: {shape: box, box: {x: [-2.1, -1.45], y: [-1, 1], '
                     'z: [0.0, 0.8]}, max_racket_speed: 1.0, min_time_before_hit: 0.15}\n')
-    g = Graph([Parameter('workspace_file', value=str(slow)),
-               Parameter('max_racket_speed', value=8.0)])
-    try:
+    with Graph([Parameter('workspace_file', value=str(slow)),
+                Parameter('max_racket_speed', value=8.0)]) as g:
         text = g.node._reach_text()
         assert text.endswith(f'({slow}), racket speed limit 1.0 m/s'), text
         assert text.startswith('reach box x [-2.10, -1.45]')
         g.node.set_parameters([Parameter('max_racket_speed', value=0.5)])
         assert g.node._reach_text().endswith('limit 0.5 m/s')
-    finally:
-        g.close()
 
 
 def test_start_up_names_the_model_the_strokes_are_solved_with(tmp_path):
@@ -450,24 +423,17 @@ def test_start_up_names_the_model_the_strokes_are_solved_with(tmp_path):
     # in a replay's params.yaml), strike_node's did not.
     model = tmp_path / 'model.yaml'
     ModelParams().save(str(model))
-    g = Graph([Parameter('model_file', value=str(model))])
-    try:
+    with Graph([Parameter('model_file', value=str(model))]) as g:
         assert g.node._start_up_text().endswith(f', model {model}')
-    finally:
-        g.close()
-    g = Graph()
-    try:
+    with Graph() as g:
         assert g.node._start_up_text().endswith(', model nominal')
-    finally:
-        g.close()
 
 
 def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
     # A user's stream: ball 15 for 0.2 s, 1.2 s without it, ball 15 again. prediction_node
     # took it as a new ball (over 1 s after the track's last state); strike_node counted
     # its 1 s from the old ball's kept hit time and sent nothing for the new one.
-    g = Graph()
-    try:
+    with Graph() as g:
         first = prediction_msg(15)
         hit_t = seconds(first.hit_time)
         g.set_clock(seconds(first.header.stamp))
@@ -485,15 +451,12 @@ def test_a_ball_under_a_used_id_after_a_pause_gets_its_stroke():
         assert g.commands[1].feasible
         assert seconds(g.commands[1].hit_time) > hit_t + 1.0
         assert (g.node.n_too_late, g.node.n_committed) == (0, 0)
-    finally:
-        g.close()
 
 
 def test_probability_is_reused_per_track():
     # Two balls at once: the probability remembered for the last track only, every switch
     # of track worked it out again (15-30 ms each) and the node fell behind its queue.
-    g = Graph([Parameter('probability_rate_hz', value=10.0)])
-    try:
+    with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
         narrow, other, wide = prediction_msg(4), prediction_msg(5), prediction_msg(4)
         wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
         for msg in (narrow, other, wide):
@@ -502,8 +465,6 @@ def test_probability_is_reused_per_track():
         p4, p5, p4_again = (c.in_zone_probability for c in g.commands)
         assert [c.track_id for c in g.commands] == [4, 5, 4]
         assert p4_again == p4
-    finally:
-        g.close()
 
 
 def test_start_up_compiles_what_a_ball_keeping_its_hit_time_runs():
@@ -534,8 +495,7 @@ def test_a_struck_ball_lost_before_the_plane_is_told_when_its_hit_time_is_past()
     # said nothing. Ball 9 was followed to 10 ms before the plane: not lost; nor ball 12,
     # whose last prediction (10 ms before the plane) arrives after its hit time: a busy
     # machine's queues, once judged as lost.
-    g = Graph()
-    try:
+    with Graph() as g:
         lost = prediction_msg(8)
         followed = prediction_msg(9)
         followed.header.stamp.nanosec = 590_000_000
@@ -556,5 +516,3 @@ def test_a_struck_ball_lost_before_the_plane_is_told_when_its_hit_time_is_past()
                      'the struck balls judged')
         assert g.node.n_lost == 1
         assert '1 struck balls lost before the plane' in g.node.work_summary()
-    finally:
-        g.close()

@@ -294,8 +294,7 @@ def test_play_selected_topics_from_an_offset(recorded, graph, procs):
 def test_play_publishes_the_bag_time_on_clock(recorded, procs):
     out, topics, sent = recorded
     domain = 50 + os.getpid() % 50  # /clock is shared: keep this test in its own domain
-    g = Graph(domain_id=domain)
-    try:
+    with Graph(domain_id=domain) as g:
         clocks, got = [], []
         g.node.create_subscription(
             Clock, '/clock', lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
@@ -307,8 +306,6 @@ def test_play_publishes_the_bag_time_on_clock(recorded, procs):
                      env={'ROS_DOMAIN_ID': str(domain)})
         g.spin_until(lambda: len(got) == N_STATES and play.proc.poll() is not None, 60,
                      'the replay to end')
-    finally:
-        g.close()
     assert play.wait() == 0, play.stderr
     bag = _bag_messages(out)
     start = min(t for msgs in bag.values() for t, _ in msgs)
@@ -328,8 +325,7 @@ def test_play_with_clock_waits_only_for_nodes_on_sim_time(recorded, procs):
     # as here) it plays once the replayed topics have theirs, not forever.
     out, topics, _ = recorded
     domain = unique_domain()        # /clock is shared: a domain of this test's own
-    g = Graph(domain_id=domain)
-    try:
+    with Graph(domain_id=domain) as g:
         got = []
         g.node.create_subscription(BallState, topics['state'], got.append, QoSProfile(depth=100))
         g.node.create_subscription(CameraInfo, topics['info'], lambda m: None,
@@ -338,8 +334,6 @@ def test_play_with_clock_waits_only_for_nodes_on_sim_time(recorded, procs):
                      env={'ROS_DOMAIN_ID': str(domain)})
         g.spin_until(lambda: len(got) == N_STATES and play.proc.poll() is not None, 60,
                      'the replay to end')
-    finally:
-        g.close()
     assert play.wait() == 0, play.stderr
     assert '/clock' not in play.stderr
 
