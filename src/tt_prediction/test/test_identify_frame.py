@@ -13,8 +13,8 @@ from tt_prediction.ball import HALF_LENGTH, rollout
 from tt_prediction.identify import fitting
 from tt_prediction.identify import segment as segment_module
 from tt_prediction.identify.data import Track
-from tt_prediction.identify.frame import frame_warnings
-from tt_prediction.identify.pipeline import identify, prepare
+from tt_prediction.identify.frame import frame_warnings, median_flight_acceleration
+from tt_prediction.identify.pipeline import bound_warnings, identify, prepare
 from tt_prediction.identify.segment import segment
 from tt_prediction.identify.synthetic import launch_states, make_tracks
 from tt_prediction.params import ModelParams
@@ -139,6 +139,60 @@ def test_tracks_in_another_frame_are_named_in_a_warning(change, words):
     warnings = frame_warnings(_moved(tracks, change), TRUE, -1.5)
     assert any(words in w for w in warnings), warnings
     assert all('\n' not in w and 'table frame' in w for w in warnings)
+
+
+def test_tracks_moving_away_from_the_robot_are_named_in_a_warning():
+    # x and y both turned (x towards the robot, a right-handed frame still): the tracks cross
+    # a hitting plane on the robot's side, outgoing, and nothing was said.
+    tracks = make_tracks(6, TRUE, seed=3)
+    assert frame_warnings(_named(tracks), TRUE, -1.0) == []
+    warnings = frame_warnings(_moved(tracks, lambda p: p * [-1.0, -1.0, 1.0]), TRUE, -1.0)
+    assert any('moves along +x there, away from the robot' in w for w in warnings), warnings
+
+
+def test_a_few_tracks_turning_upwards_above_the_table_are_enough_for_a_warning():
+    # z measured from the floor, 4 of 10 tracks with their bounce (the others end before
+    # it): the bounces read as racket contacts and nothing was said (half of them needed).
+    states = launch_states(10, np.random.default_rng(4))
+    tracks = []
+    for k, (tr, s0) in enumerate(zip(make_tracks(10, TRUE, seed=4, states=states), states,
+                                     strict=True)):
+        events, _ = rollout(s0, TRUE, stop_at_plane=False, stop_at_net=False, max_bounces=1)
+        keep = tr.t < (events[0].t - 0.05 if k >= 4 else np.inf)
+        tracks.append((tr.name, tr.t[keep], tr.p[keep] + [0.0, 0.0, 0.76]))
+    assert any('4 of 10 tracks turn upwards' in w and 'none on the table' in w
+               for w in frame_warnings(tracks, TRUE, -1.5))
+
+
+def test_stamps_coarser_than_the_samples_give_no_acceleration_not_an_error():
+    # Times rounded to 0.1 s: pieces of one time made the parabola fit raise LinAlgError.
+    tr = make_tracks(1, TRUE, seed=3)[0]
+    assert median_flight_acceleration([(np.round(tr.t, 1), tr.p)], TRUE.gravity) is None
+    assert median_flight_acceleration([(tr.t, tr.p)], TRUE.gravity) is not None
+
+
+def test_a_model_parameter_at_a_bound_of_its_range_is_named_in_a_warning():
+    # A measured spin in rev/s read as rad/s put C_M at 0.5, the same spin of the other sign
+    # at 0, in a model.yaml written without a word.
+    base = ModelParams()
+    for c_m, side in ((0.5, 'upper'), (0.0, 'lower')):
+        g = fitting.Globals(base, ['c_d', 'c_m'], [0.5, c_m])
+        warnings = bound_warnings(g, ['c_d', 'c_m'], spin_measured=True)
+        assert len(warnings) == 1 and warnings[0].startswith(f'c_m = {c_m:g} was fitted at a '
+                                                             'bound'), (side, warnings)
+        assert 'index.csv' in warnings[0] and '\n' not in warnings[0]
+    # An effect's parameter at 0 is the effect switched off, not a bound that set it.
+    g = fitting.Globals(base, ['c_d', 'spin_decay'], [0.5, 0.0])
+    assert bound_warnings(g, ['c_d'], spin_measured=False) == []
+
+
+def test_identify_warns_of_a_measured_spin_of_the_other_sign():
+    # Measured spin = true / (1 + spin_scale): the opposite of the ball's; lift must vanish.
+    tracks = make_tracks(4, TRUE, seed=3, spin_scale=-2.0)
+    result = identify(tracks, folds=2)
+    assert any(w.startswith('c_m = 0 was fitted at a bound') for w in result['warnings']), \
+        result['warnings']
+    assert identify(make_tracks(4, TRUE, seed=3), folds=2)['warnings'] == []
 
 
 def test_tt_predict_tracks_warns_of_tracks_in_another_frame(tmp_path, capsys):

@@ -151,6 +151,9 @@ def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
     ('t,x,y,z\n' + ''.join(f'{6.7 * i},{1.0 - 0.03 * i},0,0.3\n' for i in range(10)),
      'median step between samples 6.7: a ball track is sampled at tens to hundreds of Hz; '
      'times are in seconds, not milliseconds'),
+    # Every row stamped alike: the frame check's parabola fit raised LinAlgError.
+    ('t,x,y,z\n' + ''.join(f'0.5,{1.0 - 0.03 * i},0,0.3\n' for i in range(20)),
+     '20 valid sample(s) at 1 time(s); a track needs 2 times'),
 ])
 def test_unreadable_file_one_line_exit_2_no_output(data, tmp_path, capsys, content, what):
     folder, tracks = data

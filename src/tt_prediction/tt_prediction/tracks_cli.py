@@ -47,8 +47,10 @@ def read_tracks(folder):
         path = os.path.join(folder, name)
         t, p = read_track_csv(path)
         valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
-        if valid.sum() < 2:
-            raise DataError(f'{path}: {int(valid.sum())} valid sample(s); a track needs 2')
+        times = len(np.unique(t[valid]))
+        if times < 2:
+            raise DataError(f'{path}: {int(valid.sum())} valid sample(s) at {times} time(s); '
+                            'a track needs 2 times')
         tracks.append((name, t, p, index.get(name, (None,))[0]))
     return tracks
 

@@ -190,6 +190,7 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     else:
         current = []
     _, cur_rms, cur_folds, g_final, states = best
+    warnings += bound_warnings(g_final, g_base.names, n_spin > 0)
     diag_before = diagnose.flight_residuals(prepared, g_base, base_states)
     diag_after = diagnose.flight_residuals(prepared, g_final, states)
     rebound_before = diagnose.rebound_summary(prepared, g_base, base_states)
@@ -316,6 +317,27 @@ def _prediction_improves(before, after):
     if before['hit_err_mm'] is not None and after['hit_err_mm'] is not None:
         return after['hit_err_mm'] < before['hit_err_mm']
     return True
+
+
+def bound_warnings(globals_, physical, spin_measured):
+    """One line for each parameter of the written model fitted at a bound of its plausible
+    range: the bound, not the ball, set it, and the data are usually in other units or
+    another frame (a measured spin in rev/s read as rad/s put C_M at 0.5, of the same spin
+    with the other sign at 0). ``physical``: the names for which the lower bound 0 is not a
+    ball's value either (the baseline's drag, lift, restitution, friction), not an effect
+    switched off."""
+    lo, hi = globals_.bounds()
+    out = []
+    for i, name in enumerate(globals_.names):
+        if name == fitting.SPIN_SCALE:
+            continue
+        v, tol = globals_.values[i], 1e-3 * (hi[i] - lo[i])
+        if hi[i] - v < tol or (v - lo[i] < tol and (lo[i] != 0.0 or name in physical)):
+            spin = ', the measured spin (index.csv) in rad/s' if spin_measured else ''
+            out.append(f'{name} = {v:.4g} was fitted at a bound of its plausible range '
+                       f'({lo[i]:g} to {hi[i]:g}): the bound set it, not the data; are the '
+                       f'positions in metres{spin} and both in the table frame?')
+    return out
 
 
 def _at_bound(globals_, params):
