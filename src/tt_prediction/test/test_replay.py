@@ -139,6 +139,25 @@ def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
     assert all(r[1] != '' for r in last)                        # the second flight tracked
 
 
+def test_a_file_of_two_flights_predicts_the_second_from_its_own_bounce(data, tmp_path):
+    """A lab's file holding two flights 0.5 s apart: the second one's rows carried the first
+    one's bounce and no hit point through its own bounce and crossing."""
+    _, tracks = data
+    (name, t1, p1), (_, t2, p2) = tracks[0], tracks[1]
+    start2 = t1[-1] + 0.5
+    folder = tmp_path / 'two'
+    _write(folder, [(name, np.concatenate([t1, start2 + t2 - t2[0]]),
+                     np.concatenate([p1, p2]))])
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE),
+                 '--no-textbook']) == 0
+    _, rows = _rows(out / name)
+    second = [r for r in rows if float(r[0]) >= start2 + 0.05]
+    bounces = {float(r[10]) for r in second if r[10] != ''}
+    assert bounces and min(bounces) > start2, bounces        # its own bounce, not the first's
+    assert sum(r[14] != '' for r in second) > len(second) / 2   # and its hit points
+
+
 @pytest.mark.parametrize('content, what', [
     ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
     # A control character is shown escaped, not written raw to the terminal.

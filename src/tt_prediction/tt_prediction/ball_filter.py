@@ -776,7 +776,10 @@ class TrackFilter:
             return self.COASTED
         status = self.REJECTED
         if f is not None and t - self.last_accept > cfg.max_gap:
-            self.filter = f = None           # too long without data: start afresh
+            self.filter = f = None           # too long without data: start afresh,
+            self.robot_bounced = False       # a new ball (a file of two flights kept the
+            self.robot_bounce = None         # first one's bounce through the second)
+            self.robot_bounces = 0
         if f is not None:
             self._predict(t)
             R = self._R
