@@ -158,6 +158,23 @@ def test_a_file_of_two_flights_predicts_the_second_from_its_own_bounce(data, tmp
     assert sum(r[14] != '' for r in second) > len(second) / 2   # and its hit points
 
 
+@pytest.mark.parametrize('noise, warned', [('1.0', True), ('0.0001', True), ('0.002', False)])
+def test_a_position_noise_far_from_the_tracks_scatter_is_warned_of(data, tmp_path, capsys,
+                                                                    noise, warned):
+    """A lab's millimetres read as metres: each sample weighed as if 1 m off, hit errors of
+    124 mm at 50 ms instead of 6, and nothing said (the tracks' scatter is 1 mm here)."""
+    folder, _ = data
+    config = tmp_path / 'filter.yaml'
+    config.write_text(f'position_noise: {noise}\n')
+    assert main(['--tracks', str(folder), '--out', str(tmp_path / 'out'), '--no-textbook',
+                 '--filter-config', str(config)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    said = [line for line in err if f'position_noise {float(noise):g} m is' in line]
+    assert len(said) == warned and all(line.startswith('tt-predict: warning: ') for line in said)
+    summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())
+    assert any('position_noise' in w for w in summary['warnings']) == warned
+
+
 @pytest.mark.parametrize('content, what', [
     ('t,x,y,z\n0.0,1.0,0.0,abc\n', "'abc' is not a number"),
     # A control character is shown escaped, not written raw to the terminal.

@@ -55,6 +55,36 @@ def read_tracks(folder):
     return tracks
 
 
+def measured_noise(tracks):
+    """(position noise m, stamp noise s) the tracks' own scatter gives
+    (:func:`tt_prediction.ball_filter.estimate_measurement_noise`), NaN when they are too
+    short for it. In time order: the estimate fits runs of consecutive samples (a file's
+    rows need not be sorted; rows shuffled gave 50 mm of noise instead of 0.5)."""
+    clean = [(t[ok][order], p[ok][order]) for _, t, p, _ in tracks
+             for ok in [np.isfinite(t) & np.isfinite(p).all(axis=1)]
+             for order in [np.argsort(t[ok], kind='stable')]]
+    return estimate_measurement_noise(clean)
+
+
+NOISE_RATIO = 10.0
+"""A position_noise set this many times off the tracks' own scatter, either way, is warned of."""
+
+
+def noise_warning(config, tracks, path):
+    """One line when ``config``'s position_noise (set in the file ``path``) is over
+    NOISE_RATIO times off the tracks' own scatter (a millimetre value read as metres
+    weighed each sample as if 1 m off: 124 mm at 50 ms instead of 6), else ''."""
+    est, _ = measured_noise(tracks)
+    if not (math.isfinite(est) and est > 0.0):
+        return ''
+    ratio = config.position_noise / est
+    if 1.0 / NOISE_RATIO <= ratio <= NOISE_RATIO:
+        return ''
+    return (f'{path}: position_noise {config.position_noise:g} m is {ratio:.3g} times the '
+            f"{est * 1e3:.2f} mm the tracks' own scatter gives: is it in metres? ('auto' "
+            'takes that estimate)')
+
+
 def load_filter_config(path, tracks):
     """FilterConfig from a YAML mapping of its fields (``path``), or the defaults; a
     ``position_noise`` or ``stamp_noise`` of ``auto`` (the default) is estimated from the data
@@ -78,12 +108,7 @@ def load_filter_config(path, tracks):
     noise = data.pop('position_noise', 'auto')
     stamp = data.pop('stamp_noise', 'auto')
     if 'auto' in (noise, stamp):
-        # In time order: the estimate fits runs of consecutive samples (a file's rows need
-        # not be sorted; rows shuffled gave 50 mm of noise instead of 0.5).
-        clean = [(t[ok][order], p[ok][order]) for _, t, p, _ in tracks
-                 for ok in [np.isfinite(t) & np.isfinite(p).all(axis=1)]
-                 for order in [np.argsort(t[ok], kind='stable')]]
-        est_noise, est_stamp = estimate_measurement_noise(clean)
+        est_noise, est_stamp = measured_noise(tracks)
         if not math.isfinite(est_noise):       # no 7 samples of a moving ball: the defaults
             est_noise, est_stamp = FilterConfig.position_noise, FilterConfig.stamp_noise
         noise = est_noise if noise == 'auto' else noise
@@ -234,6 +259,8 @@ def _main(argv=None):
         return 2
     warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params,
                               args.hit_plane_x)
+    if args.filter_config:
+        warnings += [w for w in [noise_warning(config, tracks, args.filter_config)] if w]
     learning = Learning(config, params)     # with --no-learn unused: the configured values
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
