@@ -80,6 +80,9 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: _edit(info, lambda d: d['camera_matrix']['data'].__setitem__(2, 2000)),
      'principal point (2000, '),
     (lambda rig, info: rig.write_text('cameras: [\n'), 'not readable YAML'),
+    # The second fps was taken without a word.
+    (lambda rig, info: rig.write_text(rig.read_text() + 'fps: 30\n'),
+     "not readable YAML (the key 'fps' is given twice"),
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=-1)), 'fps must be a positive'),
     # Infinity passed 'fps > 0' and divided by zero later (a traceback in tt-perceive).
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=float('inf'))),
@@ -104,7 +107,8 @@ def test_rig_round_trip(tmp_path):
         'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'no distortion',
         'no translation', 'principal point off',
-        'broken yaml', 'bad fps', 'infinite fps', 'nan time offset', 'time offset in ms',
+        'broken yaml', 'key given twice', 'bad fps', 'infinite fps', 'nan time offset',
+        'time offset in ms',
         'misspelt key',
         'unknown rig key', 'frame not the table', 'fps true', 'width not whole'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):

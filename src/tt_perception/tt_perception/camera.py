@@ -20,6 +20,8 @@ from tt_prediction.units import translation_error
 from tt_ros.errors import one_line_reason
 import yaml
 
+from tt_ros import yamlfile
+
 # OpenCV 5 takes the criteria in undistortPoints; OpenCV 4 has them in undistortPointsIter.
 _undistort = getattr(cv2, 'undistortPointsIter', cv2.undistortPoints)
 _EYE = np.eye(3)
@@ -115,7 +117,7 @@ def read_yaml(path, what):
         raise CalibrationError(error)
     try:
         with open(path, encoding='utf-8') as f:
-            data = yaml.safe_load(f)
+            data = yamlfile.safe_load(f)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise CalibrationError(
             f'{what} {path}: not readable YAML ({one_line_reason(exc)})') from None

@@ -80,6 +80,17 @@ def test_non_numeric_model_value_is_named(tmp_path):
         ball.load_model(str(path))
 
 
+def test_a_model_field_given_twice_is_refused(tmp_path):
+    # PyYAML keeps the second value without a word: both tt-predict and prediction_node
+    # started with it (a researcher's walk-through).
+    path = _complete_model(tmp_path, lambda d: None)
+    path.write_text(path.read_text().replace('ball:\n', 'ball:\n  c_d: 0.3\n', 1))
+    with pytest.raises(ValueError) as err:
+        ball.load_model(str(path))
+    assert str(err.value) == (f"{path}: not valid YAML: the key 'c_d' is given twice "
+                              f"(line {path.read_text().splitlines().index('  c_d: 0.54') + 1})")
+
+
 def _complete_model(tmp_path, edit):
     """A model file as tt-identify writes it (every field), changed by ``edit(data)``."""
     data = ball.ModelParams().to_dict()

@@ -23,6 +23,8 @@ import numpy as np
 from tt_ros.errors import one_line_reason
 import yaml
 
+from tt_ros import yamlfile
+
 STALE_CACHE_AGE = 86400.0
 """A kernel cache of other sources untouched for this long is removed, s."""
 KERNEL_SOURCES = ('params.py', 'model.py', 'integrate.py', 'table.py', 'predict.py')
@@ -453,7 +455,7 @@ class ModelParams:
         on bad content."""
         try:
             with open(path) as f:
-                data = yaml.safe_load(f)
+                data = yamlfile.safe_load(f)
         except OSError as exc:
             raise ValueError(f'{path}: cannot read model file: {exc.strerror}') from None
         except yaml.YAMLError as exc:

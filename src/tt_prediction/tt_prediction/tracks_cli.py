@@ -25,6 +25,8 @@ import numpy as np
 from tt_ros.errors import one_line_reason
 import yaml
 
+from tt_ros import yamlfile
+
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
 from .cli import add_version, hit_plane_error
@@ -94,7 +96,7 @@ def load_filter_config(path, tracks):
     if path:
         try:
             with open(path) as f:
-                data = yaml.safe_load(f) or {}
+                data = yamlfile.safe_load(f) or {}
         except OSError as exc:
             raise DataError(f'{path}: cannot read filter config: {exc.strerror}') from None
         except yaml.YAMLError as exc:

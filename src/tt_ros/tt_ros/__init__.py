@@ -5,4 +5,5 @@ declares, validates and applies its parameters, :mod:`tt_ros.messages` and
 :mod:`tt_ros.connections` logs when a node's input gets or loses its publishers,
 :mod:`tt_ros.shm` finds the Fast DDS shared memory a killed process left,
 :mod:`tt_ros.worktime` times a callback over its latest calls; :mod:`tt_ros.errors` gives an
-error's one-line reason (no rclpy)."""
+error's one-line reason and :mod:`tt_ros.yamlfile` reads tt's own YAML files (these two
+without rclpy)."""

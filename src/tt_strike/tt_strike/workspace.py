@@ -26,6 +26,8 @@ from tt_ros.errors import one_line_reason
 from tt_ros.index import package_prefix
 import yaml
 
+from tt_ros import yamlfile
+
 from .solver import MAX_RACKET_SPEED_RANGE
 
 
@@ -193,7 +195,7 @@ def load_workspace(path=None):
     except OSError as exc:
         raise WorkspaceError(f'{path}: cannot read: {exc.strerror}') from None
     try:
-        data = yaml.safe_load(text)
+        data = yamlfile.safe_load(text)
     except yaml.YAMLError as exc:
         raise WorkspaceError(f'{path}: not YAML: {one_line_reason(exc)}') from None
     try:
