@@ -412,9 +412,16 @@ class PredictionNode(Node):
     def _propagate(self, request):
         """Uncertainty worker: the track's zone probabilities and hit covariance."""
         track, state, cov, plane_x, bounced = request
+        if not np.any(cov):             # BallState's 'unknown', not an exactly known state
+            track.uncertainty = None
+            self.n_bad_covariance += 1
+            # Said once: a publisher that knows no covariance (the README's ros2 topic pub)
+            # is not one to warn of every second.
+            self.get_logger().info('a state with covariance all zeros (unknown): its '
+                                   'prediction carries probability 1 for its zone and no '
+                                   'hit covariance', once=True)
+            return
         try:
-            if not np.any(cov):         # BallState's 'unknown', not an exactly known state
-                raise ValueError('all zeros (unknown)')
             track.uncertainty = predict_uncertainty(state, cov, self.packed, 0.0, plane_x,
                                                     bounced=bounced)
         except ValueError as exc:
