@@ -19,7 +19,7 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
 from tt_ros.bagfile import BagError, BagWriter, TypeRegistry, open_bag
-from tt_ros.testing import unique_domain
+from tt_ros.testing import unique_domain, unique_prefix
 from tt_tools.rosutil import CliNode
 
 from tt_msgs.msg import BallState
@@ -163,6 +163,27 @@ def test_play_replays_content_and_timing_scaled_by_rate(recorded, graph, procs):
     graph.spin_until(lambda: len(got) == N_STATES, 60, 'the replayed states')
     assert play.wait() == 0, play.stderr
     assert [m for _, m in got] == sent['state']
+
+
+def test_play_waits_for_a_link_further_down_the_chain(recorded, graph, procs):
+    # A session replayed into prediction and strike: the player waited for prediction's
+    # subscription of /ball/state only, and the first ball's predictions went out before
+    # strike had found prediction (a ROS user's walk-through: ball 1 never struck).
+    out, topics, sent = recorded
+    link = f'{unique_prefix()}/prediction'
+    got = []
+    graph.node.create_subscription(BallState, topics['state'], got.append,
+                                   QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    graph.node.create_subscription(CameraInfo, topics['info'], lambda m: None,
+                                   qos_profile_sensor_data)
+    play = procs('bag', 'play', str(out), '--wait-for-subscribers', '--wait-for-topic', link)
+    graph.spin_until(lambda: f'not yet: {link})' in play.stderr, 60, 'the player to wait')
+    assert not got and play.proc.poll() is None
+    graph.node.create_publisher(BallState, link, 10)         # the link's two ends
+    graph.node.create_subscription(BallState, link, lambda m: None, 10)
+    graph.spin_until(lambda: len(got) == N_STATES, 60, 'the replayed states')
+    assert play.wait() == 0, play.stderr
+    assert got == sent['state']
 
 
 class _FakeTime:

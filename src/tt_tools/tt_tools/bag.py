@@ -108,6 +108,7 @@ def _playable(reader, topics):
 
 def bag_play(args):
     topics = {absolute_name(t) for t in args.topics or []}
+    chain = sorted({absolute_name(t) for t in args.wait_for_topic or []})
     reader = open_bag(args.bag)
     try:
         if reader.message_count == 0:
@@ -130,16 +131,22 @@ def bag_play(args):
             clock_pub = _clock_publisher(cli) if args.clock is not None else None
 
             def waiting():
-                out = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
-                if clock_pub is not None and (clock_pub.get_subscription_count()
-                                              < cli.node.count_subscribers('/clock')):
-                    out.append('/clock')
+                out = []
+                if args.wait_for_subscribers:
+                    out = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
+                    if clock_pub is not None and (clock_pub.get_subscription_count()
+                                                  < cli.node.count_subscribers('/clock')):
+                        out.append('/clock')
+                # Links further down the chain (prediction -> strike), which the player does
+                # not publish: the graph shows a publisher and a subscription of each.
+                out += [t for t in chain if not (cli.node.count_publishers(t)
+                                                 and cli.node.count_subscribers(t))]
                 return sorted(out)
 
-            if args.wait_for_subscribers and not cli.wait_saying(
+            if (args.wait_for_subscribers or chain) and not cli.wait_saying(
                     lambda: not waiting(),
-                    lambda: 'waiting for a subscriber on every topic (--wait-for-subscribers; '
-                            'none yet on ' + ', '.join(waiting()) + ')'):
+                    lambda: 'waiting for the graph (--wait-for-subscribers, --wait-for-topic; '
+                            'not yet: ' + ', '.join(waiting()) + ')'):
                 return 0
             if args.delay > 0:
                 cli.spin_until(timeout=args.delay)          # the delay, or a signal
@@ -226,6 +233,10 @@ def add_arguments(bag_sub):
     p.add_argument('--wait-for-subscribers', action='store_true',
                    help='(tt) wait until every topic has a matched subscription (with '
                         '--clock, /clock too: each node on sim time the graph shows)')
+    p.add_argument('--wait-for-topic', action='append', metavar='TOPIC',
+                   help='(tt) also wait until the graph shows a publisher and a subscription '
+                        'of TOPIC (a link further down the chain, e.g. /ball/prediction from '
+                        'prediction to strike); repeatable')
     p.add_argument('--clock', type=positive_float, nargs='?', const=40.0, default=None,
                    metavar='HZ',
                    help='publish the bag time on /clock at HZ (default 40 when given)')
