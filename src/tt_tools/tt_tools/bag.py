@@ -171,8 +171,8 @@ def bag_play(args):
             tick = None
             if clock_pub is not None:
                 tick = _publish_clock(cli, clock_pub, args.clock,
-                                      lambda: first + int((time.monotonic() - state['t0'])
-                                                          * args.rate * 1e9))
+                                      lambda: None if state.get('ended') else first + int(
+                                          (time.monotonic() - state['t0']) * args.rate * 1e9))
             while not cli.stopped:
                 state['t0'] = time.monotonic()
                 if tick is not None:
@@ -195,6 +195,7 @@ def bag_play(args):
             # A node's best-effort subscription of a reliable recording (a state from ros2
             # topic pub into prediction_node) lost the last state in 1 of 6 plays.
             if not cli.stopped:
+                state['ended'] = True           # the bag's time stops at its end
                 cli.spin_until(timeout=MARGIN_S)
     finally:
         reader.close()
@@ -211,12 +212,15 @@ def _clock_publisher(cli):
 
 
 def _publish_clock(cli, pub, rate_hz, bag_time_ns):
-    """Publish the bag time on ``pub`` (:func:`_clock_publisher`) at ``rate_hz``; returns the
-    function that publishes it once, now."""
+    """Publish the bag time on ``pub`` (:func:`_clock_publisher`) at ``rate_hz``, while
+    ``bag_time_ns()`` gives one (None: no more); returns the function that publishes it once,
+    now."""
     from rosgraph_msgs.msg import Clock
 
     def tick():
         ns = bag_time_ns()
+        if ns is None:                  # the play has ended
+            return
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
         pub.publish(msg)
