@@ -187,6 +187,14 @@ def coerce(spec, value):
     return out
 
 
+def _differs(value, parameter):
+    """Whether the coerced ``value`` differs from the rclpy Parameter ``parameter``'s value
+    or type: [1, 0] given for a list of floats equals [1.0, 0.0] in Python, and stayed an
+    integer array (ros2 param describe: integer array)."""
+    return (Parameter.Type.from_parameter_value(value) != parameter.type_
+            or value != parameter.value)
+
+
 def _in_range(spec, v):
     return (spec.lo is None or v >= spec.lo) and (spec.hi is None or v <= spec.hi)
 
@@ -258,8 +266,7 @@ class Parameters:
             raise ParameterError(reason)
         for spec in specs:
             value = self.values[spec.name]
-            current = node.get_parameter(spec.name).value
-            if type(value) is not type(current) or value != current:
+            if _differs(value, node.get_parameter(spec.name)):
                 node.set_parameters([Parameter(spec.name, value=value)])
             node.set_descriptor(spec.name, spec.descriptor())
         node.add_pre_set_parameters_callback(self._pre_set)
@@ -287,7 +294,7 @@ class Parameters:
                     value = coerce(spec, p.value)
                 except ParameterError:
                     value = None        # refused in _on_set, with its reason
-                if value is not None and (type(value) is not type(p.value) or value != p.value):
+                if value is not None and _differs(value, p):
                     p = Parameter(p.name, value=value)
             out.append(p)
         return out

@@ -403,6 +403,19 @@ def test_target_point_off_the_opponents_half_is_refused_whatever_the_zone():
         rclpy.try_shutdown(context=context)
 
 
+def test_a_list_of_whole_numbers_is_a_list_of_floats_as_a_number_is_a_float():
+    # -p target_point:="[1, 0]" left an integer array (ros2 param describe), which a client
+    # reading a double array fails on, where -p stale_after_s:=0 is 0.0 (a ROS user's
+    # walk-through).
+    double = Parameter.Type.DOUBLE_ARRAY
+    with Graph([Parameter('target_point', value=[1, 0])]) as g:
+        assert g.node.get_parameter('target_point').type_ == double
+        assert g.node.describe_parameter('target_point').type == double.value
+        result, = g.node.set_parameters([Parameter('target_point', value=[1, 0])])
+        assert result.successful
+        assert g.node.get_parameter('target_point').type_ == double
+
+
 def test_start_up_names_the_reach_and_the_racket_speed_limit_that_applies(tmp_path):
     # A user's workspace file said 1.0 m/s and max_racket_speed 8.0 (ros2 param get: 8.0):
     # the limit is the lower, 1.0, and nothing at start-up said so.
