@@ -41,3 +41,21 @@ def test_stamps_scattered_over_hours_warn_a_bounded_number_of_times():
     assert warnings[-1].startswith(f'stamps on more than {MAX_TIME_BASES} other time bases')
     assert len(check.warned) == MAX_TIME_BASES
     assert check(NOW + 1.0, NOW)                        # the clock's own still pass
+
+
+def test_messages_under_sim_time_with_no_clock_are_warned_of_once_when_it_lasts():
+    # use_sim_time on a live graph, no /clock: every time check was off without a word (a
+    # ROS user's walk-through). A replay's first messages before its first /clock are not.
+    from tt_ros.timebase import NO_CLOCK_S, NO_CLOCK_WARNING
+    wall = [100.0]
+    warnings = []
+    check = TimeBaseCheck(warnings.append, monotonic=lambda: wall[0])
+    for dt in (0.0, 0.5, NO_CLOCK_S - 0.01):
+        wall[0] = 100.0 + dt
+        assert not check(NOW + dt, 0.0)
+    assert warnings == []
+    for dt in (NO_CLOCK_S, NO_CLOCK_S + 5.0):
+        wall[0] = 100.0 + dt
+        assert not check(NOW + dt, 0.0)
+    assert warnings == [NO_CLOCK_WARNING]
+    assert check(NOW, NOW)                              # once a clock has come

@@ -7,10 +7,17 @@ time from 0 against the wall clock, a synthetic recording stamped in 2023 replay
 checks of age or lead time against the clock mean nothing for it.
 """
 
+import time
+
 TIME_BASE_MISMATCH_S = 3600.0
 """A stamp this far from the node clock, either way, is on another time base, s."""
 MAX_TIME_BASES = 4
 """Other time bases a :class:`TimeBaseCheck` warns of, one warning each."""
+NO_CLOCK_S = 2.0
+"""Messages coming this long (wall time) under use_sim_time with no /clock are warned of, s."""
+NO_CLOCK_WARNING = ('use_sim_time is true but no /clock has come: the time checks against the '
+                    'clock are off until one does (ros2 bag play --clock, perception_node '
+                    'publish_clock:=true), or run without use_sim_time')
 
 
 def same_time_base(stamp_s, now_s):
@@ -34,20 +41,35 @@ class TimeBaseCheck:
     base after it (an offset from the node clock more than TIME_BASE_MISMATCH_S from every
     one warned of: stamps 2 h ahead after stamps 2 h behind were not reported), up to
     :data:`MAX_TIME_BASES`; then one last warning says that no more are told (stamps
-    scattered over hours, a clock sending garbage, would otherwise warn on every message)."""
+    scattered over hours, a clock sending garbage, would otherwise warn on every message).
+    Messages that keep coming under use_sim_time with no /clock are warned of once: a user
+    who set use_sim_time on a live graph had every time check off without a word.
+    ``monotonic``: the wall clock (s) that times that."""
 
-    def __init__(self, warn):
+    def __init__(self, warn, monotonic=time.monotonic):
         self._warn = warn
+        self._monotonic = monotonic
         self.warned = []            # the offsets warned of, s (at most MAX_TIME_BASES)
         self.silent = False         # more time bases than those: no more warnings
+        self._no_clock_since = None     # wall time of the first message without a clock
+        self.no_clock_warned = False
 
     def __call__(self, stamp_s, now_s):
         """Whether ``stamp_s`` can be compared with the node clock's ``now_s`` (s, 0: no
-        /clock yet under use_sim_time, which is not warned about)."""
+        /clock yet under use_sim_time: warned of once, with NO_CLOCK_WARNING, when messages
+        have come for NO_CLOCK_S without one)."""
+        if not now_s:
+            wall = self._monotonic()
+            if self._no_clock_since is None:
+                self._no_clock_since = wall
+            elif not self.no_clock_warned and wall - self._no_clock_since >= NO_CLOCK_S:
+                self.no_clock_warned = True
+                self._warn(NO_CLOCK_WARNING)
+            return False
         if same_time_base(stamp_s, now_s):
             return True
         offset = stamp_s - now_s
-        if (now_s and not self.silent
+        if (not self.silent
                 and all(abs(offset - w) > TIME_BASE_MISMATCH_S for w in self.warned)):
             if len(self.warned) < MAX_TIME_BASES:
                 self.warned.append(offset)
