@@ -90,7 +90,8 @@ PARAMETERS = (
           'predictions each); in between the last result of the track is reused; 0: every '
           'state', 'Hz', 0.0, 2000.0),
     Param('stale_after_s', 0.5, 'drop states whose stamp is older than this against the node '
-          'clock (the clock of the recording with use_sim_time), or more than 1 s ahead of it; '
+          'clock (the clock of the recording with use_sim_time), or more than 1 s ahead of it '
+          '(a stamp over an hour off is on another time base: warned of once, not dropped); '
           '0: never drop', 's',
           0.0, 60.0),
     Param('path_rate_hz', 10.0, 'highest rate of /ball/predicted_path (and markers); 0: every '
