@@ -350,6 +350,18 @@ def test_a_rig_that_is_no_file_is_one_line_and_exit_2(tmp_path, missing, words):
     assert proc.stderr == f'bringup: --rig {rig}: {words}\n'
 
 
+def test_perception_without_a_rig_is_one_line_before_any_node_starts():
+    # robot.yaml without --rig: prediction and strike came up, then the graph stopped with
+    # perception_node's 'rig_file is empty' (a ROS user's walk-through).
+    proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file',
+                           str(CONFIG / 'robot.yaml')],
+                          capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    assert proc.stderr == ('bringup: perception_node has no rig: give --rig RIG (or rig_file '
+                           f'in the perception_node section of {CONFIG / "robot.yaml"})\n')
+    assert proc.stdout == ''                                    # no node was started
+
+
 def test_shipped_configs_name_only_declared_parameters():
     from tt_perception.node import PARAMETERS as PERCEPTION
     from tt_prediction.node import PARAMETERS as PREDICTION

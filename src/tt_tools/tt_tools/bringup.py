@@ -133,6 +133,18 @@ def nodes_in(params_file):
     return found
 
 
+def configured_rig(params_file):
+    """The rig_file that ``params_file`` (read by :func:`nodes_in`) gives perception_node,
+    in its own section or a ``/**`` one, or ''."""
+    with open(params_file) as f:
+        data = yaml.safe_load(f)
+    rig = ''
+    for key, value in data.items():
+        if str(key).lstrip('/') in ('**', 'perception_node', '**/perception_node'):
+            rig = value['ros__parameters'].get('rig_file', rig) or rig
+    return str(rig)
+
+
 def _signal_name(code):
     try:
         return signal.Signals(-code).name
@@ -440,6 +452,11 @@ def main(argv=None):
                 why = 'not a file' if os.path.exists(args.rig) else 'no such file'
                 raise BringupError(f'--rig {args.rig}: {why}')
             extra['perception_node'] = ['-p', f'rig_file:={os.path.abspath(args.rig)}']
+        elif 'perception_node' in nodes and not configured_rig(args.params_file):
+            # Checked before any node starts: prediction and strike came up, then the graph
+            # stopped with perception_node's 'rig_file is empty'.
+            raise BringupError(f'perception_node has no rig: give --rig RIG (or rig_file in '
+                               f'the perception_node section of {args.params_file})')
         bringup = Bringup(args.params_file, nodes, extra, args.restart_delay,
                           args.max_restarts, args.stop_timeout)
     except (BringupError, RunError) as exc:
