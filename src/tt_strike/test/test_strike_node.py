@@ -192,6 +192,23 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
                           'stroke): 1: 1/0 -, 2: 1/0 -, 3: 1/1 infeasible')
 
 
+def test_a_ball_without_a_hit_point_after_its_stroke_is_not_warned_of():
+    # Every ball of a replay logged 'prediction dropped: no hit point' once past the plane,
+    # after its stroke (a ROS user's walk-through); a ball never hittable still is.
+    with Graph() as g:
+        warned = []
+        g.node.warn = lambda key, period, text: warned.append(text)
+        g.pub.publish(prediction_msg(5))
+        g.spin_until(lambda: g.commands, 20.0, 'the stroke')
+        g.pub.publish(prediction_msg(5, hit_valid=False))
+        g.spin_until(lambda: g.node.n_received == 2, 10.0, 'the prediction after the stroke')
+        assert warned == [] and len(g.commands) == 1
+        g.pub.publish(prediction_msg(6, hit_valid=False))
+        g.spin_until(lambda: g.node.n_received == 3, 10.0, 'a ball with no hit point')
+        assert warned == ["prediction dropped: no hit point (prediction status 'net')"]
+        assert g.node.n_dropped == 2
+
+
 def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():
     # It used to be symmetrised and clipped without a word: a command with a made-up
     # in-zone probability.

@@ -323,7 +323,14 @@ class StrikeNode(Node):
         tally = self._tally(msg.track_id)
         tally.received += 1
         if not msg.hit_valid:
-            self._drop(f'no hit point (prediction status {msg.status!r})')
+            if tally.commands:
+                # The ball after its stroke (past the plane, 'no_hit'): what every ball
+                # does, not a warning each (a ROS user's walk-through).
+                self.n_dropped += 1
+                self.get_logger().debug(f'track {msg.track_id}: no hit point after its '
+                                        f'stroke (prediction status {msg.status!r})')
+            else:
+                self._drop(f'no hit point (prediction status {msg.status!r})')
             return
         stamp_ns = to_ns(msg.header.stamp)
         why = header_problem(stamp_ns, msg.header.frame_id)
