@@ -295,6 +295,9 @@ def test_node_process_stops_cleanly_on_signal(tmp_path, sig):
         err = proc.stderr.read()
         assert code == 0, err[-2000:]
         assert 'Traceback' not in err
+        # Its last line says what it did, as prediction_node's and strike_node's do.
+        assert err.strip().splitlines()[-1].endswith(
+            '0 frames, 0 states, 0 frame pairs dropped'), err[-2000:]
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -466,10 +466,7 @@ class PerceptionNode(Node):
             if frame.kind == END:
                 self._ended.add(frame.camera)
                 if self._files and self._ended >= set(self._files):
-                    self.get_logger().info(
-                        f'end of the video files: {self.frames_received} frames, '
-                        f'{self.states_published} states, {self.drops.pairs} frame pairs '
-                        'dropped')
+                    self.get_logger().info(f'end of the video files: {self.work_summary()}')
                     geometry = self.pipeline.geometry_warning()
                     if geometry:
                         self.get_logger().warning(geometry)
@@ -564,6 +561,12 @@ class PerceptionNode(Node):
                 self.get_logger().warning(f'camera {cam.name}: no frame for {timeout:.2f} s '
                                           f'from {cam.source}; waiting for it to come back')
 
+    def work_summary(self):
+        """One line of what the node has done: frames, states, frame pairs dropped (at the
+        end of the video files, and on exit)."""
+        return (f'{self.frames_received} frames, {self.states_published} states, '
+                f'{self.drops.pairs} frame pairs dropped')
+
     def _warn_once(self, key, text):
         if key not in self._warned:
             self._warned.add(key)
@@ -586,7 +589,8 @@ def _check_topic(name, what):
 
 
 def main(args=None):
-    run_node(PerceptionNode, args, name='perception_node', parameters=PARAMETERS)
+    run_node(PerceptionNode, args, name='perception_node', parameters=PARAMETERS,
+             on_exit=lambda node: node.get_logger().info(node.work_summary()))
 
 
 if __name__ == '__main__':
