@@ -318,6 +318,18 @@ def test_pkg_prefix_finds_the_shipped_configs():
     assert rc == 1 and error_lines(err) == ["ros2 pkg: Package 'no_such_pkg' not found"]
 
 
+@pytest.mark.parametrize('verb', ['service', 'launch'])
+def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
+    # argparse said "invalid choice" after `ros2 node info` had listed services (a ROS
+    # user's walk-through).
+    rc, out, err = ros2(verb, 'list')
+    assert rc == 2 and out == ''
+    said = error_lines(err)
+    assert len(said) == 1 and said[0].startswith(
+        f"ros2: '{verb}' is a verb of ros2cli that tt's ros2 command does not have")
+    assert 'docs/tools.md' in said[0]
+
+
 def test_echo_and_hz_say_what_they_wait_for(graph, procs, topic):
     """Issue 17: `echo` on a misspelled topic waited forever without a word."""
     pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))

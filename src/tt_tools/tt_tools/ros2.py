@@ -129,9 +129,21 @@ def _one_line(exc):
     return re.sub(r', at [^ ]+:[0-9]+$', '', text)
 
 
+ROS2CLI_ONLY = ('service', 'action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
+                'wtf', 'multicast', 'security', 'control')
+"""ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
+
+
 def _main(argv):
     from tt_tools.run import RunError
 
+    if argv[:1] and argv[0] in ROS2CLI_ONLY:
+        # argparse said only "invalid choice", after `ros2 node info` had listed services.
+        print(f"ros2: '{argv[0]}' is a verb of ros2cli that tt's ros2 command does not have "
+              '(ros2cli has no PyPI wheels; these are run, topic, node, param, interface, pkg '
+              'and bag: docs/tools.md); where ros2cli is installed, tt hands over to it',
+              file=sys.stderr)
+        return 2
     only_run = argv[:1] == ['run']
     parser = build_parser(only_run=only_run)
     args, extra = parser.parse_known_args(argv)
