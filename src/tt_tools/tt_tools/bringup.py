@@ -140,8 +140,10 @@ def configured_rig(params_file):
         data = yaml.safe_load(f)
     rig = ''
     for key, value in data.items():
-        if str(key).lstrip('/') in ('**', 'perception_node', '**/perception_node'):
-            rig = value['ros__parameters'].get('rig_file', rig) or rig
+        params = value['ros__parameters']
+        if str(key).lstrip('/') in ('**', 'perception_node', '**/perception_node') \
+                and isinstance(params, dict):
+            rig = params.get('rig_file', rig) or rig
     return str(rig)
 
 
