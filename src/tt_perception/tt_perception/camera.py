@@ -18,9 +18,8 @@ import numpy as np
 from tt_prediction.staged import replace_file
 from tt_prediction.units import translation_error
 from tt_ros.errors import one_line_reason
+from tt_ros.yamlfile import load_yaml
 import yaml
-
-from tt_ros import yamlfile
 
 # OpenCV 5 takes the criteria in undistortPoints; OpenCV 4 has them in undistortPointsIter.
 _undistort = getattr(cv2, 'undistortPointsIter', cv2.undistortPoints)
@@ -117,7 +116,7 @@ def read_yaml(path, what):
         raise CalibrationError(error)
     try:
         with open(path, encoding='utf-8') as f:
-            data = yamlfile.safe_load(f)
+            data = load_yaml(f)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise CalibrationError(
             f'{what} {path}: not readable YAML ({one_line_reason(exc)})') from None

@@ -21,9 +21,8 @@ import time
 import numba
 import numpy as np
 from tt_ros.errors import one_line_reason
+from tt_ros.yamlfile import load_yaml
 import yaml
-
-from tt_ros import yamlfile
 
 STALE_CACHE_AGE = 86400.0
 """A kernel cache of other sources untouched for this long is removed, s."""
@@ -455,7 +454,7 @@ class ModelParams:
         on bad content."""
         try:
             with open(path) as f:
-                data = yamlfile.safe_load(f)
+                data = load_yaml(f)
         except OSError as exc:
             raise ValueError(f'{path}: cannot read model file: {exc.strerror}') from None
         except yaml.YAMLError as exc:

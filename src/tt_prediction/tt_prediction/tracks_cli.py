@@ -23,9 +23,8 @@ import sys
 
 import numpy as np
 from tt_ros.errors import one_line_reason
+from tt_ros.yamlfile import load_yaml
 import yaml
-
-from tt_ros import yamlfile
 
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
@@ -96,7 +95,7 @@ def load_filter_config(path, tracks):
     if path:
         try:
             with open(path) as f:
-                data = yamlfile.safe_load(f) or {}
+                data = load_yaml(f) or {}
         except OSError as exc:
             raise DataError(f'{path}: cannot read filter config: {exc.strerror}') from None
         except yaml.YAMLError as exc:

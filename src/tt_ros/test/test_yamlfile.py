@@ -1,6 +1,6 @@
 import pytest
 from tt_ros.errors import one_line_reason
-from tt_ros.yamlfile import safe_load
+from tt_ros.yamlfile import load_yaml
 import yaml
 
 
@@ -8,18 +8,18 @@ def test_a_key_given_twice_is_refused_with_its_line():
     text = 'ball:\n  c_d: 0.5\n  mu: 0.2\n  c_d: 0.4\n'
     assert yaml.safe_load(text)['ball']['c_d'] == 0.4       # PyYAML keeps the last, silently
     with pytest.raises(yaml.YAMLError) as err:
-        safe_load(text)
+        load_yaml(text)
     assert one_line_reason(err.value) == "the key 'c_d' is given twice (line 4)"
 
 
 def test_it_reads_what_safe_load_reads():
     text = 'a: [1, 2.5, {b: x}]\nc: {d: null, e: true}\nf: 1e-3\n'
-    assert safe_load(text) == yaml.safe_load(text)
-    assert safe_load('') is None
+    assert load_yaml(text) == yaml.safe_load(text)
+    assert load_yaml('') is None
     # The same key in two mappings is not one given twice.
-    assert safe_load('a: {k: 1}\nb: {k: 2}\n') == {'a': {'k': 1}, 'b': {'k': 2}}
+    assert load_yaml('a: {k: 1}\nb: {k: 2}\n') == {'a': {'k': 1}, 'b': {'k': 2}}
 
 
 def test_it_constructs_only_what_safe_load_does():
     with pytest.raises(yaml.YAMLError):
-        safe_load('!!python/object/apply:os.system ["true"]\n')
+        load_yaml('!!python/object/apply:os.system ["true"]\n')

@@ -1,7 +1,7 @@
 """YAML of tt's own files (model.yaml, rigs, workspaces, filter settings), no rclpy.
 
 PyYAML's ``safe_load`` keeps the last of two values given to one key, without a word: a
-model.yaml with ``c_d`` twice ran with the second. :func:`safe_load` refuses it.
+model.yaml with ``c_d`` twice ran with the second. :func:`load_yaml` refuses it.
 """
 
 import yaml
@@ -30,7 +30,7 @@ def _unique_mapping(loader, node, deep=False):
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 
 
-def safe_load(stream):
+def load_yaml(stream):
     """``yaml.safe_load`` that raises a yaml.YAMLError for a key given twice in a mapping
     (its first line names the key and the line of its second value)."""
     return yaml.load(stream, Loader=_UniqueKeyLoader)      # noqa: S506 (a SafeLoader)

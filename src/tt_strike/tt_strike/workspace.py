@@ -24,9 +24,8 @@ import numpy as np
 from tt_prediction.units import ROOM_HALF_EXTENT_M
 from tt_ros.errors import one_line_reason
 from tt_ros.index import package_prefix
+from tt_ros.yamlfile import load_yaml
 import yaml
-
-from tt_ros import yamlfile
 
 from .solver import MAX_RACKET_SPEED_RANGE
 
@@ -195,7 +194,7 @@ def load_workspace(path=None):
     except OSError as exc:
         raise WorkspaceError(f'{path}: cannot read: {exc.strerror}') from None
     try:
-        data = yamlfile.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as exc:
         raise WorkspaceError(f'{path}: not YAML: {one_line_reason(exc)}') from None
     try:
