@@ -3,6 +3,7 @@
 
 import errno
 import os
+import re
 import tempfile
 
 import pytest
@@ -107,3 +108,40 @@ def test_a_missing_output_under_a_parent_that_takes_no_folder_is_an_error(tmp_pa
     with pytest.raises(PermissionError), staged_folder(tmp_path / 'out', 'tool'):
         pass
     assert not (tmp_path / 'out').exists()
+
+
+def test_in_place_no_file_is_lost_when_a_rename_fails(tmp_path, monkeypatch):
+    # The old files were removed before the new ones were moved in: a full disk (a 64 KB
+    # tmpfs) left 3 of 8 new rows, a 0-byte params.yaml and neither output (a review).
+    out = _earlier_output(tmp_path)
+    is_mount = os.path.ismount
+    monkeypatch.setattr(os.path, 'ismount', lambda p: p == str(out) or is_mount(p))
+    replace = os.replace
+
+    def failing(src, dst):          # the second of the two new files (in name order)
+        if dst.endswith('summary.json'):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), dst)
+        return replace(src, dst)
+
+    monkeypatch.setattr(os, 'replace', failing)
+    monkeypatch.setattr(staged.shutil, 'move', lambda src, dst: failing(src, dst))
+    with pytest.raises(OSError), staged_folder(out, 'tool') as tmp:
+        _write_new(tmp)
+    names = sorted(p.name for p in out.iterdir())
+    assert {'old.csv', 'summary.json'} <= set(names) and not any(n.startswith('.') for n in names)
+    assert (out / 'old.csv').read_text() == 'old\n'
+    assert (out / 'summary.json').read_text() == '{"old": 1}\n'
+    assert (out / 'new.csv').read_text() == 'new\n'              # the one renamed before
+
+
+def test_a_holder_a_killed_run_left_in_the_output_is_taken_and_removed(tmp_path, monkeypatch):
+    # Killed (SIGKILL) while staging inside its output, a run left .tt-tool-XXXX there, and
+    # the next run refused the folder as holding something not its own.
+    out = _earlier_output(tmp_path)
+    (out / '.tt-tool-abc123' / 'new').mkdir(parents=True)
+    assert staged.output_folder_error(str(out), re.compile(r'.+\.csv|summary\.json'),
+                                      'tool') == ''
+    _parent_takes_no_folder(tmp_path, monkeypatch)
+    with staged_folder(out, 'tt-tool') as tmp:
+        _write_new(tmp)
+    _holds_only_the_new_output(out)

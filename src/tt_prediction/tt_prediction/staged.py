@@ -59,7 +59,8 @@ def output_folder_error(out, ours, tool, csv_header=None):
         return f'--out {out}: not a folder'
     try:
         others = sorted(n for n in os.listdir(path)
-                        if not ours.fullmatch(n) or not _begins(path, n, csv_header))
+                        if not (ours.fullmatch(n) or _holder(path, n))
+                        or not _begins(path, n, csv_header))
     except OSError as exc:
         return f'--out {out}: cannot read: {exc.strerror}'
     if not others:
@@ -67,6 +68,12 @@ def output_folder_error(out, ours, tool, csv_header=None):
     more = f' and {len(others) - 1} more' if len(others) > 1 else ''
     return (f'--out {out}: holds {others[0]}{more}, not written by {tool} (it would be '
             'overwritten or removed): give a new folder')
+
+
+def _holder(folder, name):
+    """Whether ``name`` in ``folder`` is a temporary folder :func:`staged_folder` made there
+    (``.tt-<tool>-...``) and a killed run left: the next run removes it."""
+    return name.startswith('.tt-') and os.path.isdir(os.path.join(folder, name))
 
 
 def _begins(folder, name, csv_header):
@@ -121,28 +128,35 @@ def staged_folder(out_dir, prefix):
 
     An existing ``out_dir`` that cannot be swapped (a mount point, or a parent folder that
     takes no new folder) keeps its place and mode: the outputs are then written into a
-    temporary folder inside it, and only when they are all written do they replace its files
-    (the tools' output checks allow nothing else there), one by one.
+    temporary folder inside it (on its file system), and once they are all written each
+    takes the place of the file of its name (``os.replace``: whole, old or new), then the
+    earlier output's other files are removed. An interruption during those renames (a few
+    milliseconds) can leave a mix of the two outputs, never a half-written file; an error
+    before them leaves ``out_dir`` as it was.
     """
     out_dir = os.path.abspath(out_dir)
     parent = os.path.dirname(out_dir)
     os.makedirs(parent, exist_ok=True)
     # A private holder (mkdtemp: a unique name, mode 0700) next to out_dir; the folder that
     # becomes out_dir is made in it by mkdir, so that it gets the umask's mode, not 0700.
-    try:
-        holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=parent)
-    except OSError:
-        if not os.path.isdir(out_dir):
-            raise
+    holder = None
+    if not os.path.isdir(out_dir) or not os.path.ismount(out_dir):
+        try:
+            holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=parent)
+        except OSError:
+            if not os.path.isdir(out_dir):
+                raise
+    in_place = holder is None
+    if in_place:
         holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=out_dir)
     tmp = os.path.join(holder, 'new')
     try:
         os.mkdir(tmp)
         yield tmp
-        if not os.path.exists(out_dir):
-            os.rename(tmp, out_dir)
-        elif os.path.dirname(holder) == out_dir or os.path.ismount(out_dir):
+        if in_place:
             _replace_contents(out_dir, tmp, holder)
+        elif not os.path.exists(out_dir):
+            os.rename(tmp, out_dir)
         else:
             previous = os.path.join(holder, 'previous')
             try:
@@ -160,14 +174,22 @@ def staged_folder(out_dir, prefix):
 
 
 def _replace_contents(out_dir, new, holder):
-    """Replace what ``out_dir`` holds (``holder`` aside) by the entries of ``new``."""
+    """Put each entry of ``new`` in the place of ``out_dir``'s of that name, then remove
+    ``out_dir``'s others (``holder`` aside; an earlier run's holder too)."""
+    names = set(os.listdir(new))
+    for name in sorted(names):
+        src, dst = os.path.join(new, name), os.path.join(out_dir, name)
+        if os.path.isdir(dst) and not os.path.islink(dst):
+            shutil.rmtree(dst)
+        try:
+            os.replace(src, dst)
+        except OSError:                 # another file system (a bind mount): copied
+            shutil.move(src, dst)
     for name in os.listdir(out_dir):
         path = os.path.join(out_dir, name)
-        if path == holder:
+        if name in names or path == holder:
             continue
         if os.path.isdir(path) and not os.path.islink(path):
             shutil.rmtree(path)
         else:
             os.remove(path)
-    for name in os.listdir(new):
-        shutil.move(os.path.join(new, name), os.path.join(out_dir, name))
