@@ -249,10 +249,10 @@ class PredictionNode(Node):
             self._drop(why)
             return
         stale = self.p.stale_after_s
-        now_ns = self.get_clock().now().nanoseconds if stale > 0.0 else 0
-        if stale > 0.0 and not now_ns:  # use_sim_time, no /clock yet: nothing to compare
+        now_ns = self.get_clock().now().nanoseconds
+        if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
             self.time_base(stamp_ns * 1e-9, 0.0)         # (said once if it lasts)
-        if now_ns:
+        elif stale > 0.0:
             age = (now_ns - stamp_ns) * 1e-9
             if self.time_base(stamp_ns * 1e-9, now_ns * 1e-9):
                 if age > stale:

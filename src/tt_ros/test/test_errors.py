@@ -1,15 +1,16 @@
 import errno
 
+import pytest
 from tt_ros.errors import one_line_reason
 import yaml
 
 
-def test_a_yaml_error_gives_its_first_line():
-    try:
+def test_a_yaml_error_gives_its_problem_and_line():
+    # The first line of PyYAML's text is only the context ('while parsing a flow sequence').
+    with pytest.raises(yaml.YAMLError) as err:
         yaml.safe_load('version: [garbage\n')
-    except yaml.YAMLError as exc:
-        assert '\n' in str(exc)             # the parser's text spans several lines
-        assert one_line_reason(exc) == str(exc).splitlines()[0].strip()
+    assert '\n' in str(err.value)                  # the parser's text spans several lines
+    assert one_line_reason(err.value) == "expected ',' or ']', but got '<stream end>' (line 2)"
 
 
 def test_an_os_error_gives_its_strerror():

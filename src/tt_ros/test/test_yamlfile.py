@@ -23,3 +23,14 @@ def test_it_reads_what_safe_load_reads():
 def test_it_constructs_only_what_safe_load_does():
     with pytest.raises(yaml.YAMLError):
         load_yaml('!!python/object/apply:os.system ["true"]\n')
+
+
+def test_merge_keys_read_as_safe_load_reads_them():
+    # '<<: *base' failed ('could not determine a constructor ... merge'): a review.
+    text = ('base: &b {c_d: 0.5, mu: 0.2}\n'
+            'one: {<<: *b, c_d: 0.4}\n'
+            'two: {<<: [*b, {e_t: 0.9}]}\n')
+    assert load_yaml(text) == yaml.safe_load(text)
+    assert load_yaml(text)['one'] == {'c_d': 0.4, 'mu': 0.2}
+    with pytest.raises(yaml.YAMLError):
+        load_yaml('one: {<<: {a: 1}, c_d: 0.4, c_d: 0.3}\n')

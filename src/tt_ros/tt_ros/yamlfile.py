@@ -14,6 +14,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 def _unique_mapping(loader, node, deep=False):
     seen = set()
     for key_node, _ in node.value:
+        if key_node.tag == 'tag:yaml.org,2002:merge':
+            continue                    # '<<: *base': its keys may be given again here
         key = loader.construct_object(key_node, deep=deep)
         try:
             twice = key in seen
@@ -21,9 +23,8 @@ def _unique_mapping(loader, node, deep=False):
         except TypeError:           # an unhashable key: construct_mapping names it
             break
         if twice:
-            line = key_node.start_mark.line + 1
             raise yaml.constructor.ConstructorError(
-                None, None, f'the key {key!r} is given twice (line {line})', key_node.start_mark)
+                None, None, f'the key {key!r} is given twice', key_node.start_mark)
     return loader.construct_mapping(node, deep=deep)
 
 
@@ -32,5 +33,5 @@ _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
 
 def load_yaml(stream):
     """``yaml.safe_load`` that raises a yaml.YAMLError for a key given twice in a mapping
-    (its first line names the key and the line of its second value)."""
+    (its problem names the key, its mark the line of the second)."""
     return yaml.load(stream, Loader=_UniqueKeyLoader)      # noqa: S506 (a SafeLoader)

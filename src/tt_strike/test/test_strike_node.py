@@ -200,13 +200,17 @@ def test_a_ball_without_a_hit_point_after_its_stroke_is_not_warned_of():
         g.node.warn = lambda key, period, text: warned.append(text)
         g.pub.publish(prediction_msg(5))
         g.spin_until(lambda: g.commands, 20.0, 'the stroke')
-        g.pub.publish(prediction_msg(5, hit_valid=False))
+        past = prediction_msg(5, hit_valid=False)
+        past.status = 'no_hit'                      # predicted from beyond the plane
+        g.pub.publish(past)
         g.spin_until(lambda: g.node.n_received == 2, 10.0, 'the prediction after the stroke')
         assert warned == [] and len(g.commands) == 1
+        # A struck ball now predicted into the net, and a ball never hittable, are told.
+        g.pub.publish(prediction_msg(5, hit_valid=False))
         g.pub.publish(prediction_msg(6, hit_valid=False))
-        g.spin_until(lambda: g.node.n_received == 3, 10.0, 'a ball with no hit point')
-        assert warned == ["prediction dropped: no hit point (prediction status 'net')"]
-        assert g.node.n_dropped == 2
+        g.spin_until(lambda: g.node.n_received == 4, 10.0, 'the balls with no hit point')
+        assert warned == ["prediction dropped: no hit point (prediction status 'net')"] * 2
+        assert g.node.n_dropped == 3
 
 
 def test_a_bad_hit_covariance_drops_the_prediction_and_zeros_mean_unknown():

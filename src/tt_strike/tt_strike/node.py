@@ -323,9 +323,11 @@ class StrikeNode(Node):
         tally = self._tally(msg.track_id)
         tally.received += 1
         if not msg.hit_valid:
-            if tally.commands:
-                # The ball after its stroke (past the plane, 'no_hit'): what every ball
-                # does, not a warning each (a ROS user's walk-through).
+            stamp = to_ns(msg.header.stamp) * 1e-9
+            if (tally.commands and msg.status == 'no_hit'
+                    and 0.0 <= stamp - tally.stamp <= NEW_BALL_GAP_S):
+                # The struck ball past the plane: what every ball does once struck, not a
+                # warning each (a ROS user's walk-through); a new ball under its id is not.
                 self.n_dropped += 1
                 self.get_logger().debug(f'track {msg.track_id}: no hit point after its '
                                         f'stroke (prediction status {msg.status!r})')

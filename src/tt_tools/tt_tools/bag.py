@@ -150,10 +150,13 @@ def bag_play(args):
                 return sorted(out)
 
             if args.wait_for_subscribers or chain:
+                options = ', '.join(o for o, on in (('--wait-for-subscribers',
+                                                     args.wait_for_subscribers),
+                                                    ('--wait-for-topic', chain)) if on)
                 if not cli.wait_saying(
                         lambda: not waiting(),
-                        lambda: 'waiting for the graph (--wait-for-subscribers, '
-                                '--wait-for-topic; not yet: ' + ', '.join(waiting()) + ')'):
+                        lambda: f'waiting for the graph ({options}; not yet: '
+                                + ', '.join(waiting()) + ')'):
                     return 0
                 # The player has matched each subscription; the subscriber matches the player
                 # in turn, a moment later, and a message sent before drops (1-2 of 40 states

@@ -142,8 +142,8 @@ def configured_rig(params_file):
     for key, value in data.items():
         params = value['ros__parameters']
         if str(key).lstrip('/') in ('**', 'perception_node', '**/perception_node') \
-                and isinstance(params, dict):
-            rig = params.get('rig_file', rig) or rig
+                and isinstance(params, dict) and 'rig_file' in params:
+            rig = params['rig_file'] or ''          # a later section wins, as in rcl
     return str(rig)
 
 

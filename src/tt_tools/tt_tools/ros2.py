@@ -2,7 +2,8 @@
 is not installed.
 
 Where a real ros2cli is importable, ``main`` hands the whole command line to it (set
-``TT_ROS2_NO_HANDOVER=1`` to keep tt's own). Errors are one line on stderr and exit 1.
+``TT_ROS2_NO_HANDOVER=1`` to keep tt's own). Errors are one line on stderr and exit 1
+(usage errors, a ros2cli verb tt does not have: exit 2, as argparse's).
 """
 
 import argparse
@@ -130,7 +131,7 @@ def _one_line(exc):
 
 
 ROS2CLI_ONLY = ('service', 'action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
-                'wtf', 'multicast', 'security', 'control')
+                'wtf', 'multicast', 'security', 'extensions', 'extension_points')
 """ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
 
 

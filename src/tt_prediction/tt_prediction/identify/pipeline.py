@@ -327,29 +327,28 @@ def bound_warnings(globals_, physical, spin_measured):
     ball's value either (the baseline's drag, lift, restitution, friction), not an effect
     switched off."""
     lo, hi = globals_.bounds()
+    spin = ', the measured spin (index.csv) in rad/s' if spin_measured else ''
     out = []
-    for i, name in enumerate(globals_.names):
-        if name == fitting.SPIN_SCALE:
-            continue
-        v, tol = globals_.values[i], 1e-3 * (hi[i] - lo[i])
-        if hi[i] - v < tol or (v - lo[i] < tol and (lo[i] != 0.0 or name in physical)):
-            spin = ', the measured spin (index.csv) in rad/s' if spin_measured else ''
-            out.append(f'{name} = {v:.4g} was fitted at a bound of its plausible range '
-                       f'({lo[i]:g} to {hi[i]:g}): the bound set it, not the data; are the '
-                       f'positions in metres{spin} and both in the table frame?')
+    for name in _at_bound(globals_, [n for n in globals_.names if n != fitting.SPIN_SCALE],
+                          physical):
+        i = globals_.names.index(name)
+        out.append(f'{name} = {globals_.values[i]:.4g} was fitted at a bound of its plausible '
+                   f'range ({lo[i]:g} to {hi[i]:g}): the bound set it, not the data; are the '
+                   f'positions in metres{spin} and both in the table frame?')
     return out
 
 
-def _at_bound(globals_, params):
+def _at_bound(globals_, params, physical=()):
     """The parameters fitted at (within 0.1 % of the range of) a bound of their declared
-    plausible range: the bound, not the data, set their value."""
+    plausible range: the bound, not the data, set their value. A lower bound of 0 counts
+    only for the names in ``physical`` (elsewhere it is an effect switched off)."""
     lo, hi = globals_.bounds()
     out = []
     for p in params:
         i = globals_.names.index(p)
         tol = 1e-3 * (hi[i] - lo[i])
         v = globals_.values[i]
-        if (v - lo[i] < tol and lo[i] != 0.0) or hi[i] - v < tol:
+        if (v - lo[i] < tol and (lo[i] != 0.0 or p in physical)) or hi[i] - v < tol:
             out.append(p)
     return out
 
