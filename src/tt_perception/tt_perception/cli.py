@@ -91,23 +91,23 @@ def bag_frames(rig, bag, notes=None):
             if notes is not None:
                 notes.append(f'{bag}: no sensor_msgs/Image for camera(s) {names}: the '
                              'others triangulate alone')
-        for conn in conns:
-            for _, _, raw in reader.messages(connections=[conn]):
-                first = reader.deserialize(raw, conn.msgtype)
-                cam = rig.cameras[topics[conn.topic]]
-                if (first.width, first.height) != (cam.width, cam.height):
-                    raise InputError(f'{bag}: camera {cam.name} ({conn.topic}): images '
-                                     f'{first.width}x{first.height}, its calibration '
-                                     f'{cam.width}x{cam.height}')
-                break
+        sized = set()               # cameras whose first image had its calibration's size
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
+            k = topics[conn.topic]
+            if k not in sized:
+                cam = rig.cameras[k]
+                if (msg.width, msg.height) != (cam.width, cam.height):
+                    raise InputError(f'{bag}: camera {cam.name} ({conn.topic}): images '
+                                     f'{msg.width}x{msg.height}, its calibration '
+                                     f'{cam.width}x{cam.height}')
+                sized.add(k)
             t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             try:
                 frame = image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
             except ValueError:
                 frame = None          # the pipeline reports the camera's missing frame
-            yield t, topics[conn.topic], frame
+            yield t, k, frame
     finally:
         reader.close()
 

@@ -140,7 +140,7 @@ def staged_folder(out_dir, prefix):
     # A private holder (mkdtemp: a unique name, mode 0700) next to out_dir; the folder that
     # becomes out_dir is made in it by mkdir, so that it gets the umask's mode, not 0700.
     holder = None
-    if not os.path.isdir(out_dir) or not os.path.ismount(out_dir):
+    if not os.path.ismount(out_dir):             # False for a missing folder too
         try:
             holder = tempfile.mkdtemp(prefix=f'.{prefix}-', dir=parent)
         except OSError:

@@ -71,26 +71,27 @@ NOISE_RATIO = 10.0
 """A position_noise set this many times off the tracks' own scatter, either way, is warned of."""
 
 
-def noise_warning(config, tracks, path):
-    """One line when ``config``'s position_noise (set in the file ``path``) is over
-    NOISE_RATIO times off the tracks' own scatter (a millimetre value read as metres
-    weighed each sample as if 1 m off: 124 mm at 50 ms instead of 6), else ''."""
-    est, _ = measured_noise(tracks)
+def noise_warning(position_noise, est, path):
+    """One line when the ``position_noise`` (m) set in the file ``path`` is over NOISE_RATIO
+    times off the tracks' own scatter ``est`` (m, NaN: unknown) (a millimetre value read as
+    metres weighed each sample as if 1 m off: 124 mm at 50 ms instead of 6), else ''."""
     if not (math.isfinite(est) and est > 0.0):
         return ''
-    ratio = config.position_noise / est
+    ratio = position_noise / est
     if 1.0 / NOISE_RATIO <= ratio <= NOISE_RATIO:
         return ''
-    return (f'{path}: position_noise {config.position_noise:g} m is {ratio:.3g} times the '
+    return (f'{path}: position_noise {position_noise:g} m is {ratio:.3g} times the '
             f"{est * 1e3:.2f} mm the tracks' own scatter gives: is it in metres? ('auto' "
             'takes that estimate)')
 
 
-def load_filter_config(path, tracks):
+def load_filter_config(path, tracks, warnings=None):
     """FilterConfig from a YAML mapping of its fields (``path``), or the defaults; a
     ``position_noise`` or ``stamp_noise`` of ``auto`` (the default) is estimated from the data
     (:func:`tt_prediction.ball_filter.estimate_measurement_noise`), or takes FilterConfig's
-    default where the tracks are too short for that (no 7 samples of a moving ball)."""
+    default where the tracks are too short for that (no 7 samples of a moving ball). A
+    ``warnings`` list gets :func:`noise_warning`'s line for a position_noise set in the
+    file (the estimate made once for both)."""
     data = {}
     if path:
         try:
@@ -108,8 +109,10 @@ def load_filter_config(path, tracks):
         raise DataError(f'{path}: unknown filter setting(s) {", ".join(unknown)}')
     noise = data.pop('position_noise', 'auto')
     stamp = data.pop('stamp_noise', 'auto')
-    if 'auto' in (noise, stamp):
+    checked = noise != 'auto' and warnings is not None
+    if 'auto' in (noise, stamp) or checked:
         est_noise, est_stamp = measured_noise(tracks)
+        scatter = est_noise
         if not math.isfinite(est_noise):       # no 7 samples of a moving ball: the defaults
             est_noise, est_stamp = FilterConfig.position_noise, FilterConfig.stamp_noise
         noise = est_noise if noise == 'auto' else noise
@@ -152,6 +155,8 @@ def load_filter_config(path, tracks):
                               stamp_noise=typed('stamp_noise', stamp))
     except (TypeError, ValueError) as exc:
         raise DataError(f'{path or "filter config"}: {exc}') from None
+    if checked:
+        warnings += [w for w in [noise_warning(config.position_noise, scatter, path)] if w]
     return config
 
 
@@ -254,14 +259,14 @@ def _main(argv=None):
     try:
         params = load_model(args.model)
         tracks = read_tracks(args.tracks)
-        config = load_filter_config(args.filter_config, tracks)
+        noted = []
+        config = load_filter_config(args.filter_config, tracks, noted)
     except ValueError as exc:                  # DataError is a ValueError
         print(f'tt-predict: {exc}', file=sys.stderr)
         return 2
     warnings = frame_warnings([(name, t, p) for name, t, p, _ in tracks], params,
                               args.hit_plane_x)
-    if args.filter_config:
-        warnings += [w for w in [noise_warning(config, tracks, args.filter_config)] if w]
+    warnings += noted
     learning = Learning(config, params)     # with --no-learn unused: the configured values
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,

@@ -114,13 +114,13 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
                    f'{HALF_LENGTH:g} m, |y| <= {HALF_WIDTH:g} m): are the tracks in {FRAME}?')
     xs = [p[np.isfinite(p[:, 0]), 0] for _, _, p in tracks]
     xs = [x for x in xs if len(x)]
-    if xs and not any(np.any(np.diff(np.sign(x - hit_plane_x))) for x in xs):
+    directions = [d for _, t, p in tracks for d in [first_crossing_direction(
+        *_finite_sorted(t, p), hit_plane_x)] if d]
+    if xs and not directions:
         out.append(f'no track crosses the hitting plane x = {hit_plane_x:g} m (the tracks '
                    f'span x = {min(x.min() for x in xs):.2f} to {max(x.max() for x in xs):.2f}'
                    f' m): are the tracks in {FRAME}, and is {plane_option} right?')
-    directions = [d for _, t, p in tracks for d in [first_crossing_direction(
-        *_finite_sorted(t, p), hit_plane_x)] if d]
-    if directions and all(d > 0 for d in directions):
+    elif directions and all(d > 0 for d in directions):
         out.append(f'every track that crosses the hitting plane x = {hit_plane_x:g} m '
                    f'({len(directions)} of {n}) moves along +x there, away from the robot, '
                    f'where an incoming ball moves along -x: are the tracks in {FRAME}?')
