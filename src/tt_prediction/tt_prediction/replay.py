@@ -265,7 +265,10 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
 
 
 POST_BOUNCE_WINDOW = (0.004, 0.09)
-"""Samples this long after the located bounce (s) give the measured rebound velocity."""
+"""Samples this long after the located bounce (s) give the measured rebound velocity; the
+window is longer where it would hold fewer than REBOUND_SAMPLES samples."""
+REBOUND_SAMPLES = 6
+"""Samples the rebound velocity's quadratic fit needs (at 60 Hz, 0.09 s held five)."""
 
 
 def _before_bounce(rp, params, config):
@@ -298,12 +301,13 @@ def _rebound_velocity(rp, config):
     measured apart from any filter: a quadratic fit in time to the samples
     :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm:
     a racket hit ends the flight), at the bounce. ``(v (3,), variance per axis)`` (m/s,
-    (m/s)^2), or None (fewer than 6 samples)."""
+    (m/s)^2), or None (fewer than REBOUND_SAMPLES samples)."""
     tb = rp.robot_bounce.t
-    sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0])
-                         & (rp.t < tb + POST_BOUNCE_WINDOW[1]))
+    step = float(np.median(np.diff(rp.t))) if len(rp.t) > 1 else 0.0
+    end = max(POST_BOUNCE_WINDOW[1], POST_BOUNCE_WINDOW[0] + (REBOUND_SAMPLES + 0.5) * step)
+    sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0]) & (rp.t < tb + end))
     while True:                 # drop the window's end until one flight explains it (racket)
-        if len(sel) < 6:
+        if len(sel) < REBOUND_SAMPLES:
             return None
         dt = rp.t[sel] - tb
         A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)

@@ -36,7 +36,11 @@ MAX_GAP = 0.15
 BOUNCE_HEIGHT = 0.05
 """A bounce is a minimum of z lower than this above the contact height (ball centre), m."""
 CONTACT_WINDOW = 0.06
-"""Samples within this time of a contact are used to fit the flight on each side, s."""
+"""Samples within this time of a contact are used to fit the flight on each side, s (at
+least CONTACT_SAMPLES sample intervals)."""
+CONTACT_SAMPLES = 4.5
+"""Sample intervals (the median around the contact) the contact window spans at least: four
+samples a side, as a quadratic fit and its residual need (at 60 Hz, 0.06 s held three)."""
 SPLIT_WINDOW = 0.01
 """The contact is looked for between samples within this time of the lowest one, s (at
 500 Hz noise can put a sample just after the contact lower than the one before it)."""
@@ -164,7 +168,10 @@ def locate_bounce(t, p, i):
     and the first after contact.
     """
     t_ref = t[i]
-    near = np.abs(t - t_ref) <= CONTACT_WINDOW
+    steps = np.diff(t[max(i - 5, 0):i + 6])
+    reach = max(CONTACT_WINDOW, CONTACT_SAMPLES * float(np.median(steps))) if len(steps) \
+        else CONTACT_WINDOW
+    near = np.abs(t - t_ref) <= reach
     best = None
     window = np.flatnonzero(np.abs(t - t_ref) <= SPLIT_WINDOW + 1e-9)
     around = t[max(window[0] - 1, 0):window[-1] + 2]
