@@ -249,6 +249,7 @@ class Parameters:
         self.check = check
         self.apply = apply
         self.values = Values()
+        self._source = None
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, ParameterDescriptor(
                 description=spec.description, dynamic_typing=True))
@@ -284,6 +285,19 @@ class Parameters:
     def __getitem__(self, name):
         return self.values[name]
 
+    def set_from(self, source, parameters):
+        """Set ``parameters`` (rclpy Parameters) at once, as a message on topic ``source``
+        asks: a refusal is logged once, as ``<source> ignored: <reason>`` (not also as a
+        refused ``ros2 param set``). Returns rclpy's SetParametersResult."""
+        self._source = source
+        try:
+            result = self.node.set_parameters_atomically(parameters)
+        finally:
+            self._source = None
+        if not result.successful:
+            self.node.get_logger().warning(f'{source} ignored: {result.reason}')
+        return result
+
     def _pre_set(self, parameters):
         """Coerce what can be (an int for a float): the value keeps its parameter's type."""
         out = []
@@ -310,7 +324,8 @@ class Parameters:
         except ParameterError as exc:
             reason = str(exc)
         if reason:
-            self.node.get_logger().warning(f'parameter refused: {reason}')
+            if self._source is None:            # set_from logs it, naming its topic
+                self.node.get_logger().warning(f'parameter refused: {reason}')
             # rclpy has already given the stored descriptor of a dynamically typed parameter
             # the refused value's type (Node._apply_descriptor, before the callbacks): the
             # kept value's type goes back, or `ros2 param describe` says what was refused.

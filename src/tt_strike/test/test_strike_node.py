@@ -126,6 +126,20 @@ def test_prediction_gives_a_command_that_lands_in_the_zone():
         assert {m.ns for m in g.markers[0].markers} == {'strike'}
 
 
+class _Recorder:
+    """A node's logger whose warnings are also kept in ``logged``."""
+
+    def __init__(self, logger, logged):
+        self.logger, self.logged = logger, logged
+
+    def warning(self, text, **kwargs):
+        self.logged.append(text)
+        return self.logger.warning(text, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self.logger, name)
+
+
 def test_target_topic_and_parameter_change_the_zone():
     with Graph() as g:
         target = StrikeTarget()
@@ -134,6 +148,9 @@ def test_target_topic_and_parameter_change_the_zone():
         g.spin_until(lambda: g.node.target[0] == 9, 10.0, 'the target from the topic')
         # The parameter shows the target in use (ros2 param get, dump).
         assert g.node.get_parameter('target_zone').value == 9
+        logged = []
+        logger = g.node.get_logger()
+        g.node.get_logger = lambda: _Recorder(logger, logged)
         bad = StrikeTarget()
         bad.zone = 10                                    # ignored with a warning
         g.pub_target.publish(bad)
@@ -163,6 +180,15 @@ def test_target_topic_and_parameter_change_the_zone():
                      'the point from the topic')
         g.pub.publish(prediction_msg(3))               # after both: same reliable queue
         g.spin_until(lambda: len(g.commands) == 3, 20.0, 'a third command')
+        # One line for each bad target (the point on the robot's half was also logged as a
+        # refused parameter set), and one for the refused `ros2 param set` above.
+        topic = g.node.sub_target.topic_name
+        assert [line.split(': ')[:2] for line in logged] == [
+            [f'{topic} ignored', 'Parameter target_zone out of range. Min'],
+            ['parameter refused', 'target_point (-0.300, 0.000) m is not inside the '
+             "opponent's half (0 < x < 1.37 m, |y| < 0.7625 m)"],
+            [f'{topic} ignored', 'target_point (-0.500, 0.300) m is not inside the '
+             "opponent's half (0 < x < 1.37 m, |y| < 0.7625 m)"]]
         assert g.node.get_parameter('target_zone').value == 0
         assert list(g.node.get_parameter('target_point').value) == [0.5, 0.3]
         assert g.commands[2].target_point.x == 0.5

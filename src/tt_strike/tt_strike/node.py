@@ -260,9 +260,7 @@ class StrikeNode(Node):
         values = [Parameter('target_zone', value=int(msg.zone))]
         if not msg.zone:
             values.append(Parameter('target_point', value=[msg.point.x, msg.point.y]))
-        result = self.set_parameters_atomically(values)
-        if not result.successful:
-            self.get_logger().warning(f'{self.sub_target.topic_name} ignored: {result.reason}')
+        self.p.set_from(self.sub_target.topic_name, values)      # a refusal is logged once
 
     # --- predictions --------------------------------------------------------------------
 
