@@ -181,6 +181,17 @@ def test_help_lists_every_parameter_with_its_range_and_starts_nothing(package, e
             assert shown == ('true' if p.default else 'false'), (p.name, shown)
 
 
+def test_help_after_ros_args_is_the_same_help():
+    # `ros2 run tt_strike strike_node --ros-args --help` said 'unknown ROS arguments'
+    # (a ROS user's walk-through): rcl has no --help, the node's is meant.
+    runs = [subprocess.run(['ros2', 'run', 'tt_strike', 'strike_node'] + args,
+                           capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
+                           stdin=subprocess.DEVNULL)
+            for args in (['--help'], ['--ros-args', '-p', 'target_zone:=3', '--help'])]
+    assert [r.returncode for r in runs] == [0, 0], runs[1].stderr
+    assert runs[1].stdout == runs[0].stdout and 'target_zone = 5' in runs[0].stdout
+
+
 def test_a_parameter_given_without_ros_args_is_named_in_a_warning():
     # rclpy ignores `-p name:=value` before --ros-args; the node says so instead of starting
     # silently on the default. It still starts: a bad value given after --ros-args stops it

@@ -264,22 +264,23 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     stderr (``name``: the executable's name by default). A signal that comes while the node
     starts (compiling its kernels, say) stops it once started.
 
-    ``-h`` or ``--help`` before ``--ros-args`` prints :func:`node_help` of ``parameters``
-    and exits 0. Other arguments outside ``--ros-args`` (``-p x:=1`` without it, say), which
-    rclpy ignores, are named in a warning on stderr.
+    ``-h`` or ``--help``, before or after ``--ros-args``, prints :func:`node_help` of
+    ``parameters`` and exits 0. Other arguments outside ``--ros-args`` (``-p x:=1`` without
+    it, say), which rclpy ignores, are named in a warning on stderr.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
     argv = list(sys.argv if args is None else args)
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
+    # Help also after --ros-args, where rcl knows no such flag (`--ros-args --help`).
+    if '-h' in argv[1:] or '--help' in argv[1:]:
+        package = getattr(make_node, '__module__', '').split('.')[0] or '<package>'
+        print(node_help(name, parameters, package), flush=True)
+        raise SystemExit(0)
     try:
         rest = check_ros_args(argv)
     except StartupError as exc:
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         raise SystemExit(STARTUP_EXIT) from None
-    if '-h' in rest or '--help' in rest:
-        package = getattr(make_node, '__module__', '').split('.')[0] or '<package>'
-        print(node_help(name, parameters, package), flush=True)
-        raise SystemExit(0)
     if rest:
         print(f'{name}: warning: ignoring {" ".join(rest)}: node parameters go after '
               '--ros-args (--ros-args -p NAME:=VALUE)', file=sys.stderr, flush=True)
