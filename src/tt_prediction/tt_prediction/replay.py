@@ -299,9 +299,10 @@ def _before_bounce(rp, params, config):
 def _rebound_velocity(rp, config):
     """The velocity just after a finished track's located bounce on the robot's half,
     measured apart from any filter: a quadratic fit in time to the samples
-    :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm:
-    a racket hit ends the flight), at the bounce. ``(v (3,), variance per axis)`` (m/s,
-    (m/s)^2), or None (fewer than REBOUND_SAMPLES samples)."""
+    :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm,
+    sigma from position_noise and, at the fitted speed, stamp_noise: a racket hit ends the
+    flight), at the bounce. ``(v (3,), covariance (3, 3))`` (m/s, (m/s)^2), or None (fewer
+    than REBOUND_SAMPLES samples)."""
     tb = rp.robot_bounce.t
     step = float(np.median(np.diff(rp.t))) if len(rp.t) > 1 else 0.0
     end = max(POST_BOUNCE_WINDOW[1], POST_BOUNCE_WINDOW[0] + (REBOUND_SAMPLES + 0.5) * step)
@@ -312,16 +313,20 @@ def _rebound_velocity(rp, config):
         dt = rp.t[sel] - tb
         A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
         coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
-        if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * config.position_noise + 2e-3:
+        # A sample's error: its position noise and, along v, its stamp's jitter.
+        jitter = config.stamp_noise * coef[1]
+        sigma = math.sqrt(config.position_noise ** 2 + float(jitter @ jitter))
+        if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * sigma + 2e-3:
             break
         sel = sel[:-2]
-    return coef[1], config.position_noise ** 2 * float(np.linalg.inv(A.T @ A)[1, 1])
+    sample_cov = config.position_noise ** 2 * np.eye(3) + np.outer(jitter, jitter)
+    return coef[1], float(np.linalg.inv(A.T @ A)[1, 1]) * sample_cov
 
 
 def bounce_reading(rp, params, config):
     """What a finished track shows at its located bounce on the robot's half, read once for
     :func:`bounce_spin_observation` and :func:`lift_observation`: ``(filter, start
-    velocity, rebound velocity, its variance per axis)``, the filter (a BallFilter,
+    velocity, rebound velocity, its covariance)``, the filter (a BallFilter,
     ``config``'s prior) taken over the samples before the bounce (:func:`_before_bounce`)
     and on to the model's contact, the start velocity the axes of its spin prior, the
     rebound velocity :func:`_rebound_velocity`'s; or None where either is None."""
@@ -360,7 +365,7 @@ def bounce_spin_observation(rp, params, config, reading=None):
     x_out, S = rebound_map(xc, bf.P_model)
     Sv = S[3:6]
     Cwv = Cc[6:] @ Sv.T
-    Svv = Sv @ Cc @ Sv.T + np.eye(3) * (config.bounce_velocity_noise ** 2 + var_fit)
+    Svv = Sv @ Cc @ Sv.T + np.eye(3) * config.bounce_velocity_noise ** 2 + var_fit
     K = Cwv @ np.linalg.inv(Svv)
     m = xc[6:] + K @ (v_meas - x_out[3:6])
     C = Cc[6:, 6:] - K @ Cwv.T
@@ -529,6 +534,7 @@ def lift_observation(rp, params, config, reading=None):
     along = v_in[:2] / speed
     axis = np.array([-along[1], along[0], 0.0])             # n x v_h: top/back spin
     var_in = float(along @ bf.P[3:5, 3:5] @ along)
+    var_out = float(along @ var_out[:2, :2] @ along)
     change_sd = math.sqrt(var_in + var_out)
     sliding = params.mu * (1.0 - v_out[2] / v_in[2]) * -v_in[2]
     if np.linalg.norm(v_out[:2] - v_in[:2]) > GRIP_MARGIN * sliding - 2.0 * change_sd:
