@@ -146,8 +146,15 @@ def test_tracks_moving_away_from_the_robot_are_named_in_a_warning():
     # a hitting plane on the robot's side, outgoing, and nothing was said.
     tracks = make_tracks(6, TRUE, seed=3)
     assert frame_warnings(_named(tracks), TRUE, -1.0) == []
-    warnings = frame_warnings(_moved(tracks, lambda p: p * [-1.0, -1.0, 1.0]), TRUE, -1.0)
-    assert any('moves along +x there, away from the robot' in w for w in warnings), warnings
+    turned = _moved(tracks, lambda p: p * [-1.0, -1.0, 1.0])
+    warnings = frame_warnings(turned, TRUE, -1.0)
+    assert any('6 of the 6 tracks that cross the hitting plane x = -1 m move along +x there, '
+               'away from the robot' in w for w in warnings), warnings
+    # One incoming track among them (mpi_pam turned: 48 of 50, two starting past the plane)
+    # kept the set from the warning; one outgoing track among incoming ones gives none.
+    warnings = frame_warnings(turned + _named(tracks[1:2]), TRUE, -1.0)
+    assert any('6 of the 7 tracks' in w for w in warnings), warnings
+    assert frame_warnings(_named(tracks) + turned[:1], TRUE, -1.0) == []
 
 
 def test_a_few_tracks_turning_upwards_above_the_table_are_enough_for_a_warning():
