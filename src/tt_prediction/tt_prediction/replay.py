@@ -215,7 +215,9 @@ def _ground_truth(name, t, p, params, plane_x):
     tc, pc, notes = clean_samples(name, t, p)
     if len(tc) < 3:
         return tc, pc, [], None
-    seg, bounces = segment(Track(name, tc, pc, None, '', notes), params.radius)
+    # Any length: a track seen from 100 ms before its bounce still has a crossing to score
+    # (tt-identify wants 0.2 s of flight to fit; the replay does not fit it).
+    seg, bounces = segment(Track(name, tc, pc, None, '', notes), params.radius, min_duration=0.0)
     if seg is None:
         tt, pp = drop_outliers(tc, pc, {}, params.radius)
         return tt, pp, [], None

@@ -249,7 +249,7 @@ def _too_little(t, notes, notes_out):
             + (f' ({steps})' if steps else ''))
 
 
-def segment(track, radius=0.02, notes_out=None):
+def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
     Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track;
@@ -257,8 +257,9 @@ def segment(track, radius=0.02, notes_out=None):
     velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it;
     so does a bounce located off the table's outline (the model's ball bounces only with its
     centre over the table: such a bounce is data in another frame, or an edge ball).
-    Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left; then the
-    samples each step removed are added to the dict ``notes_out`` when given.
+    Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left (under eight
+    samples, or a span under ``min_duration``, s); then the samples each step removed are
+    added to the dict ``notes_out`` when given.
     """
     notes = dict(track.notes)
     t, p = drop_outliers(track.t, track.p, notes, radius)
@@ -311,7 +312,7 @@ def segment(track, radius=0.02, notes_out=None):
         _count(notes, why, len(t) - end)
         t, p = t[:end], p[:end]
         bounces = [b for b in bounces if b.t < t[-1]]
-    if len(t) < 8 or t[-1] - t[0] < MIN_DURATION:
+    if len(t) < 8 or t[-1] - t[0] < min_duration:
         return None, _too_little(t, notes, notes_out)
     out = Track(track.name, t, p, track.spin, track.label, notes, track.spin_source)
     return out, bounces
