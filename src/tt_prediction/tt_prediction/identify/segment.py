@@ -47,6 +47,9 @@ SPLIT_WINDOW = 0.01
 GRAVITY = 9.81
 """m/s^2: a ball leaving the table at vz cannot touch it again before about 2 vz / g (half
 of it is waited for: a lower bound, which a set's own g within 5 % does not move)."""
+HIT_WINDOW = 0.033
+"""The velocities compared at each sample for a contact away from the table are fitted over
+this time on either side, s (3 to 6 samples)."""
 HIT_TURN = 0.5
 """A contact away from the table (racket, net, hand) turns the velocity: the cosine between
 the velocities fitted before and after it falls below this."""
@@ -273,13 +276,18 @@ def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
         t, p = t[:below[0]], p[:below[0]]
     # Contacts away from the table: racket hits (direction reversal), net, hand.
     if len(t) > 12:
-        cos = _turn_cosines(t, p)
+        # Line fits over HIT_WINDOW a side, 3 to 6 samples (6 from 180 Hz on; 6 at 45 Hz
+        # reached 110-135 ms back from a racket contact and cut the flight there).
+        half = int(np.clip(round(HIT_WINDOW / np.median(np.diff(t))), 3, 6))
+        cos = _turn_cosines(t, p, half)
         # Away from the table: no sample of either fitting window near the surface.
-        z_low = np.array([p[max(i - 6, 0):i + 6, 2].min() for i in range(len(t))])
+        z_low = np.array([p[max(i - half, 0):i + half, 2].min() for i in range(len(t))])
         hits = np.flatnonzero((cos < HIT_TURN) & (z_low > radius + BOUNCE_HEIGHT))
         if len(hits):
-            _count(notes, 'samples_after_racket_contact', len(t) - hits[0] + 1)
-            t, p = t[:hits[0] - 1], p[:hits[0] - 1]
+            # The contact: at the sharpest turn from there on, give or take a sample.
+            end = hits[0] + int(np.argmin(cos[hits[0]:hits[0] + half + 1])) - 1
+            _count(notes, 'samples_after_racket_contact', len(t) - end)
+            t, p = t[:end], p[:end]
     if len(t) < 8:
         return None, _too_little(t, notes, notes_out)
     bounces = []
