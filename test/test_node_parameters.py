@@ -187,9 +187,12 @@ def test_help_after_ros_args_is_the_same_help():
     runs = [subprocess.run(['ros2', 'run', 'tt_strike', 'strike_node'] + args,
                            capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S,
                            stdin=subprocess.DEVNULL)
-            for args in (['--help'], ['--ros-args', '-p', 'target_zone:=3', '--help'])]
-    assert [r.returncode for r in runs] == [0, 0], runs[1].stderr
+            for args in (['--help'], ['--ros-args', '-p', 'target_zone:=3', '--help'],
+                         ['--ros-args', '--log-level', '-h'])]
+    assert [r.returncode for r in runs] == [0, 0, 2], runs[1].stderr
     assert runs[1].stdout == runs[0].stdout and 'target_zone = 5' in runs[0].stdout
+    # A ROS flag's value is not a request for help: rcl's to refuse, in one line.
+    assert runs[2].stdout == '' and len(runs[2].stderr.strip().splitlines()) == 1
 
 
 def test_a_parameter_given_without_ros_args_is_named_in_a_warning():

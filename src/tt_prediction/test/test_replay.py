@@ -739,11 +739,12 @@ def test_default_command_meets_issue_14_on_mpi_launcher(tmp_path):
 
 
 def test_stamps_jittered_by_2_ms_still_teach_the_spin_prior(tmp_path):
-    """A camera stamped on arrival (2 ms of jitter at 180 Hz: 1.3 cm along an 6 m/s path):
+    """A camera stamped on arrival (2 ms of jitter at 180 Hz: 1.2 cm along a 6 m/s path):
     the rebound velocity's fit kept only samples within 4 position_noise + 2 mm of it, so it
-    shrank below six samples on every track and none taught the spin prior (a researcher's
-    walk-through: mpi_pam 300 ms 35 -> 64 mm). A sample's error along v holds the stamp's
-    jitter too (stamp_noise, which the tracks' scatter gives)."""
+    shrank below six samples on every track here and none taught the spin prior (a
+    researcher's walk-through: on mpi_pam so jittered, 10 of 50 did, and the 300 ms error
+    went from 35 to 64 mm). A sample's error along v holds the stamp's jitter too
+    (stamp_noise, which the tracks' scatter gives)."""
     rng = np.random.default_rng(11)
     tracks = []
     for i, s in enumerate(_states(12, rng)):

@@ -144,6 +144,13 @@ class FilterConfig:
                 if f.name not in _SIGNED and v < 0.0:
                     raise ValueError(f'{f.name} must be >= 0, not {v}')
 
+    def sample_cov(self, velocity):
+        """Covariance (3, 3) of a measured position of a ball moving with ``velocity`` (m/s):
+        ``position_noise``^2 I, and along v its stamp's jitter, ``stamp_noise``^2 v v^T
+        (m^2)."""
+        jitter = self.stamp_noise * np.asarray(velocity, dtype=float)
+        return self.position_noise ** 2 * np.eye(3) + np.outer(jitter, jitter)
+
     def spin_prior_axes(self):
         """Prior standard deviations of the spin (top/back, side, along v), rad/s: the
         ``spin_prior*`` fields with their defaults filled in."""
@@ -782,11 +789,7 @@ class TrackFilter:
             self.robot_bounces = 0
         if f is not None:
             self._predict(t)
-            R = self._R
-            if cfg.stamp_noise > 0.0:
-                v = f.x[3:6, None] * cfg.stamp_noise
-                R = R + v @ v.T
-            if f.update(p, R, rebounce=True):
+            if f.update(p, cfg.sample_cov(f.x[3:6]), rebounce=True):
                 self.nis.append(f.last_d2)
                 self.updates += 1
                 self.rejects = 0

@@ -302,9 +302,9 @@ def _rebound_velocity(rp, config):
     """The velocity just after a finished track's located bounce on the robot's half,
     measured apart from any filter: a quadratic fit in time to the samples
     :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm,
-    sigma from position_noise and, at the fitted speed, stamp_noise: a racket hit ends the
-    flight), at the bounce. ``(v (3,), covariance (3, 3))`` (m/s, (m/s)^2), or None (fewer
-    than REBOUND_SAMPLES samples)."""
+    sigma position_noise across v and, along it, with stamp_noise at the fitted speed too: a
+    racket hit ends the flight), at the bounce. ``(v (3,), covariance (3, 3))`` (m/s,
+    (m/s)^2), or None (fewer than REBOUND_SAMPLES samples)."""
     tb = rp.robot_bounce.t
     step = float(np.median(np.diff(rp.t))) if len(rp.t) > 1 else 0.0
     end = max(POST_BOUNCE_WINDOW[1], POST_BOUNCE_WINDOW[0] + (REBOUND_SAMPLES + 0.5) * step)
@@ -315,14 +315,17 @@ def _rebound_velocity(rp, config):
         dt = rp.t[sel] - tb
         A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
         coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
-        # A sample's error: its position noise and, along v, its stamp's jitter.
-        jitter = config.stamp_noise * coef[1]
-        sigma = math.sqrt(config.position_noise ** 2 + float(jitter @ jitter))
-        if np.max(np.abs(rp.p[sel] - A @ coef)) < 4.0 * sigma + 2e-3:
+        # A sample's error: its position noise and, along v only, its stamp's jitter.
+        residual = rp.p[sel] - A @ coef
+        speed = float(np.linalg.norm(coef[1]))
+        along = residual @ coef[1] / speed if speed > 0.0 else np.zeros(len(sel))
+        across = residual - np.outer(along, coef[1] / speed) if speed > 0.0 else residual
+        sigma_along = math.hypot(config.position_noise, config.stamp_noise * speed)
+        if (np.max(np.abs(along)) < 4.0 * sigma_along + 2e-3
+                and np.max(np.abs(across)) < 4.0 * config.position_noise + 2e-3):
             break
         sel = sel[:-2]
-    sample_cov = config.position_noise ** 2 * np.eye(3) + np.outer(jitter, jitter)
-    return coef[1], float(np.linalg.inv(A.T @ A)[1, 1]) * sample_cov
+    return coef[1], float(np.linalg.inv(A.T @ A)[1, 1]) * config.sample_cov(coef[1])
 
 
 def bounce_reading(rp, params, config):
@@ -528,7 +531,7 @@ def lift_observation(rp, params, config, reading=None):
     reading = reading or bounce_reading(rp, params, config)
     if reading is None:
         return None
-    bf, _, v_out, var_out = reading
+    bf, _, v_out, cov_out = reading
     v_in = bf.x[3:6]
     speed = math.hypot(v_in[0], v_in[1])
     if v_in[2] > -MIN_IMPACT_SPEED or v_out[2] <= 0.0 or speed < MIN_IMPACT_SPEED:
@@ -536,7 +539,7 @@ def lift_observation(rp, params, config, reading=None):
     along = v_in[:2] / speed
     axis = np.array([-along[1], along[0], 0.0])             # n x v_h: top/back spin
     var_in = float(along @ bf.P[3:5, 3:5] @ along)
-    var_out = float(along @ var_out[:2, :2] @ along)
+    var_out = float(along @ cov_out[:2, :2] @ along)
     change_sd = math.sqrt(var_in + var_out)
     sliding = params.mu * (1.0 - v_out[2] / v_in[2]) * -v_in[2]
     if np.linalg.norm(v_out[:2] - v_in[:2]) > GRIP_MARGIN * sliding - 2.0 * change_sd:

@@ -163,6 +163,11 @@ def shared_parameter_names(args, node_path):
     return shared - own
 
 
+ROS_VALUE_FLAGS = ('-p', '--param', '-r', '--remap', '--params-file', '--log-level',
+                   '--log-file-name', '--log-config-file', '-e', '--enclave')
+"""rcl's flags after --ros-args that take the next argument as their value."""
+
+
 def check_ros_args(args=None):
     """Raise :class:`StartupError` with one line if rcl cannot use the ROS arguments of
     ``args`` (None: ``sys.argv``): a ``--params-file`` that cannot be read, is not YAML or is
@@ -271,8 +276,10 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     name = name or os.path.basename(sys.argv[0] or 'node')
     argv = list(sys.argv if args is None else args)
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
-    # Help also after --ros-args, where rcl knows no such flag (`--ros-args --help`).
-    if '-h' in argv[1:] or '--help' in argv[1:]:
+    # Help also after --ros-args, where rcl knows no such flag (`--ros-args --help`); not
+    # the value of a ROS flag (`--log-level -h` is rcl's to refuse).
+    if any(arg in ('-h', '--help') and argv[i] not in ROS_VALUE_FLAGS
+           for i, arg in enumerate(argv[1:])):
         package = getattr(make_node, '__module__', '').split('.')[0] or '<package>'
         print(node_help(name, parameters, package), flush=True)
         raise SystemExit(0)

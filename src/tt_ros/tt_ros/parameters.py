@@ -289,11 +289,11 @@ class Parameters:
         """Set ``parameters`` (rclpy Parameters) at once, as a message on topic ``source``
         asks: a refusal is logged once, as ``<source> ignored: <reason>`` (not also as a
         refused ``ros2 param set``). Returns rclpy's SetParametersResult."""
-        self._source = source
+        outer, self._source = self._source, source       # nested calls keep their own
         try:
             result = self.node.set_parameters_atomically(parameters)
         finally:
-            self._source = None
+            self._source = outer
         if not result.successful:
             self.node.get_logger().warning(f'{source} ignored: {result.reason}')
         return result

@@ -124,8 +124,7 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
         out.append(f'no track crosses the hitting plane x = {hit_plane_x:g} m (the tracks '
                    f'span x = {min(x.min() for x in xs):.2f} to {max(x.max() for x in xs):.2f}'
                    f' m): are the tracks in {FRAME}, and is {plane_option} right?')
-    elif sum(d > 0 for d in directions) > AWAY_SHARE * len(directions):
-        away = sum(d > 0 for d in directions)
+    elif (away := sum(d > 0 for d in directions)) > AWAY_SHARE * len(directions):
         out.append(f'{away} of the {len(directions)} tracks that cross the hitting plane x = '
                    f'{hit_plane_x:g} m move along +x there, away from the robot, where an '
                    f'incoming ball moves along -x: are the tracks in {FRAME}?')

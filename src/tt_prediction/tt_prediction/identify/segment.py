@@ -278,13 +278,15 @@ def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
     if len(t) > 12:
         # Line fits over HIT_WINDOW a side, 3 to 6 samples (6 from 180 Hz on; 6 at 45 Hz
         # reached 110-135 ms back from a racket contact and cut the flight there).
-        half = int(np.clip(round(HIT_WINDOW / np.median(np.diff(t))), 3, 6))
+        step = float(np.median(np.diff(t)))
+        half = int(np.clip(round(HIT_WINDOW / step), 3, 6)) if step > 0.0 else 6
         cos = _turn_cosines(t, p, half)
         # Away from the table: no sample of either fitting window near the surface.
         z_low = np.array([p[max(i - half, 0):i + half, 2].min() for i in range(len(t))])
         hits = np.flatnonzero((cos < HIT_TURN) & (z_low > radius + BOUNCE_HEIGHT))
         if len(hits):
-            # The contact: at the sharpest turn from there on, give or take a sample.
+            # The contact is before the sharpest turn from there on (its first sample after
+            # the contact, without noise); one more sample is left out as a margin for noise.
             end = hits[0] + int(np.argmin(cos[hits[0]:hits[0] + half + 1])) - 1
             _count(notes, 'samples_after_racket_contact', len(t) - end)
             t, p = t[:end], p[:end]
