@@ -765,7 +765,8 @@ def test_a_set_sampled_at_60_hz_still_measures_its_crossings_and_learns_its_spin
     crossings are measured, and the rebound velocity over at least six samples after it
     teaches the spin prior (at 60 Hz, 90 ms held five: no track taught it, and the hit
     300 ms ahead, before the bounce, was 82 mm off)."""
-    rows = list(csv.DictReader(open(LAUNCHER / 'index.csv')))
+    with open(LAUNCHER / 'index.csv') as f:
+        rows = list(csv.DictReader(f))
     sparse = []
     for row in rows:
         data = np.loadtxt(LAUNCHER / row['file'], delimiter=',', skiprows=1, usecols=(0, 1, 2, 3))
