@@ -365,14 +365,14 @@ def test_perception_without_a_rig_is_one_line_before_any_node_starts():
 def test_the_rig_a_params_file_gives_perception_is_its_last_sections(tmp_path):
     # rcl lets a later section override an earlier one: a /** rig followed by
     # perception_node's '' is no rig (bringup took the /** one, and perception failed later).
-    from tt_tools.bringup import configured_rig
+    from tt_tools.bringup import configured_rig, read_params
     path = tmp_path / 'params.yaml'
     path.write_text("/**:\n  ros__parameters:\n    rig_file: /some/rig.yaml\n"
                     "perception_node:\n  ros__parameters:\n    rig_file: ''\n")
-    assert configured_rig(str(path)) == ''
+    assert configured_rig(read_params(str(path))) == ''
     path.write_text('perception_node:\n  ros__parameters:\n    rig_file: /a.yaml\n'
                     '/**:\n  ros__parameters:\n    use_sim_time: true\n')
-    assert configured_rig(str(path)) == '/a.yaml'
+    assert configured_rig(read_params(str(path))) == '/a.yaml'
 
 
 def test_shipped_configs_name_only_declared_parameters():

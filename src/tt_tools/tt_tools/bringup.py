@@ -106,10 +106,9 @@ def say(text):
     emit(f'bringup: {text}')
 
 
-def nodes_in(params_file):
-    """The tt nodes a ROS parameters file names (in the order of ``NODES``); all of them
-    when it only has a ``/**`` section. BringupError with one line when the file cannot
-    be read or names none."""
+def read_params(params_file):
+    """The sections of a ROS parameters file: {section name: its ros__parameters}.
+    BringupError with one line when the file cannot be read or is not such a file."""
     try:
         with open(params_file) as f:
             data = yaml.safe_load(f)
@@ -121,10 +120,17 @@ def nodes_in(params_file):
         raise BringupError(f'{params_file}: not valid YAML{where}') from None
     if not isinstance(data, dict):
         raise BringupError(f'{params_file}: {NOT_PARAMS}')
-    names = [str(k).lstrip('/') for k in data]
     for key, value in data.items():
         if not isinstance(value, dict) or 'ros__parameters' not in value:
             raise BringupError(f'{params_file}: {key}: no ros__parameters')
+    return {str(key): value['ros__parameters'] for key, value in data.items()}
+
+
+def nodes_in(sections, params_file):
+    """The tt nodes that the parameters file ``params_file`` (its :func:`read_params`
+    ``sections``) names, in the order of ``NODES``; all of them when it only has a ``/**``
+    section. BringupError with one line when it names none."""
+    names = [key.lstrip('/') for key in sections]
     found = [n for n in NODES if n in names]
     if not found and '**' in names:
         found = list(NODES)
@@ -133,15 +139,12 @@ def nodes_in(params_file):
     return found
 
 
-def configured_rig(params_file):
-    """The rig_file that ``params_file`` (read by :func:`nodes_in`) gives perception_node,
-    in its own section or a ``/**`` one, or ''."""
-    with open(params_file) as f:
-        data = yaml.safe_load(f)
+def configured_rig(sections):
+    """The rig_file that a parameters file's ``sections`` (:func:`read_params`) give
+    perception_node, in its own section or a ``/**`` one, or ''."""
     rig = ''
-    for key, value in data.items():
-        params = value['ros__parameters']
-        if str(key).lstrip('/') in ('**', 'perception_node', '**/perception_node') \
+    for key, params in sections.items():
+        if key.lstrip('/') in ('**', 'perception_node', '**/perception_node') \
                 and isinstance(params, dict) and 'rig_file' in params:
             rig = params['rig_file'] or ''          # a later section wins, as in rcl
     return str(rig)
@@ -438,7 +441,8 @@ def parse_args(argv):
 def main(argv=None):
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        nodes = nodes_in(args.params_file)
+        sections = read_params(args.params_file)
+        nodes = nodes_in(sections, args.params_file)
         if args.nodes is not None:                    # '' names no node: refused too
             wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
             unknown = [n for n in wanted if n not in nodes]
@@ -454,7 +458,7 @@ def main(argv=None):
                 why = 'not a file' if os.path.exists(args.rig) else 'no such file'
                 raise BringupError(f'--rig {args.rig}: {why}')
             extra['perception_node'] = ['-p', f'rig_file:={os.path.abspath(args.rig)}']
-        elif 'perception_node' in nodes and not configured_rig(args.params_file):
+        elif 'perception_node' in nodes and not configured_rig(sections):
             # Checked before any node starts: prediction and strike came up, then the graph
             # stopped with perception_node's 'rig_file is empty'.
             raise BringupError(f'perception_node has no rig: give --rig RIG (or rig_file in '
