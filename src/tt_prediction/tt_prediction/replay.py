@@ -318,8 +318,9 @@ def _rebound_velocity(rp, config):
         # A sample's error: its position noise and, along v only, its stamp's jitter.
         residual = rp.p[sel] - A @ coef
         speed = float(np.linalg.norm(coef[1]))
-        along = residual @ coef[1] / speed if speed > 0.0 else np.zeros(len(sel))
-        across = residual - np.outer(along, coef[1] / speed) if speed > 0.0 else residual
+        heading = coef[1] / speed if speed > 0.0 else np.zeros(3)
+        along = residual @ heading
+        across = residual - np.outer(along, heading)
         sigma_along = math.hypot(config.position_noise, config.stamp_noise * speed)
         if (np.max(np.abs(along)) < 4.0 * sigma_along + 2e-3
                 and np.max(np.abs(across)) < 4.0 * config.position_noise + 2e-3):
