@@ -738,6 +738,35 @@ def test_default_command_meets_issue_14_on_mpi_launcher(tmp_path):
     assert all(err[str(lead)]['missing'] == 0 for lead in LEADS_MS)
 
 
+def test_spin_given_in_revolutions_or_a_turned_frame_is_warned_of(tmp_path, capsys):
+    """index.csv's measured spin is read as rad/s in the table frame and held by the filter
+    to 5 rad/s. Given in rev/s (a researcher's walk-through: accepted silently) or turned
+    about z, the tracks' own flights and bounces, read without it, show 2 pi or -1 times it:
+    one warning line. In rad/s: none."""
+    rng = np.random.default_rng(7)
+    tracks = [(f'{i:04d}.csv', *_track(s, rng, noise=0.5e-3), s[6:9])
+              for i, s in enumerate(_states(12, rng))]
+    said = {}
+    for case, scale in (('rad', 1.0), ('rev', 1.0 / (2.0 * np.pi)), ('turned', -1.0)):
+        folder = tmp_path / case
+        _write(folder, [track[:3] for track in tracks])
+        with open(folder / 'index.csv', 'w') as f:
+            f.write('file,wx,wy,wz,label\n')
+            for name, _, _, spin in tracks:
+                f.write(f'{name},' + ','.join(f'{v * scale:.4f}' for v in spin) + ',synthetic\n')
+        assert main(['--tracks', str(folder), '--out', str(tmp_path / f'out_{case}'),
+                     '--hit-plane-x', str(PLANE), '--no-textbook']) == 0
+        said[case] = [line for line in capsys.readouterr().err.splitlines()
+                      if 'index.csv' in line]
+    assert said['rad'] == []
+    for case, ratio in (('rev', 2.0 * np.pi), ('turned', -1.0)):
+        assert len(said[case]) == 1
+        line = said[case][0]
+        assert line.startswith(f"tt-predict: warning: {tmp_path / case / 'index.csv'}: ")
+        shown = float(line.split(' show ')[1].split(' times')[0])
+        assert shown == pytest.approx(ratio, rel=0.1)
+
+
 def test_stamps_jittered_by_2_ms_still_teach_the_spin_prior(tmp_path):
     """A camera stamped on arrival (2 ms of jitter at 180 Hz: 1.2 cm along a 6 m/s path):
     the rebound velocity's fit kept only samples within 4 position_noise + 2 mm of it, so it

@@ -31,6 +31,7 @@ from .ball_filter import (
     TrackFilter,
     rebound_map,
     spin_likelihood_per_axis,
+    velocity_frame,
 )
 from .identify.data import Track, clean_samples
 from .identify.segment import drop_outliers, segment
@@ -376,6 +377,51 @@ def bounce_spin_observation(rp, params, config, reading=None):
     m = xc[6:] + K @ (v_meas - x_out[3:6])
     C = Cc[6:, 6:] - K @ Cwv.T
     return spin_likelihood_per_axis(m, C, bf.spin_prior_cov(v0), v0, bf.spin_prior_mean(v0))
+
+
+SPIN_RATIO_RANGE = (0.4, 2.5)
+"""The spin the tracks' flights and bounces show, over the spin index.csv gives, outside this
+range is warned of: a Magnus coefficient off by half reads the spin within it; rev/s read as
+rad/s is 2 pi, a frame turned about z is negative."""
+
+
+def given_spin_warning(replays, spins, params, config, index='index.csv', min_tracks=5):
+    """One line when the spins ``index`` (a path) gives (``spins``: per replay, (3,) rad/s in
+    the table frame, or None) disagree in scale or sign with what the tracks' own flights and
+    bounces show (:func:`bounce_spin_observation`, ``config``'s prior: never the given spin),
+    else ''.
+
+    On the axes across the velocity (top/back, side), where flight's curvature measures the
+    spin, the given spin g and the tracks' reading y (variance s^2) of every track with
+    both give the weighted slope b = sum(y g / s^2) / sum(g^2 / s^2). Warned when at least
+    ``min_tracks`` tracks take part and b is outside :data:`SPIN_RATIO_RANGE` by more than
+    three of its standard errors.
+    """
+    num = den = 0.0
+    used = 0
+    for rp, given in zip(replays, spins, strict=True):
+        if given is None:
+            continue
+        reading = bounce_reading(rp, params, config)
+        if reading is None:
+            continue
+        y, s2 = bounce_spin_observation(rp, params, config, reading)
+        across = velocity_frame(reading[1]) @ np.asarray(given, dtype=float)
+        ok = [k for k in (0, 1) if math.isfinite(s2[k]) and s2[k] > 0.0]
+        if not ok:
+            continue
+        used += 1
+        num += sum(y[k] * across[k] / s2[k] for k in ok)
+        den += sum(across[k] ** 2 / s2[k] for k in ok)
+    if used < min_tracks or den <= 0.0:
+        return ''
+    ratio, sd = num / den, 1.0 / math.sqrt(den)
+    low, high = SPIN_RATIO_RANGE
+    if low - 3.0 * sd <= ratio <= high + 3.0 * sd:
+        return ''
+    return (f"{index}: the tracks' flights and bounces show {ratio:.3g} times the spin it "
+            f'gives ({used} tracks): is the spin in rad/s (rev/s read as rad/s: 6.28 times) '
+            'and in the table frame (turned: negative)?')
 
 
 # ----------------------------------------------------------------------------------------------

@@ -32,7 +32,7 @@ from .cli import add_version, hit_plane_error
 from .identify.data import DataError, clean_samples, folder_tracks, read_track_csv
 from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
-from .replay import COLUMNS, Learning, replay_tracks
+from .replay import COLUMNS, Learning, given_spin_warning, replay_tracks
 from .staged import interruptible, output_folder_error, staged_folder
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
@@ -272,6 +272,9 @@ def _main(argv=None):
     replays, summary = replay_tracks(tracks, params, config, args.hit_plane_x,
                                      textbook=not args.no_textbook,
                                      learn=not args.no_learn, learning=learning)
+    spin_warning = given_spin_warning(replays, [spin for *_, spin in tracks], params, config,
+                                      os.path.join(args.tracks, 'index.csv'))
+    warnings += [spin_warning] if spin_warning else []
     summary['warnings'] = warnings
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
