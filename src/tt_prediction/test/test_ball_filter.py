@@ -194,6 +194,23 @@ def test_position_noise_estimate_recovers_the_noise():
     assert est == pytest.approx(1.5e-3, rel=0.15)
 
 
+def test_position_noise_estimate_ignores_outliers():
+    """5 % of the samples moved 1-3 cm (a detector's false match): the estimate is the noise
+    of the others, within 15 %."""
+    rng = np.random.default_rng(3)
+    times = np.arange(0.0, 0.4, 1.0 / 180.0)
+    tracks = []
+    for _ in range(10):
+        p = _measured(INCOMING, times, 6e-4, rng)[1]
+        moved = rng.random(len(times)) < 0.05
+        direction = rng.normal(size=(moved.sum(), 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        p[moved] += direction * rng.uniform(0.01, 0.03, (moved.sum(), 1))
+        tracks.append((times, p))
+    est, _ = estimate_measurement_noise(tracks)
+    assert est == pytest.approx(6e-4, rel=0.15)
+
+
 def test_measurement_noise_estimate_separates_stamp_jitter():
     """Positions sampled at jittered times but stamped at the nominal ones: the error along
     the velocity is v dt, across it only the position noise."""
