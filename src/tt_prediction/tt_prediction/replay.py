@@ -299,33 +299,49 @@ def _before_bounce(rp, params, config):
     return tf, bf.last_bounce[0]
 
 
+def _flight_fit(t, p, tb, config):
+    """Quadratic in time (about ``tb``) through the samples (t, p): ``(A, coef, excess)``,
+    ``excess`` (n,) each sample's residual over its bound (4 sigma + 2 mm: sigma
+    position_noise across the fitted velocity and, along it, with stamp_noise at the fitted
+    speed too), the largest of the two, > 0 where the sample is off the flight."""
+    dt = t - tb
+    A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
+    coef, *_ = np.linalg.lstsq(A, p, rcond=None)
+    residual = p - A @ coef
+    speed = float(np.linalg.norm(coef[1]))
+    heading = coef[1] / speed if speed > 0.0 else np.zeros(3)
+    along = residual @ heading
+    across = np.linalg.norm(residual - np.outer(along, heading), axis=1)
+    sigma_along = math.hypot(config.position_noise, config.stamp_noise * speed)
+    excess = np.maximum(np.abs(along) - (4.0 * sigma_along + 2e-3),
+                        across - (4.0 * config.position_noise + 2e-3))
+    return A, coef, excess
+
+
 def _rebound_velocity(rp, config):
     """The velocity just after a finished track's located bounce on the robot's half,
     measured apart from any filter: a quadratic fit in time to the samples
-    :data:`POST_BOUNCE_WINDOW` after it (shortened until it fits them within 4 sigma + 2 mm,
-    sigma position_noise across v and, along it, with stamp_noise at the fitted speed too: a
-    racket hit ends the flight), at the bounce. ``(v (3,), covariance (3, 3))`` (m/s,
-    (m/s)^2), or None (fewer than REBOUND_SAMPLES samples)."""
+    :data:`POST_BOUNCE_WINDOW` after it (:func:`_flight_fit`), at the bounce. A single
+    sample off the flight while the others fit it is a spike and is left out; otherwise the
+    window is shortened from its end until one flight explains it (a racket hit ends the
+    flight). ``(v (3,), covariance (3, 3))`` (m/s, (m/s)^2), or None (fewer than
+    REBOUND_SAMPLES samples)."""
     tb = rp.robot_bounce.t
     step = float(np.median(np.diff(rp.t))) if len(rp.t) > 1 else 0.0
     end = max(POST_BOUNCE_WINDOW[1], POST_BOUNCE_WINDOW[0] + (REBOUND_SAMPLES + 0.5) * step)
     sel = np.flatnonzero((rp.t > tb + POST_BOUNCE_WINDOW[0]) & (rp.t < tb + end))
-    while True:                 # drop the window's end until one flight explains it (racket)
+    while True:
         if len(sel) < REBOUND_SAMPLES:
             return None
-        dt = rp.t[sel] - tb
-        A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
-        coef, *_ = np.linalg.lstsq(A, rp.p[sel], rcond=None)
-        # A sample's error: its position noise and, along v only, its stamp's jitter.
-        residual = rp.p[sel] - A @ coef
-        speed = float(np.linalg.norm(coef[1]))
-        heading = coef[1] / speed if speed > 0.0 else np.zeros(3)
-        along = residual @ heading
-        across = residual - np.outer(along, heading)
-        sigma_along = math.hypot(config.position_noise, config.stamp_noise * speed)
-        if (np.max(np.abs(along)) < 4.0 * sigma_along + 2e-3
-                and np.max(np.abs(across)) < 4.0 * config.position_noise + 2e-3):
+        A, coef, excess = _flight_fit(rp.t[sel], rp.p[sel], tb, config)
+        if np.all(excess < 0.0):
             break
+        spike = np.delete(sel, np.argmax(excess))
+        if len(spike) >= REBOUND_SAMPLES:
+            A_s, coef_s, excess_s = _flight_fit(rp.t[spike], rp.p[spike], tb, config)
+            if np.all(excess_s < 0.0):
+                A, coef = A_s, coef_s
+                break
         sel = sel[:-2]
     return coef[1], float(np.linalg.inv(A.T @ A)[1, 1]) * config.sample_cov(coef[1])
 
