@@ -21,6 +21,16 @@ outlier, m (noise is ~2 mm; a racket hit bends the path by < 1.5 cm at 150 Hz). 
 contact bends it by up to (|vz_in| + vz_out) dt / 2, 3 cm at 100 Hz: a sample below both
 neighbours, near the table but not under it (CONTACT_BELOW), within OUTLIER_DISTANCE
 sideways and without a gap on either side (GAP_FACTOR), is a bounce, not an outlier."""
+SPIKE_SIGMAS = 5.0
+SPIKE_FLOOR = 0.005
+"""A sample nearer its neighbours than OUTLIER_DISTANCE is still a spike when the quadratic
+through its four neighbours and the flights from the two samples on either side (gravity
+included) all miss it by more than SPIKE_SIGMAS standard deviations of those predictions
+on an axis, and by SPIKE_FLOOR (m); the noise per axis is the track's own (the median
+offset from the neighbours' midpoints, less gravity's). A racket hit or a bounce leaves the
+sample on one side's flight; a spike is off both (1-2 cm spikes were kept in the flights
+tt-identify fits and in the crossing the replay scores against). Not within BOUNCE_HEIGHT
+of the table, where a real contact is off both flights."""
 CONTACT_BELOW = 0.01
 """A contact sample is at most this far below the contact height z = r (noise), m."""
 GAP_FACTOR = 2.5
@@ -97,7 +107,8 @@ def _count(notes, key, n=1):
 def drop_outliers(t, p, notes, radius=0.02):
     """Remove samples far from the midpoint of their neighbours (interpolated in time); a
     sample below both neighbours near the table, off their midpoint along z only, is a
-    bounce's contact and is kept (``radius``: the ball's, m)."""
+    bounce's contact and is kept (``radius``: the ball's, m). Then the spikes nearer than
+    that but off the flights on both sides (:data:`SPIKE_SIGMAS`)."""
     keep = np.ones(len(t), dtype=bool)
     for _ in range(2):
         idx = np.flatnonzero(keep)
@@ -123,8 +134,55 @@ def drop_outliers(t, p, notes, radius=0.02):
         if not worst:
             break
         keep[idx[worst]] = False
+    idx = np.flatnonzero(keep)
+    keep[idx[_spikes(t[idx], p[idx], radius)]] = False
     _count(notes, 'outlier_samples', (~keep).sum())
     return t[keep], p[keep]
+
+
+def _spikes(t, p, radius):
+    """Mask (n,) of the samples off the flights on both sides of them by far more than the
+    track's noise (:data:`SPIKE_SIGMAS`); samples nearer the table than BOUNCE_HEIGHT above
+    the contact height and the two at either end are never spikes."""
+    n = len(t)
+    bad = np.zeros(n, dtype=bool)
+    if n < 10 or not np.all(np.diff(t) > 0.0):
+        return bad
+    w = ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))[:, None]
+    g = np.array([0.0, 0.0, -GRAVITY])
+    # Offset from the neighbours' midpoint, less gravity's (a chord under the parabola by
+    # g d1 d2 / 2: 1.4 mm at 60 Hz): noise sqrt(1.5) sigma per axis; the median absolute of
+    # a normal is 0.6745 of its standard deviation.
+    off = (p[1:-1] - (1.0 - w) * p[:-2] - w * p[2:]
+           + 0.5 * g * ((t[1:-1] - t[:-2]) * (t[2:] - t[1:-1]))[:, None])
+    sigma = np.median(np.abs(off), axis=0) / (0.6745 * math.sqrt(1.5))
+    i = np.arange(2, n - 2)
+
+    def flight(a, b):       # from samples a, b (constant acceleration g) to sample i
+        d1, d2 = (t[b] - t[a])[:, None], (t[i] - t[b])[:, None]
+        v = (p[b] - p[a]) / d1 + 0.5 * g * d1
+        return p[b] + v * d2 + 0.5 * g * d2 * d2, 1.0 + d2 / d1     # (and its noise gain)
+
+    left, gain_l = flight(i - 2, i - 1)
+    right, gain_r = flight(i + 2, i + 1)
+    # The quadratic in time through the four neighbours, at t_i (least squares).
+    nb = np.stack([i - 2, i - 1, i + 1, i + 2], axis=1)
+    dt = t[nb] - t[i][:, None]
+    A = np.stack([np.ones_like(dt), dt, dt * dt], axis=2)
+    coef = np.linalg.solve(np.einsum('kij,kil->kjl', A, A),
+                           np.einsum('kij,kil->kjl', A, p[nb]))
+    between = coef[:, 0]
+    off = np.abs(p[i][None] - np.stack([left, right, between]))       # (3, m, 3)
+    # Standard deviation of each miss per unit noise: the sample's own, and the
+    # prediction's (two-sample flights: gain^2 + (gain - 1)^2; the quadratic: below 1).
+    spread = np.stack([np.sqrt(1.0 + gain_l ** 2 + (gain_l - 1.0) ** 2),
+                       np.sqrt(1.0 + gain_r ** 2 + (gain_r - 1.0) ** 2),
+                       np.full_like(gain_l, math.sqrt(2.0))])          # (3, m, 1)
+    limit = np.maximum(SPIKE_SIGMAS * spread * sigma, SPIKE_FLOOR)
+    missed = np.all(np.any(off > limit, axis=2), axis=0)
+    low = np.min(p[nb, 2], axis=1) < radius + BOUNCE_HEIGHT
+    bad[i] = missed & ~low & (p[i, 2] >= radius + BOUNCE_HEIGHT)
+    return bad
 
 
 def _poly_fit(t, y, deg):
