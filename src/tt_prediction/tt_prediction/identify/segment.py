@@ -115,9 +115,7 @@ def drop_outliers(t, p, notes, radius=0.02):
         if len(idx) < 3:
             break
         tt, pp = t[idx], p[idx]
-        w = ((tt[1:-1] - tt[:-2]) / (tt[2:] - tt[:-2]))[:, None]
-        mid = (1.0 - w) * pp[:-2] + w * pp[2:]
-        off = pp[1:-1] - mid
+        off = _midpoint_offsets(tt, pp)
         dist = np.linalg.norm(off, axis=1)
         z = pp[:, 2]
         step = np.diff(tt)
@@ -140,6 +138,13 @@ def drop_outliers(t, p, notes, radius=0.02):
     return t[keep], p[keep]
 
 
+def _midpoint_offsets(t, p):
+    """Offsets (n - 2, 3) of the inner samples from the time-interpolated midpoint of their
+    neighbours, m."""
+    w = ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))[:, None]
+    return p[1:-1] - (1.0 - w) * p[:-2] - w * p[2:]
+
+
 def _spikes(t, p, radius):
     """Mask (n,) of the samples off the flights on both sides of them by far more than the
     track's noise (:data:`SPIKE_SIGMAS`); samples nearer the table than BOUNCE_HEIGHT above
@@ -148,12 +153,11 @@ def _spikes(t, p, radius):
     bad = np.zeros(n, dtype=bool)
     if n < 10 or not np.all(np.diff(t) > 0.0):
         return bad
-    w = ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))[:, None]
     g = np.array([0.0, 0.0, -GRAVITY])
     # Offset from the neighbours' midpoint, less gravity's (a chord under the parabola by
     # g d1 d2 / 2: 1.4 mm at 60 Hz): noise sqrt(1.5) sigma per axis; the median absolute of
     # a normal is 0.6745 of its standard deviation.
-    off = (p[1:-1] - (1.0 - w) * p[:-2] - w * p[2:]
+    off = (_midpoint_offsets(t, p)
            + 0.5 * g * ((t[1:-1] - t[:-2]) * (t[2:] - t[1:-1]))[:, None])
     sigma = np.median(np.abs(off), axis=0) / (0.6745 * math.sqrt(1.5))
     i = np.arange(2, n - 2)
@@ -172,16 +176,16 @@ def _spikes(t, p, radius):
     coef = np.linalg.solve(np.einsum('kij,kil->kjl', A, A),
                            np.einsum('kij,kil->kjl', A, p[nb]))
     between = coef[:, 0]
-    off = np.abs(p[i][None] - np.stack([left, right, between]))       # (3, m, 3)
+    miss = np.abs(p[i][None] - np.stack([left, right, between]))      # (3, m, 3)
     # Standard deviation of each miss per unit noise: the sample's own, and the
     # prediction's (two-sample flights: gain^2 + (gain - 1)^2; the quadratic: below 1).
     spread = np.stack([np.sqrt(1.0 + gain_l ** 2 + (gain_l - 1.0) ** 2),
                        np.sqrt(1.0 + gain_r ** 2 + (gain_r - 1.0) ** 2),
                        np.full_like(gain_l, math.sqrt(2.0))])          # (3, m, 1)
     limit = np.maximum(SPIKE_SIGMAS * spread * sigma, SPIKE_FLOOR)
-    missed = np.all(np.any(off > limit, axis=2), axis=0)
-    low = np.min(p[nb, 2], axis=1) < radius + BOUNCE_HEIGHT
-    bad[i] = missed & ~low & (p[i, 2] >= radius + BOUNCE_HEIGHT)
+    missed = np.all(np.any(miss > limit, axis=2), axis=0)
+    high = np.minimum(np.min(p[nb, 2], axis=1), p[i, 2]) >= radius + BOUNCE_HEIGHT
+    bad[i] = missed & high
     return bad
 
 
