@@ -411,6 +411,24 @@ def _fuse_position(x, C, z, R, gate, robust):
     return xn, 0.5 * (Cn + Cn.T), d2, True
 
 
+@njit(**_NJIT)
+def _predict_fuse(x, C, t, t_end, P, cfg, contact_z, bounce, z, noise):
+    """One measured sample in one compiled call: :func:`_predict_to` from t to ``t_end`` (s),
+    then :func:`_fuse_position` of the position ``z`` (3,), m, with the sample's covariance
+    R = position_noise^2 I + stamp_noise^2 v v^T (m^2) at the predicted velocity v (m/s),
+    as :meth:`FilterConfig.sample_cov`. ``noise`` = (position_noise^2, stamp_noise, gate,
+    robust). Returns (x_pred, C_pred, n, R, x, C, d2, accepted): the prediction and its
+    number of contacts, then the update (x, C the prediction's when rejected)."""
+    xp, Cp, n = _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce)
+    R = np.empty((3, 3))
+    for i in range(3):
+        ji = noise[1] * xp[3 + i]
+        for k in range(3):
+            R[i, k] = (noise[0] if i == k else 0.0) + ji * (noise[1] * xp[3 + k])
+    xu, Cu, d2, ok = _fuse_position(xp, Cp, z, R, noise[2], noise[3])
+    return xp, Cp, n, R, xu, Cu, d2, ok
+
+
 def velocity_frame(velocity):
     """Rows (3, 3): the unit axes of the spin prior for a ball moving with ``velocity``:
     top/back spin (horizontal, across v: z x v), side spin (v x (z x v), ~vertical) and along
@@ -444,6 +462,7 @@ class BallFilter:
         self._cfg = np.array([c.accel_noise ** 2, c.spin_noise ** 2,
                               c.bounce_velocity_noise ** 2, c.bounce_spin_noise ** 2,
                               c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0])
+        self._noise = np.array([c.position_noise ** 2, c.stamp_noise, c.gate, c.robust])
         self.x = np.zeros(9)
         self.P = np.eye(9)
         self.t = 0.0
@@ -494,11 +513,30 @@ class BallFilter:
         ``contact_z``: centre height at contact (default the radius: the table surface)."""
         if t <= self.t:
             return
-        self._prev = (self.x, self.P, self.t, self.bounces, self.last_bounce)
         cz = self.params.radius if contact_z is None else contact_z
-        self.contact_z = cz
         x, P, n = _predict_to(self.x, self.P, self.t, float(t), self.P_model, self._cfg, cz,
                               self._bounce)
+        self._advance(t, cz, x, P, n)
+
+    def predict_fuse(self, t, z):
+        """:meth:`predict` to ``t`` (s, after :attr:`t`) at the nominal contact height, and
+        the gated fusion of the position ``z`` (3,), m, measured then with the covariance
+        :meth:`FilterConfig.sample_cov` of the predicted velocity, in one compiled call
+        (:func:`_predict_fuse`). The filter is left predicted; the update is returned, not
+        applied: ``(R, fused)`` to pass to :meth:`update` as ``update(z, R, fused=fused)``,
+        the same as ``update(z, config.sample_cov(x[3:6]))`` after ``predict(t)``."""
+        cz = self.params.radius
+        xp, Cp, n, R, x, P, d2, ok = _predict_fuse(self.x, self.P, self.t, float(t),
+                                                   self.P_model, self._cfg, cz, self._bounce,
+                                                   z, self._noise)
+        self._advance(t, cz, xp, Cp, n)
+        return R, (x, P, d2, ok)
+
+    def _advance(self, t, cz, x, P, n):
+        """Take the prediction to ``t`` (s) at contact height ``cz`` (m): state ``x``,
+        covariance ``P`` and ``n`` contacts (the last one in ``_bounce``)."""
+        self._prev = (self.x, self.P, self.t, self.bounces, self.last_bounce)
+        self.contact_z = cz
         self.x, self.P, self.t = x, P, float(t)
         if n:
             self.bounces += n
@@ -531,18 +569,21 @@ class BallFilter:
         S = self.P[:3, :3] + R
         return y, S, float(y @ np.linalg.solve(S, y))
 
-    def update(self, z, R, rebounce=False):
+    def update(self, z, R, rebounce=False, fused=None):
         """Fuse a position measurement ``z`` (3,), m, covariance ``R`` (3, 3), m^2.
 
         Returns False (and leaves the state) when it fails the Mahalanobis gate. With
         ``rebounce``, a sample that fails the gate right after the last :meth:`predict`
         near the table is tried against contact heights within ``rebounce_range`` of z = r
         (an earlier or later bounce, seen as a kink); the best one that passes is kept.
+        ``fused``: the fusion of ``z`` already computed (:meth:`predict_fuse`).
         """
         z = np.asarray(z, dtype=float)
         R = np.asarray(R, dtype=float)
         cfg = self.config
-        x, P, d2, ok = _fuse_position(self.x, self.P, z, R, cfg.gate, cfg.robust)
+        if fused is None:
+            fused = _fuse_position(self.x, self.P, z, R, cfg.gate, cfg.robust)
+        x, P, d2, ok = fused
         self.last_d2 = d2
         if ok:
             self.x, self.P = x, P
@@ -788,8 +829,9 @@ class TrackFilter:
             self.robot_bounce = None         # first one's bounce through the second)
             self.robot_bounces = 0
         if f is not None:
-            self._predict(t)
-            if f.update(p, cfg.sample_cov(f.x[3:6]), rebounce=True):
+            R, fused = f.predict_fuse(t, p)      # = predict(t), fusion of p with sample_cov
+            self._note_bounce()
+            if f.update(p, R, rebounce=True, fused=fused):
                 self.nis.append(f.last_d2)
                 self.updates += 1
                 self.rejects = 0
