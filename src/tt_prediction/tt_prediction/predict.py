@@ -168,7 +168,7 @@ def check_state(state, radius=0.020):
         x, y, z, vx, vy, vz, wx, wy, wz = values
     except (TypeError, ValueError):
         return f'state must be 9 numbers [p, v, w], got {state!r}'
-    if not math.isfinite(math.fsum(abs(c) for c in values)):
+    if not math.isfinite(math.fsum(map(abs, values))):
         for i, name in enumerate(('position', 'velocity', 'spin')):
             if not all(math.isfinite(c) for c in values[3 * i:3 * i + 3]):
                 return f'{name} is not finite: {values[3 * i:3 * i + 3]}'
@@ -713,6 +713,26 @@ def _to_prediction(row, plane_x, outgoing=False, path=None):
                       _why=(status, row, contact, plane_x, outgoing))
 
 
+_NO_SAMPLES = np.empty((0, 10))
+"""The kernel's ``samples`` when no hit path is asked for (no row is written to it)."""
+
+
+def predict_row(state9, P, t0, hit_plane_x, bounced, out, samples=_NO_SAMPLES):
+    """What :func:`predict` computes, without the Prediction built from it: the compiled
+    predictor's row (:func:`predict_kernel`, layout ``_O_*``) of ``state9`` (9,) [p, v, w]
+    (m, m/s, rad/s) at ``t0`` (s) into ``out`` (_N_OUT,), the hit path into ``samples``.
+    ``P`` packed parameters, ``hit_plane_x`` m, ``bounced`` as in :func:`predict`.
+    Returns '' when ``out`` was filled, else why the prediction is 'invalid' (``out`` left
+    as it was)."""
+    reason = check_state(state9, P[I_RADIUS])
+    if not reason and not math.isfinite(hit_plane_x):
+        reason = f'hit_plane_x is not finite: {hit_plane_x}'
+    if not reason:
+        predict_kernel(_lifted(state9, P[I_RADIUS]), float(t0), P, float(hit_plane_x),
+                       bool(bounced), samples, out)
+    return reason
+
+
 def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounced=False,
             path_dt=None, hit_path=False):
     """Predict the flight of an incoming ball from ``state9`` = [p, v, w] at time ``t0``.
@@ -728,18 +748,14 @@ def predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X, bounce
     Never raises for bad states: returns status 'invalid' with the reason.
     """
     P = packed_params(params)
-    reason = check_state(state9, P[I_RADIUS])
+    out = np.empty(_N_OUT)
+    hit_rows = np.empty((int(T_MAX / STEP) + 2, 10)) if hit_path else _NO_SAMPLES
+    reason = predict_row(state9, P, t0, hit_plane_x, bounced, out, hit_rows)
     if reason:
         return Prediction(status='invalid', explanation=reason)
-    if not math.isfinite(hit_plane_x):
-        return Prediction(status='invalid',
-                          explanation=f'hit_plane_x is not finite: {hit_plane_x}')
-    s0 = _lifted(state9, P[I_RADIUS])
-    out = np.empty(_N_OUT)
-    hit_rows = np.empty((int(T_MAX / STEP) + 2 if hit_path else 0, 10))
-    predict_kernel(s0, float(t0), P, float(hit_plane_x), bool(bounced), hit_rows, out)
     path = None
     if path_dt:
+        s0 = _lifted(state9, P[I_RADIUS])
         # The path from the integrator's rollout (rebounds included), up to the stop.
         sample_t = float(t0) + np.arange(0.0, T_MAX, float(path_dt))
         sample_t = sample_t[sample_t <= out[_O_STOP_T]]

@@ -35,7 +35,19 @@ from .ball_filter import (
 )
 from .identify.data import Track, clean_samples
 from .identify.segment import drop_outliers, segment
-from .predict import DEFAULT_HIT_PLANE_X, predict
+from .predict import (
+    _N_OUT,
+    _O_BOUNCE_HALF,
+    _O_BOUNCE_OK,
+    _O_BOUNCE_P,
+    _O_BOUNCE_T,
+    _O_HIT_OK,
+    _O_HIT_P,
+    _O_HIT_T,
+    DEFAULT_HIT_PLANE_X,
+    predict,
+    predict_row,
+)
 
 COLUMNS = ('t', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'wx', 'wy', 'wz', 'bounce_t', 'bounce_x',
            'bounce_y', 'hit_t', 'hit_x', 'hit_y', 'hit_z')
@@ -95,17 +107,18 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
     p = np.asarray(p, dtype=float)
     order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
     rows = np.full((len(t), len(COLUMNS)), np.nan)
+    rows[:, 0] = t[order]
+    p = p[order]
     tf = TrackFilter(params, config)
     last_key = None
-    last_pred = None
+    out = np.empty(_N_OUT)       # the predictor's row (predict_row) of the state at last_key
+    valid = False
     spin_used = spin is None
     packed = params.packed()
-    for k, i in enumerate(order):
-        ti = t[i]
-        rows[k, 0] = ti
+    for k, ti in enumerate(rows[:, 0].tolist()):
         if not math.isfinite(ti):
             continue
-        status = tf.add(ti, p[i])
+        status = tf.add(ti, p[k])
         if not tf.running:
             continue
         f = tf.filter
@@ -114,20 +127,18 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
             spin_used = True
         rows[k, 1:10] = f.x
         key = (f.t, tf.updates, tf.filter)
-        if key == last_key:
-            pred = last_pred                  # a skipped duplicate: same state, same answer
-        else:
-            pred = predict(f.x, packed, t0=f.t, hit_plane_x=hit_plane_x,
-                           bounced=tf.robot_bounced)
-            last_key, last_pred = key, pred
+        if key != last_key:                   # else a skipped duplicate: same state, answer
+            # predict()'s numbers, read from its row: an invalid state has no bounce, no hit
+            valid = not predict_row(f.x, packed, f.t, hit_plane_x, tf.robot_bounced, out)
+            last_key = key
         if tf.robot_bounced and tf.robot_bounce is not None:
             rows[k, 10:13] = tf.robot_bounce
-        elif pred.bounce is not None and pred.bounce.half < 0:
-            rows[k, 10] = pred.bounce.t
-            rows[k, 11:13] = pred.bounce.p[:2]
-        if pred.hit is not None and tf.robot_bounces < 2:    # not after a double bounce
-            rows[k, 13] = pred.hit.t
-            rows[k, 14:17] = pred.hit.p
+        elif valid and out[_O_BOUNCE_OK] and out[_O_BOUNCE_HALF] < 0.0:
+            rows[k, 10] = out[_O_BOUNCE_T]
+            rows[k, 11:13] = out[_O_BOUNCE_P:_O_BOUNCE_P + 2]
+        if valid and out[_O_HIT_OK] and tf.robot_bounces < 2:   # not after a double bounce
+            rows[k, 13] = out[_O_HIT_T]
+            rows[k, 14:17] = out[_O_HIT_P:_O_HIT_P + 3]
     return rows, tf.nis
 
 
