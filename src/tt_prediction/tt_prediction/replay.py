@@ -2,9 +2,10 @@
 
 Each track's samples go, in time order, through :class:`tt_prediction.ball_filter.TrackFilter`
 (the EKF perception_node runs, fed 3-D positions instead of triangulated images) and, once
-the filter runs, through :func:`tt_prediction.predict.predict` (what prediction_node runs)
-with ``bounced`` set once the filter has taken the ball through its bounce on the robot's
-half. One output row per input sample:
+the filter runs, through :func:`tt_prediction.predict.predict_row` (the compiled predictor
+under :func:`tt_prediction.predict.predict`, what prediction_node runs, without the Prediction
+object built from its row) with ``bounced`` set once the filter has taken the ball through
+its bounce on the robot's half. One output row per input sample:
 
     t, x, y, z, vx, vy, vz, wx, wy, wz     filtered state at t (s, m, m/s, rad/s)
     bounce_t, bounce_x, bounce_y           the bounce on the robot's half: predicted, or the
