@@ -148,8 +148,8 @@ class FilterConfig:
         """Covariance (3, 3) of a measured position of a ball moving with ``velocity`` (m/s):
         ``position_noise``^2 I, and along v its stamp's jitter, ``stamp_noise``^2 v v^T
         (m^2)."""
-        jitter = self.stamp_noise * np.asarray(velocity, dtype=float)
-        return self.position_noise ** 2 * np.eye(3) + np.outer(jitter, jitter)
+        return _sample_cov(np.asarray(velocity, dtype=float), self.position_noise ** 2,
+                           self.stamp_noise)
 
     def spin_prior_axes(self):
         """Prior standard deviations of the spin (top/back, side, along v), rad/s: the
@@ -412,19 +412,27 @@ def _fuse_position(x, C, z, R, gate, robust):
 
 
 @njit(**_NJIT)
+def _sample_cov(v, position_var, stamp_noise):
+    """Covariance (3, 3), m^2, of a measured position of a ball moving with ``v`` (3,), m/s:
+    ``position_var`` I (m^2) and, along v, the stamp's jitter (stamp_noise^2 v v^T, s)."""
+    R = np.empty((3, 3))
+    for i in range(3):
+        ji = stamp_noise * v[i]
+        for k in range(3):
+            R[i, k] = (position_var if i == k else 0.0) + ji * (stamp_noise * v[k])
+    return R
+
+
+@njit(**_NJIT)
 def _predict_fuse(x, C, t, t_end, P, cfg, contact_z, bounce, z, noise):
     """One measured sample in one compiled call: :func:`_predict_to` from t to ``t_end`` (s),
     then :func:`_fuse_position` of the position ``z`` (3,), m, with the sample's covariance
-    R = position_noise^2 I + stamp_noise^2 v v^T (m^2) at the predicted velocity v (m/s),
-    as :meth:`FilterConfig.sample_cov`. ``noise`` = (position_noise^2, stamp_noise, gate,
-    robust). Returns (x_pred, C_pred, n, R, x, C, d2, accepted): the prediction and its
-    number of contacts, then the update (x, C the prediction's when rejected)."""
+    (:func:`_sample_cov`) at the predicted velocity. ``noise`` = (position_noise^2,
+    stamp_noise, gate, robust). Returns (x_pred, C_pred, n, R, x, C, d2, accepted): the
+    prediction and its number of contacts, then the update (x, C the prediction's when
+    rejected)."""
     xp, Cp, n = _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce)
-    R = np.empty((3, 3))
-    for i in range(3):
-        ji = noise[1] * xp[3 + i]
-        for k in range(3):
-            R[i, k] = (noise[0] if i == k else 0.0) + ji * (noise[1] * xp[3 + k])
+    R = _sample_cov(xp[3:6], noise[0], noise[1])
     xu, Cu, d2, ok = _fuse_position(xp, Cp, z, R, noise[2], noise[3])
     return xp, Cp, n, R, xu, Cu, d2, ok
 
