@@ -160,6 +160,29 @@ def test_stream_with_spikes_gaps_duplicates_and_nan_keeps_tracking():
     assert tf.filter.t == pytest.approx(t[-1])
 
 
+def test_the_fused_step_is_predict_then_update_with_the_samples_covariance():
+    """BallFilter.predict_fuse (one compiled call) gives what predict(t) and then update(z,
+    config.sample_cov(v)) give, bit for bit, through the bounce and for a spike the gate
+    refuses (the filter left predicted, the kink tried by rebounce from it)."""
+    times, _, z = _stream()
+    z[40] += [0.0, 0.05, 0.0]                          # a spike: refused by both
+    cfg = FilterConfig(position_noise=1e-3, stamp_noise=3e-4)
+    plain, fused = BallFilter(config=cfg), BallFilter(config=cfg)
+    for f in (plain, fused):
+        f.start(times[0], z[0], [-5.5, -0.2, 1.0], np.eye(3) * 1e-6, np.eye(3) * 0.1)
+    accepted = []
+    for ti, zi in zip(times[1:], z[1:], strict=True):
+        plain.predict(ti)
+        ok = plain.update(zi, cfg.sample_cov(plain.x[3:6]), rebounce=True)
+        R, done = fused.predict_fuse(ti, zi)
+        assert np.array_equal(R, cfg.sample_cov(fused.x[3:6]))
+        assert fused.update(zi, R, rebounce=True, fused=done) == ok
+        assert np.array_equal(fused.x, plain.x) and np.array_equal(fused.P, plain.P)
+        assert fused.bounces == plain.bounces and fused.last_bounce == plain.last_bounce
+        accepted.append(ok)
+    assert plain.bounces == 1 and not accepted[39] and sum(accepted) == len(accepted) - 1
+
+
 def test_out_of_order_stamp_is_skipped():
     times, _, z = _stream()
     tf = TrackFilter(config=FilterConfig(position_noise=1e-3))
