@@ -126,3 +126,48 @@ def test_a_bad_params_file_is_one_line_and_exit_2(tmp_path, content):
     lines = proc.stderr.splitlines()
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith(f'executor_test: cannot read --params-file {path}: '), lines
+
+
+
+def _handled_with_a_second_signal_inside(signals, at):
+    """Run ``signals``' SIGTERM handler in a thread, with a second SIGTERM handled at its
+    ``at``-th traced line (its own or those of what it calls). Returns the thread, joined
+    for up to 5 s, and where the second one came ([] when the handler had fewer lines)."""
+    import sys as _sys
+    import threading
+
+    where, lines = [], [0]
+
+    def tracer(frame, event, arg):
+        if event in ('call', 'line') and not where:
+            lines[0] += 1
+            if lines[0] == at:
+                where.append(f'{frame.f_code.co_filename}:{frame.f_lineno}')
+                signals._handle(signal.SIGTERM, None)          # the second SIGTERM
+        return tracer
+
+    def first():
+        _sys.settrace(tracer)
+        try:
+            signals._handle(signal.SIGTERM, None)
+        finally:
+            _sys.settrace(None)
+
+    worker = threading.Thread(target=first, daemon=True)
+    worker.start()
+    worker.join(timeout=5.0)
+    return worker, where
+
+
+@pytest.mark.parametrize('at', range(1, 12))
+def test_a_signal_that_comes_while_its_handler_runs_leaves_the_node_told_to_stop(at):
+    """A second SIGTERM at any line of the first one's handler (a node whose parent dies can
+    get the kernel's PR_SET_PDEATHSIG more than once): Python runs the handlers nested, and
+    both end with the node told to stop. With a threading.Event's set() in the handler, a
+    second signal inside set() waited for ever on the Event's own lock."""
+    from tt_ros.executor import _StopOnSignal
+
+    signals = _StopOnSignal()
+    worker, where = _handled_with_a_second_signal_inside(signals, at)
+    assert not worker.is_alive(), f'the handler, entered again at {where}, never returned'
+    assert signals.stopped

@@ -234,19 +234,25 @@ def make_executor(kind=None, context=None):
 
 
 class _StopOnSignal:
-    """SIGINT and SIGTERM set ``stop`` (a second SIGINT raises KeyboardInterrupt); the
-    previous handlers come back on exit."""
+    """SIGINT and SIGTERM set ``stopped`` (a second SIGINT raises KeyboardInterrupt); the
+    previous handlers come back on exit.
+
+    The handler takes no lock: Python runs a signal's handler between two bytecodes of the
+    main thread, also inside a handler already running, and a node whose parent dies can
+    get SIGTERM more than once (PR_SET_PDEATHSIG: the kernel sends it again as each thread
+    of the dying parent it was handed on to ends). A threading.Event's set() there,
+    re-entered while its lock is held, waits on that lock for ever."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self):
-        self.stop = threading.Event()
+        self.stopped = False
         self._old = {}
 
     def _handle(self, signum, _frame):
-        if self.stop.is_set() and signum == signal.SIGINT:
+        if self.stopped and signum == signal.SIGINT:
             raise KeyboardInterrupt
-        self.stop.set()
+        self.stopped = True
 
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
@@ -309,7 +315,7 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
                                           "from it ('/**/NAME:' is NAME in any namespace)")
             executor.add_node(node)
             node.get_logger().info(READY)
-            while not signals.stop.is_set() and rclpy.ok():
+            while not signals.stopped and rclpy.ok():
                 executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
         except StartupError as exc:
             print(f'{name}: {exc}', file=sys.stderr, flush=True)
