@@ -30,7 +30,7 @@ DATA = pathlib.Path(__file__).resolve().parent.parent / 'data' / 'mpi_launcher'
 PLANE = -1.2
 PASSES = 5
 """Timed passes over the whole set after the warm-up pass; the rates are their medians (one
-pass on this shared machine ranged 8,200-14,000 samples/s by the CPU clock)."""
+pass on this shared machine ranged 7,300-14,000 samples/s by the CPU clock)."""
 
 
 def python_loop_s():

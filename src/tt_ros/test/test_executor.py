@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -128,14 +129,10 @@ def test_a_bad_params_file_is_one_line_and_exit_2(tmp_path, content):
     assert lines[0].startswith(f'executor_test: cannot read --params-file {path}: '), lines
 
 
-
 def _handled_with_a_second_signal_inside(signals, at):
     """Run ``signals``' SIGTERM handler in a thread, with a second SIGTERM handled at its
     ``at``-th traced line (its own or those of what it calls). Returns the thread, joined
     for up to 5 s, and where the second one came ([] when the handler had fewer lines)."""
-    import sys as _sys
-    import threading
-
     where, lines = [], [0]
 
     def tracer(frame, event, arg):
@@ -147,11 +144,11 @@ def _handled_with_a_second_signal_inside(signals, at):
         return tracer
 
     def first():
-        _sys.settrace(tracer)
+        sys.settrace(tracer)
         try:
             signals._handle(signal.SIGTERM, None)
         finally:
-            _sys.settrace(None)
+            sys.settrace(None)
 
     worker = threading.Thread(target=first, daemon=True)
     worker.start()
