@@ -130,6 +130,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         key = (f.t, tf.updates, tf.filter)
         if key != last_key:                   # else a skipped duplicate: same state, answer
             # predict()'s numbers, read from its row: an invalid state has no bounce, no hit
+            # (predict's _contact / _hit would build objects: 5.5 us a sample, 9 %)
             valid = not predict_row(f.x, packed, f.t, hit_plane_x, tf.robot_bounced, out)
             last_key = key
         if tf.robot_bounced and tf.robot_bounce is not None:
