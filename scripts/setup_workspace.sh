@@ -71,10 +71,14 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   "${pip[@]}" --upgrade pip > "$venv/pip-install.log" 2>&1 || true
   # uv installs the ~200 pinned wheels in seconds where pip takes minutes (with the system's
   # certificates, as pip); pip is the fallback wherever uv cannot (no wheel, no route).
+  # --compile-bytecode writes the .pyc files pip would: without them a process that cannot
+  # write its own (the tests run with PYTHONDONTWRITEBYTECODE) compiles numpy, scipy, rclpy
+  # and the rest from source at every start (each node and command: 5.1 -> 2.2 s measured).
   installed=0
   if "${pip[@]}" "uv==$UV_VERSION" >> "$venv/pip-install.log" 2>&1 \
-      && "$venv/bin/uv" pip install --quiet --system-certs --python "$venv/bin/python" \
-         -r requirements.txt -c constraints.txt >> "$venv/pip-install.log" 2>&1; then
+      && "$venv/bin/uv" pip install --quiet --system-certs --compile-bytecode \
+         --python "$venv/bin/python" -r requirements.txt -c constraints.txt \
+         >> "$venv/pip-install.log" 2>&1; then
     installed=1
   fi
   if [ "$installed" = 0 ] && ! "${pip[@]}" -r requirements.txt -c constraints.txt \
