@@ -160,6 +160,22 @@ def test_stream_with_spikes_gaps_duplicates_and_nan_keeps_tracking():
     assert tf.filter.t == pytest.approx(t[-1])
 
 
+def test_a_samples_covariance_is_its_position_noise_and_along_v_its_stamps_jitter():
+    """FilterConfig.sample_cov (the compiled _sample_cov the fused step uses too) against
+    its definition: a stamp off by dt moves the sample by v dt, so R = sigma^2 I + tau^2 v
+    v^T; across v only sigma^2, along it sigma^2 + tau^2 |v|^2."""
+    sigma, tau = 1.5e-3, 4e-4
+    v = np.array([-6.0, 0.8, 2.5])
+    R = FilterConfig(position_noise=sigma, stamp_noise=tau).sample_cov(v)
+    np.testing.assert_allclose(R, sigma ** 2 * np.eye(3) + tau ** 2 * np.outer(v, v),
+                               rtol=1e-12, atol=0.0)
+    u = v / np.linalg.norm(v)
+    across = np.cross(u, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    assert u @ R @ u == pytest.approx(sigma ** 2 + tau ** 2 * (v @ v), rel=1e-12)
+    assert across @ R @ across == pytest.approx(sigma ** 2, rel=1e-12)
+
+
 def test_the_fused_step_is_predict_then_update_with_the_samples_covariance():
     """BallFilter.predict_fuse (one compiled call) gives what predict(t) and then update(z,
     config.sample_cov(v)) give, bit for bit, through the bounce and for a spike the gate
