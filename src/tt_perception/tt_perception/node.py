@@ -126,7 +126,7 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
      'rad/s', 0.01, 1000),
     ('confirm_updates', 3, 'Filter updates before a track is published', '', 1, 100),
-    ('max_coast', 0.06, 'Time without a measurement that ends a track', 's', 0.001, 5),
+    ('max_coast', 0.15, 'Time without a measurement that ends a track', 's', 0.001, 5),
     ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
      0.05, 60),
     ('reopen_interval', 1.0, 'Time between attempts to reopen a lost V4L2 device', 's',

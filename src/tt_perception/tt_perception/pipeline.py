@@ -42,6 +42,11 @@ from .triangulate import refine, triangulate
 LIVE = object()
 """``snapshot`` default: read the running filter (only the processing thread may)."""
 
+SPIN_MAX_AGE = 0.06
+"""A measured spin is fused as the running track's spin when taken within this time of the
+filter's, s (:meth:`Tracker.measure_spin`): the spin hardly changes in a few frames, but a
+bounce between them would change it."""
+
 # Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).
 XY, WIDTH, HIDDEN, BLOB_XY, SURE, BRIGHT_WIDTH = slice(0, 2), 2, 3, slice(4, 6), 6, 7
 
@@ -99,8 +104,13 @@ class TrackerConfig:
     it the filter takes its position from the outline fits of the updates that follow;
     without it, it started millimetres high and stayed so for tens of milliseconds
     (docs/perception.md)."""
-    max_coast: float = 0.06
-    """Time without an accepted measurement after which a track ends, s."""
+    max_coast: float = 0.15
+    """Time without an accepted measurement after which a track ends, s. The filter carries
+    the ball meanwhile (the bounce included) and gates the next points on its grown
+    covariance, so that a ball keeps its track through a burst of frame pairs the live node
+    dropped under load (``make demo`` at a slow hour lost 299 of 1243 pairs, and a ball whose
+    track ended after 0.06 s restarted with no spin known and was struck short) or a longer
+    occlusion."""
     min_speed: float = 1.0
     """Slowest speed of a new track (a ball in play), m/s."""
     max_speed: float = 40.0
@@ -427,9 +437,9 @@ class Tracker:
 
     def measure_spin(self, t, w, R):
         """Fuse a measured spin (rad/s, covariance R) taken at ``t`` into the running track,
-        when the track's last update is within ``max_coast`` of it (the spin hardly changes
-        in that time). Returns True when it was used."""
-        if self.filter is None or abs(t - self.filter.t) > self.config.max_coast:
+        when the filter's time is within :data:`SPIN_MAX_AGE` of it. Returns True when it was
+        used."""
+        if self.filter is None or abs(t - self.filter.t) > SPIN_MAX_AGE:
             return False
         self.filter.update_spin(w, R)
         return True
