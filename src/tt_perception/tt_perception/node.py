@@ -107,9 +107,10 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('light_from_above', True, "The lights are above the table (the ball's top is its lit "
      'side): of the outline fits from several starts, one lit from below is kept only when '
      'all are; false: any lighting'),
-    ('pixel_sigma', 0.4, 'Standard deviation of a detected centre', 'pixels', 0.01, 10),
-    ('max_reprojection', 2.5, 'Largest reprojection error of a triangulated ball', 'pixels',
-     0.1, 50),
+    ('pixel_sigma', TrackerConfig.pixel_sigma, 'Standard deviation of a detected centre',
+     'pixels', 0.01, 10),
+    ('max_reprojection', TrackerConfig.max_reprojection,
+     'Largest reprojection error of a triangulated ball', 'pixels', 0.1, 50),
     ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
     ('spin_prior', 250.0, 'Prior standard deviation of the top/back spin (about the horizontal '
      "axis across the velocity at a track's start), and of every spin component unless "
@@ -125,8 +126,10 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
      'rad/s', 0.01, 1000),
-    ('confirm_updates', 3, 'Filter updates before a track is published', '', 1, 100),
-    ('max_coast', 0.15, 'Time without a measurement that ends a track', 's', 0.001, 5),
+    ('confirm_updates', TrackerConfig.confirm_updates,
+     'Filter updates before a track is published', '', 1, 100),
+    ('max_coast', TrackerConfig.max_coast, 'Time without a measurement that ends a track', 's',
+     0.001, 5),
     ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
      0.05, 60),
     ('reopen_interval', 1.0, 'Time between attempts to reopen a lost V4L2 device', 's',

@@ -107,10 +107,8 @@ class TrackerConfig:
     max_coast: float = 0.15
     """Time without an accepted measurement after which a track ends, s. The filter carries
     the ball meanwhile (the bounce included) and gates the next points on its grown
-    covariance, so that a ball keeps its track through a burst of frame pairs the live node
-    dropped under load (``make demo`` at a slow hour lost 299 of 1243 pairs, and a ball whose
-    track ended after 0.06 s restarted with no spin known and was struck short) or a longer
-    occlusion."""
+    covariance: a ball keeps its track through a burst of frame pairs the live node dropped
+    under load, or a longer occlusion (docs/perception.md, "Tracks")."""
     min_speed: float = 1.0
     """Slowest speed of a new track (a ball in play), m/s."""
     max_speed: float = 40.0
