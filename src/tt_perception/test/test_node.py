@@ -23,6 +23,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
 from tt_prediction.ball import load_model
+from tt_prediction.ball_filter import FilterConfig
 from tt_ros.executor import StartupError
 import yaml
 
@@ -361,7 +362,8 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
 def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(graph, tmp_path):
     """`tt-predict --tracks` writes params.yaml: perception_node started with it
     (`--params-file`, as docs/prediction.md says) runs its filter with the spin prior and
-    accel_noise the replay ended with and reads the model.yaml written beside it."""
+    accel_noise the replay ended with, at the accel_noise_speed it learned it with, and reads
+    the model.yaml written beside it."""
     launcher = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..',
                             'data', 'mpi_launcher')
     data = tmp_path / 'data'
@@ -376,6 +378,8 @@ def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(g
     defaults = {p.name: p.default for p in node_module.PARAMETERS}
     for name in ('accel_noise', 'spin_prior', 'spin_prior_mean'):      # learned
         assert mine[name] != defaults[name]
+    assert mine['accel_noise_speed'] == FilterConfig.accel_noise_speed != defaults[
+        'accel_noise_speed']                # the replay's shape, not the node's default
     rig_path = synth.make_rig(str(tmp_path), sources=unique_topics()[1])
     node = graph.add(PerceptionNode(
         context=graph.context,
@@ -383,6 +387,7 @@ def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(g
         parameter_overrides=[Parameter('rig_file', value=rig_path)]))
     cfg = node.pipeline.tracker.filter_config
     assert cfg.accel_noise == mine['accel_noise']
+    assert cfg.accel_noise_speed == mine['accel_noise_speed']
     assert list(cfg.spin_prior_axes()) == [mine['spin_prior'], mine['spin_prior_side'],
                                            mine['spin_prior_along']]
     assert list(cfg.spin_prior_mean) == mine['spin_prior_mean']

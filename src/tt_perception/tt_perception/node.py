@@ -59,7 +59,7 @@ from .camstream import (
     warm_up,
 )
 from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
-from .pipeline import Pipeline, TrackerConfig
+from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
     camera_info_topic,
     file_source_path,
@@ -111,7 +111,12 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'pixels', 0.01, 10),
     ('max_reprojection', TrackerConfig.max_reprojection,
      'Largest reprojection error of a triangulated ball', 'pixels', 0.1, 50),
-    ('accel_noise', 0.05, 'Unmodelled acceleration of the filter', 'm/s^2/sqrt(Hz)', 0.0, 100),
+    ('accel_noise', 0.05, 'Unmodelled acceleration of the filter (of a ball at rest when '
+     'accel_noise_speed is set)', 'm/s^2/sqrt(Hz)', 0.0, 100),
+    ('accel_noise_speed', PERCEPTION_FILTER.accel_noise_speed, 'Speed at which the unmodelled '
+     "acceleration's aerodynamic part (growing as |v|^2) equals accel_noise; 0: the same at "
+     'every speed (tt-predict --tracks learns accel_noise with 3.0 and writes both)', 'm/s',
+     0.0, 100),
     ('spin_prior', 250.0, 'Prior standard deviation of the top/back spin (about the horizontal '
      "axis across the velocity at a track's start), and of every spin component unless "
      'spin_prior_side or spin_prior_along is set', 'rad/s', 1, 5000),
@@ -271,7 +276,9 @@ class PerceptionNode(Node):
             response_gamma=self._p('response_gamma'),
             curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'),
             light_from_above=self._p('light_from_above'))
-        filt = FilterConfig(accel_noise=self._p('accel_noise'), spin_prior=self._p('spin_prior'),
+        filt = FilterConfig(accel_noise=self._p('accel_noise'),
+                            accel_noise_speed=self._p('accel_noise_speed'),
+                            spin_prior=self._p('spin_prior'),
                             spin_prior_side=self._p('spin_prior_side') or None,
                             spin_prior_along=self._p('spin_prior_along') or None,
                             spin_prior_mean=tuple(self._p('spin_prior_mean')))

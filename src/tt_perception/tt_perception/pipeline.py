@@ -47,6 +47,12 @@ SPIN_MAX_AGE = 0.06
 filter's, s (:meth:`Tracker.measure_spin`): the spin hardly changes in a few frames, but a
 bounce between them would change it."""
 
+PERCEPTION_FILTER = FilterConfig(accel_noise_speed=0.0)
+"""The ball filter's settings perception runs unless told others: FilterConfig's, with the
+unmodelled acceleration the same at every speed. Its growth with speed was measured on
+recorded balls (docs/prediction.md) and is not yet measured on camera scenes; the
+params.yaml of `tt-predict --tracks` sets it with the accel_noise learned at it."""
+
 # Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).
 XY, WIDTH, HIDDEN, BLOB_XY, SURE, BRIGHT_WIDTH = slice(0, 2), 2, 3, slice(4, 6), 6, 7
 
@@ -283,7 +289,7 @@ class Tracker:
 
     def __init__(self, fps, params=None, filter_config=None, config=None):
         self.params = params or ModelParams()
-        self.filter_config = filter_config or FilterConfig()
+        self.filter_config = filter_config or PERCEPTION_FILTER
         self.config = config or TrackerConfig()
         self.period = 1.0 / fps
         self.gravity = np.array([0.0, 0.0, -self.params.gravity])

@@ -111,8 +111,10 @@ def test_covariance_is_consistent_nees_within_chi_square_bounds(phase, transform
     before the bounce and 60 ms after it, with either transform of the rebound (eqs. 1-6)."""
     rng = np.random.default_rng(7)
     prior, noise, n = 60.0, 1e-3, 40
-    cfg = FilterConfig(position_noise=noise, accel_noise=1e-3, spin_noise=0.05,
-                       spin_prior=prior, start_velocity_noise=0.02, bounce_transform=transform)
+    # The truth has no unmodelled acceleration: the filter's is next to none at every speed.
+    cfg = FilterConfig(position_noise=noise, accel_noise=1e-3, accel_noise_speed=0.0,
+                       spin_noise=0.05, spin_prior=prior, start_velocity_noise=0.02,
+                       bounce_transform=transform)
     times = np.arange(0.0, 0.5, 1.0 / 180.0)
     values = []
     for _ in range(n):
@@ -174,6 +176,27 @@ def test_a_samples_covariance_is_its_position_noise_and_along_v_its_stamps_jitte
     across /= np.linalg.norm(across)
     assert u @ R @ u == pytest.approx(sigma ** 2 + tau ** 2 * (v @ v), rel=1e-12)
     assert across @ R @ across == pytest.approx(sigma ** 2, rel=1e-12)
+
+
+@pytest.mark.parametrize('speed', [0.5, 3.0, 8.0])
+@pytest.mark.parametrize('ref_speed', [3.0, 0.0])
+def test_the_unmodelled_acceleration_grows_as_the_aerodynamic_force(speed, ref_speed):
+    """The process noise is a white acceleration whose density grows as the drag and Magnus
+    forces do (|v|^2 in amplitude): accel_noise^2 (1 + (|v| / accel_noise_speed)^4) in
+    variance, the same at every speed with accel_noise_speed 0. Over one step h from a state
+    known exactly, each velocity component's variance is that density times h and each
+    position's that times h^3 / 3 (the integral of a white acceleration)."""
+    q, h = 0.05, 2e-3
+    f = BallFilter(ModelParams(), FilterConfig(accel_noise=q, spin_noise=0.0,
+                                               accel_noise_speed=ref_speed))
+    v = speed * np.array([-0.8, 0.36, 0.48])
+    f.start(0.0, [0.5, 0.1, 0.5], v, np.zeros((3, 3)), np.zeros((3, 3)), spin=[0.0, 50.0, 0.0],
+            spin_cov=np.zeros((3, 3)))
+    f.P = np.zeros((9, 9))
+    f.predict(h)
+    density = q ** 2 * (1.0 + ((speed / ref_speed) ** 4 if ref_speed else 0.0))
+    np.testing.assert_allclose(np.diag(f.P)[3:6], density * h, rtol=1e-9)
+    np.testing.assert_allclose(np.diag(f.P)[:3], density * h ** 3 / 3.0, rtol=1e-9)
 
 
 def test_the_fused_step_is_predict_then_update_with_the_samples_covariance():

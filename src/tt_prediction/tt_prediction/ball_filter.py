@@ -79,7 +79,13 @@ class FilterConfig:
     """Noise, gating and track handling of :class:`BallFilter` / :class:`TrackFilter` (SI)."""
 
     accel_noise: float = 0.05
-    """Unmodelled acceleration as a white-noise density, m/s^2 / sqrt(Hz)."""
+    """Unmodelled acceleration as a white-noise density, m/s^2 / sqrt(Hz), of a ball at rest;
+    at speed |v| it is accel_noise sqrt(1 + (|v| / accel_noise_speed)^4)."""
+    accel_noise_speed: float = 3.0
+    """Speed (m/s) at which the unmodelled acceleration's aerodynamic part, which grows as
+    the drag and Magnus forces (|v|^2), equals its part at rest (``accel_noise``); 0: the same
+    at every speed. Measured on the MPI sets (docs/prediction.md, "The unmodelled
+    acceleration grows with speed")."""
     spin_noise: float = 2.0
     """Random walk of the spin, rad/s / sqrt(s)."""
     spin_prior: float = 250.0
@@ -252,15 +258,19 @@ def rebound_jacobian(s, P, J):
 
 
 @njit(**_NJIT)
-def _propagate(x, C, h, P, q_acc, q_spin):
-    """State and covariance after ``h`` s of flight: RK4 of eq. 8 and Phi C Phi^T + Q."""
+def _propagate(x, C, h, P, q_acc, q_spin, inv_speed4=0.0):
+    """State and covariance after ``h`` s of flight: RK4 of eq. 8 and Phi C Phi^T + Q.
+
+    Q is that of a white acceleration of density q_acc (1 + |v|^4 inv_speed4) (|v| at the
+    step's start; :attr:`FilterConfig.accel_noise_speed`) and a spin random walk q_spin."""
     F = np.empty((9, 9))
     flight_jacobian(x, P, F)
     Fh = F * h
     Phi = np.eye(9) + Fh + 0.5 * (Fh @ Fh)
     out = rk4_advance(x, h, P)
     Cn = Phi @ C @ Phi.T
-    a = q_acc * h
+    v2 = x[3] * x[3] + x[4] * x[4] + x[5] * x[5]
+    a = q_acc * (1.0 + v2 * v2 * inv_speed4) * h
     for i in range(3):
         Cn[i, i] += a * h * h / 3.0
         Cn[i, 3 + i] += a * h / 2.0
@@ -343,15 +353,16 @@ def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
     """Advance (x, C) from t to t_end, bouncing on the table at centre height ``contact_z``.
 
     cfg = (accel_noise^2, spin_noise^2, bounce_velocity_noise^2, bounce_spin_noise^2,
-    max_step, 1 for the unscented rebound else 0). ``bounce`` (4,) receives the last contact
-    (t, x, y, contact_z); returns the new state and the number of contacts: (x, C, n).
+    max_step, 1 for the unscented rebound else 0, accel_noise_speed^-4 or 0). ``bounce`` (4,)
+    receives the last contact (t, x, y, contact_z); returns the new state and the number of
+    contacts: (x, C, n).
     """
     r = P[I_RADIUS]
     n_bounce = 0
     while t_end - t > 1e-9:
         h = min(cfg[4], t_end - t)
         z0 = x[2]
-        xn, Cn = _propagate(x, C, h, P, cfg[0], cfg[1])
+        xn, Cn = _propagate(x, C, h, P, cfg[0], cfg[1], cfg[6])
         on_table = abs(xn[0]) <= HALF_LENGTH + r and abs(xn[1]) <= HALF_WIDTH + r
         if xn[2] < contact_z <= z0 and xn[5] < 0.0 and on_table:
             tau = h * (z0 - contact_z) / max(z0 - xn[2], 1e-12)
@@ -363,12 +374,12 @@ def _predict_to(x, C, t, t_end, P, cfg, contact_z, bounce):
                 t += h
                 continue
             for _ in range(2):          # Newton on the contact time (z linear in tau)
-                xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1])
+                xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1], cfg[6])
                 if xc[5] >= 0.0:
                     break
                 step = (xc[2] - contact_z) / xc[5]
                 tau = min(max(tau + step, 1e-9), h)
-            xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1])
+            xc, Cc = _propagate(x, C, tau, P, cfg[0], cfg[1], cfg[6])
             xc[2] = contact_z
             if cfg[5] > 0.0:
                 xc, Cc = _rebound_unscented(xc, Cc, P, contact_z)
@@ -469,7 +480,8 @@ class BallFilter:
         c = self.config
         self._cfg = np.array([c.accel_noise ** 2, c.spin_noise ** 2,
                               c.bounce_velocity_noise ** 2, c.bounce_spin_noise ** 2,
-                              c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0])
+                              c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0,
+                              c.accel_noise_speed ** -4 if c.accel_noise_speed > 0.0 else 0.0])
         self._noise = np.array([c.position_noise ** 2, c.stamp_noise, c.gate, c.robust])
         self.x = np.zeros(9)
         self.P = np.eye(9)
@@ -943,7 +955,9 @@ class SpinPriorLearner:
     curvature and the bounce measured it). With y_i = w_i + e_i, w_i drawn from the
     population N(mu, tau^2), the method of moments gives mu = mean(y_i) and
     tau^2 = var(y_i) - mean(s_i^2), over the tracks whose s_i is below ``max_sigma`` (an axis
-    the data did not see says nothing), each y_i clipped to +-``cap``; tau is then floored
+    the data did not see says nothing: 150 rad/s; at 60 an axis measured about that well, as
+    mpi_pam's side spin, informed few tracks or none, by chance, and kept the generic prior
+    or took the floor: docs/prediction.md), each y_i clipped to +-``cap``; tau is then floored
     at ``floor`` and capped at ``cap``. A population whose spin along v is consistent but
     smaller than what one track can measure of it (a launcher's gyro spin) has tau at the
     floor and the mean where the tracks put it. Until ``min_tracks`` tracks informed an axis
@@ -956,7 +970,7 @@ class SpinPriorLearner:
     """
 
     def __init__(self, generic=(250.0, 250.0, 250.0), generic_mean=(0.0, 0.0, 0.0),
-                 min_tracks=5, floor=5.0, cap=600.0, max_sigma=60.0):
+                 min_tracks=5, floor=5.0, cap=600.0, max_sigma=150.0):
         self.generic = np.asarray(generic, dtype=float) * np.ones(3)
         self.generic_mean = np.asarray(generic_mean, dtype=float) * np.ones(3)
         self.min_tracks = int(min_tracks)

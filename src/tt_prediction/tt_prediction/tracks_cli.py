@@ -182,13 +182,15 @@ def write_rows(path, rows):
 
 def node_params(config, model_path, command):
     """The ROS 2 parameters file of what the replay ended with, for the nodes: perception_node's
-    filter settings that the replay learns (accel_noise, the spin prior's standard deviations
-    and mean on the axes of the velocity) and, for each node that reads one, ``model_path``.
-    ``command``: the tt-predict command line, in the header comment. A YAML string."""
+    filter settings that the replay learns (accel_noise, with the accel_noise_speed it was
+    learned at, the spin prior's standard deviations and mean on the axes of the velocity)
+    and, for each node that reads one, ``model_path``. ``command``: the tt-predict
+    command line, in the header comment. A YAML string."""
     top, side, along = config.spin_prior_axes()
     perception = {
         'model_file': model_path,
         'accel_noise': float(config.accel_noise),
+        'accel_noise_speed': float(config.accel_noise_speed),
         'spin_prior': float(top), 'spin_prior_side': float(side),
         'spin_prior_along': float(along),
         'spin_prior_mean': [float(v) for v in config.spin_prior_mean],
