@@ -481,7 +481,9 @@ class BallFilter:
         self._cfg = np.array([c.accel_noise ** 2, c.spin_noise ** 2,
                               c.bounce_velocity_noise ** 2, c.bounce_spin_noise ** 2,
                               c.max_step, 1.0 if c.bounce_transform == 'unscented' else 0.0,
-                              c.accel_noise_speed ** -4 if c.accel_noise_speed > 0.0 else 0.0])
+                              # below 1 mm/s the aerodynamic part is all there is anyway
+                              max(c.accel_noise_speed, 1e-3) ** -4 if c.accel_noise_speed
+                              else 0.0])
         self._noise = np.array([c.position_noise ** 2, c.stamp_noise, c.gate, c.robust])
         self.x = np.zeros(9)
         self.P = np.eye(9)
