@@ -18,6 +18,7 @@ is reported (and a device reopened) while the node keeps running.
 """
 
 import contextlib
+import dataclasses
 import gc
 import math
 import os
@@ -35,7 +36,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image
 from tt_prediction.ball import load_model
-from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.errors import one_line_reason
 from tt_ros.executor import StartupError, run_node
@@ -111,22 +111,22 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'pixels', 0.01, 10),
     ('max_reprojection', TrackerConfig.max_reprojection,
      'Largest reprojection error of a triangulated ball', 'pixels', 0.1, 50),
-    ('accel_noise', 0.05, 'Unmodelled acceleration of the filter (of a ball at rest when '
-     'accel_noise_speed is set)', 'm/s^2/sqrt(Hz)', 0.0, 100),
+    ('accel_noise', PERCEPTION_FILTER.accel_noise, 'Unmodelled acceleration of the filter (of '
+     'a ball at rest when accel_noise_speed is set)', 'm/s^2/sqrt(Hz)', 0.0, 100),
     ('accel_noise_speed', PERCEPTION_FILTER.accel_noise_speed, 'Speed at which the unmodelled '
      "acceleration's aerodynamic part (growing as |v|^2) equals accel_noise; 0: the same at "
      'every speed (tt-predict --tracks learns accel_noise with 3.0 and writes both)', 'm/s',
      0.0, 100),
-    ('spin_prior', 250.0, 'Prior standard deviation of the top/back spin (about the horizontal '
-     "axis across the velocity at a track's start), and of every spin component unless "
-     'spin_prior_side or spin_prior_along is set', 'rad/s', 1, 5000),
+    ('spin_prior', PERCEPTION_FILTER.spin_prior, 'Prior standard deviation of the top/back '
+     "spin (about the horizontal axis across the velocity at a track's start), and of every "
+     'spin component unless spin_prior_side or spin_prior_along is set', 'rad/s', 1, 5000),
     ('spin_prior_side', 0.0, 'Prior standard deviation of the side spin (about the axis across '
      'the velocity in the vertical plane); 0: spin_prior', 'rad/s', 0, 5000),
     ('spin_prior_along', 0.0, 'Prior standard deviation of the spin along the velocity (which '
      'flight cannot show); 0: spin_prior', 'rad/s', 0, 5000),
-    ('spin_prior_mean', [0.0, 0.0, 0.0], 'Prior mean of the spin on the axes top/back '
-     "(topspin positive), side, along the velocity at a track's start (as tt-predict "
-     '--tracks learns it)', 'rad/s', -5000, 5000, (), 3),
+    ('spin_prior_mean', list(PERCEPTION_FILTER.spin_prior_mean), 'Prior mean of the spin on '
+     "the axes top/back (topspin positive), side, along the velocity at a track's start (as "
+     'tt-predict --tracks learns it)', 'rad/s', -5000, 5000, (), 3),
     ('measured_spin_topic', '', 'geometry_msgs/Vector3Stamped topic of a measured spin '
      '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
@@ -276,12 +276,12 @@ class PerceptionNode(Node):
             response_gamma=self._p('response_gamma'),
             curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'),
             light_from_above=self._p('light_from_above'))
-        filt = FilterConfig(accel_noise=self._p('accel_noise'),
-                            accel_noise_speed=self._p('accel_noise_speed'),
-                            spin_prior=self._p('spin_prior'),
-                            spin_prior_side=self._p('spin_prior_side') or None,
-                            spin_prior_along=self._p('spin_prior_along') or None,
-                            spin_prior_mean=tuple(self._p('spin_prior_mean')))
+        filt = dataclasses.replace(PERCEPTION_FILTER, accel_noise=self._p('accel_noise'),
+                                   accel_noise_speed=self._p('accel_noise_speed'),
+                                   spin_prior=self._p('spin_prior'),
+                                   spin_prior_side=self._p('spin_prior_side') or None,
+                                   spin_prior_along=self._p('spin_prior_along') or None,
+                                   spin_prior_mean=tuple(self._p('spin_prior_mean')))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
