@@ -361,8 +361,9 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
 
 def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(graph, tmp_path):
     """`tt-predict --tracks` writes params.yaml: perception_node started with it
-    (`--params-file`, as docs/prediction.md says) runs its filter with the spin prior and
-    accel_noise the replay ended with, at the accel_noise_speed it learned it with, and reads
+    (`--params-file`, as docs/prediction.md says) runs its filter with the spin prior,
+    accel_noise and bounce_velocity_noise the replay ended with (learned: not the node's
+    defaults), at the accel_noise_speed it learned accel_noise with, and reads
     the model.yaml written beside it."""
     launcher = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..',
                             'data', 'mpi_launcher')
@@ -376,7 +377,7 @@ def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(g
     params = yaml.safe_load((out / 'params.yaml').read_text())
     mine = params['perception_node']['ros__parameters']
     defaults = {p.name: p.default for p in node_module.PARAMETERS}
-    for name in ('accel_noise', 'spin_prior', 'spin_prior_mean'):      # learned
+    for name in ('accel_noise', 'spin_prior', 'spin_prior_mean', 'bounce_velocity_noise'):
         assert mine[name] != defaults[name]
     assert mine['accel_noise_speed'] == FilterConfig.accel_noise_speed != defaults[
         'accel_noise_speed']                # the replay's shape, not the node's default
@@ -388,6 +389,7 @@ def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(g
     cfg = node.pipeline.tracker.filter_config
     assert cfg.accel_noise == mine['accel_noise']
     assert cfg.accel_noise_speed == mine['accel_noise_speed']
+    assert cfg.bounce_velocity_noise == mine['bounce_velocity_noise']
     assert list(cfg.spin_prior_axes()) == [mine['spin_prior'], mine['spin_prior_side'],
                                            mine['spin_prior_along']]
     assert list(cfg.spin_prior_mean) == mine['spin_prior_mean']

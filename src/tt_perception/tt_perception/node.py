@@ -117,6 +117,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      "acceleration's aerodynamic part (growing as |v|^2) equals accel_noise; 0: the same at "
      'every speed (tt-predict --tracks learns accel_noise with 3.0 and writes both)', 'm/s',
      0.0, 100),
+    ('bounce_velocity_noise', PERCEPTION_FILTER.bounce_velocity_noise, 'Standard deviation '
+     'added to each velocity component at a bounce, for what the rebound model leaves out '
+     '(tt-predict --tracks learns it from the rebounds it has seen)', 'm/s', 0.0, 10),
     ('spin_prior', PERCEPTION_FILTER.spin_prior, 'Prior standard deviation of the top/back '
      "spin (about the horizontal axis across the velocity at a track's start), and of every "
      'spin component unless spin_prior_side or spin_prior_along is set', 'rad/s', 1, 5000),
@@ -278,6 +281,7 @@ class PerceptionNode(Node):
             light_from_above=self._p('light_from_above'))
         filt = dataclasses.replace(PERCEPTION_FILTER, accel_noise=self._p('accel_noise'),
                                    accel_noise_speed=self._p('accel_noise_speed'),
+                                   bounce_velocity_noise=self._p('bounce_velocity_noise'),
                                    spin_prior=self._p('spin_prior'),
                                    spin_prior_side=self._p('spin_prior_side') or None,
                                    spin_prior_along=self._p('spin_prior_along') or None,

@@ -71,13 +71,18 @@ def table(result):
     if learned:
         lines.append('')
         lift = final.get('lift_learned', {})
-        lines.append('Spin prior, accel_noise, the table restitution and the Magnus '
-                     'coefficient learned causally from the tracks before each one '
-                     '(docs/prediction.md); at the end (final model): top/back, side, '
-                     f"along v {', '.join(f'{v + 0.0:g}' for v in learned['final_mean'])} rad/s "
+        bounce = final.get('bounce_noise_learned', {})
+        lines.append("Spin prior, accel_noise, the rebound's velocity noise, the table "
+                     'restitution and the Magnus coefficient learned causally from the tracks '
+                     'before each one (docs/prediction.md); at the end (final model): '
+                     'top/back, side, along v '
+                     f"{', '.join(f'{v + 0.0:g}' for v in learned['final_mean'])} rad/s "
                      f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
                      f"(standard deviation), accel_noise {learned['accel_noise_final']:g} "
-                     f"m/s^2/sqrt(Hz), e_t {final['restitution_learned']['final']:g}, C_M "
+                     'm/s^2/sqrt(Hz), bounce_velocity_noise '
+                     f"{bounce.get('final', math.nan):g} m/s (from "
+                     f"{bounce.get('tracks_informing', 0)} bounces), e_t "
+                     f"{final['restitution_learned']['final']:g}, C_M "
                      f"{lift.get('final', math.nan):g} (from {lift.get('tracks_informing', 0)} "
                      'gripping bounces).')
     return '\n'.join(lines)

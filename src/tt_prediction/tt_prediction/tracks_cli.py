@@ -183,7 +183,8 @@ def write_rows(path, rows):
 def node_params(config, model_path, command):
     """The ROS 2 parameters file of what the replay ended with, for the nodes: perception_node's
     filter settings that the replay learns (accel_noise, with the accel_noise_speed it was
-    learned at, the spin prior's standard deviations and mean on the axes of the velocity)
+    learned at, bounce_velocity_noise, the spin prior's standard deviations and mean on the
+    axes of the velocity)
     and, for each node that reads one, ``model_path``. ``command``: the tt-predict
     command line, in the header comment. A YAML string."""
     top, side, along = config.spin_prior_axes()
@@ -191,6 +192,7 @@ def node_params(config, model_path, command):
         'model_file': model_path,
         'accel_noise': float(config.accel_noise),
         'accel_noise_speed': float(config.accel_noise_speed),
+        'bounce_velocity_noise': float(config.bounce_velocity_noise),
         'spin_prior': float(top), 'spin_prior_side': float(side),
         'spin_prior_along': float(along),
         'spin_prior_mean': [float(v) for v in config.spin_prior_mean],
@@ -246,7 +248,8 @@ def _main(argv=None):
     parser.add_argument('--no-textbook', action='store_true',
                         help='skip the textbook reference predictor in summary.json')
     parser.add_argument('--no-learn', action='store_true',
-                        help="keep the configured spin prior, accel_noise and the model's "
+                        help='keep the configured spin prior, accel_noise, '
+                             "bounce_velocity_noise and the model's "
                              'table restitution and Magnus coefficient (default: learn them '
                              'from the tracks before each one, docs/prediction.md)')
     args = parser.parse_args(argv)
