@@ -395,7 +395,7 @@ def bounce_spin_observation(rp, params, config, reading=None):
     reading = reading or bounce_reading(rp, params, config)
     if reading is None:
         return None
-    bf, v0, v_meas, var_fit = reading     # v0: the prior's axes (the filter's start velocity)
+    bf, v0, _, _ = reading        # v0: the prior's axes (the filter's start velocity)
     xc, Sv, d, A = _rebound_innovation(reading, params)
     Cwv = bf.P[6:] @ Sv.T
     K = Cwv @ np.linalg.inv(A + np.eye(3) * config.bounce_velocity_noise ** 2)
