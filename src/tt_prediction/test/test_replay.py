@@ -57,6 +57,12 @@ def _track(state, rng, noise=1e-3, duration=0.75, params=None):
     t = np.arange(0.0, duration, 1.0 / RATE)
     _, s = rollout(state, params or ModelParams(), sample_times=t, stop_at_plane=False,
                    stop_at_net=False, max_bounces=2, t_max=duration)
+    return _measured(t, s, rng, noise)
+
+
+def _measured(t, s, rng, noise):
+    """The samples of states ``s`` at times ``t`` that a tracker would give: those in flight
+    up to 1.6 m behind the table's centre, their positions with N(0, noise^2) per axis."""
     ok = np.isfinite(s[:, 0]) & (s[:, 0] > -1.6)
     return t[ok], s[ok, :3] + rng.normal(0.0, noise, (ok.sum(), 3))
 
@@ -562,9 +568,7 @@ def _kicked_track(state, rng, kick, noise=5e-4, duration=0.75):
     after[3:6] += rng.normal(0.0, kick, 3)
     _, later = rollout(after, params, t0=bounce.t, sample_times=t[t > bounce.t],
                        stop_at_plane=False, stop_at_net=False, max_bounces=1, t_max=duration)
-    s = np.concatenate([before[t <= bounce.t], later])
-    ok = np.isfinite(s[:, 0]) & (s[:, 0] > -1.6)
-    return t[ok], s[ok, :3] + rng.normal(0.0, noise, (ok.sum(), 3))
+    return _measured(t, np.concatenate([before[t <= bounce.t], later]), rng, noise)
 
 
 @pytest.mark.parametrize('kick', [0.0, 0.3])

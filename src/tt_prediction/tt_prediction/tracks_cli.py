@@ -184,9 +184,8 @@ def node_params(config, model_path, command):
     """The ROS 2 parameters file of what the replay ended with, for the nodes: perception_node's
     filter settings that the replay learns (accel_noise, with the accel_noise_speed it was
     learned at, bounce_velocity_noise, the spin prior's standard deviations and mean on the
-    axes of the velocity)
-    and, for each node that reads one, ``model_path``. ``command``: the tt-predict
-    command line, in the header comment. A YAML string."""
+    axes of the velocity) and, for each node that reads one, ``model_path``. ``command``:
+    the tt-predict command line, in the header comment. A YAML string."""
     top, side, along = config.spin_prior_axes()
     perception = {
         'model_file': model_path,
