@@ -507,3 +507,129 @@ def test_dividing_the_prior_out_gives_back_what_the_data_said():
     assert got_y[0] == pytest.approx(y[0], abs=1e-3)
     assert got_s2[0] == pytest.approx(20.0 ** 2, rel=1e-6)
     assert np.all(np.isinf(got_s2[1:]))
+
+
+def test_the_spin_outlier_odds_are_the_mixture_priors_posterior_odds():
+    """spin_outlier_log_odds against the mixture written out with scipy's normal densities:
+    per axis y_k ~ N(mu_k, L_k^2 + s2_k) under the spin prior, N(0, W^2 + s2_k) under the
+    outlier component; an axis with s2 inf says nothing; the prior odds (1 - rate) / rate."""
+    from scipy.stats import norm
+    from tt_prediction.ball_filter import spin_outlier_log_odds
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        y = rng.normal(0.0, 200.0, 3)
+        s2 = rng.uniform(5.0, 150.0, 3) ** 2
+        s2[rng.integers(3)] = np.inf
+        L, mu = rng.uniform(5.0, 80.0, 3), rng.normal(0.0, 30.0, 3)
+        W, rate = rng.uniform(100.0, 400.0), rng.uniform(0.01, 0.5)
+        want = np.log((1.0 - rate) / rate) + sum(
+            norm.logpdf(y[k], mu[k], np.sqrt(L[k] ** 2 + s2[k]))
+            - norm.logpdf(y[k], 0.0, np.sqrt(W ** 2 + s2[k]))
+            for k in range(3) if np.isfinite(s2[k]))
+        assert spin_outlier_log_odds(y, s2, L, mu, W, rate) == pytest.approx(want, abs=1e-9)
+
+
+def _backspin_ball(top, rng, noise=5e-4):
+    """Samples (times, truth, measured positions) and bounce time of INCOMING's flight with
+    ``top`` rad/s of top (> 0) or back spin and nothing else."""
+    from tt_prediction.ball_filter import velocity_frame
+    s0 = INCOMING.copy()
+    s0[6:] = velocity_frame(s0[3:6]).T @ np.array([top, 0.0, 0.0])
+    times = np.arange(0.0, 0.75, 1.0 / 180.0)
+    truth, z = _measured(s0, times, noise, rng)
+    events, _ = rollout(s0, ModelParams(), stop_at_plane=False, max_bounces=1)
+    return times, truth, z, events[-1].t
+
+
+def test_a_ball_spun_far_beyond_a_tight_spin_prior_is_followed_by_the_second_filter():
+    """A spin prior learned from slow balls (5 rad/s about 0) pins a -250 rad/s backspin
+    ball's spin at 0: the filter alone cannot express it. With spin_outlier_rate the second
+    filter (spin_outlier_prior 250 rad/s) runs alongside, and the data's curvature makes it
+    the more probable: its state is taken within the flight, 100 ms before the bounce, and
+    the backspin it carries into the bounce is the ball's, within 3 standard deviations. That
+    state is exactly that of a filter run with the wide prior alone."""
+    from tt_prediction.ball_filter import velocity_frame
+    times, truth, z, tb = _backspin_ball(-250.0, np.random.default_rng(4))
+    E = velocity_frame(INCOMING[3:6])
+    spins, states = {}, {}
+    for rate, prior in ((0.05, 5.0), (0.0, 5.0), (0.0, 250.0)):
+        cfg = FilterConfig(position_noise=5e-4, spin_prior=prior, spin_outlier_rate=rate)
+        tf = TrackFilter(config=cfg)
+        took = None
+        for t, p in zip(times, z, strict=True):
+            tf.add(t, p)
+            if took is None and tf.filter is not None and tf.filter.took_outlier:
+                took = t
+            if t >= tb - 0.02:
+                break
+        f = tf.filter
+        spins[rate, prior] = (E[0] @ f.x[6:], np.sqrt(E[0] @ f.P[6:, 6:] @ E[0]), took)
+        states[rate, prior] = (f.x, f.P, f.took_outlier)
+    top, sd, took = spins[0.05, 5.0]
+    assert took is not None and took < tb - 0.1, (took, tb)
+    assert abs(top + 250.0) < 3.0 * sd and sd < 100.0, spins
+    top, sd, took = spins[0.0, 5.0]
+    assert took is None and abs(top) < 3.0 * 5.0          # pinned by its prior
+    x, P, took = states[0.05, 5.0]
+    assert took and np.array_equal(x, states[0.0, 250.0][0])
+    assert np.array_equal(P, states[0.0, 250.0][1])
+
+
+def test_balls_of_the_spin_priors_own_population_keep_their_filter():
+    """Balls whose spin is drawn from the spin prior itself: the second filter's state is
+    taken for few of them (the mixture's posterior odds favour the prior they came from),
+    and where it is not, the filter's state is exactly that of a filter without it."""
+    from tt_prediction.ball_filter import velocity_frame
+    rng = np.random.default_rng(6)
+    prior, mean = (30.0, 10.0, 10.0), (20.0, 0.0, 0.0)
+    times = np.arange(0.0, 0.4, 1.0 / 180.0)
+    taken = 0
+    for _ in range(20):
+        s0 = INCOMING.copy()
+        s0[6:] = velocity_frame(s0[3:6]).T @ rng.normal(mean, prior)
+        _, z = _measured(s0, times, 5e-4, rng)
+        states = []
+        for rate in (0.05, 0.0):
+            cfg = FilterConfig(position_noise=5e-4, spin_prior=prior[0],
+                               spin_prior_side=prior[1], spin_prior_along=prior[2],
+                               spin_prior_mean=mean, spin_outlier_rate=rate)
+            tf = TrackFilter(config=cfg)
+            for t, p in zip(times, z, strict=True):
+                tf.add(t, p)
+            states.append(tf.filter)
+        taken += states[0].took_outlier
+        if not states[0].took_outlier:
+            assert np.array_equal(states[0].x, states[1].x)
+            assert np.array_equal(states[0].P, states[1].P)
+    assert taken <= 2, taken
+
+
+def test_a_trial_copy_of_the_filter_leaves_the_second_filter_alone():
+    """perception's pipeline tries an update on a shallow copy of the filter: that update
+    must not move the original's second filter (update() replaces it, never changes it)."""
+    import copy
+    rng = np.random.default_rng(9)
+    times, _, z, _ = _backspin_ball(-250.0, rng)
+    cfg = FilterConfig(position_noise=5e-4, spin_prior=5.0)
+    f = BallFilter(config=cfg)
+    f.start(times[1], z[1], (z[1] - z[0]) / (times[1] - times[0]), np.eye(3) * 2.5e-7,
+            np.eye(3) * 0.09)
+    assert f.outlier is not None and f.outlier.config.spin_prior == cfg.spin_outlier_prior
+    f.predict(times[2])
+    before = f.outlier.x.copy()
+    trial = copy.copy(f)
+    assert trial.update(z[2], np.eye(3) * 2.5e-7)
+    assert np.array_equal(f.outlier.x, before)
+    assert not np.array_equal(trial.outlier.x, before)
+    # A spin prior no tighter than the outlier's, or a rate of 0, runs no second filter.
+    for loose in (FilterConfig(spin_prior=300.0, spin_prior_side=250.0),
+                  FilterConfig(spin_prior=5.0, spin_outlier_rate=0.0)):
+        g = BallFilter(config=loose)
+        g.start(0.0, z[1], np.array([-5.0, 0.0, 1.0]), np.eye(3), np.eye(3))
+        assert g.outlier is None
+
+
+@pytest.mark.parametrize('rate', [1.0, -0.1])
+def test_a_spin_outlier_rate_outside_0_to_1_is_refused(rate):
+    with pytest.raises(ValueError, match='spin_outlier_rate must be'):
+        FilterConfig(spin_outlier_rate=rate)

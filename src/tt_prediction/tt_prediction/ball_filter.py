@@ -36,6 +36,7 @@ duplicate stamps are skipped, spikes gated, gaps coasted over, and the filter re
 the data after a run of rejected samples (a racket hit, a missed bounce) or a long gap.
 """
 
+import copy
 import dataclasses
 import math
 
@@ -64,7 +65,8 @@ from .ball import (
 
 __all__ = ['AccelNoiseLearner', 'BallFilter', 'FilterConfig', 'SpinPriorLearner', 'TrackFilter',
            'estimate_measurement_noise', 'rebound_jacobian',
-           'rebound_map', 'spin_likelihood_per_axis', 'velocity_frame']
+           'rebound_map', 'spin_likelihood_per_axis', 'spin_outlier_log_odds',
+           'velocity_frame']
 
 _NJIT = {'cache': True, 'nogil': True}
 
@@ -103,6 +105,20 @@ class FilterConfig:
     v in the vertical plane; for a level v, counter-clockwise seen from above positive) and
     spin along v. A ball's spin before the data has spoken is this, expressed in the frame
     of its velocity at the start."""
+    spin_outlier_prior: float = 250.0
+    """Standard deviation of each spin component (rad/s, mean 0) of a ball whose spin is not
+    of the population the spin prior describes (a launcher's rare strongly spun ball among
+    its slow ones): the second component of the spin's mixture prior
+    (``spin_outlier_rate``)."""
+    spin_outlier_rate: float = 0.05
+    """Prior probability (0 to below 1) that a ball's spin is ``spin_outlier_prior``'s, not
+    the spin prior's. Where the spin prior is tighter than ``spin_outlier_prior`` across the
+    velocity, :class:`BallFilter` runs a second filter with ``spin_outlier_prior`` alongside
+    until the first bounce and keeps the state of the more probable component, given the
+    spin the data show; 0: never."""
+    spin_outlier_wait: float = 0.15
+    """Time from a track's start (s) before the second filter's state may be used: its first
+    spin estimates carry the start's velocity error."""
     bounce_velocity_noise: float = 0.15
     """Standard deviation added to each velocity component at a bounce, m/s."""
     bounce_spin_noise: float = 25.0
@@ -149,6 +165,8 @@ class FilterConfig:
                     raise ValueError(f'{f.name} must be > 0, not {v}')
                 if f.name not in _SIGNED and v < 0.0:
                     raise ValueError(f'{f.name} must be >= 0, not {v}')
+        if self.spin_outlier_rate >= 1.0:
+            raise ValueError(f'spin_outlier_rate must be below 1, not {self.spin_outlier_rate}')
 
     def sample_cov(self, velocity):
         """Covariance (3, 3) of a measured position of a ball moving with ``velocity`` (m/s):
@@ -465,6 +483,11 @@ def velocity_frame(velocity):
 # The filter
 
 
+_FILTER_STATE = ('x', 'P', '_prev', 'contact_z', 'last_d2')
+"""What :class:`BallFilter` and its second filter trade when the more probable of the two
+changes (both run to the same time, before any bounce, from the same start)."""
+
+
 class BallFilter:
     """EKF of one ball. Create, :meth:`start`, then :meth:`predict` and :meth:`update`.
 
@@ -487,7 +510,7 @@ class BallFilter:
         self._noise = np.array([c.position_noise ** 2, c.stamp_noise, c.gate, c.robust])
         self.x = np.zeros(9)
         self.P = np.eye(9)
-        self.t = 0.0
+        self.t = self._start_t = 0.0
         self.start_velocity = np.zeros(3)
         self.bounces = 0
         self.last_bounce = None
@@ -497,13 +520,24 @@ class BallFilter:
         """Centre height at contact (m) of the prediction that led to the current state (the
         one :meth:`update`'s ``rebounce`` kept, when it did): what :func:`smooth` needs to
         retrace it."""
+        self.outlier = None
+        """The second filter, its spin prior ``spin_outlier_prior``'s, run alongside this one
+        until the first bounce (FilterConfig ``spin_outlier_rate``), or None. While
+        :attr:`took_outlier` the two have traded states: this one's state is then the
+        second filter's, and the second's the spin prior's."""
+        self.took_outlier = False
+        """True while the state is the second filter's (and, after the first bounce, when it
+        was then): the data put the ball's spin outside the population the spin prior
+        describes."""
+        self._outlier_config = _outlier_config(c)
+        self._outlier_fused = None
 
     def start(self, t, position, velocity, position_cov, velocity_cov, spin=None,
               spin_cov=None):
         """Initialise at time ``t`` (s) from a position (m) and velocity (m/s) with their
         covariances (3, 3); the spin (rad/s) is the prior's (``spin_prior_mean``,
         ``spin_prior*``) unless given."""
-        self.t = float(t)
+        self.t = self._start_t = float(t)
         w = self.spin_prior_mean(velocity) if spin is None else np.asarray(spin, dtype=float)
         self.x = np.concatenate([position, velocity, w]).astype(float)
         self.start_velocity = np.array(velocity, dtype=float)   # the spin prior's frame
@@ -514,6 +548,17 @@ class BallFilter:
         self.bounces = 0
         self.last_bounce = None
         self._prev = None
+        self.outlier = None
+        self.took_outlier = False
+        if spin is None and self._outlier_config is not None:
+            o = self.outlier = BallFilter(self.params, self._outlier_config)
+            o.start(t, position, velocity, position_cov, velocity_cov)
+            # its spin prior's covariance, mean and axes, and the mixture's two components
+            c = self.config
+            self._outlier_prior = (o.P[6:, 6:].copy(), o.x[6:].copy(), velocity_frame(velocity),
+                                   np.array(c.spin_prior_axes(), dtype=float),
+                                   np.array(c.spin_prior_mean, dtype=float),
+                                   float(c.spin_outlier_prior), float(c.spin_outlier_rate))
 
     def spin_prior_mean(self, velocity):
         """Prior mean (3,) of the spin, rad/s, table frame, for a ball moving with
@@ -539,6 +584,8 @@ class BallFilter:
         x, P, n = _predict_to(self.x, self.P, self.t, float(t), self.P_model, self._cfg, cz,
                               self._bounce)
         self._advance(t, cz, x, P, n)
+        if self.outlier is not None:
+            self.outlier.predict(t, contact_z)
 
     def predict_fuse(self, t, z):
         """:meth:`predict` to ``t`` (s, after :attr:`t`) at the nominal contact height, and
@@ -552,6 +599,8 @@ class BallFilter:
                                                    self.P_model, self._cfg, cz, self._bounce,
                                                    z, self._noise)
         self._advance(t, cz, xp, Cp, n)
+        if self.outlier is not None:
+            self._outlier_fused = (self.t, *self.outlier.predict_fuse(t, z))
         return R, (x, P, d2, ok)
 
     def _advance(self, t, cz, x, P, n):
@@ -599,9 +648,19 @@ class BallFilter:
         near the table is tried against contact heights within ``rebounce_range`` of z = r
         (an earlier or later bounce, seen as a kink); the best one that passes is kept.
         ``fused``: the fusion of ``z`` already computed (:meth:`predict_fuse`).
+
+        Before the first bounce, the second filter (:attr:`outlier`) fuses ``z`` too, and the
+        state is that of the more probable of the two (:meth:`_update_outlier`).
         """
         z = np.asarray(z, dtype=float)
         R = np.asarray(R, dtype=float)
+        ok = self._update(z, R, rebounce, fused)
+        if self.outlier is not None:
+            self._update_outlier(z, R, fused is not None)
+        return ok
+
+    def _update(self, z, R, rebounce, fused):
+        """:meth:`update` of this filter alone."""
         cfg = self.config
         if fused is None:
             fused = _fuse_position(self.x, self.P, z, R, cfg.gate, cfg.robust)
@@ -633,6 +692,49 @@ class BallFilter:
         self.bounces = b0 + n
         self.last_bounce = (float(bounce[0]), float(bounce[1]), float(bounce[2]))
         return True
+
+    def __copy__(self):
+        """A shallow copy (perception's trial update) with a shallow copy of its own of the
+        second filter, which :meth:`update` changes in place."""
+        new = object.__new__(BallFilter)
+        new.__dict__.update(self.__dict__)
+        if self.outlier is not None:
+            new.outlier = copy.copy(self.outlier)
+        return new
+
+    def _update_outlier(self, z, R, fused):
+        """Fuse ``z`` (3,), m, covariance ``R`` (3, 3) in the second filter too, with the
+        fusion its :meth:`predict_fuse` made when ``fused``, and keep as this filter's state
+        the more probable of the two (the mixture's MAP component): the second filter's
+        (:attr:`took_outlier`) where, from ``spin_outlier_wait`` after the start, the spin
+        the data alone show (:func:`spin_likelihood_per_axis` of its posterior, with its
+        prior ``spin_outlier_prior``) is more probable under ``spin_outlier_prior`` than
+        under the spin prior, ``spin_outlier_rate`` being the prior probability of the first
+        (:func:`spin_outlier_log_odds`), and the spin prior's again where it is not (a flight
+        the model gets wrong can read as a strong spin for a moment). At the first bounce
+        (of either) the other one is dropped: the state goes on from the one kept."""
+        pending, self._outlier_fused = self._outlier_fused, None
+        o = self.outlier
+        if self.bounces:
+            self.outlier = None
+            return
+        if fused and pending is not None and pending[0] == self.t:
+            o.update(z, pending[1], fused=pending[2])
+        else:
+            o.update(z, R)
+        if o.bounces:
+            self.outlier = None
+            return
+        if self.t - self._start_t < self.config.spin_outlier_wait:
+            return
+        wide = self if self.took_outlier else o
+        want = _outlier_log_odds(wide.x[6:], wide.P[6:, 6:], *self._outlier_prior) < 0.0
+        if want != self.took_outlier:
+            for name in _FILTER_STATE:          # the two filters trade states
+                mine = getattr(self, name)
+                setattr(self, name, getattr(o, name))
+                setattr(o, name, mine)
+            self.took_outlier = want
 
     def rebound_noise(self, velocity_noise, spin_noise, t=None):
         """The covariance (9, 9) at ``t`` (s; None: now) of extra standard deviations
@@ -668,7 +770,9 @@ class BallFilter:
 
     def update_spin(self, w, R):
         """Fuse a measured spin ``w`` (3,), rad/s, covariance ``R`` (3, 3) (e.g. from a marked
-        ball); it fills in the component along the velocity that flight cannot observe."""
+        ball); it fills in the component along the velocity that flight cannot observe. The
+        second filter (:attr:`outlier`) is dropped: the measured spin decides."""
+        self.outlier = None
         y = np.asarray(w, dtype=float) - self.x[6:]
         S = self.P[6:, 6:] + R
         K = np.linalg.solve(S, self.P[6:, :]).T
@@ -925,26 +1029,94 @@ def spin_likelihood_per_axis(mean, cov, prior_cov, velocity, prior_mean=None):
     v and to the side only together leaves each of them uncertain, and its y unbiased).
     Returns ``(y (3,), s2 (3,))``; y is 0 and s2 inf on an axis the data did not inform.
     """
-    E = velocity_frame(velocity)
+    y = np.empty(3)
+    s2 = np.empty(3)
+    m0 = np.zeros(3) if prior_mean is None else np.asarray(prior_mean, dtype=float)
+    _spin_likelihood(np.asarray(mean, dtype=float), np.asarray(cov, dtype=float),
+                     np.asarray(prior_cov, dtype=float), m0, velocity_frame(velocity), y, s2)
+    return y, s2
+
+
+@njit(**_NJIT)
+def _spin_likelihood(mean, cov, prior_cov, prior_mean, E, y, s2):
+    """:func:`spin_likelihood_per_axis` with the frame's rows ``E`` (3, 3) given, into ``y``
+    and ``s2`` (3,) (compiled: the second filter runs it on every update)."""
     Ci = np.linalg.inv(0.5 * (cov + cov.T))
     C0i = np.linalg.inv(0.5 * (prior_cov + prior_cov.T))
     lam = E @ (Ci - C0i) @ E.T
-    eta = Ci @ np.asarray(mean, dtype=float)
-    if prior_mean is not None:
-        eta = eta - C0i @ np.asarray(prior_mean, dtype=float)
-    eta = E @ eta
-    y = np.zeros(3)
-    s2 = np.full(3, np.inf)
-    axes = [k for k in range(3) if lam[k, k] > INFORMED]
-    while axes:
-        sub = lam[np.ix_(axes, axes)]
+    eta = E @ (Ci @ mean - C0i @ prior_mean)
+    y[:] = 0.0
+    s2[:] = np.inf
+    seen = np.array([lam[k, k] > INFORMED for k in range(3)])
+    while seen.any():
+        axes = np.nonzero(seen)[0]
+        n = len(axes)
+        sub = np.empty((n, n))
+        for i in range(n):
+            for j in range(n):
+                sub[i, j] = lam[axes[i], axes[j]]
         if np.all(np.linalg.eigvalsh(sub) > 0.0):
             cov_axes = np.linalg.inv(sub)
-            y[axes] = cov_axes @ eta[axes]
-            s2[axes] = np.diag(cov_axes)
-            break
-        axes.remove(min(axes, key=lambda k: lam[k, k]))     # the least informed: not seen
-    return y, s2
+            for i in range(n):
+                y[axes[i]] = 0.0
+                for j in range(n):
+                    y[axes[i]] += cov_axes[i, j] * eta[axes[j]]
+                s2[axes[i]] = cov_axes[i, i]
+            return
+        least = axes[0]                         # the least informed: not seen
+        for k in axes:
+            if lam[k, k] < lam[least, least]:
+                least = k
+        seen[least] = False
+
+
+@njit(**_NJIT)
+def spin_outlier_log_odds(y, s2, prior_sd, prior_mean, outlier_sd, rate):
+    """Natural log of the posterior odds of a ball's spin being the spin prior's against the
+    outlier component's, given what its data alone show.
+
+    The prior is a mixture, per axis of the velocity frame (top/back, side, along v): with
+    probability 1 - ``rate`` N(``prior_mean``, ``prior_sd``^2), with ``rate``
+    N(0, ``outlier_sd``^2). ``y`` (3,), ``s2`` (3,): the spin the data alone show and its
+    variances (:func:`spin_likelihood_per_axis`; an axis with s2 inf says nothing), so that
+    y_k is N(mu_k, sd_k^2 + s2_k) under each component:
+    log((1 - rate) / rate) + sum_k [log N(y_k; mu_k, L_k^2 + s2_k)
+    - log N(y_k; 0, W^2 + s2_k)] (L the prior's, W the outlier's sd). Below 0 the outlier
+    component is the more probable. ``rate`` in (0, 1); arrays (3,) (compiled).
+    """
+    odds = math.log((1.0 - rate) / rate)
+    for k in range(3):
+        if math.isfinite(s2[k]):
+            a = prior_sd[k] ** 2 + s2[k]
+            b = outlier_sd ** 2 + s2[k]
+            odds += 0.5 * (y[k] ** 2 / b - (y[k] - prior_mean[k]) ** 2 / a + math.log(b / a))
+    return odds
+
+
+@njit(**_NJIT)
+def _outlier_log_odds(mean, cov, prior_cov, prior_mean, E, prior_sd, mixture_mean,
+                      outlier_sd, rate):
+    """:func:`spin_outlier_log_odds` of the second filter's spin posterior ``mean`` (3,),
+    ``cov`` (3, 3) under its prior (``prior_cov``, ``prior_mean``, axes ``E``), through
+    :func:`_spin_likelihood`; the mixture's spin prior ``prior_sd``, ``mixture_mean`` (3,)
+    on the axes, ``outlier_sd`` and ``rate``."""
+    y = np.empty(3)
+    s2 = np.empty(3)
+    _spin_likelihood(mean, cov, prior_cov, prior_mean, E, y, s2)
+    return spin_outlier_log_odds(y, s2, prior_sd, mixture_mean, outlier_sd, rate)
+
+
+def _outlier_config(config):
+    """The FilterConfig of :attr:`BallFilter.outlier`: ``config`` with the spin prior
+    ``spin_outlier_prior`` on every axis, mean 0, and no second filter of its own; None when
+    there is none (``spin_outlier_rate`` 0, or a spin prior across the velocity, top/back or
+    side, no tighter than ``spin_outlier_prior``)."""
+    top, side, _ = config.spin_prior_axes()
+    if config.spin_outlier_rate <= 0.0 or min(top, side) >= config.spin_outlier_prior:
+        return None
+    return dataclasses.replace(config, spin_prior=config.spin_outlier_prior,
+                               spin_prior_side=None, spin_prior_along=None,
+                               spin_prior_mean=(0.0, 0.0, 0.0), spin_outlier_rate=0.0)
 
 
 class SpinPriorLearner:
