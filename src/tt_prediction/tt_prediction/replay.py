@@ -90,6 +90,9 @@ class TrackReplay:
     """The table restitution the track was replayed with."""
     c_m: float = None
     """The Magnus coefficient the track was replayed with."""
+    spin_outlier_t: float = None
+    """Time (s) at which the filter took its second filter's state (the track's spin outside
+    the spin prior's population: FilterConfig ``spin_outlier_rate``), or None."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
@@ -103,7 +106,8 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
 
 
 def _replay_samples(t, p, params, config, hit_plane_x, spin):
-    """:func:`replay_samples`'s rows and the NIS of the filter's accepted samples."""
+    """:func:`replay_samples`'s rows, the NIS of the filter's accepted samples and the time
+    the filter took its second filter's state (None: never)."""
     t = np.asarray(t, dtype=float)
     p = np.asarray(p, dtype=float)
     order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
@@ -116,6 +120,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
     valid = False
     spin_used = spin is None
     packed = params.packed()
+    outlier_t = None
     for k, ti in enumerate(rows[:, 0].tolist()):
         if not math.isfinite(ti):
             continue
@@ -126,6 +131,8 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         if not spin_used and status == tf.STARTED:
             f.update_spin(spin, np.eye(3) * 25.0)
             spin_used = True
+        if f.took_outlier and outlier_t is None:
+            outlier_t = ti
         rows[k, 1:10] = f.x
         key = (f.t, tf.updates, tf.filter)
         if key != last_key:                   # else a skipped duplicate: same state, answer
@@ -141,7 +148,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
         if valid and out[_O_HIT_OK] and tf.robot_bounces < 2:   # not after a double bounce
             rows[k, 13] = out[_O_HIT_T]
             rows[k, 14:17] = out[_O_HIT_P:_O_HIT_P + 3]
-    return rows, tf.nis
+    return rows, tf.nis, outlier_t
 
 
 def measured_crossing(t, p, bounce_times, plane_x):
@@ -265,7 +272,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
                  spin=None):
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
     config = config or FilterConfig()
-    rows, nis = _replay_samples(t, p, params, config, hit_plane_x, spin)
+    rows, nis, outlier_t = _replay_samples(t, p, params, config, hit_plane_x, spin)
     tt, pp, bounces, crossing = _ground_truth(name, np.asarray(t, float), np.asarray(p, float),
                                               params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
@@ -273,7 +280,7 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
                        config.spin_prior_axes(), nis, tuple(config.spin_prior_mean),
-                       robot[0] if robot else None, params.e_t, params.c_m)
+                       robot[0] if robot else None, params.e_t, params.c_m, outlier_t)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -999,6 +1006,13 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
             'tracks_informing': lift.count,
             'per_track': {rp.name: round(rp.c_m, 4) for rp in replays},
         }
+    summary['spin_outlier_taken'] = {
+        'rule': "tracks whose filter took its second filter's state (spin_outlier_prior "
+                "instead of the spin prior: the data put the ball's spin outside the "
+                "population), with the time it did, s",
+        'tracks': {rp.name: round(rp.spin_outlier_t, 4) for rp in replays
+                   if rp.spin_outlier_t is not None},
+    }
     if textbook:
         summary['textbook_hit_error'] = errors['textbook']
     summary['rows_without_hit'] = rows_without_hit(replays)
