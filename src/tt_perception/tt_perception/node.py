@@ -130,6 +130,15 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('spin_prior_mean', list(PERCEPTION_FILTER.spin_prior_mean), 'Prior mean of the spin on '
      "the axes top/back (topspin positive), side, along the velocity at a track's start (as "
      'tt-predict --tracks learns it)', 'rad/s', -5000, 5000, (), 3),
+    ('spin_outlier_prior', PERCEPTION_FILTER.spin_outlier_prior, 'Standard deviation of '
+     "each spin component (mean 0) of a ball whose spin is not the spin prior's population "
+     '(a rare strongly spun ball among slow ones)', 'rad/s', 1, 5000),
+    ('spin_outlier_rate', PERCEPTION_FILTER.spin_outlier_rate, 'Prior probability of such a '
+     'ball: where the spin prior is tighter across the velocity than spin_outlier_prior, a '
+     'second filter with that prior runs until the bounce and its state is used while the '
+     'data make it the more probable; 0: never', '', 0.0, 0.5),
+    ('spin_outlier_wait', PERCEPTION_FILTER.spin_outlier_wait, "Time from a track's start "
+     "before the second filter's state may be used", 's', 0.0, 1.0),
     ('measured_spin_topic', '', 'geometry_msgs/Vector3Stamped topic of a measured spin '
      '(rad/s, table frame, e.g. from a marked ball) fused into the track; empty: none'),
     ('measured_spin_sigma', 10.0, 'Standard deviation of each measured spin component',
@@ -285,7 +294,10 @@ class PerceptionNode(Node):
                                    spin_prior=self._p('spin_prior'),
                                    spin_prior_side=self._p('spin_prior_side') or None,
                                    spin_prior_along=self._p('spin_prior_along') or None,
-                                   spin_prior_mean=tuple(self._p('spin_prior_mean')))
+                                   spin_prior_mean=tuple(self._p('spin_prior_mean')),
+                                   spin_outlier_prior=self._p('spin_outlier_prior'),
+                                   spin_outlier_rate=self._p('spin_outlier_rate'),
+                                   spin_outlier_wait=self._p('spin_outlier_wait'))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
