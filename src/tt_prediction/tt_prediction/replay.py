@@ -91,8 +91,8 @@ class TrackReplay:
     c_m: float = None
     """The Magnus coefficient the track was replayed with."""
     spin_outlier_t: float = None
-    """Time (s) at which the filter took its second filter's state (the track's spin outside
-    the spin prior's population: FilterConfig ``spin_outlier_rate``), or None."""
+    """Time (s) at which the filter first took its second filter's state (the track's spin
+    outside the spin prior's population: FilterConfig ``spin_outlier_rate``), or None."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
