@@ -1079,7 +1079,8 @@ def spin_outlier_log_odds(y, s2, prior_sd, prior_mean, outlier_sd, rate):
     probability 1 - ``rate`` N(``prior_mean``, ``prior_sd``^2), with ``rate``
     N(0, ``outlier_sd``^2). ``y`` (3,), ``s2`` (3,): the spin the data alone show and its
     variances (:func:`spin_likelihood_per_axis`; an axis with s2 inf says nothing), so that
-    y_k is N(mu_k, sd_k^2 + s2_k) under each component:
+    y_k is N(mu_k, L_k^2 + s2_k) under the first component and N(0, W^2 + s2_k) under the
+    second:
     log((1 - rate) / rate) + sum_k [log N(y_k; mu_k, L_k^2 + s2_k)
     - log N(y_k; 0, W^2 + s2_k)] (L the prior's, W the outlier's sd). Below 0 the outlier
     component is the more probable. ``rate`` in (0, 1); arrays (3,) (compiled).

@@ -1009,7 +1009,7 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     summary['spin_outlier_taken'] = {
         'rule': "tracks whose filter took its second filter's state (spin_outlier_prior "
                 "instead of the spin prior: the data put the ball's spin outside the "
-                "population), with the time it did, s",
+                "population), with the time it first did, s",
         'tracks': {rp.name: round(rp.spin_outlier_t, 4) for rp in replays
                    if rp.spin_outlier_t is not None},
     }
