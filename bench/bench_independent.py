@@ -21,6 +21,11 @@ settings at their defaults) and is scored against the renderer's truth:
 - ``position_rms_mm``, ``mean_error_mm`` (x, y, z), ``position_max_mm``;
 - ``velocity_max_err_m_s``: the largest velocity error 50 ms or more after the track's first
   state and outside the 50 ms after a bounce (as bench_perception's ``accuracy``);
+  ``spin_perp_max_rel_err`` and ``spin_perp_max_angle_deg``: the largest relative error of
+  the spin across the velocity (its size) and the largest angle between the estimated and
+  the true one, from 0.2 s after the track's first state until the first bounce (as
+  bench_perception's ``accuracy``; the renderer's Magnus coefficient is the model's, so the
+  spin the curvature shows is the renderer's);
   ``velocity_max_err_ideal_detector_m_s``: the same number for ideal detectors that see the
   true centre exactly and with 0.1 and 0.2 px of white noise, through the same
   triangulation and tracker (median and p90 over 10 draws): the reference the pipeline's
@@ -41,9 +46,10 @@ the clean sensor, with noise and mosaic but no JPEG, and with JPEG alone; and th
 imaging with the camera's response not undone (``response_gamma`` 1).
 
 ``passed`` per combination (colour x size): every ball within the issue's limits on
-position RMS, mean error per axis, coverage and one track (``LIMITS``; the velocity limit is
-reported per ball as ``velocity_ok`` and not part of ``passed``); ``smoothed_passed``: every
-ball's smoothed states within all five, the velocity's too. The bench's ``passed``:
+position RMS, mean error per axis, coverage and one track (``LIMITS``; the velocity and
+spin limits are reported per ball as ``velocity_ok`` and ``spin_ok`` and not part of
+``passed``); ``smoothed_passed``: every ball's smoothed states within all six, the
+velocity's and the spin's too. The bench's ``passed``:
 every combination passed and no distractor scene gave a state. Numbers are reported as they
 are.
 """
@@ -71,6 +77,9 @@ LIMITS = {
     'tracks': 1,
     'velocity_max_err_m_s': 0.05,
     'velocity_judged_after_s': 0.05,
+    'spin_perp_max_rel_err': 0.2,
+    'spin_perp_max_angle_deg': 20.0,
+    'spin_judged_after_s': 0.2,
 }
 """Issue 15's limits."""
 
@@ -200,9 +209,32 @@ def score(rig, estimates, flight, truth):
     if (after & ball).any():
         out['velocity_max_err_first_50ms_after_bounce_m_s'] = round(
             float(verr[after & ball].max()), 4)
+    out.update(spin_across_score(est[ball], true[ball], t[ball], t.min(), flight.bounce_times))
     out['first_state_s'] = round(float(t.min()), 4)
     out['last_state_s'] = round(float(t.max()), 4)
     return out
+
+
+def spin_across_score(est, true, t, start, bounce_times):
+    """The spin across the velocity of the states ``est`` (n, 9) at ``t`` (n,) against the
+    true states ``true`` (n, 9): its largest relative error in size and largest angle,
+    degrees, from ``LIMITS['spin_judged_after_s']`` after ``start`` (the track's first
+    state) until the first bounce; {} when no state falls there."""
+    end = min(bounce_times, default=np.inf)
+    judged = (t >= start + LIMITS['spin_judged_after_s']) & (t < end)
+    if not judged.any():
+        return {}
+    est, true = est[judged], true[judged]
+    u = true[:, 3:6] / np.linalg.norm(true[:, 3:6], axis=1, keepdims=True)
+    true_perp = true[:, 6:] - np.sum(true[:, 6:] * u, axis=1, keepdims=True) * u
+    est_perp = est[:, 6:] - np.sum(est[:, 6:] * u, axis=1, keepdims=True) * u
+    true_norm = np.linalg.norm(true_perp, axis=1)
+    est_norm = np.linalg.norm(est_perp, axis=1)
+    cos = np.sum(est_perp * true_perp, axis=1) / np.maximum(est_norm * true_norm, 1e-300)
+    return {'spin_perp_max_rel_err': round(float(np.abs(est_norm / true_norm - 1.0).max()), 4),
+            'spin_perp_max_angle_deg': round(float(np.degrees(np.arccos(
+                np.clip(cos, -1.0, 1.0))).max()), 2),
+            'spin_judged_states': int(judged.sum())}
 
 
 def checks(row):
@@ -217,6 +249,9 @@ def checks(row):
         'one_track_ok': row['tracks'] == LIMITS['tracks'] and row.get('stray_states', 0) == 0,
         'velocity_ok': row.get('velocity_max_err_m_s') is not None
         and row['velocity_max_err_m_s'] <= LIMITS['velocity_max_err_m_s'],
+        'spin_ok': row.get('spin_perp_max_rel_err') is not None
+        and row['spin_perp_max_rel_err'] <= LIMITS['spin_perp_max_rel_err']
+        and row['spin_perp_max_angle_deg'] <= LIMITS['spin_perp_max_angle_deg'],
     }
 
 
