@@ -355,7 +355,9 @@ def run():
                 rows[name]['velocity_max_err_ideal_detector_m_s'] = ideal[width, name]
             out['distractor'][key] = distractor_scene(rig, renderer, colour)
             print(key, {n: (r.get('position_rms_mm'), r.get('mean_error_mm'), r['coverage'],
-                            r['tracks'], r.get('velocity_max_err_m_s'), r['render_s'])
+                            r['tracks'], r.get('velocity_max_err_m_s'),
+                            r.get('spin_perp_max_rel_err'), r.get('spin_perp_max_angle_deg'),
+                            r['render_s'])
                         for n, r in rows.items()}, out['distractor'][key]['states'],
                   flush=True)
         if (width, height) == SIZES[0]:
