@@ -58,6 +58,7 @@ import pathlib
 import sys
 import time
 
+from bench_perception import spin_across_errors
 import cv2
 import numpy as np
 from tt_perception.detect import DetectorConfig
@@ -224,16 +225,9 @@ def spin_across_score(est, true, t, start, bounce_times):
     judged = (t >= start + LIMITS['spin_judged_after_s']) & (t < end)
     if not judged.any():
         return {}
-    est, true = est[judged], true[judged]
-    u = true[:, 3:6] / np.linalg.norm(true[:, 3:6], axis=1, keepdims=True)
-    true_perp = true[:, 6:] - np.sum(true[:, 6:] * u, axis=1, keepdims=True) * u
-    est_perp = est[:, 6:] - np.sum(est[:, 6:] * u, axis=1, keepdims=True) * u
-    true_norm = np.linalg.norm(true_perp, axis=1)
-    est_norm = np.linalg.norm(est_perp, axis=1)
-    cos = np.sum(est_perp * true_perp, axis=1) / np.maximum(est_norm * true_norm, 1e-300)
-    return {'spin_perp_max_rel_err': round(float(np.abs(est_norm / true_norm - 1.0).max()), 4),
-            'spin_perp_max_angle_deg': round(float(np.degrees(np.arccos(
-                np.clip(cos, -1.0, 1.0))).max()), 2),
+    rel, angle = spin_across_errors(est[judged], true[judged])
+    return {'spin_perp_max_rel_err': round(float(np.abs(rel).max()), 4),
+            'spin_perp_max_angle_deg': round(float(angle.max()), 2),
             'spin_judged_states': int(judged.sum())}
 
 

@@ -123,28 +123,36 @@ def hall_row(estimates, truth, seen):
     return row
 
 
+def spin_across_errors(est, true):
+    """The spin across the velocity of estimated states ``est`` (n, 9) against the true
+    states ``true`` (n, 9), both [p, v, w]: its size's relative error (signed) and the angle
+    between the two, degrees, each (n,); "across" is across the true velocity."""
+    u = true[:, 3:6] / np.linalg.norm(true[:, 3:6], axis=1, keepdims=True)
+    true_perp = true[:, 6:] - np.sum(true[:, 6:] * u, axis=1, keepdims=True) * u
+    est_perp = est[:, 6:] - np.sum(est[:, 6:] * u, axis=1, keepdims=True) * u
+    true_norm = np.linalg.norm(true_perp, axis=1)
+    est_norm = np.linalg.norm(est_perp, axis=1)
+    cos = np.sum(est_perp * true_perp, axis=1) / np.maximum(est_norm * true_norm, 1e-300)
+    return est_norm / true_norm - 1.0, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def accuracy(estimates, truth):
     """Errors of the estimates against the scene's truth (for docs/perception.md)."""
     bounce = [e.t for e in truth['events'] if e.kind == 'bounce'][0]
     start = estimates[0].t
-    rows = []
-    for e in estimates:
-        i = int(np.argmin(np.abs(truth['t'] - e.t)))
-        s = truth['state'][i]
-        u = s[3:6] / np.linalg.norm(s[3:6])
-        perp_true = s[6:] - (s[6:] @ u) * u
-        perp_est = e.state[6:] - (e.state[6:] @ u) * u
-        cos = perp_est @ perp_true / np.linalg.norm(perp_est) / np.linalg.norm(perp_true)
-        rows.append((e.t, np.linalg.norm(e.state[:3] - s[:3]),
-                     np.linalg.norm(e.state[3:6] - s[3:6]),
-                     np.linalg.norm(perp_est) / np.linalg.norm(perp_true) - 1.0,
-                     np.degrees(np.arccos(np.clip(cos, -1, 1))),
-                     np.sqrt(u @ e.covariance[6:, 6:] @ u)))
-    r = np.array(rows)
+    est = np.array([e.state for e in estimates])
+    true = truth['state'][[int(np.argmin(np.abs(truth['t'] - e.t))) for e in estimates]]
+    u = true[:, 3:6] / np.linalg.norm(true[:, 3:6], axis=1, keepdims=True)
+    r = np.column_stack([[e.t for e in estimates],
+                         np.linalg.norm(est[:, :3] - true[:, :3], axis=1),
+                         np.linalg.norm(est[:, 3:6] - true[:, 3:6], axis=1),
+                         *spin_across_errors(est, true),
+                         [np.sqrt(uk @ e.covariance[6:, 6:] @ uk)
+                          for uk, e in zip(u, estimates, strict=True)]])
     settled = (r[:, 0] >= start + 0.05) & ~((r[:, 0] >= bounce) & (r[:, 0] < bounce + 0.05))
     spin = (r[:, 0] >= start + 0.2) & (r[:, 0] < bounce)
     return {
-        'states': len(rows),
+        'states': len(r),
         'position_rms_mm': round(float(np.sqrt(np.mean(r[:, 1] ** 2)) * 1e3), 3),
         'velocity_max_err_m_s': round(float(r[settled, 2].max()), 4),
         'velocity_max_err_first_50ms_after_bounce_m_s': round(float(

@@ -1,9 +1,11 @@
 """The ball filter: its Jacobians against the model, the bounce as a spin measurement, the
 consistency of its covariance (NEES against chi-square bounds) and stream handling."""
 
+import copy
+
 import numpy as np
 import pytest
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 from tt_prediction.ball import ModelParams, rollout, table_rebound_inplace
 from tt_prediction.ball_filter import (
     BallFilter,
@@ -12,6 +14,9 @@ from tt_prediction.ball_filter import (
     estimate_measurement_noise,
     rebound_jacobian,
     smooth,
+    spin_likelihood_per_axis,
+    spin_outlier_log_odds,
+    velocity_frame,
 )
 from tt_prediction.predict import predict
 
@@ -476,7 +481,6 @@ def test_dividing_the_prior_out_gives_back_what_the_data_said():
     along-v axes measured together, correlated, as a bounce does) gives the posterior
     N(m, C); from (m, C, C0, m0) it returns y and each axis's marginal variance diag(L^-1),
     whatever the prior's mean. An axis the data did not inform gives inf."""
-    from tt_prediction.ball_filter import spin_likelihood_per_axis, velocity_frame
     v = np.array([-4.0, 0.8, -2.5])
     E = velocity_frame(v)
     y = np.array([120.0, -35.0, -18.0])
@@ -513,8 +517,6 @@ def test_the_spin_outlier_odds_are_the_mixture_priors_posterior_odds():
     """spin_outlier_log_odds against the mixture written out with scipy's normal densities:
     per axis y_k ~ N(mu_k, L_k^2 + s2_k) under the spin prior, N(0, W^2 + s2_k) under the
     outlier component; an axis with s2 inf says nothing; the prior odds (1 - rate) / rate."""
-    from scipy.stats import norm
-    from tt_prediction.ball_filter import spin_outlier_log_odds
     rng = np.random.default_rng(5)
     for _ in range(50):
         y = rng.normal(0.0, 200.0, 3)
@@ -532,7 +534,6 @@ def test_the_spin_outlier_odds_are_the_mixture_priors_posterior_odds():
 def _backspin_ball(top, rng, noise=5e-4):
     """Samples (times, truth, measured positions) and bounce time of INCOMING's flight with
     ``top`` rad/s of top (> 0) or back spin and nothing else."""
-    from tt_prediction.ball_filter import velocity_frame
     s0 = INCOMING.copy()
     s0[6:] = velocity_frame(s0[3:6]).T @ np.array([top, 0.0, 0.0])
     times = np.arange(0.0, 0.75, 1.0 / 180.0)
@@ -548,7 +549,6 @@ def test_a_ball_spun_far_beyond_a_tight_spin_prior_is_followed_by_the_second_fil
     the more probable: its state is taken within the flight, 100 ms before the bounce, and
     the backspin it carries into the bounce is the ball's, within 3 standard deviations. That
     state is exactly that of a filter run with the wide prior alone."""
-    from tt_prediction.ball_filter import velocity_frame
     times, truth, z, tb = _backspin_ball(-250.0, np.random.default_rng(4))
     E = velocity_frame(INCOMING[3:6])
     spins, states = {}, {}
@@ -579,7 +579,6 @@ def test_balls_of_the_spin_priors_own_population_keep_their_filter():
     """Balls whose spin is drawn from the spin prior itself: the second filter's state is
     taken for few of them (the mixture's posterior odds favour the prior they came from),
     and where it is not, the filter's state is exactly that of a filter without it."""
-    from tt_prediction.ball_filter import velocity_frame
     rng = np.random.default_rng(6)
     prior, mean = (30.0, 10.0, 10.0), (20.0, 0.0, 0.0)
     times = np.arange(0.0, 0.4, 1.0 / 180.0)
@@ -607,7 +606,6 @@ def test_balls_of_the_spin_priors_own_population_keep_their_filter():
 def test_a_trial_copy_of_the_filter_leaves_the_second_filter_alone():
     """perception's pipeline tries an update on a shallow copy of the filter: that update
     must not move the original's second filter (update() replaces it, never changes it)."""
-    import copy
     rng = np.random.default_rng(9)
     times, _, z, _ = _backspin_ball(-250.0, rng)
     cfg = FilterConfig(position_noise=5e-4, spin_prior=5.0)
