@@ -7,7 +7,7 @@ import threading
 import cv2
 import numpy as np
 import pytest
-from test_sources import overwrite_avi_frame
+from test_sources import empty_avi_frame, overwrite_avi_frame
 from tt_perception.camstream import (
     END,
     CameraReader,
@@ -209,6 +209,26 @@ def test_a_frame_overwritten_mid_file_is_none_and_the_others_keep_their_index(tm
         got.append((index, None if image is None else index_of(image)))
     src.close()
     assert got == [(n, None if n == 5 else n) for n in range(N_FRAMES)]
+
+
+@pytest.mark.parametrize('rate', [0.0, 1.0])
+def test_a_frame_the_file_lacks_is_dropped_and_the_others_keep_their_index(video, tmp_path,
+                                                                            rate):
+    # An empty chunk (a recorder's dropped frame) is left out by the decoder without failing
+    # the grab: every later frame had the index, and so the time, of the one before it.
+    path = tmp_path / 'cam.avi'
+    path.write_bytes(open(video, 'rb').read())
+    empty_avi_frame(path, 5)
+    clock = SimClock()
+    src = PacedVideoSource(str(path), FPS, clock=clock, start=0.0, rate=rate).open()
+    got = []
+    while (index := src.grab()) is not None:
+        got.append((index, index_of(src.retrieve()), clock.now()))
+    src.close()
+    assert [(n, i) for n, i, _ in got] == [(n, n) for n in range(N_FRAMES) if n != 5]
+    assert src.take_dropped() == [5] and src.dropped == 1
+    if rate:
+        assert all(t == n / FPS for n, _, t in got)        # each frame when it is due
 
 
 def test_detection_in_the_camera_thread_gives_the_same_states():

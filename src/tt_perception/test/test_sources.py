@@ -160,6 +160,45 @@ def overwrite_avi_frame(path, n, seed=0):
     path.write_bytes(bytes(data))
 
 
+def empty_avi_frame(path, n):
+    """Make frame ``n`` of the AVI file ``path`` an empty chunk, as some recorders write a
+    frame the camera dropped: its movi chunk and its idx1 entry of size 0, the data it held
+    left in a JUNK chunk (the file's layout and the other offsets unchanged)."""
+    data = bytearray(path.read_bytes())
+    pos = data.index(b'movi')
+    for _ in range(n + 1):
+        pos = data.index(b'00dc', pos + 1)
+    size = int.from_bytes(data[pos + 4:pos + 8], 'little')
+    assert size >= 8
+    data[pos + 4:pos + 16] = (bytes(4) + b'JUNK' + (size - 8).to_bytes(4, 'little'))
+    index = data.index(b'idx1') + 8
+    entries = [e for e in range(index, len(data) - 15, 16) if data[e:e + 4] == b'00dc']
+    data[entries[n] + 12:entries[n] + 16] = bytes(4)
+    path.write_bytes(bytes(data))
+
+
+def test_an_empty_frame_of_an_avi_is_named_and_the_others_keep_their_times(tmp_path):
+    # A dropped frame recorded as an empty chunk: the decoder leaves it out without failing
+    # the read.
+    path = tmp_path / 'cam.avi'
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*'MJPG'), 100.0,
+                             (64, 48))
+    for n in range(10):
+        writer.write(np.full((48, 64, 3), 20 * n + 20, np.uint8))
+    writer.release()
+    empty_avi_frame(path, 5)
+    src = VideoFileSource(str(path), 100.0).open()
+    try:
+        got = [(round(t * 100), int(round(frame.mean() / 20.0)) - 1)
+               for t, frame in iter(src.read, (None, None))]
+        damage = src.damage()
+    finally:
+        src.close()
+    assert got == [(n, n) for n in range(10) if n != 5]
+    assert damage == (f'{path}: 1 of its 10 frames unreadable (corrupt?): skipped, the '
+                      'others at their times')
+
+
 def test_a_frame_overwritten_mid_file_is_named_and_the_others_keep_their_times(tmp_path):
     # FFmpeg read in file order skipped the damaged chunk without a word and OpenCV numbered
     # the frames it decoded: frames 11-19 of cam0 came at 0.10-0.18 s, a frame early each,

@@ -199,7 +199,9 @@ class PacedVideoSource:
     ``grab()`` waits until the next frame is due (frame n at ``start + n / fps`` on
     ``clock``), skips the frames a camera with ``buffers`` buffers would have overwritten
     meanwhile (counted in ``dropped``), and returns the frame's index, or None at the end
-    of the file or when ``stop`` is set. ``retrieve()`` decodes that frame (BGR uint8).
+    of the file or when ``stop`` is set. A frame the file does not hold (an empty chunk of an
+    AVI, some recorders' dropped frame) is counted in ``dropped`` too, and the frames after
+    it keep their indices. ``retrieve()`` decodes that frame (BGR uint8).
     ``start`` is set by the first ``grab`` unless given. ``rate``: playback speed (1: real
     time, as a camera; 0: no pacing and no loss, each frame as soon as it is asked for).
     """
@@ -220,12 +222,21 @@ class PacedVideoSource:
         self._lost = False       # the last grab failed on a frame the file's index has
 
     def _grab(self, cap, index):
-        """``cap.grab()`` of frame ``index``; True also when it fails on a frame the file's
-        index lists (an AVI read through it, :class:`VideoFileSource` ``by_index``: a damaged
-        frame fails its read alone, the next goes on), which :meth:`retrieve` then gives as
-        None."""
+        """``cap.grab()`` of frame ``index``: the index of the frame grabbed, or None at the
+        end. Read through an AVI's index (:class:`VideoFileSource` ``by_index``) a grab that
+        fails on a frame the index lists gives ``index`` (a damaged frame fails its read
+        alone, the next goes on; :meth:`retrieve` then gives None), and the frame grabbed is
+        numbered from its PTS (:meth:`VideoFileSource.grabbed_number`): past ``index`` when
+        the file does not hold the frames before it."""
         self._lost = not cap.grab()
-        return not self._lost or (self._file.by_index and index < self._file.declared)
+        if self._lost:
+            return index if self._file.by_index and index < self._file.declared else None
+        return self._file.grabbed_number(index)
+
+    def _skip(self, first, end):
+        """Count frames ``first`` to ``end`` - 1 as dropped."""
+        self.dropped += end - first
+        self.dropped_indices.extend(range(first, end))
 
     def open(self):
         src = VideoFileSource(self.path, self.fps)
@@ -249,24 +260,29 @@ class PacedVideoSource:
             self.start = self.clock.now()
         nxt = self.index + 1
         if self.rate <= 0.0:
-            if self.stop.is_set() or not self._grab(cap, nxt):
+            got = None if self.stop.is_set() else self._grab(cap, nxt)
+        else:
+            if self.clock.wait_until(self.due(nxt), self.stop):
                 return None
-            self.index = nxt
-            return nxt
-        if self.clock.wait_until(self.due(nxt), self.stop):
+            # Frames due before the newest `buffers` ones were overwritten in the driver's
+            # ring.
+            newest = int(np.floor((self.clock.now() - self.start) * self.fps * self.rate
+                                  + 1e-9))
+            while nxt < newest - self.buffers + 1:
+                got = self._grab(cap, nxt)
+                if got is None:
+                    return None
+                self._skip(nxt, got + 1)
+                nxt = got + 1
+            got = self._grab(cap, nxt)
+            if (got is not None and got > nxt
+                    and self.clock.wait_until(self.due(got), self.stop)):
+                return None             # a frame the file lacks: the next one comes when due
+        if got is None:
             return None
-        # Frames due before the newest `buffers` ones were overwritten in the driver's ring.
-        newest = int(np.floor((self.clock.now() - self.start) * self.fps * self.rate + 1e-9))
-        while nxt < newest - self.buffers + 1:
-            if not self._grab(cap, nxt):
-                return None
-            self.dropped += 1
-            self.dropped_indices.append(nxt)
-            nxt += 1
-        if not self._grab(cap, nxt):
-            return None
-        self.index = nxt
-        return nxt
+        self._skip(nxt, got)
+        self.index = got
+        return got
 
     def take_dropped(self):
         """The frame numbers skipped since the last call."""

@@ -337,20 +337,27 @@ class VideoFileSource(FrameSource):
                 return None, None
             frame = None
             self.unreadable += 1
-        elif self.by_index:
-            # The index's number of the frame, from the first frame's (MPEG-1 in AVI
-            # numbers from 1): one the decoder left out without failing the read does not
-            # take the next one's time.
-            pts = int(self.capture.get(cv2.CAP_PROP_PTS))
-            if self.first_pts is None:
-                self.first_pts = pts - self.index
-            n = pts - self.first_pts
+        else:
+            n = self.grabbed_number(self.index)
             if n > self.index:
                 self.unreadable += n - self.index
                 self.index = n
         t = self.index / self.fps
         self.index += 1
         return t, frame
+
+    def grabbed_number(self, expected):
+        """The number of the frame just read or grabbed, ``expected`` (the next in order) or
+        later. Read through the index (``by_index``) it is the frame's own, from its PTS and
+        the first frame's (MPEG-1 in AVI numbers from 1): a frame the decoder left out
+        without failing the read (damaged, or an empty chunk, some recorders' dropped frame)
+        does not give the next one its number and time."""
+        if not self.by_index:
+            return expected
+        pts = int(self.capture.get(cv2.CAP_PROP_PTS))
+        if self.first_pts is None:
+            self.first_pts = pts - expected
+        return max(expected, pts - self.first_pts)
 
     def close(self):
         if self.capture is not None:
