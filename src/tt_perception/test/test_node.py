@@ -19,7 +19,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tt_perception.camera import load_rig
 from tt_perception.node import PerceptionNode
 from tt_prediction.ball import load_model
@@ -118,24 +118,58 @@ def test_images_in_ball_states_out(graph, tmp_path):
         assert msg.track_id == 1 and msg.header.frame_id == 'table'
 
 
-def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
+def node_and_player(graph, tmp_path, ns, topics, state_topic, msg_type=Image):
+    """perception_node on a rig whose cameras read ``topics``, and a peer node that publishes
+    ``msg_type`` on them and CameraInfo on camera 1's camera_info topic: (rig, node, image
+    publishers, CameraInfo publisher, the list the states go to), once the node subscribes
+    to all of them."""
     ctx, add = graph.context, graph.add
-    ns, topics, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path), sources=topics)
-    rig = load_rig(rig_path)
-    frames, _ = synth.render_balls(rig, [synth.incoming_ball()], [0.0], duration=0.3,
-                                   lead_in=0.05)
     node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
                                                      f'/ball/state:={state_topic}'],
                               parameter_overrides=[Parameter('rig_file', value=rig_path)]))
     peer = add(rclpy.create_node('image_player', context=ctx))
-    pubs = [peer.create_publisher(Image, topic, QoSProfile(depth=5)) for topic in topics]
+    pubs = [peer.create_publisher(msg_type, topic, QoSProfile(depth=5)) for topic in topics]
     info_pub = peer.create_publisher(CameraInfo, f'{ns}/cam1/camera_info', QoSProfile(depth=5))
     got = []
     peer.create_subscription(BallState, state_topic, got.append, qos_profile_sensor_data)
     graph.spin_until(lambda: info_pub.get_subscription_count() > 0
                      and all(p.get_subscription_count() > 0 for p in pubs), 5.0,
                      'the node to subscribe to the images and camera info')
+    return load_rig(rig_path), node, pubs, info_pub, got
+
+
+def test_compressed_images_in_ball_states_out(graph, tmp_path):
+    # image_transport's compressed topics (PNG here): the rig names /camN/image_raw/compressed,
+    # the node takes CompressedImage there and its CameraInfo from /camN/camera_info.
+    ns, topics, state_topic = unique_topics()
+    topics = [f'{topic}/compressed' for topic in topics]
+    rig, node, pubs, _, got = node_and_player(graph, tmp_path, ns, topics, state_topic,
+                                              CompressedImage)
+    frames, truth = synth.render_balls(rig, [synth.incoming_ball()], [0.0], duration=0.3,
+                                       lead_in=0.05)
+    for sent, (t, k, frame) in enumerate(frames, start=1):
+        msg = CompressedImage()
+        msg.header = image_msg(t, frame).header
+        msg.format = 'bgr8; png compressed bgr8'
+        msg.data = cv2.imencode('.png', frame)[1].tobytes()
+        pubs[k].publish(msg)
+        graph.spin_until(lambda n=sent: node.frames_received >= n, 5.0, f'image {sent}')
+    graph.spin_until(lambda: len(got) >= node.states_published > 15, 5.0,
+                     'more than 15 states, all received')
+    tr = truth[0]
+    for msg in got:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - T0
+        i = int(np.argmin(np.abs(tr['t'] - t)))
+        p = np.array([msg.position.x, msg.position.y, msg.position.z])
+        assert np.linalg.norm(p - tr['state'][i, :3]) < 0.005
+
+
+def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
+    ns, topics, state_topic = unique_topics()
+    rig, node, pubs, info_pub, got = node_and_player(graph, tmp_path, ns, topics, state_topic)
+    frames, _ = synth.render_balls(rig, [synth.incoming_ball()], [0.0], duration=0.3,
+                                   lead_in=0.05)
     info = CameraInfo(width=1280, height=720)        # another camera's calibration
     info.k = [900.0, 0.0, 640.0, 0.0, 900.0, 360.0, 0.0, 0.0, 1.0]
     info_pub.publish(info)

@@ -317,27 +317,59 @@ def test_time_offset_without_a_colour_is_estimated_from_the_ball_and_not_the_res
     assert len(rows) > 40 and np.median(err) < 2e-3
 
 
-def _image_bag(bag, frames, t0, only=(0, 1)):
+def _image_bag(bag, frames, t0, only=(0, 1), compressed=None):
     """A bag of the frames as sensor_msgs/Image on /cam0/image_raw and /cam1/image_raw, stamped
-    t0 + t; the frames of the cameras not in ``only`` are left out (their topic declared)."""
+    t0 + t; the frames of the cameras not in ``only`` are left out (their topic declared).
+    ``compressed`` ('png' or 'jpeg'): as sensor_msgs/CompressedImage on
+    /camN/image_raw/compressed instead, as image_transport's compressed transport records."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
-    Image = store.types['sensor_msgs/msg/Image']
     Header = store.types['std_msgs/msg/Header']
     Time = store.types['builtin_interfaces/msg/Time']
+    msgtype = 'sensor_msgs/msg/CompressedImage' if compressed else 'sensor_msgs/msg/Image'
+    suffix = '/compressed' if compressed else ''
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = [writer.add_connection(f'/cam{k}/image_raw', 'sensor_msgs/msg/Image',
-                                       typestore=store) for k in range(2)]
+        conns = [writer.add_connection(f'/cam{k}/image_raw{suffix}', msgtype, typestore=store)
+                 for k in range(2)]
         for t, k, frame in frames:
             if k not in only:
                 continue
             ns = int(round((t0 + t) * 1e9))
-            msg = Image(header=Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9),
-                                      frame_id=f'cam{k}'),
-                        height=frame.shape[0], width=frame.shape[1], encoding='bgr8',
-                        is_bigendian=0, step=frame.shape[1] * 3, data=frame.reshape(-1))
-            writer.write(conns[k], ns, store.serialize_cdr(msg, 'sensor_msgs/msg/Image'))
+            header = Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=f'cam{k}')
+            if compressed:
+                ok, data = cv2.imencode('.png' if compressed == 'png' else '.jpg', frame)
+                msg = store.types[msgtype](header=header,
+                                           format=f'bgr8; {compressed} compressed bgr8',
+                                           data=data.reshape(-1))
+            else:
+                msg = store.types[msgtype](header=header, height=frame.shape[0],
+                                           width=frame.shape[1], encoding='bgr8',
+                                           is_bigendian=0, step=frame.shape[1] * 3,
+                                           data=frame.reshape(-1))
+            writer.write(conns[k], ns, store.serialize_cdr(msg, msgtype))
+
+
+def test_bag_of_compressed_images_gives_the_states_of_the_images(scene, tmp_path):
+    # image_transport's compressed topics, as a ROS user records cameras: PNG is lossless,
+    # so the states are those of the raw images; the rig names the compressed topics.
+    base, rig_path, frames, truth = scene
+    few = [f for f in frames if f[0] < 0.25]
+    raw_bag, png_bag = tmp_path / 'raw', tmp_path / 'png'
+    _image_bag(raw_bag, few, 500.0)
+    _image_bag(png_bag, few, 500.0, compressed='png')
+    compressed_rig = tmp_path / 'rig.yaml'
+    compressed_rig.write_text(pathlib.Path(rig_path).read_text().replace(
+        '/image_raw', '/image_raw/compressed'))
+    for name in ('cam0.yaml', 'cam1.yaml'):
+        (tmp_path / name).write_text((pathlib.Path(rig_path).parent / name).read_text())
+    assert cli.main(['--rig', rig_path, '--out', str(tmp_path / 'out_raw'), '--bag',
+                     str(raw_bag)]) == 0
+    assert cli.main(['--rig', str(compressed_rig), '--out', str(tmp_path / 'out_png'),
+                     '--bag', str(png_bag)]) == 0
+    raw = read_track(tmp_path / 'out_raw' / 'track_001.csv')
+    assert len(raw) > 15
+    assert np.array_equal(read_track(tmp_path / 'out_png' / 'track_001.csv'), raw)
 
 
 def test_bag_of_images_gives_one_track(scene, tmp_path):
@@ -386,7 +418,8 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     small = [(t, k, cv2.resize(f, (f.shape[1] // 2, f.shape[0] // 2)) if k == 1 else f)
              for t, k, f in few]
     for name, bag_frames, only, expect in (
-            ('declared', few, (0,), 'no sensor_msgs/Image for camera(s) cam1 (/cam1/image_raw)'),
+            ('declared', few, (0,), 'no sensor_msgs/Image or CompressedImage for camera(s) cam1 '
+             '(/cam1/image_raw)'),
             ('small', small, (0, 1), 'camera cam1 (/cam1/image_raw): images 320x240, its '
                                      'calibration 640x480')):
         bag = tmp_path / f'bag_{name}'

@@ -8,6 +8,8 @@ from tt_perception.camera import load_rig
 from tt_perception.sources import (
     V4L2Source,
     VideoFileSource,
+    camera_info_topic,
+    compressed_to_bgr,
     file_frames,
     file_sources_error,
     image_to_bgr,
@@ -45,10 +47,87 @@ def test_image_encodings_become_the_same_bgr():
     assert np.array_equal(image_to_bgr('bgr8', 4, 5, 16, padded.tobytes()), bgr)
     grey = image_to_bgr('mono8', 4, 5, 5, bgr[:, :, 0].tobytes())
     assert np.array_equal(grey[:, :, 2], bgr[:, :, 0])
-    with pytest.raises(ValueError, match='encoding .yuv422. not supported'):
-        image_to_bgr('yuv422', 4, 5, 10, bytes(40))
+    with pytest.raises(ValueError, match='encoding .16UC1. not supported'):
+        image_to_bgr('16UC1', 4, 5, 10, bytes(40))
     with pytest.raises(ValueError, match='does not hold 5x4 bgr8'):
         image_to_bgr('bgr8', 4, 5, 15, bytes(10))
+    with pytest.raises(ValueError, match='yuv422 needs an even width'):
+        image_to_bgr('yuv422', 4, 5, 10, bytes(40))
+
+
+# The colour of each site of a 2 x 2 Bayer tile, by the pattern's name read row by row.
+BAYER_SITES = {'bayer_rggb8': 'RGGB', 'bayer_bggr8': 'BGGR', 'bayer_gbrg8': 'GBRG',
+               'bayer_grbg8': 'GRBG'}
+
+
+@pytest.mark.parametrize('encoding', sorted(BAYER_SITES))
+def test_a_bayer_camera_image_is_demosaiced_to_its_colours(encoding):
+    # A flat scene of one colour (B, G, R) = (40, 120, 220), sampled as the pattern says:
+    # each pixel keeps the channel of its site. Demosaiced, the inside is that colour.
+    colour = {'B': 40, 'G': 120, 'R': 220}
+    sites = BAYER_SITES[encoding]
+    mosaic = np.zeros((8, 10), np.uint8)
+    for i, site in enumerate(sites):
+        mosaic[i // 2::2, i % 2::2] = colour[site]
+    bgr = image_to_bgr(encoding, 8, 10, 10, mosaic.tobytes())
+    assert bgr.shape == (8, 10, 3)
+    inside = bgr[2:-2, 2:-2].reshape(-1, 3).astype(int)
+    assert np.all(np.abs(inside - [colour['B'], colour['G'], colour['R']]) <= 1)
+
+
+@pytest.mark.parametrize('encoding, order', [('yuv422', 'UYVY'), ('yuv422_yuy2', 'YUYV')])
+def test_a_yuv422_image_gives_the_bt601_colours(encoding, order):
+    # BT.601 limited range (as USB cameras send): R = 1.164 (Y - 16) + 1.596 (V - 128),
+    # G = 1.164 (Y - 16) - 0.813 (V - 128) - 0.391 (U - 128), B = 1.164 (Y - 16) + 2.018
+    # (U - 128).
+    y, u, v = 100, 110, 170
+    values = {'Y': y, 'U': u, 'V': v}
+    row = np.array([values[c] for c in order] * 4, np.uint8)     # 8 pixels
+    data = np.tile(row, (2, 1))
+    bgr = image_to_bgr(encoding, 2, 8, 16, data.tobytes()).reshape(-1, 3).astype(float)
+    expected = [1.164 * (y - 16) + 2.018 * (u - 128),
+                1.164 * (y - 16) - 0.813 * (v - 128) - 0.391 * (u - 128),
+                1.164 * (y - 16) + 1.596 * (v - 128)]
+    assert np.all(np.abs(bgr - expected) <= 2.0)
+
+
+@pytest.mark.parametrize('image_format, extension', [
+    ('bgr8; png compressed bgr8', '.png'), ('rgb8; jpeg compressed bgr8', '.jpg'),
+    ('jpeg', '.jpg'), ('mono8; png compressed mono8', '.png')])
+def test_a_compressed_image_decodes_to_its_pixels(image_format, extension):
+    rng = np.random.default_rng(2)
+    # Flat 16 x 16 tiles (a JPEG colour block each): what JPEG keeps nearly as it is.
+    bgr = np.repeat(np.repeat(rng.integers(0, 255, (2, 3, 3), np.uint8), 16, 0), 16, 1)
+    if image_format.startswith('mono8'):
+        bgr = np.repeat(bgr[:, :, :1], 3, axis=2)
+    ok, data = cv2.imencode(extension, bgr[:, :, 0] if image_format.startswith('mono8')
+                            else bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    out = compressed_to_bgr(image_format, data.tobytes())
+    assert out.shape == bgr.shape and out.dtype == np.uint8
+    if extension == '.png':                      # lossless
+        assert np.array_equal(out, bgr)
+    else:                                        # each tile's middle (JPEG's 4:2:0 chroma
+        middle = np.s_[8::16, 8::16]             # smears colour across the tiles' edges)
+        assert np.abs(out[middle].astype(int) - bgr[middle]).max() <= 4
+
+
+def test_a_compressed_image_that_is_not_one_is_refused():
+    with pytest.raises(ValueError, match='does not decode as JPEG or PNG'):
+        compressed_to_bgr('jpeg', b'not a jpeg')
+    with pytest.raises(ValueError, match='does not decode'):
+        compressed_to_bgr('jpeg', b'')
+    ok, data = cv2.imencode('.png', np.zeros((4, 4), np.uint16))
+    with pytest.raises(ValueError, match='compressedDepth.*not supported'):
+        compressed_to_bgr('16UC1; compressedDepth png', data.tobytes())
+
+
+@pytest.mark.parametrize('topic, info', [
+    ('/cam0/image_raw', '/cam0/camera_info'), ('image_raw', 'camera_info'),
+    ('/cam0/image_raw/compressed', '/cam0/camera_info'),
+    ('/left/image_rect/compressed/', '/left/camera_info')])
+def test_camera_info_is_looked_for_beside_the_image_topic(topic, info):
+    assert camera_info_topic(topic) == info
 
 
 def test_image_sequence_is_read_in_order_with_frame_times(tmp_path):

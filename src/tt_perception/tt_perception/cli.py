@@ -49,8 +49,11 @@ from tt_ros.errors import one_line_reason
 from .camera import CalibrationError, load_rig
 from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, BallDetector, DetectorConfig
 from .pipeline import Pipeline, TrackerConfig
-from .sources import file_frames, image_to_bgr
+from .sources import file_frames, message_to_bgr
 from .sync import estimate_offset, estimate_offset_tracks, image_tracks
+
+IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+"""Message types of a camera's images in a bag."""
 
 
 class InputError(Exception):
@@ -62,8 +65,10 @@ class OutputError(Exception):
 
 
 def bag_frames(rig, bag, notes=None):
-    """(t, camera_index, frame) of the sensor_msgs/Image messages on the rig's image topics,
-    in the bag's order, ``t`` the header stamp (s). InputError when fewer than two of the
+    """(t, camera_index, frame) of the sensor_msgs/Image (or CompressedImage) messages on the
+    rig's image topics, in the bag's order, ``t`` the header stamp (s); a frame that cannot be
+    read (an encoding not supported, data that does not decode) is None, for the pipeline to
+    report. InputError when fewer than two of the
     rig's cameras have images in the bag (a topic declared without a message has none), or
     when a camera's first image is not of its calibration's size (as a video file's is
     refused); a camera without any adds a line to ``notes``."""
@@ -80,33 +85,36 @@ def bag_frames(rig, bag, notes=None):
         raise InputError(f'{bag}: not a readable rosbag2 bag: {one_line_reason(exc)}') from None
     try:
         conns = [c for c in reader.connections
-                 if c.topic in topics and c.msgtype == 'sensor_msgs/msg/Image' and c.msgcount]
+                 if c.topic in topics and c.msgtype in IMAGE_TYPES and c.msgcount]
         lacking = sorted(set(topics) - {c.topic for c in conns})
         if lacking:
             present = ', '.join(sorted(c.topic for c in reader.connections)) or 'none'
             names = ', '.join(f'{rig.cameras[topics[t]].name} ({t})' for t in lacking)
             if len(topics) - len(lacking) < 2:     # a point needs two cameras
-                raise InputError(f'{bag}: no sensor_msgs/Image for camera(s) {names} '
-                                 f'(topics: {present})')
+                raise InputError(f'{bag}: no sensor_msgs/Image or CompressedImage for '
+                                 f'camera(s) {names} (topics: {present})')
             if notes is not None:
-                notes.append(f'{bag}: no sensor_msgs/Image for camera(s) {names}: the '
-                             'others triangulate alone')
+                notes.append(f'{bag}: no sensor_msgs/Image or CompressedImage for camera(s) '
+                             f'{names}: the others triangulate alone')
         sized = set()               # cameras whose first image had its calibration's size
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             k = topics[conn.topic]
-            if k not in sized:
-                cam = rig.cameras[k]
-                if (msg.width, msg.height) != (cam.width, cam.height):
-                    raise InputError(f'{bag}: camera {cam.name} ({conn.topic}): images '
-                                     f'{msg.width}x{msg.height}, its calibration '
-                                     f'{cam.width}x{cam.height}')
-                sized.add(k)
-            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             try:
-                frame = image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+                frame = message_to_bgr(msg)
             except ValueError:
                 frame = None          # the pipeline reports the camera's missing frame
+            if k not in sized:
+                cam = rig.cameras[k]
+                size = ((msg.width, msg.height) if hasattr(msg, 'width') else
+                        None if frame is None else (frame.shape[1], frame.shape[0]))
+                if size is not None and size != (cam.width, cam.height):
+                    raise InputError(f'{bag}: camera {cam.name} ({conn.topic}): images '
+                                     f'{size[0]}x{size[1]}, its calibration '
+                                     f'{cam.width}x{cam.height}')
+                if size is not None:
+                    sized.add(k)
+            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             yield t, k, frame
     finally:
         reader.close()
@@ -357,7 +365,8 @@ def _main(argv=None):
     add_version(parser, 'tt_perception')
     parser.add_argument('--rig', required=True, help='rig file (DESIGN.md)')
     parser.add_argument('--out', required=True, help='output trajectory folder')
-    parser.add_argument('--bag', help="rosbag2 bag with sensor_msgs/Image on the rig's topics")
+    parser.add_argument('--bag', help='rosbag2 bag with sensor_msgs/Image (or CompressedImage) '
+                                      "on the rig's topics")
     parser.add_argument('--colour', default='any', choices=('white', 'orange', 'any'),
                         help='ball colour (default: any)')
     parser.add_argument('--model', help='model.yaml of tt-identify (default: nominal model)')

@@ -1,15 +1,16 @@
 """perception_node: ball state from the rig's cameras, published on /ball/state.
 
 ROS glue only (the math is in the pure modules). Each camera of the rig file comes from its
-``source``: an image topic (sensor_msgs/Image on the source, CameraInfo on the sibling
-``camera_info`` topic, sensor-data QoS), a V4L2 device or a video file paced at the rig's fps
-as a camera (:mod:`tt_perception.camstream`: a reader thread per camera, a bounded queue to
-one processing thread, every lost frame counted; times are video times, or the wall clock
-with ``video_clock: wall``; ``publish_clock`` publishes the frame times on /clock, so that
-nodes with ``use_sim_time`` share them). Every
-frame goes through :class:`tt_perception.pipeline.Pipeline`; each estimate is published as
-tt_msgs/BallState stamped with the exposure time of the camera-0 frame it derives from (the
-image header stamp), 9x9 covariance row-major (position, velocity, spin).
+``source``: an image topic (sensor_msgs/Image on the source, or sensor_msgs/CompressedImage,
+JPEG or PNG, on one ending in ``/compressed`` as image_transport names it; CameraInfo on the
+sibling ``camera_info`` topic; sensor-data QoS), a V4L2 device or a video file paced at the
+rig's fps as a camera (:mod:`tt_perception.camstream`: a reader thread per camera, a
+bounded queue to one processing thread, every lost frame counted; times are video times, or
+the wall clock with ``video_clock: wall``; ``publish_clock`` publishes the frame times on
+/clock, so that nodes with ``use_sim_time`` share them). Every frame goes through
+:class:`tt_perception.pipeline.Pipeline`; each estimate is published as tt_msgs/BallState
+stamped with the exposure time of the camera-0 frame it derives from (the image header
+stamp), 9x9 covariance row-major (position, velocity, spin).
 
 Bad input never produces a state: a missing or invalid rig file is logged and the node stays
 idle; a CameraInfo that disagrees with the calibration disables that camera with an error; a
@@ -34,7 +35,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tt_prediction.ball import load_model
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.errors import one_line_reason
@@ -64,7 +65,8 @@ from .sources import (
     camera_info_topic,
     file_source_path,
     file_sources_error,
-    image_to_bgr,
+    is_compressed_topic,
+    message_to_bgr,
     source_kind,
 )
 
@@ -309,7 +311,8 @@ class PerceptionNode(Node):
         files, devices = [], []
         for k, (cam, kind) in enumerate(zip(rig.cameras, kinds, strict=True)):
             if kind == 'topic':
-                self.create_subscription(Image, cam.source,
+                msg_type = CompressedImage if is_compressed_topic(cam.source) else Image
+                self.create_subscription(msg_type, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),
                                          qos_profile_sensor_data)
                 self.create_subscription(CameraInfo, camera_info_topic(cam.source),
@@ -391,7 +394,7 @@ class PerceptionNode(Node):
     def _on_image(self, k, msg):
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         try:
-            frame = image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+            frame = message_to_bgr(msg)
         except ValueError as exc:
             self._warn_once(('encoding', k), f'camera {self.rig.cameras[k].name}: {exc}')
             frame = None

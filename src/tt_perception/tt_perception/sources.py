@@ -123,7 +123,10 @@ def _open_capture(path):
 
 def camera_info_topic(image_topic):
     """The CameraInfo topic beside a camera's image topic, where perception_node subscribes
-    it (``/cam0/image_raw`` -> ``/cam0/camera_info``; ``image_raw`` -> ``camera_info``)."""
+    it (``/cam0/image_raw`` -> ``/cam0/camera_info``; ``image_raw`` -> ``camera_info``; a
+    compressed transport's ``/cam0/image_raw/compressed`` -> ``/cam0/camera_info``)."""
+    if is_compressed_topic(image_topic):
+        image_topic = image_topic.rstrip('/').rsplit('/', 1)[0]
     return (image_topic.rsplit('/', 1)[0] + '/camera_info' if '/' in image_topic
             else 'camera_info')
 
@@ -566,16 +569,34 @@ def file_frames(rig, notes=None):
             src.close()
 
 
+_ENCODINGS = {
+    # encoding: (bytes per pixel, conversion to BGR or None). The Bayer codes follow
+    # OpenCV's naming, which reads the pattern one pixel in (cv_bridge's table):
+    # bayer_rggb8 (red at the top left) is OpenCV's BayerBG. yuv422 is UYVY (ROS's name),
+    # yuv422_yuy2 YUYV; both BT.601 limited range.
+    'bgr8': (3, None), 'rgb8': (3, cv2.COLOR_RGB2BGR), 'bgra8': (4, cv2.COLOR_BGRA2BGR),
+    'rgba8': (4, cv2.COLOR_RGBA2BGR), 'mono8': (1, cv2.COLOR_GRAY2BGR),
+    'bayer_rggb8': (1, cv2.COLOR_BayerBG2BGR), 'bayer_bggr8': (1, cv2.COLOR_BayerRG2BGR),
+    'bayer_gbrg8': (1, cv2.COLOR_BayerGR2BGR), 'bayer_grbg8': (1, cv2.COLOR_BayerGB2BGR),
+    'yuv422': (2, cv2.COLOR_YUV2BGR_UYVY), 'yuv422_yuy2': (2, cv2.COLOR_YUV2BGR_YUY2),
+}
+
+
 def image_to_bgr(encoding, height, width, step, data):
     """A sensor_msgs/Image's pixels as a BGR uint8 array (H, W, 3).
 
-    Supports bgr8, rgb8, bgra8, rgba8 and mono8; raises ValueError for other encodings or a
-    buffer of the wrong size.
+    Supports the encodings of :data:`_ENCODINGS` (bgr8, rgb8, bgra8, rgba8, mono8, the four
+    8-bit Bayer patterns, yuv422 and yuv422_yuy2); raises ValueError for other encodings or
+    a buffer of the wrong size.
     """
-    channels = {'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4, 'mono8': 1}.get(encoding)
-    if channels is None:
+    known = _ENCODINGS.get(encoding)
+    if known is None:
         raise ValueError(f'image encoding {encoding!r} not supported '
-                         '(bgr8, rgb8, bgra8, rgba8, mono8)')
+                         f'({", ".join(_ENCODINGS)})')
+    channels, conversion = known
+    if channels == 2 and width % 2:
+        raise ValueError(f'image encoding {encoding} needs an even width (two pixels share '
+                         f'their colour), not {width}')
     buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data,
                         dtype=np.uint8)
     if height <= 0 or width <= 0 or step < width * channels or buf.size < height * step:
@@ -583,12 +604,37 @@ def image_to_bgr(encoding, height, width, step, data):
                          f'{encoding} with step {step}')
     img = buf[:height * step].reshape(height, step)[:, :width * channels]
     img = img.reshape(height, width, channels) if channels > 1 else img.reshape(height, width)
-    if encoding == 'rgb8':
-        return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    if encoding == 'bgra8':
-        return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    if encoding == 'rgba8':
-        return cv2.cvtColor(img, cv2.COLOR_RGBA2BGR)
-    if encoding == 'mono8':
-        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    return np.ascontiguousarray(img)
+    if conversion is None:
+        return np.ascontiguousarray(img)
+    return cv2.cvtColor(np.ascontiguousarray(img), conversion)
+
+
+def compressed_to_bgr(image_format, data):
+    """A sensor_msgs/CompressedImage's pixels as a BGR uint8 array (H, W, 3): JPEG or PNG,
+    colour or grey, as image_transport's compressed transport sends them (``format`` e.g.
+    'bgr8; jpeg compressed bgr8', 'mono8; png compressed mono8', 'jpeg'). Raises ValueError
+    for a depth image (compressedDepth) or data that does not decode."""
+    if 'compresseddepth' in image_format.lower():
+        raise ValueError(f'compressed image format {image_format!r} not supported (a depth '
+                         'image; JPEG or PNG of a camera image)')
+    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data,
+                        dtype=np.uint8)
+    image = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+    if image is None:
+        raise ValueError(f'compressed image ({len(buf)} bytes, format {image_format!r}) '
+                         'does not decode as JPEG or PNG')
+    return image
+
+
+def is_compressed_topic(topic):
+    """Whether the image topic ``topic`` carries sensor_msgs/CompressedImage: a name ending
+    in ``/compressed`` (image_transport's compressed transport, ``/cam0/image_raw/compressed``)."""
+    return topic.rstrip('/').endswith('/compressed')
+
+
+def message_to_bgr(msg):
+    """The BGR uint8 pixels of a sensor_msgs Image or CompressedImage message (rclpy's or
+    rosbags'); ValueError naming what cannot be read."""
+    if hasattr(msg, 'format'):
+        return compressed_to_bgr(msg.format, msg.data)
+    return image_to_bgr(msg.encoding, msg.height, msg.width, msg.step, msg.data)
