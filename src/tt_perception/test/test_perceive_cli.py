@@ -317,11 +317,12 @@ def test_time_offset_without_a_colour_is_estimated_from_the_ball_and_not_the_res
     assert len(rows) > 40 and np.median(err) < 2e-3
 
 
-def _image_bag(bag, frames, t0, only=(0, 1), compressed=None):
+def _image_bag(bag, frames, t0, only=(0, 1), compressed=None, stamped=True):
     """A bag of the frames as sensor_msgs/Image on /cam0/image_raw and /cam1/image_raw, stamped
     t0 + t; the frames of the cameras not in ``only`` are left out (their topic declared).
     ``compressed`` ('png' or 'jpeg'): as sensor_msgs/CompressedImage on
-    /camN/image_raw/compressed instead, as image_transport's compressed transport records."""
+    /camN/image_raw/compressed instead, as image_transport's compressed transport records.
+    Not ``stamped``: the header stamps left 0 (the bag's record times still t0 + t)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -336,7 +337,9 @@ def _image_bag(bag, frames, t0, only=(0, 1), compressed=None):
             if k not in only:
                 continue
             ns = int(round((t0 + t) * 1e9))
-            header = Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=f'cam{k}')
+            stamp = Time(sec=ns // 10**9, nanosec=ns % 10**9) if stamped else Time(sec=0,
+                                                                                    nanosec=0)
+            header = Header(stamp=stamp, frame_id=f'cam{k}')
             if compressed:
                 ok, data = cv2.imencode('.png' if compressed == 'png' else '.jpg', frame)
                 msg = store.types[msgtype](header=header,
@@ -348,6 +351,21 @@ def _image_bag(bag, frames, t0, only=(0, 1), compressed=None):
                                            is_bigendian=0, step=frame.shape[1] * 3,
                                            data=frame.reshape(-1))
             writer.write(conns[k], ns, store.serialize_cdr(msg, msgtype))
+
+
+def test_images_without_header_stamps_are_timed_by_the_bag_and_named(scene, tmp_path,
+                                                                       capsys):
+    # A camera driver that leaves header.stamp at 0: every frame was at t = 0 (no track).
+    base, rig_path, frames, truth = scene
+    bag = tmp_path / 'bag'
+    _image_bag(bag, frames, 500.0, stamped=False)
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', rig_path, '--out', str(out), '--bag', str(bag)]) == 0
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -500.0)
+    err = capsys.readouterr().err
+    for k in range(2):
+        assert (f'warning: {bag}: camera cam{k} (/cam{k}/image_raw): images without a header '
+                'stamp, timed by when the bag recorded them') in err
 
 
 def test_bag_of_compressed_images_gives_the_states_of_the_images(scene, tmp_path):

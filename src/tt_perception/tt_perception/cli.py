@@ -66,7 +66,8 @@ class OutputError(Exception):
 
 def bag_frames(rig, bag, notes=None):
     """(t, camera_index, frame) of the sensor_msgs/Image (or CompressedImage) messages on the
-    rig's image topics, in the bag's order, ``t`` the header stamp (s); a frame that cannot be
+    rig's image topics, in the bag's order, ``t`` the header stamp (s; the bag's record time
+    for an image without one, with a line in ``notes``); a frame that cannot be
     read (an encoding not supported, data that does not decode) is None, for the pipeline to
     report. InputError when fewer than two of the
     rig's cameras have images in the bag (a topic declared without a message has none), or
@@ -97,7 +98,8 @@ def bag_frames(rig, bag, notes=None):
                 notes.append(f'{bag}: no sensor_msgs/Image or CompressedImage for camera(s) '
                              f'{names}: the others triangulate alone')
         sized = set()               # cameras whose first image had its calibration's size
-        for conn, _, raw in reader.messages(connections=conns):
+        unstamped = set()           # cameras whose images have no header stamp
+        for conn, recorded, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             k = topics[conn.topic]
             try:
@@ -115,6 +117,14 @@ def bag_frames(rig, bag, notes=None):
                 if size is not None:
                     sized.add(k)
             t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            if t <= 0.0:            # a driver that leaves it unset: when the bag recorded it
+                t = recorded * 1e-9
+                if k not in unstamped and notes is not None:
+                    notes.append(f'{bag}: camera {rig.cameras[k].name} ({conn.topic}): images '
+                                 'without a header stamp, timed by when the bag recorded them '
+                                 "(later than the exposure by the transport's delay, which "
+                                 'varies: stamp the images at exposure)')
+                unstamped.add(k)
             yield t, k, frame
     finally:
         reader.close()
