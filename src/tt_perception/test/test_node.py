@@ -165,6 +165,28 @@ def test_compressed_images_in_ball_states_out(graph, tmp_path):
         assert np.linalg.norm(p - tr['state'][i, :3]) < 0.005
 
 
+def test_an_image_topic_of_another_type_is_named(graph, tmp_path):
+    # A camera process publishing CompressedImage under the raw name the rig reads as Image:
+    # the two never connect, and the node waited without a word.
+    ns, topics, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    node = graph.add(PerceptionNode(context=graph.context,
+                                    parameter_overrides=[Parameter('rig_file', value=rig_path)]))
+    warnings = []
+    logger = node.get_logger()
+    node.get_logger = lambda: type('Log', (), {
+        'warning': lambda self, text: warnings.append(text), 'info': logger.info,
+        'error': logger.error})()
+    with testing.Graph(domain_id=graph.context.get_domain_id()) as camera:   # another process
+        camera.create_node('compressed_camera').create_publisher(CompressedImage, topics[1],
+                                                                 QoSProfile(depth=5))
+        graph.spin_until(lambda: warnings, 10.0, "the node's warning")
+    assert warnings == [f'camera cam1: {topics[1]} carries sensor_msgs/msg/CompressedImage, '
+                        'not sensor_msgs/msg/Image, so no image of it arrives: a topic whose '
+                        'name ends in /compressed is read as CompressedImage, any other as '
+                        "Image (the rig's source)"]
+
+
 def test_wrong_camera_info_disables_the_camera(graph, tmp_path):
     ns, topics, state_topic = unique_topics()
     rig, node, pubs, info_pub, got = node_and_player(graph, tmp_path, ns, topics, state_topic)

@@ -236,6 +236,7 @@ class PerceptionNode(Node):
         self._snapshot = None               # the track, for the camera threads' detection
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
+        self._image_types = {}      # camera index -> the message type its image topic needs
         self._lost = set()
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
@@ -312,6 +313,7 @@ class PerceptionNode(Node):
         for k, (cam, kind) in enumerate(zip(rig.cameras, kinds, strict=True)):
             if kind == 'topic':
                 msg_type = CompressedImage if is_compressed_topic(cam.source) else Image
+                self._image_types[k] = f'sensor_msgs/msg/{msg_type.__name__}'
                 self.create_subscription(msg_type, cam.source,
                                          lambda msg, k=k: self._on_image(k, msg),
                                          qos_profile_sensor_data)
@@ -589,6 +591,26 @@ class PerceptionNode(Node):
                 cam = self.rig.cameras[k]
                 self.get_logger().warning(f'camera {cam.name}: no frame for {timeout:.2f} s '
                                           f'from {cam.source}; waiting for it to come back')
+            if now - last > timeout and k in self._image_types:
+                self._check_image_type(k)
+
+    def _check_image_type(self, k):
+        """Warn (once for each set of types) when the publishers of camera ``k``'s silent image
+        topic send another message type than the one it is read as: the two never connect,
+        and the node waited without a word (an image_transport compressed topic under a raw
+        name)."""
+        cam = self.rig.cameras[k]
+        name = self.resolve_topic_name(cam.source)
+        types = tuple(sorted({p.topic_type for p in self.get_publishers_info_by_topic(name)}))
+        wanted = self._image_types[k]
+        if not types or wanted in types:
+            return
+        hint = ('a topic whose name ends in /compressed is read as CompressedImage, any other '
+                'as Image' if 'sensor_msgs/msg/CompressedImage' in types + (wanted,) else
+                'an image topic carries sensor_msgs/msg/Image or CompressedImage')
+        self._warn_once(('image type', k, types),
+                        f'camera {cam.name}: {name} carries {", ".join(types)}, not {wanted}, '
+                        f"so no image of it arrives: {hint} (the rig's source)")
 
     def work_summary(self):
         """One line of what the node has done: frames, states, frame pairs dropped (at the
