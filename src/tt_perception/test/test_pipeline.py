@@ -171,6 +171,31 @@ def test_orange_ball_with_unsynchronised_cameras():
     assert np.sqrt(np.mean(err ** 2)) <= 2e-3
 
 
+def test_an_orange_ball_seen_by_monochrome_cameras_is_tracked_and_the_colour_left_unchecked():
+    # A monochrome camera's frames given as BGR (mono8 converted, a grey video): the colour
+    # test refused every blob of the orange ball (grey is no orange): no state, no word.
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=8.0, topspin_rps=20.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], colour='orange', duration=0.45,
+                                       lead_in=0.05)
+    frames = list(frames)
+    grey = [(t, k, cv2.cvtColor(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR))
+            for t, k, f in frames]
+    pipe = Pipeline(rig, detector_config=DetectorConfig(colour='orange'))
+    estimates = [e for t, k, f in grey for e in pipe.process(t, k, f)]
+    pairs = matched(estimates, truth[0])
+    assert len(pairs) > 40
+    err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in pairs])
+    assert np.sqrt(np.mean(err ** 2)) <= 2e-3
+    assert pipe.colour_warning() == ("camera(s) cam0, cam1: grey images, so the ball colour "
+                                     "'orange' is not checked there (any ball-like blob is "
+                                     'taken)')
+    colour = Pipeline(rig, detector_config=DetectorConfig(colour='orange'))
+    for t, k, f in frames[:4]:
+        colour.process(t, k, f)
+    assert colour.colour_warning() is None
+
+
 @pytest.mark.parametrize('frames_apart', [8, -8])
 def test_a_camera_frames_out_of_step_read_frame_by_frame_keeps_every_state(frames_apart):
     # Video files are read frame n of each camera in turn: a camera whose clock is 8 frames

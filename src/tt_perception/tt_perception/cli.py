@@ -436,8 +436,8 @@ def _main(argv=None):
     except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
-    geometry = pipeline.geometry_warning()
-    for message in [*cut, *errors.values(), *([geometry] if geometry else [])]:
+    found = [pipeline.colour_warning(), pipeline.geometry_warning()]
+    for message in [*cut, *errors.values(), *(m for m in found if m)]:
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
     try:
         names = write_tracks(args.out, estimates, 'tt-perceive', args.out_bag, rig.frame_id)

@@ -877,6 +877,10 @@ class BallDetector:
         self._bg8 = None
         self._bg_colour = None
         self._count = 0
+        self.colourless = None
+        """Whether this camera's frames are grey given as BGR (its first frame's three
+        channels equal: a monochrome camera's mono8, a grey video): they are then taken as
+        grey, and the ball's ``colour`` cannot be checked (None before the first frame)."""
 
     def detect(self, frame, roi_centre=None, update_background=True, expected=None,
                search=False):
@@ -896,6 +900,13 @@ class BallDetector:
                 or not (frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 3))):
             raise ValueError('frame is not an 8-bit grey or BGR image')
         h, w = frame.shape[:2]
+        if self.colourless is None and frame.ndim == 3:
+            self.colourless = bool(np.array_equal(frame[:, :, 0], frame[:, :, 1])
+                                   and np.array_equal(frame[:, :, 1], frame[:, :, 2]))
+        if self.colourless and frame.ndim == 3:
+            # Its three equal channels as one: as BGR the colour test refused every blob of
+            # an orange ball (grey is no orange), and nothing was tracked without a word.
+            frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         if self.background is None:
             gray = _grey(frame)
             self.background = gray.astype(np.float32)

@@ -564,6 +564,9 @@ class PerceptionNode(Node):
         if self.clock_pub is not None:
             self._publish_clock(stamp)
         estimates = self.pipeline.process(stamp - self._t_ref, k, frame, detections)
+        grey = self.pipeline.colour_warning()
+        if grey:
+            self._warn_once(('grey', grey), grey)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:

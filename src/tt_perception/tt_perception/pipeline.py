@@ -557,6 +557,18 @@ class Pipeline:
                 'is the ball (one of another colour than the colour setting, or of a pixel or '
                 'two, is matched to other things)')
 
+    def colour_warning(self):
+        """One line when the ball's colour is set but a camera's frames are grey (its
+        detector's :attr:`tt_perception.detect.BallDetector.colourless`): the colour cannot
+        be checked there, so any ball-like blob is taken; else None."""
+        colour = self.detectors[0].config.colour
+        grey = [cam.name for cam, d in zip(self.cameras, self.detectors, strict=True)
+                if d.colourless]
+        if colour == 'any' or not grey:
+            return None
+        return (f"camera(s) {', '.join(grey)}: grey images, so the ball colour {colour!r} is "
+                'not checked there (any ball-like blob is taken)')
+
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
         covariance given all of its track's frames (:func:`tt_prediction.ball_filter.smooth`;
