@@ -237,6 +237,7 @@ class PerceptionNode(Node):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
         self._image_types = {}      # camera index -> the message type its image topic needs
+        self._colour_known = set()  # cameras whose frames are known to be grey or not
         self._lost = set()
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
@@ -564,9 +565,11 @@ class PerceptionNode(Node):
         if self.clock_pub is not None:
             self._publish_clock(stamp)
         estimates = self.pipeline.process(stamp - self._t_ref, k, frame, detections)
-        grey = self.pipeline.colour_warning()
-        if grey:
-            self._warn_once(('grey', grey), grey)
+        if k not in self._colour_known and self.pipeline.detectors[k].colourless is not None:
+            self._colour_known.add(k)           # known from a camera's first frame
+            grey = self.pipeline.colour_warning()
+            if grey:
+                self._warn_once(('grey', grey), grey)
         if self.pipeline.last_error and k not in self._disabled:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:

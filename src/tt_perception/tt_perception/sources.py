@@ -582,6 +582,11 @@ _ENCODINGS = {
 }
 
 
+def _uint8(data):
+    """A message's ``data`` (bytes, a list of ints or a numpy array) as a uint8 array."""
+    return np.frombuffer(data if isinstance(data, np.ndarray) else bytes(data), dtype=np.uint8)
+
+
 def image_to_bgr(encoding, height, width, step, data):
     """A sensor_msgs/Image's pixels as a BGR uint8 array (H, W, 3).
 
@@ -597,8 +602,7 @@ def image_to_bgr(encoding, height, width, step, data):
     if channels == 2 and width % 2:
         raise ValueError(f'image encoding {encoding} needs an even width (two pixels share '
                          f'their colour), not {width}')
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data,
-                        dtype=np.uint8)
+    buf = _uint8(data)
     if height <= 0 or width <= 0 or step < width * channels or buf.size < height * step:
         raise ValueError(f'image buffer of {buf.size} bytes does not hold {width}x{height} '
                          f'{encoding} with step {step}')
@@ -617,8 +621,7 @@ def compressed_to_bgr(image_format, data):
     if 'compresseddepth' in image_format.lower():
         raise ValueError(f'compressed image format {image_format!r} not supported (a depth '
                          'image; JPEG or PNG of a camera image)')
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data,
-                        dtype=np.uint8)
+    buf = _uint8(data)
     image = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
     if image is None:
         raise ValueError(f'compressed image ({len(buf)} bytes, format {image_format!r}) '
