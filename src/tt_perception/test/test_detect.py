@@ -507,3 +507,31 @@ def test_the_silhouettes_compiled_kernel_is_its_definition():
         np.testing.assert_allclose(
             got, _silhouette_by_opencv(patch, background, seed, sx, sy, 14.0),
             rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize('roi', [None, (300.0, 200.0)])
+def test_background_follows_the_frame_except_around_the_ball(roi):
+    """One update (background_every 1): the grey and the colour background move a
+    background_rate of the way to the frame, except within 2 pixels (a 5 x 5 dilation) of the
+    pixels whose grey changed by more than diff_threshold (the ball), which keep their
+    value; with a search window, as without."""
+    from scipy.ndimage import binary_dilation
+    cfg = DetectorConfig(background_every=1, background_rate=0.25)
+    rng = np.random.default_rng(4)
+    first = rng.integers(70, 110, (240, 400, 3), dtype=np.uint8)
+    first[:, :, 2] += 20                                   # colour: not a grey camera
+    d = BallDetector(cfg)
+    d.detect(first)
+    grey0, colour0 = d.background.copy(), d._bg_colour.copy()
+    frame = first + np.uint8(6)                            # light a little brighter
+    disc(frame, (300.0, 200.0), 5.0)                       # and a ball
+    d.detect(frame, roi)
+    grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    ball = np.abs(grey - np.round(grey0)) > cfg.diff_threshold
+    assert 60 < ball.sum() < 120
+    kept = binary_dilation(ball, np.ones((5, 5), bool))
+    a = cfg.background_rate
+    assert np.allclose(d.background[kept], grey0[kept])
+    assert np.allclose(d.background[~kept], ((1 - a) * grey0 + a * grey)[~kept], atol=1e-4)
+    assert np.allclose(d._bg_colour[kept], colour0[kept])
+    assert np.allclose(d._bg_colour[~kept], ((1 - a) * colour0 + a * frame)[~kept], atol=1e-4)

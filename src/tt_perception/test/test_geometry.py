@@ -3,9 +3,10 @@ geometry or tt_prediction's integrator."""
 
 import os
 
+import cv2
 import numpy as np
 import pytest
-from tt_perception.camera import CalibrationError, load_rig
+from tt_perception.camera import CalibrationError, Camera, load_rig, project_optical
 from tt_perception.triangulate import dlt, refine, triangulate
 from tt_prediction.ball import ModelParams, rollout
 from tt_prediction.ball_filter import BallFilter
@@ -29,6 +30,24 @@ def test_undistortion_inverts_the_lens_model():
     pinhole = Xc[:, :2] / Xc[:, 2:]
     assert np.abs(cam.dist).max() > 0.01      # a real distortion to undo
     assert np.allclose(cam.normalise(cam.project(X)), pinhole, atol=1e-8)
+
+
+@pytest.mark.parametrize('dist', [[-0.11, 0.04, 5e-4, -3e-4],
+                                  [-0.11, 0.04, 5e-4, -3e-4, 0.01],
+                                  [0.4, -0.2, 1e-3, 2e-3, 0.05, 0.6, -0.1, 0.08]])
+def test_compiled_projection_is_opencvs(dist):
+    """project_optical (the expected ball image's) against OpenCV's projectPoints, for
+    plumb-bob without and with k3 and the rational model, out to the image's corners."""
+    K = np.array([[554.0, 0.0, 322.5], [0.0, 549.0, 237.5], [0.0, 0.0, 1.0]])
+    cam = Camera('c', 640, 480, K, dist, np.eye(3), np.zeros(3))
+    points = np.column_stack([RNG.uniform(-0.6, 0.6, 200), RNG.uniform(-0.45, 0.45, 200),
+                              RNG.uniform(0.8, 3.0, 200)])
+    expected, _ = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K,
+                                    np.array(dist))
+    assert np.allclose(project_optical(points, cam.intrinsics, cam.rational_dist),
+                       expected.reshape(-1, 2), atol=1e-9, rtol=0.0)
+    with pytest.raises(CalibrationError, match='6 distortion coefficients'):
+        Camera('c', 640, 480, K, np.zeros(6), np.eye(3), np.zeros(3))
 
 
 def test_triangulation_recovers_points_and_drops_a_wrong_camera():

@@ -2,8 +2,9 @@
 
 A camera maps a point X (m, ``table`` frame) to its optical frame by X_cam = R X + t (z
 forward, x right, y down) and then to pixels by the pinhole matrix K and OpenCV's
-plumb-bob distortion (k1, k2, p1, p2, k3). Intrinsics come from the ROS camera_info YAML (the
-format ``camera_calibration`` writes); the rig file gives each camera's pose and source.
+plumb-bob distortion (k1, k2, p1, p2, k3), or its rational model's 8 coefficients.
+Intrinsics come from the ROS camera_info YAML (the format ``camera_calibration`` writes); the
+rig file gives each camera's pose and source.
 Every loading error is a :class:`CalibrationError` with a one-line message naming the file
 and the field.
 """
@@ -14,6 +15,7 @@ import math
 import os
 
 import cv2
+from numba import njit
 import numpy as np
 from tt_prediction.staged import replace_file
 from tt_prediction.units import translation_error
@@ -32,6 +34,10 @@ class CalibrationError(ValueError):
 
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)
 """Iteration criteria of the undistortion: at most 20 iterations or a step below 1e-9."""
+IN_FRONT_DEPTH = 1e-3
+"""Least depth along a camera's axis of a point in front of it, m (:meth:`Camera.in_front`)."""
+DISTORTION_SIZES = (4, 5, 8)
+"""Numbers of distortion coefficients: plumb-bob without and with k3, rational polynomial."""
 ROTATION_TOLERANCE = 1e-4
 """Largest entry of R R^T - I, and of det R - 1, of a rig pose's rotation."""
 
@@ -46,7 +52,8 @@ class Camera:
     K: np.ndarray
     """3x3 camera matrix, pixels."""
     dist: np.ndarray
-    """Distortion coefficients (k1, k2, p1, p2, k3), plumb-bob model."""
+    """Distortion coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]) in OpenCV's order:
+    plumb-bob (4 or 5) or rational polynomial (8)."""
     R: np.ndarray
     """3x3 rotation, table -> optical frame."""
     t: np.ndarray
@@ -61,8 +68,17 @@ class Camera:
     def __post_init__(self):
         self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
         self.dist = np.asarray(self.dist, dtype=float).ravel()
-        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
-        self.t = np.asarray(self.t, dtype=float).ravel()
+        # C-ordered: the compiled kernels take them as they are (pipeline.ball_image).
+        self.R = np.ascontiguousarray(np.asarray(self.R, dtype=float).reshape(3, 3))
+        self.t = np.ascontiguousarray(np.asarray(self.t, dtype=float).ravel())
+        if self.dist.size not in DISTORTION_SIZES:
+            raise CalibrationError(f'camera {self.name}: {self.dist.size} distortion '
+                                   'coefficients (4, 5 or 8: plumb_bob or rational_polynomial)')
+        self.intrinsics = np.array([self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]])
+        """(fx, fy, cx, cy), pixels (:func:`project_optical`)."""
+        self.rational_dist = np.zeros(8)
+        """:attr:`dist` as the rational model's 8 coefficients (zeros added)."""
+        self.rational_dist[:self.dist.size] = self.dist
         self._rvec = cv2.Rodrigues(self.R)[0]
         self.centre = -self.R.T @ self.t
         """Optical centre in the table frame, m."""
@@ -94,7 +110,31 @@ class Camera:
 
     def in_front(self, points):
         """True where the table-frame points (n, 3) lie in front of the camera."""
-        return self.to_camera(points)[:, 2] > 1e-3
+        return self.to_camera(points)[:, 2] > IN_FRONT_DEPTH
+
+
+@njit(cache=True, nogil=True)
+def project_optical(points, intrinsics, dist):
+    """Optical-frame points (n, 3), m -> distorted pixel coordinates (n, 2): the pinhole
+    ``intrinsics`` (fx, fy, cx, cy) and the rational model's 8 ``dist`` coefficients (k1, k2,
+    p1, p2, k3, k4, k5, k6; plumb-bob's with zeros), as OpenCV's projectPoints computes them
+    (skew not used). Compiled (numba), for :func:`tt_perception.pipeline.ball_image`;
+    :meth:`Camera.project` calls OpenCV itself."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = dist
+    fx, fy, cx, cy = intrinsics
+    uv = np.empty((points.shape[0], 2))
+    for i in range(points.shape[0]):
+        z = points[i, 2]
+        w = 1.0 / z if z != 0.0 else 1.0
+        x, y = points[i, 0] * w, points[i, 1] * w
+        r2 = x * x + y * y
+        radial = ((1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+                  / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        uv[i, 0] = fx * xd + cx
+        uv[i, 1] = fy * yd + cy
+    return uv
 
 
 def file_error(what, path):
@@ -177,8 +217,10 @@ def load_camera_info(path):
                                'without distortion: data: [0, 0, 0, 0, 0])')
     entry = data['distortion_coefficients']
     dist = np.asarray(entry.get('data') if isinstance(entry, dict) else entry, dtype=float)
-    if dist.size not in (4, 5, 8) or not np.all(np.isfinite(dist)):
-        raise CalibrationError(f'camera_info {path}: distortion_coefficients needs 5 numbers')
+    if dist.size not in DISTORTION_SIZES or not np.all(np.isfinite(dist)):
+        raise CalibrationError(f'camera_info {path}: distortion_coefficients needs 4, 5 or 8 '
+                               'numbers (plumb_bob: k1, k2, p1, p2[, k3]; rational_polynomial: '
+                               'k1, k2, p1, p2, k3, k4, k5, k6)')
     return {'width': width, 'height': height, 'K': K, 'dist': dist,
             'name': str(data.get('camera_name', ''))}
 

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 from tt_prediction.ball_filter import BallFilter
 
-from . import detect, triangulate
+from . import detect, pipeline, triangulate
 from .sources import V4L2Source, VideoFileSource
 
 END = 'end'
@@ -448,10 +448,10 @@ def open_v4l2(device, **kwargs):
 
 
 def warm_up(params, filter_config, fps=150.0):
-    """Run the filter once through a flight with a bounce, and the detector's outline model
-    and the triangulation once, so that their compiled kernels (numba) are loaded before the
-    cameras start rather than on the first ball's frames (which would otherwise queue up
-    behind them and be dropped)."""
+    """Run the filter once through a flight with a bounce, and the detector's outline model,
+    the ball's expected image and the triangulation once, so that their compiled kernels
+    (numba) are loaded before the cameras start rather than on the first ball's frames (which
+    would otherwise queue up behind them and be dropped)."""
     f = BallFilter(params, filter_config)
     f.start(0.0, np.array([0.0, 0.0, 0.3]), np.array([-5.0, 0.0, 0.0]), np.eye(3) * 1e-6,
             np.eye(3) * 1e-2)
@@ -461,4 +461,5 @@ def warm_up(params, filter_config, fps=150.0):
     f.innovation(f.x[:3].copy(), np.eye(3) * 1e-6)
     f.update_spin(np.zeros(3), np.eye(3) * 100.0)
     detect.warm_up()
+    pipeline.warm_up()
     triangulate.warm_up()

@@ -31,11 +31,12 @@ import dataclasses
 import itertools
 import math
 
+from numba import njit
 import numpy as np
 from tt_prediction.ball import ModelParams
 from tt_prediction.ball_filter import BallFilter, FilterConfig, smooth
 
-from .camera import MAX_TIME_OFFSET_S
+from .camera import IN_FRONT_DEPTH, MAX_TIME_OFFSET_S, project_optical
 from .detect import BallDetector, BallImage, DetectorConfig
 from .triangulate import refine, triangulate
 
@@ -162,38 +163,74 @@ def ball_image(cam, position, velocity, radius, exposure):
     ``exposure`` (s): the projection of its centre, the projection of its outline (the circle
     where the lines of sight touch the sphere, through the lens distortion; an ellipse,
     longer along the radius of the image off the axis) and of its motion over the exposure.
-    None when the ball's centre is within its radius of the camera (no outline)."""
-    c = cam.R @ position + cam.t
-    d = math.sqrt(c @ c)
-    if not d > radius:
+    None when the ball's centre is within its radius of the camera (no outline) or not in
+    front of it (:meth:`tt_perception.camera.Camera.in_front`).
+
+    One compiled kernel (numba, run without the GIL): it runs on every frame of every
+    camera's thread while a track runs, where numpy's small calls held the GIL about 0.1 ms
+    a frame."""
+    out = _ball_image(cam.R, cam.t, cam.intrinsics, cam.rational_dist,
+                      np.ascontiguousarray(position, dtype=float),
+                      np.ascontiguousarray(velocity, dtype=float), float(radius), float(exposure))
+    if out[10] == 0.0:
         return None
-    ax, ay, az = c / d
-    # Two directions across the line of sight: e1 = axis x (0, 1, 0), e2 = axis x e1
-    # (written out: numpy's cross costs more than the rest of this function).
+    up = out[8:10] if out[10] == 1.0 else None
+    return BallImage(float(out[0]), float(out[1]), out[2:6].reshape(2, 2), out[6:8].copy(),
+                     up)
+
+
+def warm_up():
+    """Load the compiled kernel of :func:`ball_image` before the first ball needs it."""
+    _ball_image(np.eye(3), np.array([0.0, 0.0, 1.0]), np.array([500.0, 500.0, 320.0, 240.0]),
+                np.zeros(8), np.zeros(3), np.zeros(3), 0.02, 2e-3)
+
+
+@njit(cache=True, nogil=True)
+def _ball_image(R, t, intrinsics, dist, position, velocity, radius, exposure):
+    """Kernel of :func:`ball_image`: (11,) the centre u, v; the outline's M row by row (4);
+    the blur (2); the up direction (2), pixels; and what holds: 0 no image, 1 an image, 2 an
+    image whose up direction is not worth trusting (zeros)."""
+    out = np.zeros(11)
+    c = R @ position + t
+    d = math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    if not d > radius or not c[2] > IN_FRONT_DEPTH:
+        return out
+    ax, ay, az = c[0] / d, c[1] / d, c[2] / d
+    # Two directions across the line of sight: e1 = axis x (0, 1, 0), e2 = axis x e1.
     across = math.hypot(ax, az)
     e1 = np.array([-az, 0.0, ax]) / across
     e2 = np.array([ax * ay, -across * across, ay * az]) / across
     # The outline: the circle of radius r sqrt(d^2 - r^2) / d at (d^2 - r^2) / d along the axis.
     ring = radius * math.sqrt(d * d - radius * radius) / d
     mid = (d * d - radius * radius) / (d * d) * c
-    half = 0.5 * exposure * velocity
-    table = np.empty((8, 3))
-    table[0] = position
-    table[1:5] = (mid - cam.t + ring * np.array([e1, e2, -e1, -e2])) @ cam.R
-    table[5] = position - half
-    table[6] = position + half
-    table[7] = position + (0.0, 0.0, radius)
-    uv = cam.project(table)
+    half = 0.5 * exposure * (R @ velocity)
+    points = np.empty((8, 3))               # the optical frame
+    points[0] = c
+    points[1] = mid + ring * e1
+    points[2] = mid + ring * e2
+    points[3] = mid - ring * e1
+    points[4] = mid - ring * e2
+    points[5] = c - half
+    points[6] = c + half
+    points[7] = c + radius * R[:, 2]        # the ball's top
+    uv = project_optical(points, intrinsics, dist)
+    out[0], out[1] = uv[0, 0], uv[0, 1]
     # Four points a quarter turn apart on the projected circle: c + M (cos, sin).
-    m = 0.5 * np.column_stack([uv[1] - uv[3], uv[2] - uv[4]])
+    m00, m10 = 0.5 * (uv[1, 0] - uv[3, 0]), 0.5 * (uv[1, 1] - uv[3, 1])
+    m01, m11 = 0.5 * (uv[2, 0] - uv[4, 0]), 0.5 * (uv[2, 1] - uv[4, 1])
+    out[2], out[3], out[4], out[5] = m00, m01, m10, m11
+    out[6], out[7] = uv[6, 0] - uv[5, 0], uv[6, 1] - uv[5, 1]
     # The image of the ball's top radius, over the ball's own radius in the image, is the
     # sine of the angle between the line of sight and the vertical: under 0.5 (a camera
     # looking within 30 degrees of straight down) it shows no direction worth trusting.
-    up = uv[7] - uv[0]
-    norm = math.hypot(*up)
-    steep = not norm > 0.5 * math.sqrt(abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]))
-    return BallImage(float(uv[0, 0]), float(uv[0, 1]), m, uv[6] - uv[5],
-                     None if steep else up / norm)
+    up_u, up_v = uv[7, 0] - uv[0, 0], uv[7, 1] - uv[0, 1]
+    norm = math.hypot(up_u, up_v)
+    steep = not norm > 0.5 * math.sqrt(abs(m00 * m11 - m01 * m10))
+    if steep:
+        out[10] = 2.0
+    else:
+        out[8], out[9], out[10] = up_u / norm, up_v / norm, 1.0
+    return out
 
 
 class Matcher:
@@ -599,10 +636,11 @@ class Pipeline:
         roi = expected = None
         snap = self.tracker.snapshot() if snapshot is LIVE else snapshot
         motion = self.tracker.predicted_motion(t, snap)
-        if motion is not None and cam.in_front(motion[0][None])[0]:
+        if motion is not None:
             # Each candidate's centre is the fit of the tracked ball's outline; its blob's own
             # centre comes too, for a track not confirmed yet (Tracker.add). While the
             # predicted centre is rough (Tracker.rough) the fit searches around the blob's.
+            # None: a ball not in front of this camera.
             expected = ball_image(cam, motion[0], motion[1], self.params.radius,
                                   self.detectors[k].config.exposure)
         if expected is not None:
@@ -613,10 +651,11 @@ class Pipeline:
             dets = self.detectors[k].detect(frame, None, update_background=False)
         if not dets:
             return []
-        xy = cam.normalise(np.array([[d.u, d.v] for d in dets]))
-        blob = cam.normalise(np.array([[d.blob_u, d.blob_v] for d in dets]))
+        # The centres and the blobs' centres in one call (each call holds the GIL).
+        both = cam.normalise(np.array([[d.u, d.v] for d in dets]
+                                      + [[d.blob_u, d.blob_v] for d in dets]))
         return [detection_row(c, d.width, d.hidden, b, d.colour_sure, d.bright_width)
-                for c, b, d in zip(xy, blob, dets, strict=True)]
+                for c, b, d in zip(both[:len(dets)], both[len(dets):], dets, strict=True)]
 
     def _points(self, group, blobs=True):
         """Triangulated, gated candidate points of one time-matched group, each a pair: the
