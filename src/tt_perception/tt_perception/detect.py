@@ -1103,23 +1103,30 @@ class BallDetector:
         """Exponential average of the frame into the background, except under blobs (``mask``,
         at x0, y0, grown by 2 pixels).
 
-        The whole frame is averaged in and the background under the blobs put back: the same
-        result as OpenCV's masked average at a third of its time (0.13 against 0.35 ms a
-        640 x 480 colour frame), on a camera thread every ``background_every`` frames."""
+        OpenCV's masked average costs three times the plain one (0.35 against 0.13 ms a
+        640 x 480 colour frame, on a camera thread every ``background_every`` frames): it runs
+        on the box around the grown blobs only, the plain one on the rest of the frame."""
         backgrounds = [(gray, self.background)]
         if self._bg_colour is not None and frame.ndim == 3:
             backgrounds.append((frame, self._bg_colour))
-        held = None
+        rate = self.config.background_rate
+        h, w = gray.shape
+        bx = by = bw = bh = 0
         if mask is not None:
             grown = cv2.dilate(mask, _GROW_KERNEL)
             bx, by, bw, bh = cv2.boundingRect(grown)
-            if bw > 0 and bh > 0:
-                box = (slice(y0 + by, y0 + by + bh), slice(x0 + bx, x0 + bx + bw))
-                under = grown[by:by + bh, bx:bx + bw] > 0
-                held = [background[box][under] for _, background in backgrounds]
-        for image, background in backgrounds:
-            cv2.accumulateWeighted(image, background, self.config.background_rate)
-        if held is not None:
-            for (_, background), values in zip(backgrounds, held, strict=True):
-                background[box][under] = values
+        if bw == 0 or bh == 0:
+            for image, background in backgrounds:
+                cv2.accumulateWeighted(image, background, rate)
+        else:
+            keep = grown[by:by + bh, bx:bx + bw] ^ 255
+            bx, by = bx + x0, by + y0
+            rest = ((slice(0, by), slice(0, w)), (slice(by + bh, h), slice(0, w)),
+                    (slice(by, by + bh), slice(0, bx)), (slice(by, by + bh), slice(bx + bw, w)))
+            box = (slice(by, by + bh), slice(bx, bx + bw))
+            for image, background in backgrounds:
+                cv2.accumulateWeighted(image[box], background[box], rate, mask=keep)
+                for part in rest:
+                    if background[part].size:
+                        cv2.accumulateWeighted(image[part], background[part], rate)
         self._bg8 = cv2.convertScaleAbs(self.background)
