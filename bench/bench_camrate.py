@@ -19,7 +19,9 @@ perception_node runs as its own process (``ros2 run``). Measured:
   threads found overwritten, or that waited in a full queue), and the accounting check
   frames processed + frames dropped = frames in the files;
 - balls tracked (states inside each ball's flight) of balls served;
-- the machine's load average before and after, and the node's CPU time per second of video.
+- the machine's load average before and after, and the node's CPU time per second of video;
+- the time of each stage of a frame's way over the last 10 s (p50 / p99): each camera's read
+  (MJPG decoding) and detection, in its thread, and the processing thread's part.
 
 Targets (issue 15): 0 frame pairs dropped, p99 <= 8 ms.
 """
@@ -156,6 +158,8 @@ def run():
     dropped_frames = sum(int(v) for key, v in final.items() if key.endswith('_frames_dropped'))
     pairs = int(final['frame_pairs_dropped'])
     p50, p99 = float(final['latency_p50_ms']), float(final['latency_p99_ms'])
+    stages = [key[:-len('_p50_ms')] for key in final
+              if key.endswith('_p50_ms') and key != 'latency_p50_ms']
     result = {
         'video_s': round(duration, 2), 'fps': FPS, 'image_size': [640, 480],
         'frames_in_files': frames_in_files,
@@ -170,6 +174,10 @@ def run():
             'p50': round(float(np.percentile(arrival_ms, 50)), 3),
             'p99': round(float(np.percentile(arrival_ms, 99)), 3),
             'max': round(float(arrival_ms.max()), 3)} if len(arrival_ms) else {},
+        # Where the time goes, per frame (the node's /diagnostics, the last 10 s): each
+        # camera's read (MJPG decoding) and detection, in its thread, and the processing.
+        'stage_time_ms': {stage: {'p50': float(final[f'{stage}_p50_ms']),
+                                  'p99': float(final[f'{stage}_p99_ms'])} for stage in stages},
         'balls_served': served, 'balls_tracked': tracked,
         'node_cpu_s_per_video_s': round(cpu_used / duration, 3),
         'load_average_before': [round(v, 2) for v in load_before],

@@ -14,6 +14,7 @@ from tt_perception.camstream import (
     DropCounter,
     Frame,
     FrameQueue,
+    LatencyWindow,
     PacedVideoSource,
 )
 
@@ -367,3 +368,18 @@ def test_device_frames_lost_by_the_driver_are_counted_and_a_reopening_is_not():
     t, frame = src.read()
     assert t == pytest.approx(1.020 + src._clock_offset) and int(frame[0, 0, 0]) == 1020 % 256
     assert src.read() == (None, None) and 'stopped delivering' in src.status
+
+
+def test_latency_window_gives_the_percentiles_of_the_last_values():
+    # Its percentiles are numpy's of the last `size` values added, in ms, before and after
+    # the ring wraps; none added: nan.
+    window = LatencyWindow(size=50)
+    assert all(np.isnan(window.percentiles_ms()))
+    values = np.random.default_rng(2).exponential(0.004, 130)
+    for n, v in enumerate(values, 1):
+        window.add(v)
+        if n in (1, 37, 50, 51, 130):
+            last = values[max(0, n - 50):n]
+            assert window.percentiles_ms((50, 99)) == pytest.approx(
+                1e3 * np.percentile(last, [50, 99]), rel=1e-12)
+    assert window.count == 130

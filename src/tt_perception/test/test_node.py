@@ -13,6 +13,7 @@ import sys
 import time
 
 import cv2
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 import pytest
@@ -390,13 +391,16 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
                                   time_offset=0.0)   # synchronised: no offset to estimate
     n_frames = sum(1 for _ in synth.render_balls(load_rig(rig_path), [], [], duration=0.4,
                                                  lead_in=0.1)[0])
-    got = []
+    got, diagnostics = [], []
     peer = add(rclpy.create_node('listener', context=ctx))
     # Best effort as the publisher, deep enough for the states of a batch of queued frames.
     peer.create_subscription(BallState, state_topic, got.append,
                              QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT))
+    diagnostics_topic = f'{state_topic}_diagnostics'
+    peer.create_subscription(DiagnosticArray, diagnostics_topic, diagnostics.append, 10)
     node = add(PerceptionNode(context=ctx, cli_args=['--ros-args', '-r',
-                                                     f'/ball/state:={state_topic}'],
+                                                     f'/ball/state:={state_topic}', '-r',
+                                                     f'/diagnostics:={diagnostics_topic}'],
                               parameter_overrides=[Parameter('rig_file', value=video_rig),
                                                    Parameter('video_rate', value=0.0)]))
     # video_rate 0: each frame read once processing takes the one before (real-time pacing is
@@ -413,6 +417,28 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
         i = int(np.argmin(np.abs(tr['t'] - t)))
         p = np.array([msg.position.x, msg.position.y, msg.position.z])
         assert abs(tr['t'][i] - t) < 1e-5 and np.linalg.norm(p - tr['state'][i, :3]) < 0.005
+    # /diagnostics (1 Hz) after both ends: the counts, and the time of each stage of the
+    # frames' way (every camera's read and detection, the processing), p50 <= p99, each
+    # under the frame's whole way (the wall time of the run).
+    graph.spin_until(lambda: any(_values(d)['cameras_ended'] == '2' for d in diagnostics),
+                     5.0, 'diagnostics after the end of the files')
+    values = next(_values(d) for d in diagnostics if _values(d)['cameras_ended'] == '2')
+    assert int(values['frames_processed']) == n_frames
+    assert int(values['states_published']) == node.states_published
+    assert values['frame_pairs_dropped'] == '0'
+    stages = [f'{cam}_{stage}' for cam in ('cam0', 'cam1') for stage in ('read', 'detect')]
+    for stage in stages + ['process']:
+        p50, p99 = float(values[f'{stage}_p50_ms']), float(values[f'{stage}_p99_ms'])
+        assert 0.0 < p50 <= p99 < 60e3, (stage, p50, p99)
+    for cam in ('cam0', 'cam1'):
+        assert int(values[f'{cam}_frames_read']) == n_frames // 2
+    assert values['latency_p50_ms'] == 'nan'     # video time, not the wall clock (video_rate 0)
+
+
+def _values(diagnostics):
+    """The key-value pairs of perception_node's status in a DiagnosticArray."""
+    status = next(s for s in diagnostics.status if s.name == node_module.CAMERAS_DIAGNOSTIC)
+    return {kv.key: kv.value for kv in status.values}
 
 
 def test_the_parameters_file_tt_predict_writes_sets_the_nodes_filter_and_model(graph, tmp_path):

@@ -49,6 +49,7 @@ from tt_msgs.msg import BallState
 from .camera import CalibrationError, load_rig
 from .camstream import (
     END,
+    STAGE_WINDOW,
     CameraReader,
     DropCounter,
     Frame,
@@ -233,6 +234,7 @@ class PerceptionNode(Node):
         self.frames_queue = None
         self.drops = None
         self.latency = LatencyWindow()
+        self.process_time = LatencyWindow(STAGE_WINDOW)   # a frame of the cameras, processed
         self._snapshot = None               # the track, for the camera threads' detection
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
@@ -517,22 +519,26 @@ class PerceptionNode(Node):
                                 f'processed: {type(exc).__name__}: {exc}')
 
     def _publish_diagnostics(self):
-        """/diagnostics: frames read and lost per camera, frame pairs lost, latency."""
+        """/diagnostics: frames read and lost per camera, frame pairs lost, latency and the
+        time of each stage (a camera's read and detection, the processing of a frame)."""
         lost, pairs = self.drops.snapshot()
-        p50, p99 = self.latency.percentiles_ms()
         status = DiagnosticStatus(name=CAMERAS_DIAGNOSTIC, hardware_id=self.rig.path)
         status.level = DiagnosticStatus.OK if pairs == 0 else DiagnosticStatus.WARN
         status.message = f'{pairs} frame pairs dropped'
         values = {'frame_pairs_dropped': pairs, 'frames_processed': self.frames_received,
                   'states_published': self.states_published,
                   'queue_high_water': self.frames_queue.high_water,
-                  'latency_p50_ms': f'{p50:.3f}', 'latency_p99_ms': f'{p99:.3f}',
+                  **_percentiles('latency', self.latency),
                   'latency_count': self.latency.count,
                   'cameras_ended': len(self._ended),
                   'video_start_wall_s': ('' if self._video_start is None
                                          else f'{self._video_start:.6f}')}
         for reader in self._readers:
-            values[f'{self.rig.cameras[reader.camera].name}_frames_read'] = reader.frames
+            name = self.rig.cameras[reader.camera].name
+            values[f'{name}_frames_read'] = reader.frames
+            for stage, window in (('read', reader.read_time), ('detect', reader.detect_time)):
+                values.update(_percentiles(f'{name}_{stage}', window))
+        values.update(_percentiles('process', self.process_time))
         for k, cam in enumerate(self.rig.cameras):
             values[f'{cam.name}_frames_dropped'] = lost[k]
         status.values = [KeyValue(key=key, value=str(v)) for key, v in values.items()]
@@ -548,9 +554,12 @@ class PerceptionNode(Node):
         the exposure -> publication latency (frames of the camera threads)."""
         if self.pipeline is None:
             return
+        start = time.perf_counter()
         with self._lock:
             self._process_locked(k, stamp, frame, wall_base, detections)
             self._snapshot = self.pipeline.tracker.snapshot()
+        if detections is not None:                  # a frame of the camera threads
+            self.process_time.add(time.perf_counter() - start)
 
     def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
@@ -636,6 +645,12 @@ class PerceptionNode(Node):
                 thread.join(timeout=2.0)
         self._exit.close()
         return super().destroy_node()
+
+
+def _percentiles(key, window):
+    """/diagnostics values ``<key>_p50_ms`` and ``<key>_p99_ms`` of a :class:`LatencyWindow`."""
+    p50, p99 = window.percentiles_ms()
+    return {f'{key}_p50_ms': f'{p50:.3f}', f'{key}_p99_ms': f'{p99:.3f}'}
 
 
 def _check_topic(name, what):
