@@ -435,6 +435,31 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
     assert values['latency_p50_ms'] == 'nan'     # video time, not the wall clock (video_rate 0)
 
 
+def test_video_files_start_once_they_are_open(graph, tmp_path, monkeypatch):
+    # Frame 0 of the files is due after every file was opened: opening takes time (an AVI's
+    # index read, a slow disk), and a start set before it made the first frames late, or
+    # lost once later than the driver's buffers. Each open made 0.1 s slower here.
+    rig_path = synth.make_rig(str(tmp_path / 'calib'))
+    frames, truth = synth.render_balls(load_rig(rig_path), [], [], duration=0.1, lead_in=0.0)
+    video_rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, truth,
+                                  time_offset=0.0)
+    opened = []
+    open_file = node_module.PacedVideoSource.open
+
+    def slow_open(source):
+        time.sleep(0.1)             # the slow open simulated, not a wait for another thread
+        out = open_file(source)
+        opened.append(time.time())
+        return out
+
+    monkeypatch.setattr(node_module.PacedVideoSource, 'open', slow_open)
+    node = graph.add(PerceptionNode(context=graph.context,
+                                    parameter_overrides=[Parameter('rig_file', value=video_rig),
+                                                         Parameter('video_rate', value=0.0)]))
+    graph.spin_until(lambda: node._ended >= {0, 1}, 30.0, 'both video files to end')
+    assert len(opened) == 2 and node._video_start > max(opened)
+
+
 def _values(diagnostics):
     """The key-value pairs of perception_node's status in a DiagnosticArray."""
     status = next(s for s in diagnostics.status if s.name == node_module.CAMERAS_DIAGNOSTIC)

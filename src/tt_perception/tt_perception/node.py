@@ -448,17 +448,14 @@ class PerceptionNode(Node):
                     f'({have} now; parameter wait_for_subscribers)')
             return
         self._file_timer.cancel()
-        # Frame 0 of every file 20 ms from now, on the camera threads' clock.
-        start = MonotonicClock.now() + 0.02
-        self._video_start = time.time() + (start - MonotonicClock.now())
         fps = self.rig.fps
-        readers = []
+        sources = []
         for k in self._files:
             cam = self.rig.cameras[k]
             try:
                 source = PacedVideoSource(file_source_path(self.rig, cam), fps,
                                           buffers=CAMERA_BUFFERS, stop=self._stop,
-                                          start=start, rate=self._p('video_rate')).open()
+                                          rate=self._p('video_rate')).open()
                 error, warning = source.disagreement(cam, fps)
                 if warning:
                     self.get_logger().warning(f'camera {cam.name}: {warning}')
@@ -470,6 +467,17 @@ class PerceptionNode(Node):
                 # Ended before its first frame: the other cameras are not held back for it.
                 self.frames_queue.put(Frame(k, -1, float('nan'), None, kind=END))
                 continue
+            sources.append((k, source))
+        # The files are open and what opening them made is out of the collector's way (a full
+        # pass took up to 70 ms here): frame 0 of every file 20 ms from now, on the camera
+        # threads' clock. Set before the files were opened, the first frames came 20 ms late.
+        gc.collect()
+        gc.freeze()
+        start = MonotonicClock.now() + 0.02
+        self._video_start = time.time() + (start - MonotonicClock.now())
+        readers = []
+        for k, source in sources:
+            source.start = start
             t0 = self._video_start if self._wall_stamps else 0.0
             if self._t_ref is None:
                 self._t_ref = math.floor(t0)
