@@ -175,8 +175,7 @@ def ball_image(cam, position, velocity, radius, exposure):
     if out[10] == 0.0:
         return None
     up = out[8:10] if out[10] == 1.0 else None
-    return BallImage(float(out[0]), float(out[1]), out[2:6].reshape(2, 2), out[6:8].copy(),
-                     up)
+    return BallImage(float(out[0]), float(out[1]), out[2:6].reshape(2, 2), out[6:8], up)
 
 
 def warm_up():
