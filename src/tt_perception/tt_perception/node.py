@@ -355,12 +355,9 @@ class PerceptionNode(Node):
         if files:
             self._said_waiting = False
             self._file_timer = self.create_timer(0.01, self._start_files, clock=self.steady)
+        if devices:
+            _freeze_garbage()       # video files: once they are open (_start_files)
         if devices or files:
-            # The objects made so far (ROS, numba, the rig) live as long as the node: out of
-            # the garbage collector's full passes, which would otherwise stall the camera
-            # path for tens of ms now and then.
-            gc.collect()
-            gc.freeze()
             # One thread per OpenCV call and per BLAS product: the camera threads already use
             # the other core, and a call split over two threads waits for the slower one,
             # which on a busy machine may not be running at all.
@@ -468,11 +465,10 @@ class PerceptionNode(Node):
                 self.frames_queue.put(Frame(k, -1, float('nan'), None, kind=END))
                 continue
             sources.append((k, source))
-        # The files are open and what opening them made is out of the collector's way (a full
-        # pass took up to 70 ms here): frame 0 of every file 20 ms from now, on the camera
-        # threads' clock. Set before the files were opened, the first frames came 20 ms late.
-        gc.collect()
-        gc.freeze()
+        # The files are open and out of the collector's way: frame 0 of every file 20 ms from
+        # now, on the camera threads' clock. Set before the files were opened (and before a
+        # full collection of up to 70 ms), the first frames came 20 ms late.
+        _freeze_garbage()
         start = MonotonicClock.now() + 0.02
         self._video_start = time.time() + (start - MonotonicClock.now())
         readers = []
@@ -653,6 +649,14 @@ class PerceptionNode(Node):
                 thread.join(timeout=2.0)
         self._exit.close()
         return super().destroy_node()
+
+
+def _freeze_garbage():
+    """Collect, then keep every object alive now (ROS, numba, the rig, the open sources: they
+    live as long as the node) out of the garbage collector's full passes, which would
+    otherwise stall the camera path for tens of ms now and then."""
+    gc.collect()
+    gc.freeze()
 
 
 def _percentiles(key, window):
