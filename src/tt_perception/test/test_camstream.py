@@ -175,6 +175,23 @@ def test_reader_thread_queues_every_frame_or_counts_it(video, queue_size, expect
     assert np.allclose([f.t for f in frames], np.array(kept) / FPS)
 
 
+def test_reader_runs_after_once_each_frames_detections_are_queued(video):
+    # perception_node's background update: after the frame's detections are handed on.
+    drops = DropCounter(1)
+    q = FrameQueue(N_FRAMES + 1, drops)
+    src = PacedVideoSource(video, FPS, clock=SimClock(), stop=threading.Event(),
+                           start=0.0).open()
+    queued = []
+    reader = CameraReader(0, src, q, drops, stamp=lambda n: n / FPS,
+                          detect=lambda k, t, image: index_of(image),
+                          after=lambda k: queued.append((k, len(q))))
+    reader.start()
+    reader.join(timeout=30)
+    assert not reader.is_alive()
+    assert queued == [(0, n + 1) for n in range(N_FRAMES)]
+    assert [q.get(timeout=0).detections for _ in range(N_FRAMES)] == list(range(N_FRAMES))
+
+
 def test_unpaced_lossless_reading_keeps_every_frame(video):
     # video_rate 0 (offline): the reader waits for room in a small queue instead of dropping.
     drops = DropCounter(1)

@@ -372,10 +372,12 @@ class CameraReader(threading.Thread):
     last frame of a file. ``on_status(text)`` reports a device's state changes.
     ``detect(camera, t, image)``: run on each frame in this thread (the ball detection of
     this camera, in parallel with the other cameras and the processing thread); its result
-    is queued as ``Frame.detections`` in place of the image."""
+    is queued as ``Frame.detections`` in place of the image. ``after(camera)``: run once the
+    frame's detections are queued, for what need not delay them (the detector's background
+    update)."""
 
     def __init__(self, camera, source, queue, drops, stamp=None, on_status=None, on_error=None,
-                 detect=None):
+                 detect=None, after=None):
         super().__init__(daemon=True, name=f'camera-{camera}')
         self.camera = camera
         self.source = source
@@ -385,6 +387,7 @@ class CameraReader(threading.Thread):
         self.on_status = on_status
         self.on_error = on_error
         self.detect = detect
+        self.after = after
         self.frames = 0
         self.read_time = LatencyWindow(STAGE_WINDOW)
         """Time to take each grabbed frame's image (retrieve: decoding an MJPG frame), s."""
@@ -418,6 +421,8 @@ class CameraReader(threading.Thread):
                     detections = self.detect(self.camera, t, image)
                     self.detect_time.add(time.perf_counter() - read)
                     self.queue.put(Frame(self.camera, index, t, detections=detections))
+                    if self.after is not None:
+                        self.after(self.camera)
                 else:
                     self.queue.put(Frame(self.camera, index, t, image))
         except Exception as exc:  # noqa: BLE001 - reported by the node, the thread ends

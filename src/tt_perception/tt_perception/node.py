@@ -430,7 +430,8 @@ class PerceptionNode(Node):
         return CameraReader(k, source, self.frames_queue, self.drops,
                             on_status=lambda k, text: self.get_logger().warning(
                                 f'camera {self.rig.cameras[k].name}: {text}'),
-                            on_error=self._reader_error, detect=self._detect)
+                            on_error=self._reader_error, detect=self._detect,
+                            after=self._after_detect)
 
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
@@ -479,7 +480,8 @@ class PerceptionNode(Node):
                 self._t_ref = math.floor(t0)
             readers.append(CameraReader(k, source, self.frames_queue, self.drops,
                                         stamp=lambda n, t0=t0: t0 + n / fps,
-                                        on_error=self._reader_error, detect=self._detect))
+                                        on_error=self._reader_error, detect=self._detect,
+                                        after=self._after_detect))
         self._files = [r.camera for r in readers]
         self._readers += readers
         for reader in readers:
@@ -489,8 +491,13 @@ class PerceptionNode(Node):
 
     def _detect(self, k, stamp, image):
         """Camera ``k``'s ball detection, in its own thread (the search window from the
-        track as the processing thread last left it)."""
-        return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot)
+        track as the processing thread last left it); its background update waits for
+        :meth:`_after_detect`."""
+        return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot, later=True)
+
+    def _after_detect(self, k):
+        """Camera ``k``'s background update, once its frame's detections are queued."""
+        self.pipeline.update_background(k)
 
     def _reader_error(self, k, exc):
         self.get_logger().error(f'camera {self.rig.cameras[k].name}: {exc}')

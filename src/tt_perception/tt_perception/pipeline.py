@@ -533,13 +533,15 @@ class Pipeline:
         self.seen_by_two = 0        # instants with detections in two cameras or more
         self.triangulated = 0       # ... of which a point passed the gates
 
-    def detect(self, t, k, frame, snapshot=LIVE):
+    def detect(self, t, k, frame, snapshot=LIVE, later=False):
         """Detections in camera ``k``'s frame stamped ``t`` (s, its own clock), for
         :meth:`process` (``detections=``): a list, or the ValueError of a missing or corrupt
         frame. The search window comes from ``snapshot`` (:meth:`Tracker.snapshot`, taken by
         the caller from the processing thread; None: no track) rather than the running
         filter, so that each camera's thread can detect in its own frames (only that camera's
-        detector is used) while another thread processes."""
+        detector is used) while another thread processes. ``later``: the camera's background
+        update waits for :meth:`update_background` (the caller hands the detections on
+        first)."""
         if frame is None:
             return ValueError('no frame')
         cam = self.cameras[k]
@@ -549,9 +551,13 @@ class Pipeline:
                               f'{cam.width}x{cam.height}: frames of another size are skipped')
         t = float(t) - self.offsets[k]
         try:
-            return self._detect(t, k, frame, snapshot)
+            return self._detect(t, k, frame, snapshot, later)
         except ValueError as exc:
             return exc
+
+    def update_background(self, k):
+        """Camera ``k``'s background update left by :meth:`detect` (``later``), if any."""
+        self.detectors[k].update_background()
 
     def process(self, t, k, frame, detections=None):
         """Process camera ``k``'s frame stamped ``t`` (s, its own clock); returns the list of
@@ -630,7 +636,7 @@ class Pipeline:
                        BallEstimate(e.t, state[0].copy(), state[1].copy(), e.track_id))
         return out
 
-    def _detect(self, t, k, frame, snapshot):
+    def _detect(self, t, k, frame, snapshot, later=False):
         cam = self.cameras[k]
         roi = expected = None
         snap = self.tracker.snapshot() if snapshot is LIVE else snapshot
@@ -645,7 +651,7 @@ class Pipeline:
         if expected is not None:
             roi = (expected.u, expected.v)
         dets = self.detectors[k].detect(frame, roi, expected=expected,
-                                        search=expected is not None and snap[2])
+                                        search=expected is not None and snap[2], later=later)
         if not dets and roi is not None:
             dets = self.detectors[k].detect(frame, None, update_background=False)
         if not dets:
