@@ -92,13 +92,12 @@ class DetectorConfig:
     image_blur: float = 0.0
     """The camera's own blur across an edge, pixels: the standard deviation of a Gaussian
     point spread (a Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's
-    outline by the fit. On a ball 3-4 px in radius an unmodelled blur of the lit top edge
-    moves the fitted centre toward it by 0.1-0.2 px. 0: a sharp camera (the ramp of one
-    sub-sample). Measured from the background's edges: the independent renderer's Bayer +
-    JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px. 0.4 brings the former's white 640x480
-    height means to the issue's 0.3 mm but moves synth's beyond it, and neither the
-    fit's residual nor the background's edges choose the value (docs/perception.md): off by
-    default. It costs no time (a fit samples each pixel once with it, four times without)."""
+    outline and on its brightness by the fit. On a ball 3-4 px in radius an unmodelled blur
+    of the lit top edge moves the fitted centre toward it by 0.1-0.2 px. 0: a sharp camera
+    (the ramp of one sub-sample). Measured from the background's edges: the independent
+    renderer's Bayer + JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px (docs/perception.md,
+    "`image_blur` and the blurred shading"). It costs no time (a fit samples each pixel once
+    with it, four times without)."""
 
 
 @dataclasses.dataclass
@@ -211,6 +210,63 @@ SEARCH_OFFSETS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
 
 @njit(cache=True, nogil=True)
+def _blurred_shading(p, wx, wy, a, nx, ny, g, z, psf, slope, basis, dbasis):
+    """Adds to pixel p's ``basis`` and ``dbasis`` (:func:`_render`) what the Gaussian blur of
+    spread ``psf`` (px) makes of the ball's shading at an outline sample: at signed distance
+    z psf from the outline along its outward normal (nx, ny), where the blurred coverage is
+    Phi(-z) with slope ``slope``, whitened offset (wx, wy) from the centre (unclamped), and
+    ``g`` = |A^T w|, the outline's normal before its normalisation.
+
+    For a coverage c and a quadratic brightness s (gradient, Hessian in pixels), the blurred
+    product is G * (c s) = (G * c) s + psf^2 grad s . grad (G * c) + psf^2 tr(H) (G * c) / 2 +
+    psf^4 sum_kl H_kl d_k d_l (G * c) / 2 (the moments of the Gaussian); with G * c =
+    Phi(-z) across a straight outline the second and fourth terms are added here (the third is
+    a multiple of the coverage, which the constant term of the shading takes). Without them a
+    shaded ball's blurred brighter side spills more light outside the outline than the
+    product says, and the fitted centre leans toward it. The derivatives with respect to the
+    centre are minus those with respect to the pixel (the distance's gradient taken as the
+    normal)."""
+    var = psf * psf
+    pn = z * psf
+    # The gradient (pixels) of the terms t = (1, wx, wy, wx^2, wx wy, wy^2), w = A d: A^T dt/dw.
+    an0 = a[0, 0] * nx + a[0, 1] * ny           # A n: the normal's step in w per pixel
+    an1 = a[1, 0] * nx + a[1, 1] * ny
+    # The normal's change per pixel: (I - n n^T) B / g, B = A^T A.
+    b00 = a[0, 0] * a[0, 0] + a[1, 0] * a[1, 0]
+    b01 = a[0, 0] * a[0, 1] + a[1, 0] * a[1, 1]
+    b11 = a[0, 1] * a[0, 1] + a[1, 1] * a[1, 1]
+    for j in range(1, N_SHADING):
+        if j == 1:
+            gw0, gw1, hw0, hw1, nhn = 1.0, 0.0, 0.0, 0.0, 0.0
+        elif j == 2:
+            gw0, gw1, hw0, hw1, nhn = 0.0, 1.0, 0.0, 0.0, 0.0
+        elif j == 3:
+            gw0, gw1, hw0, hw1, nhn = 2.0 * wx, 0.0, 2.0 * an0, 0.0, 2.0 * an0 * an0
+        elif j == 4:
+            gw0, gw1, hw0, hw1, nhn = wy, wx, an1, an0, 2.0 * an0 * an1
+        else:
+            gw0, gw1, hw0, hw1, nhn = 0.0, 2.0 * wy, 0.0, 2.0 * an1, 2.0 * an1 * an1
+        # grad t = A^T dt/dw, grad t . n; H n = A^T (H_w A n).
+        tx = a[0, 0] * gw0 + a[1, 0] * gw1
+        ty = a[0, 1] * gw0 + a[1, 1] * gw1
+        tn = tx * nx + ty * ny
+        hnx = a[0, 0] * hw0 + a[1, 0] * hw1
+        hny = a[0, 1] * hw0 + a[1, 1] * hw1
+        basis[p, j] += -var * slope * tn + 0.5 * var * nhn * pn * slope
+        # d/d pixel, with d slope = -slope pn / psf^2 n, d pn = n and d n = (I - n n^T) B / g:
+        # d tn = H n + B (grad t - tn n) / g, d nHn = 2 B (H n - nHn n) / g.
+        along = tn * pn * slope + 0.5 * var * nhn * slope * (1.0 - z * z)
+        ex, ey = tx - tn * nx, ty - tn * ny
+        dtn_x = hnx + (b00 * ex + b01 * ey) / g
+        dtn_y = hny + (b01 * ex + b11 * ey) / g
+        fx, fy = hnx - nhn * nx, hny - nhn * ny
+        dnhn_x = 2.0 * (b00 * fx + b01 * fy) / g
+        dnhn_y = 2.0 * (b01 * fx + b11 * fy) / g
+        dbasis[p, 0, j] -= along * nx + var * slope * (0.5 * pn * dnhn_x - dtn_x)
+        dbasis[p, 1, j] -= along * ny + var * slope * (0.5 * pn * dnhn_y - dtn_y)
+
+
+@njit(cache=True, nogil=True)
 def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis):
     """Kernel of :func:`ball_model`: fills ``cover`` (P,), ``basis`` (P, N_SHADING) and their
     derivatives with respect to the centre, ``dcover`` (P, 2) and ``dbasis`` (P, 2, N_SHADING)."""
@@ -218,6 +274,9 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
     mean_radius = 1.0 / np.sqrt(a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
     t = np.empty(N_SHADING)
     dt = np.empty((N_SHADING, 2))
+    # A Gaussian blur moves a curved outline's half-way level inward by psf^2 / 2 times its
+    # curvature (the heat equation's curvature flow), taken as the mean radius's.
+    shrink = 0.5 * psf * psf / mean_radius
     for p in range(xs.size):
         cover[p] = 0.0
         dcover[p, 0] = dcover[p, 1] = 0.0
@@ -239,14 +298,16 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                     gy = a[0, 1] * wx + a[1, 1] * wy
                     g = np.sqrt(gx * gx + gy * gy)
                     along = norm / g if g > 1e-9 else mean_radius
+                    edge = False
                     if psf > 0.0:
-                        z = (norm - 1.0) * along / psf
+                        z = ((norm - 1.0) * along + shrink) / psf
                         if z >= 3.0:
                             continue
                         if z > -3.0 and g > 1e-9:
                             c = 0.5 * math.erfc(z * 0.7071067811865476)
                             slope = math.exp(-0.5 * z * z) * 0.3989422804014327 / psf
                             dcx, dcy = slope * gx / g, slope * gy / g
+                            edge = True
                         else:
                             c, dcx, dcy = 1.0, 0.0, 0.0
                     else:
@@ -268,7 +329,7 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                         continue
                     # d w / d centre = -A; an outline sample takes the limb's w / |w|.
                     d00, d01, d10, d11 = -a[0, 0], -a[0, 1], -a[1, 0], -a[1, 1]
-                    if norm > 1.0:
+                    if norm > 1.0 and psf == 0.0:
                         wx /= norm
                         wy /= norm
                         # d (w / |w|) = (I - u u^T) dw / |w|
@@ -294,6 +355,9 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                         basis[p, j] += c * t[j]
                         dbasis[p, 0, j] += dcx * t[j] + c * dt[j, 0]
                         dbasis[p, 1, j] += dcy * t[j] + c * dt[j, 1]
+                    if edge:
+                        _blurred_shading(p, wx, wy, a, gx / g, gy / g, g, z, psf, slope,
+                                         basis, dbasis)
         if full > 0.0:
             # t = (1, wx, wy, wx^2, wx wy, wy^2) and, with d w / d centre = -A inside,
             # d t / d centre_m = (0, dwx, dwy, 2 wx dwx, dwx wy + wx dwy, 2 wy dwy).
@@ -370,9 +434,10 @@ def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
     the outline; an outline sample takes the outline's brightness), whatever the light.
     ``whitening``: :func:`_whiten` of the outline, when computed already. ``image_blur`` >
     0: the camera's own blur (demosaicing, compression, lens), a Gaussian of that standard
-    deviation in pixels across the outline: each pixel is sampled once, at its centre,
-    covered by Phi(-s / sqrt(image_blur^2 + 1/12)) of its signed distance s (the camera's
-    blur and the pixel's width) instead of the ramps."""
+    deviation in pixels: each pixel is sampled once, at its centre, covered by
+    Phi(-s / sqrt(image_blur^2 + 1/12)) of its signed distance s (the camera's blur and the
+    pixel's width; s taken in by the blurred outline's curvature shrink) instead of the
+    ramps, and the brightness blurred with the coverage (:func:`_blurred_shading`)."""
     n = xs.size
     cover, dcover = np.empty(n), np.empty((n, 2))
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
