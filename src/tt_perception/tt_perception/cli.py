@@ -47,7 +47,13 @@ from tt_prediction.staged import (
 from tt_ros.errors import one_line_reason
 
 from .camera import CalibrationError, load_rig
-from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, BallDetector, DetectorConfig
+from .detect import (
+    EXPOSURE_RANGE,
+    IMAGE_BLUR_RANGE,
+    RESPONSE_GAMMA_RANGE,
+    BallDetector,
+    DetectorConfig,
+)
 from .pipeline import Pipeline, TrackerConfig
 from .sources import file_frames, message_to_bgr
 from .sync import estimate_offset, estimate_offset_tracks, image_tracks
@@ -391,6 +397,11 @@ def _main(argv=None):
                         default=DetectorConfig.exposure, metavar='S',
                         help="the cameras' exposure time, s: the ball's motion blur "
                              "(perception_node's exposure; default 0.002)")
+    parser.add_argument('--image-blur', type=_in_range(*IMAGE_BLUR_RANGE),
+                        default=DetectorConfig.image_blur, metavar='PX',
+                        help="the cameras' own blur, pixels (perception_node's image_blur; "
+                             "default 0.6, a Bayer colour camera's demosaicing; 0 for a sharp "
+                             'camera)')
     parser.add_argument('--any-lighting', action='store_true',
                         help="the ball may be lit from any side (perception_node's "
                              'light_from_above false; default: the lights are above the '
@@ -420,7 +431,7 @@ def _main(argv=None):
         return 2
     try:
         detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
-                                  exposure=args.exposure,
+                                  exposure=args.exposure, image_blur=args.image_blur,
                                   light_from_above=not args.any_lighting)
         if not args.bag:
             for note in estimate_offsets(rig, args.colour, detector):

@@ -37,6 +37,8 @@ EXPOSURE_RANGE = (1e-5, 0.1)
 tt-perceive's option."""
 RESPONSE_GAMMA_RANGE = (1.0, 3.0)
 """Accepted camera responses (:attr:`DetectorConfig.response_gamma`), as EXPOSURE_RANGE."""
+IMAGE_BLUR_RANGE = (0.0, 5.0)
+"""Accepted camera blurs (:attr:`DetectorConfig.image_blur`), pixels, as EXPOSURE_RANGE."""
 
 
 @dataclasses.dataclass
@@ -89,15 +91,17 @@ class DetectorConfig:
     _fit_centre`) one lit from below (its brightness growing within 60 degrees of the
     image's down, :data:`LIT_FROM_BELOW_COS`) is kept only when every fit is so. False: any
     lighting."""
-    image_blur: float = 0.0
-    """The camera's own blur across an edge, pixels: the standard deviation of a Gaussian
-    point spread (a Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's
-    outline and on its brightness by the fit. On a ball 3-4 px in radius an unmodelled blur
-    of the lit top edge moves the fitted centre toward it by 0.1-0.2 px. 0: a sharp camera
-    (the ramp of one sub-sample). Measured from the background's edges: the independent
-    renderer's Bayer + JPEG q30 cameras 0.5-0.8 px, synth's 0-0.35 px (docs/perception.md,
-    "`image_blur` and the blurred shading"). It costs no time (a fit samples each pixel once
-    with it, four times without)."""
+    image_blur: float = 0.6
+    """The camera's own blur, pixels: the standard deviation of a Gaussian point spread (a
+    Bayer camera's demosaicing, JPEG, the lens), modelled on the ball's outline and on its
+    brightness by the fit. A blur spills more light past the outline on the ball's lit side
+    than on its shaded one: on a ball 3-4 px in radius, modelled sharp, the fitted centre
+    leans toward the lit top by 0.1-0.2 px. The default, 0.6 px, is the blur a Bayer colour
+    camera's bilinear demosaicing gives its luma (the second moment of the interpolation
+    kernels averaged over the mosaic's four sites and weighted as luma: sqrt(0.353)). 0: a
+    sharp camera (synth's clean mode; the ramp of one sub-sample). docs/perception.md, "The
+    camera's blur and the lit side". It costs no time (a fit samples each pixel once with
+    it, four times without)."""
 
 
 @dataclasses.dataclass

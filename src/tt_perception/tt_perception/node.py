@@ -60,7 +60,7 @@ from .camstream import (
     open_v4l2,
     warm_up,
 )
-from .detect import EXPOSURE_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
+from .detect import EXPOSURE_RANGE, IMAGE_BLUR_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
 from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
     camera_info_topic,
@@ -105,8 +105,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('curvature_weight', 1.0, "Penalty of the outline fit on the ball's brightness curving "
      'beyond a linear shading (0: a free quadratic, for a single compact light with no '
      'ambient)', '', 0.0, 100.0),
-    ('image_blur', 0.0, "The cameras' own blur across an edge (demosaicing, JPEG, lens), a "
-     'Gaussian standard deviation; 0: sharp', 'pixels', 0.0, 5.0),
+    ('image_blur', 0.6, "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian "
+     "standard deviation; 0.6: a Bayer colour camera's demosaicing; 0: sharp", 'pixels',
+     *IMAGE_BLUR_RANGE),
     ('light_from_above', True, "The lights are above the table (the ball's top is its lit "
      'side): of the outline fits from several starts, one lit from below is kept only when '
      'all are; false: any lighting'),
