@@ -331,7 +331,8 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                         sum_xy += wx * wy
                         sum_yy += wy * wy
                         continue
-                    # d w / d centre = -A; an outline sample takes the limb's w / |w|.
+                    # d w / d centre = -A; an outline sample takes the limb's w / |w| (with
+                    # the blur the quadratic runs on past the limb: _blurred_shading).
                     d00, d01, d10, d11 = -a[0, 0], -a[0, 1], -a[1, 0], -a[1, 1]
                     if norm > 1.0 and psf == 0.0:
                         wx /= norm
