@@ -109,6 +109,40 @@ def test_the_lighting_option_reaches_the_detector(scene, tmp_path, monkeypatch, 
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
 
 
+@pytest.mark.parametrize('option, image_blur', [([], 0.6), (['--image-blur', '0'], 0.0)])
+def test_the_camera_blur_option_reaches_the_detector(scene, tmp_path, monkeypatch, option,
+                                                     image_blur):
+    # The cameras' own blur in the outline fit (perception_node's image_blur, 0.6 px by
+    # default: a Bayer camera's demosaicing) is tt-perceive's too; synth's clean cameras are
+    # sharp, told 0.
+    base, rig_path, frames, truth = scene
+    made = []
+    pipeline = cli.Pipeline
+
+    def recording(*args, **kwargs):
+        made.append(kwargs['detector_config'])
+        return pipeline(*args, **kwargs)
+
+    monkeypatch.setattr(cli, 'Pipeline', recording)
+    rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', rig, '--out', str(out), *option]) == 0
+    assert made and all(c.image_blur == image_blur for c in made)
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+
+
+@pytest.mark.parametrize('value', ['-0.5', '6', 'wide'])
+def test_a_camera_blur_out_of_range_is_a_usage_error_naming_it(scene, tmp_path, capsys, value):
+    base, rig_path, frames, truth = scene
+    out = tmp_path / 'out'
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(['--rig', rig_path, '--out', str(out), '--image-blur', value])
+    assert exit_.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert '--image-blur' in error and value in error and '[0, 5]' in error
+    assert not out.exists()
+
+
 def test_a_video_overwritten_mid_flight_gives_the_track_and_names_the_frame(scene, tmp_path,
                                                                            capsys):
     # FFmpeg skipped the damaged frame without a word and the frames after it were each timed
