@@ -87,12 +87,15 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
     assert_matches_truth(tracks['webcam'], truth, -LEAD_IN)
 
 
-@pytest.mark.parametrize('option, lit_from_above', [([], True), (['--any-lighting'], False)])
-def test_the_lighting_option_reaches_the_detector(scene, tmp_path, monkeypatch, option,
-                                                  lit_from_above):
-    # The outline fit's choice between a ball lit from above and one lit from below
-    # (perception_node's light_from_above) is tt-perceive's too; the track is the same on
-    # this evenly lit scene.
+@pytest.mark.parametrize('option, setting, value', [
+    ([], 'light_from_above', True), (['--any-lighting'], 'light_from_above', False),
+    ([], 'image_blur', 0.6), (['--image-blur', '0'], 'image_blur', 0.0)])
+def test_the_detector_options_reach_the_detector(scene, tmp_path, monkeypatch, option, setting,
+                                                 value):
+    # perception_node's light_from_above (the outline fit's choice between a ball lit from
+    # above and one lit from below) and image_blur (the cameras' own blur in the outline
+    # fit, 0.6 px by default: a Bayer camera's demosaicing; synth's clean cameras are sharp)
+    # are tt-perceive's too; the track is right on this evenly lit scene either way.
     base, rig_path, frames, truth = scene
     made = []
     pipeline = cli.Pipeline
@@ -105,29 +108,7 @@ def test_the_lighting_option_reaches_the_detector(scene, tmp_path, monkeypatch, 
     rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
     out = tmp_path / 'out'
     assert cli.main(['--rig', rig, '--out', str(out), *option]) == 0
-    assert made and all(c.light_from_above == lit_from_above for c in made)
-    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
-
-
-@pytest.mark.parametrize('option, image_blur', [([], 0.6), (['--image-blur', '0'], 0.0)])
-def test_the_camera_blur_option_reaches_the_detector(scene, tmp_path, monkeypatch, option,
-                                                     image_blur):
-    # The cameras' own blur in the outline fit (perception_node's image_blur, 0.6 px by
-    # default: a Bayer camera's demosaicing) is tt-perceive's too; synth's clean cameras are
-    # sharp, told 0.
-    base, rig_path, frames, truth = scene
-    made = []
-    pipeline = cli.Pipeline
-
-    def recording(*args, **kwargs):
-        made.append(kwargs['detector_config'])
-        return pipeline(*args, **kwargs)
-
-    monkeypatch.setattr(cli, 'Pipeline', recording)
-    rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
-    out = tmp_path / 'out'
-    assert cli.main(['--rig', rig, '--out', str(out), *option]) == 0
-    assert made and all(c.image_blur == image_blur for c in made)
+    assert made and all(getattr(c, setting) == value for c in made)
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
 
 
