@@ -214,12 +214,13 @@ SEARCH_OFFSETS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
 
 @njit(cache=True, nogil=True)
-def _blurred_shading(p, wx, wy, a, nx, ny, g, z, psf, slope, basis, dbasis):
+def _blurred_shading(p, wx, wy, a, b, nx, ny, g, z, psf, slope, basis, dbasis):
     """Adds to pixel p's ``basis`` and ``dbasis`` (:func:`_render`) what the Gaussian blur of
     spread ``psf`` (px) makes of the ball's shading at an outline sample: at signed distance
     z psf from the outline along its outward normal (nx, ny), where the blurred coverage is
     Phi(-z) with slope ``slope``, whitened offset (wx, wy) from the centre (unclamped), and
-    ``g`` = |A^T w|, the outline's normal before its normalisation.
+    ``g`` = |A^T w|, the outline's normal before its normalisation; ``b`` = A^T A
+    (b00, b01, b11).
 
     For a coverage c and a quadratic brightness s (gradient, Hessian in pixels), the blurred
     product is G * (c s) = (G * c) s + psf^2 grad s . grad (G * c) + psf^2 tr(H) (G * c) / 2 +
@@ -236,9 +237,7 @@ def _blurred_shading(p, wx, wy, a, nx, ny, g, z, psf, slope, basis, dbasis):
     an0 = a[0, 0] * nx + a[0, 1] * ny           # A n: the normal's step in w per pixel
     an1 = a[1, 0] * nx + a[1, 1] * ny
     # The normal's change per pixel: (I - n n^T) B / g, B = A^T A.
-    b00 = a[0, 0] * a[0, 0] + a[1, 0] * a[1, 0]
-    b01 = a[0, 0] * a[0, 1] + a[1, 0] * a[1, 1]
-    b11 = a[0, 1] * a[0, 1] + a[1, 1] * a[1, 1]
+    b00, b01, b11 = b
     for j in range(1, N_SHADING):
         if j == 1:
             gw0, gw1, hw0, hw1, nhn = 1.0, 0.0, 0.0, 0.0, 0.0
@@ -281,6 +280,8 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
     # A Gaussian blur moves a curved outline's half-way level inward by psf^2 / 2 times its
     # curvature (the heat equation's curvature flow), taken as the mean radius's.
     shrink = 0.5 * psf * psf / mean_radius
+    b = (a[0, 0] * a[0, 0] + a[1, 0] * a[1, 0], a[0, 0] * a[0, 1] + a[1, 0] * a[1, 1],
+         a[0, 1] * a[0, 1] + a[1, 1] * a[1, 1])            # A^T A, for _blurred_shading
     for p in range(xs.size):
         cover[p] = 0.0
         dcover[p, 0] = dcover[p, 1] = 0.0
@@ -361,7 +362,7 @@ def _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, db
                         dbasis[p, 0, j] += dcx * t[j] + c * dt[j, 0]
                         dbasis[p, 1, j] += dcy * t[j] + c * dt[j, 1]
                     if edge:
-                        _blurred_shading(p, wx, wy, a, gx / g, gy / g, g, z, psf, slope,
+                        _blurred_shading(p, wx, wy, a, b, gx / g, gy / g, g, z, psf, slope,
                                          basis, dbasis)
         if full > 0.0:
             # t = (1, wx, wy, wx^2, wx wy, wy^2) and, with d w / d centre = -A inside,
