@@ -328,6 +328,8 @@ def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
     assert len(said) == 1 and said[0].startswith(
         f"ros2: '{verb}' is a verb of ros2cli that tt's ros2 command does not have")
     assert 'docs/tools.md' in said[0]
+    # What starts the graph here, for a user who reached for a launch file.
+    assert ('ros2 run tt_tools bringup' in said[0]) == (verb == 'launch')
 
 
 def test_echo_and_hz_say_what_they_wait_for(graph, procs, topic):

@@ -133,6 +133,9 @@ def _one_line(exc):
 ROS2CLI_ONLY = ('service', 'action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
                 'wtf', 'multicast', 'security', 'extensions', 'extension_points')
 """ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
+LAUNCH_HINT = ('; the graph starts with `ros2 run tt_tools bringup --params-file '
+               'install/tt_tools/share/tt_tools/config/robot.yaml` (docs/demo.md)')
+"""What ``ros2 launch`` is told: tt ships no launch files, its bringup starts the nodes."""
 
 
 def _main(argv):
@@ -140,9 +143,10 @@ def _main(argv):
 
     if argv[:1] and argv[0] in ROS2CLI_ONLY:
         # argparse said only "invalid choice", after `ros2 node info` had listed services.
+        hint = LAUNCH_HINT if argv[0] == 'launch' else ''
         print(f"ros2: '{argv[0]}' is a verb of ros2cli that tt's ros2 command does not have "
               '(ros2cli has no PyPI wheels; these are run, topic, node, param, interface, pkg '
-              'and bag: docs/tools.md); where ros2cli is installed, tt hands over to it',
+              f'and bag: docs/tools.md); where ros2cli is installed, tt hands over to it{hint}',
               file=sys.stderr)
         return 2
     only_run = argv[:1] == ['run']
