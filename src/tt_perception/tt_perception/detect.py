@@ -98,11 +98,12 @@ class DetectorConfig:
     than on its shaded one: on a ball 3-4 px in radius, modelled sharp, the fitted centre
     leans toward the lit top by 0.1-0.2 px. The default, 0.6 px, is the blur a Bayer colour
     camera's bilinear demosaicing gives its luma (the second moment of the interpolation
-    kernels averaged over the mosaic's four sites and weighted as luma: sqrt(0.353)); JPEG
-    q30 alone counts as about 0.4 px, a Bayer camera behind it about 0.7. 0: a sharp camera
-    (synth's clean mode; the ramp of one sub-sample). docs/perception.md, "The
-    camera's blur and the lit side". It costs no time (a fit samples each pixel once with
-    it, four times without)."""
+    kernels averaged over the mosaic's four sites and weighted as luma: sqrt(0.353)). JPEG
+    q30 after a linear response counts as about 0.4 px; after a gamma response it leans the
+    centre away from the lit side, which no value takes out ("A camera without a mosaic").
+    0: a sharp camera (synth's clean mode; the ramp of one sub-sample). docs/perception.md,
+    "The camera's blur and the lit side". It costs no time (a fit samples each pixel once
+    with it, four times without)."""
 
 
 @dataclasses.dataclass
