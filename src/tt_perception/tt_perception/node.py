@@ -90,27 +90,32 @@ default 5 ms)."""
 PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('rig_file', '', 'Rig file (DESIGN.md): camera poses, camera_info files and sources'),
     ('model_file', '', 'Ball model YAML written by tt-identify (empty: nominal model)'),
-    ('ball_colour', 'any', 'Ball colour', '', None, None, ('white', 'orange', 'any')),
-    ('diff_threshold', 22.0, 'Grey-level change against the background of a ball pixel', '',
-     2, 200),
-    ('min_area', 4, 'Smallest ball blob', 'pixels', 1, 10000),
-    ('max_area', 900, 'Largest ball blob (near, motion-blurred)', 'pixels', 4, 1000000),
-    ('max_width', 30.0, 'Largest ball diameter in the image', 'pixels', 2, 1000),
-    ('roi_half_size', 40, 'Half size of the search window around the predicted ball',
-     'pixels', 8, 2000),
-    ('exposure', 0.002, 'Exposure time of the cameras (the motion blur of the ball)', 's',
-     *EXPOSURE_RANGE),
-    ('response_gamma', 1.0, "Cameras' response: pixel = 255 (light / full)^(1/gamma); 1 linear, "
-     'about 2.2 for sRGB-like webcams', '', *RESPONSE_GAMMA_RANGE),
-    ('curvature_weight', 1.0, "Penalty of the outline fit on the ball's brightness curving "
-     'beyond a linear shading (0: a free quadratic, for a single compact light with no '
-     'ambient)', '', 0.0, 100.0),
-    ('image_blur', 0.6, "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian "
-     "standard deviation; 0.6: a Bayer colour camera's demosaicing; 0: sharp", 'pixels',
-     *IMAGE_BLUR_RANGE),
-    ('light_from_above', True, "The lights are above the table (the ball's top is its lit "
-     'side): of the outline fits from several starts, one lit from below is kept only when '
-     'all are; false: any lighting'),
+    ('ball_colour', DetectorConfig.colour, 'Ball colour', '', None, None,
+     ('white', 'orange', 'any')),
+    ('diff_threshold', DetectorConfig.diff_threshold,
+     'Grey-level change against the background of a ball pixel', '', 2, 200),
+    ('min_area', DetectorConfig.min_area, 'Smallest ball blob', 'pixels', 1, 10000),
+    ('max_area', DetectorConfig.max_area, 'Largest ball blob (near, motion-blurred)',
+     'pixels', 4, 1000000),
+    ('max_width', DetectorConfig.max_width, 'Largest ball diameter in the image', 'pixels',
+     2, 1000),
+    ('roi_half_size', DetectorConfig.roi_half_size,
+     'Half size of the search window around the predicted ball', 'pixels', 8, 2000),
+    ('exposure', DetectorConfig.exposure,
+     'Exposure time of the cameras (the motion blur of the ball)', 's', *EXPOSURE_RANGE),
+    ('response_gamma', DetectorConfig.response_gamma,
+     "Cameras' response: pixel = 255 (light / full)^(1/gamma); 1 linear, about 2.2 for "
+     'sRGB-like webcams', '', *RESPONSE_GAMMA_RANGE),
+    ('curvature_weight', DetectorConfig.curvature_weight,
+     "Penalty of the outline fit on the ball's brightness curving beyond a linear shading "
+     '(0: a free quadratic, for a single compact light with no ambient)', '', 0.0, 100.0),
+    ('image_blur', DetectorConfig.image_blur,
+     "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian standard deviation; 0.6: "
+     "a Bayer colour camera's demosaicing; 0: sharp", 'pixels', *IMAGE_BLUR_RANGE),
+    ('light_from_above', DetectorConfig.light_from_above,
+     "The lights are above the table (the ball's top is its lit side): of the outline fits "
+     'from several starts, one lit from below is kept only when all are; false: any '
+     'lighting'),
     ('pixel_sigma', TrackerConfig.pixel_sigma, 'Standard deviation of a detected centre',
      'pixels', 0.01, 10),
     ('max_reprojection', TrackerConfig.max_reprojection,
