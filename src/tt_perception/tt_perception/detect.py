@@ -420,7 +420,6 @@ def _outline_extent(outline):
 def _sampling(ball, image_blur):
     """How :func:`ball_model` samples ``ball``: (positions over the exposure, sub-samples per
     pixel along each axis, Gaussian spread of the outline in pixels or 0 for the ramps)."""
-    travel = np.hypot(ball.blur[0], ball.blur[1])
     if image_blur > 0.0:
         # One sample per pixel, at its centre: a Gaussian edge averaged over the pixel's
         # width is close to a Gaussian of the variances' sum (the box's: 1/12 px^2). Copies
@@ -428,9 +427,10 @@ def _sampling(ball, image_blur):
         # ripple's first harmonic, 2 exp(-2 pi^2 / 1.5^2)): positions need not be 0.5 px
         # apart (a 3.2 px ball moving 4.7 px: coverage within 0.005 of theirs, half the time).
         spread = math.sqrt(image_blur ** 2 + 1.0 / 12.0)
-        steps = max(1, int(np.ceil(travel / max(BLUR_STEP, 1.5 * spread))))
-        return steps, 1, spread
-    return max(1, int(np.ceil(travel / BLUR_STEP))), SUBPIXELS, 0.0
+        spacing, sub = max(BLUR_STEP, 1.5 * spread), 1
+    else:
+        spread, spacing, sub = 0.0, BLUR_STEP, SUBPIXELS
+    return max(1, int(np.ceil(np.hypot(ball.blur[0], ball.blur[1]) / spacing))), sub, spread
 
 
 def ball_model(xs, ys, centre, ball, whitening=None, image_blur=0.0):
