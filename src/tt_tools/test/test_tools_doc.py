@@ -13,7 +13,7 @@ DOC = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'docs', 'tools.m
 
 def example_commands():
     """The ``ros2 ...`` lines of the indented example blocks (continuations joined, a shell
-    pipe or redirection cut off), as argument lists."""
+    pipe, redirection or comment cut off), as argument lists."""
     with open(DOC, encoding='utf-8') as f:
         lines = f.read().splitlines()
     commands, current = [], None
@@ -28,7 +28,7 @@ def example_commands():
         if current.endswith('\\'):
             current = current[:-1]
             continue
-        argv = shlex.split(current)[1:]
+        argv = shlex.split(current, comments=True)[1:]    # a shell comment is no argument
         for stop in ('|', '>'):
             if stop in argv:
                 argv = argv[:argv.index(stop)]

@@ -1,4 +1,5 @@
-"""ros2 topic echo / hz / list / info / pub and ros2 node list against a live graph."""
+"""ros2 topic echo / hz / delay / bw / list / info / pub and ros2 node list against a live
+graph."""
 
 import os
 import signal
@@ -7,10 +8,11 @@ import time
 from conftest import Ros2Process, error_lines, ros2
 import pytest
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.serialization import serialize_message
 from tt_tools.introspect import dict_to_message
 import yaml
 
-from tt_msgs.msg import BallState
+from tt_msgs.msg import BallState, StrikeTarget
 
 pytestmark = pytest.mark.graph
 
@@ -98,6 +100,67 @@ def test_hz_reports_the_rate_of_a_timer_publisher(graph, procs, topic):
     assert shortest - 0.0005 <= 1 / rate <= longest + 0.0005 and longest > 0
     assert float(fields[6][:-1]) >= 0
     assert 2 <= window <= min(40, len(sent))
+
+
+def test_delay_reports_how_old_each_stamp_is_on_arrival(graph, procs, topic):
+    # Every message is stamped 0.25 s before it is sent (the stamps on the same machine's
+    # clock): no delay can be shorter than that, and the transport adds a little.
+    back = 0.25
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    clock = graph.node.get_clock()
+
+    def tick():
+        msg = BallState()
+        stamp = msg.header.stamp
+        stamp.sec, stamp.nanosec = divmod(clock.now().nanoseconds - int(back * 1e9), 10**9)
+        pub.publish(msg)
+
+    graph.node.create_timer(0.05, tick)
+    delay = procs('topic', 'delay', topic, '--window', '40')
+    graph.spin_until(lambda: delay.stdout.count('average delay') >= 2, 60, 'two delay reports')
+    delay.signal(signal.SIGINT)
+    assert delay.wait() == 0, delay.stderr
+    head, fields = (line.split() for line in delay.stdout.strip().splitlines()[-2:])
+    assert head[:2] == ['average', 'delay:'] and fields[0] == 'min:' and fields[2] == 'max:'
+    mean, shortest, longest = float(head[2]), float(fields[1][:-1]), float(fields[3][:-1])
+    # Printed to 1 ms: half of that is the rounding. A delay in other units than seconds (or
+    # of the wrong sign) would be far outside.
+    assert back - 0.0005 <= shortest <= mean + 0.0005 <= longest + 0.001
+    assert longest < back + 5.0
+    assert 1 <= int(fields[-1]) <= 40
+
+
+def test_delay_of_a_message_without_a_header_is_one_line_and_exit_1(graph, topic):
+    graph.node.create_publisher(StrikeTarget, topic, QoSProfile(depth=10))
+    proc = Ros2Process('topic', 'delay', topic)
+    graph.spin_until(lambda: proc.proc.poll() is not None, 60, 'ros2 topic delay to end')
+    assert proc.wait() == 1 and proc.stdout == ''
+    assert error_lines(proc.stderr) == [
+        f'ros2 topic: {topic}: tt_msgs/msg/StrikeTarget has no header, so no stamp to '
+        'measure a delay from']
+
+
+def test_bw_reports_the_serialized_size_of_the_messages(graph, procs, topic):
+    msg = dict_to_message(STATE, BallState)
+    size = len(serialize_message(msg))      # CDR, as the subscription receives it
+    assert size < 1000                      # printed in bytes
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    sent = []
+
+    def tick():
+        pub.publish(msg)
+        sent.append(1)
+
+    graph.node.create_timer(0.05, tick)
+    bw = procs('topic', 'bw', topic, '--window', '30')
+    graph.spin_until(lambda: bw.stdout.count('Message size') >= 2, 60, 'two bw reports')
+    bw.signal(signal.SIGINT)
+    assert bw.wait() == 0, bw.stderr
+    rate_line, size_line = bw.stdout.strip().splitlines()[-2:]
+    assert size_line.strip() == f'Message size mean: {size} B min: {size} B max: {size} B'
+    value, unit, _, count, _ = rate_line.split()
+    assert float(value) > 0 and unit in ('B/s', 'KB/s', 'MB/s')
+    assert 1 <= int(count) <= min(30, len(sent))
 
 
 def test_list_and_info_show_type_and_offered_qos(graph, topic):

@@ -1,4 +1,4 @@
-"""``ros2 topic list | echo | hz | info | pub`` and ``ros2 node list`` on rclpy."""
+"""``ros2 topic list | echo | hz | delay | bw | info | pub`` and ``ros2 node list`` on rclpy."""
 
 import collections
 import difflib
@@ -22,7 +22,14 @@ from tt_tools.introspect import (
     split_type,
 )
 from tt_tools.output import say, write
-from tt_tools.rate import format_stats, rate_stats
+from tt_tools.rate import (
+    bandwidth_stats,
+    delay_stats,
+    format_bandwidth,
+    format_delay,
+    format_stats,
+    rate_stats,
+)
 from tt_tools.rosutil import (
     DURABILITY,
     LATE_NODE_S,
@@ -214,33 +221,77 @@ def topic_echo(args):
     return 0
 
 
-def topic_hz(args):
+def _report_each_second(args, name, watch, raw=True):
+    """The run of ``hz``, ``delay`` and ``bw``: wait for a publisher of ``args.topic`` (of
+    ``args.type``), subscribe to it and write a report at the end of every second that
+    brought a message, until a signal or a closed stdout. ``watch(cli, cls)`` gives
+    (``on_message``, called with the serialized bytes with ``raw``, else the message;
+    ``report()``, the text or None when there is nothing to say yet)."""
     topic = absolute_name(args.topic)
-    with CliNode('hz') as cli:
+    with CliNode(name) as cli:
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None:
             return 0
         cls, pubs = found
-        arrivals = collections.deque(maxlen=args.window)
+        on_message, report = watch(cli, cls)
         state = {'new': False, 'next': time.monotonic() + 1.0}
 
-        def on_message(_data):
-            arrivals.append(time.monotonic())
+        def received(msg):
+            on_message(msg)
             state['new'] = True
 
         def report_due():
             return time.monotonic() >= state['next']
 
-        cli.node.create_subscription(cls, topic, on_message,
-                                     qos_matching(pubs, depth=100), raw=True)
+        cli.node.create_subscription(cls, topic, received, qos_matching(pubs, depth=100),
+                                     raw=raw)
         while cli.spin_until(report_due):
             state['next'] += 1.0
-            stats = rate_stats(list(arrivals))
-            if state['new'] and stats is not None:
-                if not write(format_stats(stats) + '\n'):
-                    break
+            text = report() if state['new'] else None
+            if text is not None and not write(text + '\n'):
+                break
             state['new'] = False
     return 0
+
+
+def topic_hz(args):
+    arrivals = collections.deque(maxlen=args.window)
+
+    def report():
+        stats = rate_stats(list(arrivals))
+        return None if stats is None else format_stats(stats)
+
+    return _report_each_second(args, 'hz', lambda cli, cls: (
+        lambda _data: arrivals.append(time.monotonic()), report))
+
+
+def topic_delay(args):
+    delays = collections.deque(maxlen=args.window)
+
+    def watch(cli, cls):
+        if 'header' not in cls.get_fields_and_field_types():
+            raise ValueError(f'{absolute_name(args.topic)}: {cls.__module__.split(".")[0]}/msg/'
+                             f'{cls.__name__} has no header, so no stamp to measure a delay from')
+        clock = cli.node.get_clock()
+
+        def on_message(msg):
+            stamp = msg.header.stamp
+            delays.append((clock.now().nanoseconds - stamp.sec * 10**9 - stamp.nanosec) * 1e-9)
+
+        return on_message, lambda: format_delay(delay_stats(list(delays)))
+
+    return _report_each_second(args, 'delay', watch, raw=False)
+
+
+def topic_bw(args):
+    arrivals = collections.deque(maxlen=args.window)
+
+    def report():
+        stats = bandwidth_stats(list(arrivals), time.monotonic())
+        return None if stats is None else format_bandwidth(stats)
+
+    return _report_each_second(args, 'bw', lambda cli, cls: (
+        lambda data: arrivals.append((time.monotonic(), len(data))), report))
 
 
 def _wait_for_subscriptions(cli, pub, topic, type_str, count, max_wait):
@@ -354,12 +405,17 @@ def add_arguments(topic_sub, node_sub):
     qos_args(p)
     p.set_defaults(func=topic_echo)
 
-    p = topic_sub.add_parser('hz', help='print the average publishing rate of a topic')
-    p.add_argument('topic')
-    p.add_argument('type', nargs='?', help='message type (default: from graph)')
-    p.add_argument('--window', '-w', type=positive_int, default=10000,
-                   help='number of messages in the rolling window (default 10000)')
-    p.set_defaults(func=topic_hz)
+    for verb, func, window, text in (
+            ('hz', topic_hz, 10000, 'print the average publishing rate of a topic'),
+            ('delay', topic_delay, 10000,
+             "print the delay of a topic's messages from the stamps in their headers"),
+            ('bw', topic_bw, 100, 'print the bandwidth a topic takes')):
+        p = topic_sub.add_parser(verb, help=text)
+        p.add_argument('topic')
+        p.add_argument('type', nargs='?', help='message type (default: from graph)')
+        p.add_argument('--window', '-w', type=positive_int, default=window,
+                       help=f'number of messages in the rolling window (default {window})')
+        p.set_defaults(func=func)
 
     p = topic_sub.add_parser('pub', help='publish a message given as YAML')
     p.add_argument('topic')
