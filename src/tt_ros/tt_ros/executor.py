@@ -91,27 +91,34 @@ def _params_files(argv):
     return paths
 
 
-def _sections(data, prefix=''):
-    """(node path, its ros__parameters) of each section of a parameters file's mapping: the
-    node paths ('/ns/name', wildcards kept) join nested namespaces."""
+def parameter_sections(data, prefix=''):
+    """(node path, its ros__parameters) of each section of a parameters file's mapping, in
+    the file's order: the node paths ('/ns/name', wildcards kept) join nested namespaces."""
     for key, value in data.items():
         if isinstance(value, dict):
             path = f"{prefix}/{str(key).strip('/')}"
             if 'ros__parameters' in value:
                 yield path, value['ros__parameters']
-            yield from _sections(value, path)
+            yield from parameter_sections(value, path)
 
 
-def _names(params, prefix=''):
-    """The parameter names of a ros__parameters mapping (nested ones joined with '.')."""
+def parameter_items(params, prefix=''):
+    """(name, value) of each parameter of a ros__parameters mapping (nested names joined
+    with '.')."""
     for key, value in (params.items() if isinstance(params, dict) else ()):
         if isinstance(value, dict):
-            yield from _names(value, f'{prefix}{key}.')
+            yield from parameter_items(value, f'{prefix}{key}.')
         else:
-            yield f'{prefix}{key}'
+            yield f'{prefix}{key}', value
 
 
-def _section_matches(section, node_path):
+def names_a_node(section):
+    """Whether a section's path ends in a node's name, not a wildcard (``/**``, ``/ns/*``:
+    sections shared by design with other nodes)."""
+    return section.rsplit('/', 1)[-1] not in ('*', '**')
+
+
+def section_matches(section, node_path):
     """Whether the section ``section`` applies to the node ``node_path`` ('/ns/name'):
     rcl's wildcards, ``*`` for one name and ``**`` for any number of names."""
     wildcards = {'*': '/[^/]+', '**': '(?:/[^/]+)*'}
@@ -129,7 +136,7 @@ def _params_file_sections(args):
                 data = yaml.safe_load(f)
         except (OSError, yaml.YAMLError):
             continue
-        yield path, list(_sections(data)) if isinstance(data, dict) else []
+        yield path, list(parameter_sections(data)) if isinstance(data, dict) else []
 
 
 def unused_params_files(args, node_path):
@@ -138,7 +145,7 @@ def unused_params_files(args, node_path):
     from it, without a word (a file written for another node name or namespace)."""
     unused = []
     for path, sections in _params_file_sections(args):
-        if not any(_section_matches(section, node_path) for section, _ in sections):
+        if not any(section_matches(section, node_path) for section, _ in sections):
             names = ', '.join(section for section, _ in sections) or 'none'
             unused.append(f'{path} (its sections: {names})')
     return unused
@@ -153,9 +160,9 @@ def shared_parameter_names(args, node_path):
     shared, own = set(), set()
     for _, sections in _params_file_sections(args):
         for section, params in sections:
-            if _section_matches(section, node_path):
-                named = section.rsplit('/', 1)[-1] not in ('*', '**')
-                (own if named else shared).update(_names(params))
+            if section_matches(section, node_path):
+                (own if names_a_node(section) else shared).update(
+                    name for name, _ in parameter_items(params))
     argv = list(args)
     for i, arg in enumerate(argv[:-1]):
         if arg in ('-p', '--param'):

@@ -19,6 +19,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
+import rclpy.parameter
 from rclpy.qos import QoSProfile
 from tt_ros.index import interface_file
 from tt_tools.introspect import import_message_type
@@ -145,6 +146,60 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
         'Setting parameter failed: ')
     assert graph.node.get_parameter('gain').value == 0.5
     assert graph.node.get_parameter('mode').value == 'fast'
+
+
+def test_param_load_sets_what_a_parameters_file_gives_the_node(graph, param_node, tmp_path):
+    n = param_node
+    node = graph.node
+
+    def load(sections, *options):
+        path = tmp_path / f'{len(list(tmp_path.iterdir()))}.yaml'
+        path.write_text(yaml.safe_dump(sections, sort_keys=False))
+        (result,) = run_all(graph, ('param', 'load', n, str(path), *options))
+        return result[0], result[1].splitlines(), error_lines(result[2]), str(path)
+
+    # A '/**' section first, then the node's own (its 'count' in place of the shared one),
+    # another node's section left out; 'mode' (read only) is already the node's value;
+    # 'nope' is not declared: said on stderr, exit 1, the others set all the same.
+    rc, out, err, _ = load({
+        '/**': {'ros__parameters': {'gain': 0.25, 'count': 1}},
+        n.lstrip('/'): {'ros__parameters': {'count': 4, 'limits': {'low': -3}, 'mode': 'fast',
+                                            'nope': 1}},
+        'another_node': {'ros__parameters': {'gain': 0.75}}})
+    assert (rc, err) == (1, ['Set parameter nope failed: the node has no such parameter'])
+    assert out == ['Set parameter gain successful', 'Set parameter count successful',
+                   'Set parameter limits.low successful',
+                   'Parameter mode left as it is: read only, and the node has this value']
+    assert [node.get_parameter(p).value for p in ('gain', 'count', 'limits.low', 'mode')] == [
+        0.25, 4, -3.0, 'fast']
+    # --no-use-wildcard: only the section that names the node ('/**/name' names it).
+    rc, out, err, _ = load({'/**': {'ros__parameters': {'gain': 0.5}},
+                            f'/**{n}': {'ros__parameters': {'count': 2}}}, '--no-use-wildcard')
+    assert (rc, out, err) == (0, ['Set parameter count successful'], [])
+    assert (node.get_parameter('gain').value, node.get_parameter('count').value) == (0.25, 2)
+    # What the node refuses is said with its reason, and changes nothing.
+    rc, out, err, _ = load({n: {'ros__parameters': {'count': -1, 'mode': 'slow', 'gain': 2.0}}})
+    assert rc == 1 and out == [] and len(err) == 3
+    assert err[0] == 'Set parameter count failed: count must be >= 0'
+    assert err[1].startswith('Set parameter mode failed: ') and 'read-only' in err[1]
+    assert err[2].startswith('Set parameter gain failed: ')
+    assert [node.get_parameter(p).value for p in ('count', 'mode', 'gain')] == [2, 'fast', 0.25]
+    # A file with no section for the node, or none at all: one line, exit 1, nothing set.
+    rc, out, err, path = load({'another_node': {'ros__parameters': {'gain': 0.75}}})
+    assert (rc, out, err) == (1, [], [
+        f"ros2 param: {path} has no section for the node '{n}' (its sections: /another_node)"])
+    rc, out, err, path = load({'gain': 0.75})
+    assert (rc, out) == (1, []) and err == [
+        f'ros2 param: {path}: no section with ros__parameters (not a ROS 2 parameters file)']
+    assert node.get_parameter('gain').value == 0.25
+    # What dump prints, load sets again: the node's values after a change are back.
+    (dump,) = run_all(graph, ('param', 'dump', n))
+    node.set_parameters([rclpy.parameter.Parameter('gain', value=0.125),
+                         rclpy.parameter.Parameter('flags', value=[False, False])])
+    rc, out, err, _ = load(yaml.safe_load(dump[1]))
+    assert (rc, err) == (0, []) and 'Set parameter gain successful' in out
+    assert (node.get_parameter('gain').value, list(node.get_parameter('flags').value)) == (
+        0.25, [True, False])
 
 
 def test_verbs_on_the_running_prediction_node(graph, procs, topic):

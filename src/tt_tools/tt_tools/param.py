@@ -1,9 +1,10 @@
-"""``ros2 param list | get | set | describe | dump``: a node's parameters through its services.
+"""``ros2 param list | get | set | describe | dump | load``: a node's parameters through its
+services.
 
 Every rclpy and rclcpp node (unless started without parameter services) serves
 ``<node>/list_parameters``, ``get_parameters``, ``set_parameters`` and ``describe_parameters``
 (rcl_interfaces). The output is the real ros2cli's: ``Double value is: 0.5``, ``Set parameter
-successful``, a ``/node: ros__parameters:`` YAML for ``dump``.
+successful``, a ``/node: ros__parameters:`` YAML for ``dump`` that ``load`` sets again.
 """
 
 import time
@@ -15,7 +16,9 @@ from rcl_interfaces.srv import (
     ListParameters,
     SetParameters,
 )
+from rclpy.parameter import Parameter as PythonParameter
 from rclpy.parameter import get_parameter_value, parameter_value_to_python
+from tt_ros.executor import names_a_node, parameter_items, parameter_sections, section_matches
 import yaml
 
 from tt_tools.argtypes import positive_float
@@ -228,14 +231,21 @@ def parse_value(text, declared_type=None):
     double, ``true`` bool, ``[1, 2]`` integer array, anything else a string), as ros2cli does;
     an integer (array) given for a ``declared_type`` double (array) becomes a double (array).
     """
-    too_big = f"value '{text}': an integer outside the 64-bit range"
     try:
-        value = get_parameter_value(text)
-    except OverflowError:                    # in an array
-        raise ValueError(too_big) from None
+        return _typed(get_parameter_value(text), declared_type)
+    except (OverflowError, ValueError):      # OverflowError: in an array
+        raise ValueError(f"value '{text}': {TOO_BIG}") from None
+
+
+TOO_BIG = 'an integer outside the 64-bit range'
+
+
+def _typed(value, declared_type):
+    """``value`` (a ParameterValue) checked (ValueError: an integer beyond 64 bits) and, an
+    integer (array) for a ``declared_type`` double (array), made a double (array)."""
     if not all(-2 ** 63 <= v < 2 ** 63
                for v in [value.integer_value, *value.integer_array_value]):
-        raise ValueError(too_big)
+        raise ValueError(TOO_BIG)
     if (declared_type == ParameterType.PARAMETER_DOUBLE
             and value.type == ParameterType.PARAMETER_INTEGER):
         value.type, value.double_value = declared_type, float(value.integer_value)
@@ -244,6 +254,29 @@ def parse_value(text, declared_type=None):
         value.type = declared_type
         value.double_array_value = [float(v) for v in value.integer_array_value]
     return value
+
+
+def file_value(name, value, declared_type=None):
+    """ParameterValue of a parameters file's ``value`` for the parameter ``name``, typed as
+    rcl types it (and, as :func:`parse_value`, an integer for a declared double a double)."""
+    try:
+        parameter = PythonParameter(name, value=value)
+        if parameter.type_ == PythonParameter.Type.NOT_SET:
+            raise ValueError('no value')
+        return _typed(parameter.get_parameter_value(), declared_type)
+    except (TypeError, ValueError, OverflowError) as exc:
+        reason = TOO_BIG if isinstance(exc, OverflowError) else str(exc).rstrip('.')
+        raise ValueError(f'{name}: {value!r}: {reason}') from None
+
+
+def _set(cli, node_name, parameters, args):
+    """The node's results of setting ``parameters`` (rcl_interfaces Parameter, in one
+    request, each on its own), or None on a signal."""
+    client = _client(cli, node_name, SetParameters, args)
+    if client is None:
+        return None
+    response = _call(cli, client, SetParameters.Request(parameters=parameters), args.timeout)
+    return None if response is None else response.results
 
 
 def param_set(args):
@@ -259,15 +292,11 @@ def param_set(args):
             return 0
         parameters = [Parameter(name=n, value=parse_value(t, d.type))
                       for n, t, d in zip(names, texts, descriptors, strict=True)]
-        client = _client(cli, node_name, SetParameters, args)
-        if client is None:
-            return 0
-        response = _call(cli, client, SetParameters.Request(parameters=parameters),
-                         args.timeout)
-    if response is None:
+        results = _set(cli, node_name, parameters, args)
+    if results is None:
         return 0
     failed = False
-    for name, result in zip(names, response.results, strict=True):
+    for name, result in zip(names, results, strict=True):
         prefix = f'{name}: ' if len(names) > 1 else ''
         reason = f': {result.reason}' if result.reason else ''
         if result.successful:
@@ -321,16 +350,23 @@ def nest(names_values):
     return out
 
 
+def _declared(cli, node_name, args):
+    """The names of the node's parameters (its list_parameters' answer), or None on a
+    signal."""
+    client = _client(cli, node_name, ListParameters, args)
+    if client is None:
+        return None
+    response = _call(cli, client, ListParameters.Request(), args.timeout)
+    return None if response is None else list(response.result.names)
+
+
 def param_dump(args):
     node_name = absolute_node_name(args.node_name)
     with CliNode('param_dump') as cli:
-        client = _client(cli, node_name, ListParameters, args)
-        if client is None:
+        names = _declared(cli, node_name, args)
+        if names is None:
             return 0
-        response = _call(cli, client, ListParameters.Request(), args.timeout)
-        if response is None:
-            return 0
-        names = sorted(response.result.names)
+        names.sort()
         values = _get_values(cli, node_name, names, args) if names else []
     if values is None:
         return 0
@@ -338,6 +374,82 @@ def param_dump(args):
     write(yaml.safe_dump({node_name: {'ros__parameters': params}}, default_flow_style=False)
           + '\n')
     return 0
+
+
+def node_parameters(path, node_name, use_wildcard=True):
+    """{name: value} that the parameters file at ``path`` gives the node ``node_name``
+    ('/ns/name'): the sections that apply to it (rcl's wildcards; without ``use_wildcard``
+    only those that name it), first those of no node name (``/**:``), then those that name
+    it (``node:``, ``/**/node:``), each in the file's order, a later value of a name taking
+    the place of an earlier one. ValueError (one line) for a file that is not YAML, not a
+    parameters file, or has no section for the node; OSError for one that cannot be read."""
+    with open(path, encoding='utf-8') as f:
+        try:
+            data = yaml.safe_load(f)
+        except yaml.YAMLError as exc:
+            raise ValueError(f'{path}: not YAML ({str(exc).splitlines()[0]})') from None
+    sections = list(parameter_sections(data)) if isinstance(data, dict) else []
+    if not sections:
+        raise ValueError(f'{path}: no section with ros__parameters (not a ROS 2 parameters '
+                         'file)')
+    applying = [(section, params) for section, params in sections
+                if section_matches(section, node_name) and (use_wildcard
+                                                            or names_a_node(section))]
+    if not applying:
+        raise ValueError(f"{path} has no section for the node '{node_name}' (its sections: "
+                         f"{', '.join(section for section, _ in sections)})")
+    values = {}
+    for named in (False, True):
+        for section, params in applying:
+            if names_a_node(section) == named:
+                values.update(parameter_items(params))
+    return values
+
+
+def _python(value):
+    """A ParameterValue as a comparable Python value (arrays as lists)."""
+    out = parameter_value_to_python(value)
+    return out if isinstance(out, (bool, int, float, str)) else list(out)
+
+
+def param_load(args):
+    node_name = absolute_node_name(args.node_name)
+    values = node_parameters(args.parameter_file, node_name, not args.no_use_wildcard)
+    outcome = {}           # name: (successful, line), in the file's order below
+    with CliNode('param_load') as cli:
+        declared = _declared(cli, node_name, args)
+        if declared is None:
+            return 0
+        names = [n for n in values if n in declared]
+        descriptors = _describe(cli, node_name, names, args) if names else []
+        current = _get_values(cli, node_name, names, args) if names else []
+        if descriptors is None or current is None:
+            return 0
+        parameters = []
+        for name, descriptor, now in zip(names, descriptors, current, strict=True):
+            value = file_value(name, values[name], descriptor.type)
+            if descriptor.read_only and value.type == now.type and _python(value) == _python(now):
+                outcome[name] = (True, f'Parameter {name} left as it is: read only, and the '
+                                 'node has this value')
+            else:
+                parameters.append(Parameter(name=name, value=value))
+        if parameters:
+            results = _set(cli, node_name, parameters, args)
+            if results is None:
+                return 0
+            for parameter, result in zip(parameters, results, strict=True):
+                reason = f': {result.reason}' if result.reason else ''
+                outcome[parameter.name] = (
+                    result.successful, f'Set parameter {parameter.name} '
+                    + (f'successful{reason}' if result.successful else f'failed{reason}'))
+    for name in values:
+        successful, line = outcome.get(name, (False, f'Set parameter {name} failed: the node '
+                                                    'has no such parameter'))
+        if successful:
+            write(line + '\n')
+        else:
+            say(line)
+    return 0 if all(outcome.get(name, (False,))[0] for name in values) else 1
 
 
 def add_arguments(sub):
@@ -379,3 +491,10 @@ def add_arguments(sub):
     p = sub.add_parser('dump', help="print a node's parameters as a parameters YAML file")
     common(p)
     p.set_defaults(func=param_dump)
+
+    p = sub.add_parser('load', help="set a node's parameters from a parameters YAML file")
+    common(p)
+    p.add_argument('parameter_file', help='a parameters file (--params-file, param dump)')
+    p.add_argument('--no-use-wildcard', action='store_true',
+                   help="only the file's sections that name the node, not '/**:' ones")
+    p.set_defaults(func=param_load)
