@@ -373,7 +373,43 @@ def test_pkg_prefix_finds_the_shipped_configs():
     assert rc == 1 and error_lines(err) == ["ros2 pkg: Package 'no_such_pkg' not found"]
 
 
-@pytest.mark.parametrize('verb', ['service', 'launch'])
+def test_service_list_type_and_call_against_a_service_the_test_serves(graph, topic):
+    from std_srvs.srv import SetBool
+
+    name = f'{topic}/enable'
+    got = []
+
+    def serve(request, response):
+        got.append(request.data)
+        response.success, response.message = True, f'set to {request.data}'
+        return response
+
+    graph.node.create_service(SetBool, name, serve)
+    lst, typ, call, other_type, bad_field, typ_now = run_all(
+        graph,
+        ('service', 'list', '-t'),
+        ('service', 'type', name),
+        ('service', 'call', name, 'std_srvs/srv/SetBool', '{data: true}'),
+        ('service', 'call', name, 'std_srvs/srv/Trigger'),
+        ('service', 'call', name, 'std_srvs/srv/SetBool', '{dat: true}'),
+        ('service', 'type', name))
+    # The graph's types count clients too (a Trigger client of the name, here): list shows
+    # them, as ros2cli does; type shows what the server serves.
+    assert lst[0] == 0 and f'{name} [std_srvs/srv/SetBool]' in [
+        line.replace(', std_srvs/srv/Trigger', '') for line in lst[1].splitlines()]
+    assert typ[:2] == typ_now[:2] == (0, 'std_srvs/srv/SetBool\n')
+    # ros2cli's output: the request and the response as Python prints them.
+    assert call[:2] == (0, 'requester: making request: std_srvs.srv.SetBool_Request(data=True)'
+                           '\n\nresponse:\nstd_srvs.srv.SetBool_Response(success=True, '
+                           "message='set to True')\n\n"), call[2]
+    assert got == [True]                 # sent once: a service need not be idempotent
+    assert other_type[:2] == (1, '') and error_lines(other_type[2]) == [
+        f'ros2 service: {name} is served as std_srvs/srv/SetBool, not std_srvs/srv/Trigger']
+    assert bad_field[:2] == (1, '') and error_lines(bad_field[2]) == [
+        "ros2 service: std_srvs/srv/SetBool_Request has no field 'dat'"]
+
+
+@pytest.mark.parametrize('verb', ['action', 'launch'])
 def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
     # argparse said "invalid choice" after `ros2 node info` had listed services (a ROS
     # user's walk-through).

@@ -58,6 +58,25 @@ def import_message_type(type_str):
     return cls
 
 
+def import_service_type(type_str):
+    """The Python service class named by ``'pkg/srv/Type'`` (or ``'pkg/Type'``).
+
+    Raises ValueError with a one-line message when the name, package or type is bad."""
+    parts = type_str.strip('/').split('/')
+    if len(parts) == 2:
+        parts.insert(1, 'srv')
+    if len(parts) != 3 or parts[1] != 'srv' or not all(p.isidentifier() for p in parts):
+        raise ValueError(f"bad service type '{type_str}': expected 'package/srv/Type'")
+    try:
+        module = importlib.import_module(f'{parts[0]}.srv')
+    except ImportError:
+        raise ValueError(f"unknown service package '{parts[0]}' (in type '{type_str}')") from None
+    cls = getattr(module, parts[2], None)
+    if cls is None or not hasattr(cls, 'Request'):
+        raise ValueError(f"unknown service type '{type_str}'")
+    return cls
+
+
 def type_string(msg_or_cls):
     """``'pkg/msg/Type'`` of a message instance or class."""
     cls = msg_or_cls if isinstance(msg_or_cls, type) else type(msg_or_cls)

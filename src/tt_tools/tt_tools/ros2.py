@@ -34,7 +34,7 @@ def build_parser(only_run=False):
     the executable without that second of imports)."""
     parser = argparse.ArgumentParser(
         prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, "
-                                 'param, interface, pkg, bag)')
+                                 'param, service, interface, pkg, bag)')
     verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
 
     p = verbs.add_parser('run', help='run an executable of a package')
@@ -49,7 +49,7 @@ def build_parser(only_run=False):
     p.set_defaults(func=_run)
     if only_run:
         return parser
-    from tt_tools import bag, interface, param, topic
+    from tt_tools import bag, interface, param, service, topic
 
     p = verbs.add_parser('topic', help='inspect and publish topics')
     topic_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
@@ -59,6 +59,9 @@ def build_parser(only_run=False):
 
     p = verbs.add_parser('param', help="list, get, set, describe and dump a node's parameters")
     param.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
+
+    p = verbs.add_parser('service', help='list, inspect and call services')
+    service.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
     p = verbs.add_parser('interface', help='show message, service and action definitions')
     interface_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
@@ -130,7 +133,7 @@ def _one_line(exc):
     return re.sub(r', at [^ ]+:[0-9]+$', '', text)
 
 
-ROS2CLI_ONLY = ('service', 'action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
+ROS2CLI_ONLY = ('action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
                 'wtf', 'multicast', 'security', 'extensions', 'extension_points')
 """ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
 LAUNCH_HINT = ('; the graph starts with `ros2 run tt_tools bringup --params-file '
@@ -145,8 +148,9 @@ def _main(argv):
         # argparse said only "invalid choice", after `ros2 node info` had listed services.
         hint = LAUNCH_HINT if argv[0] == 'launch' else ''
         print(f"ros2: '{argv[0]}' is a verb of ros2cli that tt's ros2 command does not have "
-              '(ros2cli has no PyPI wheels; these are run, topic, node, param, interface, pkg '
-              f'and bag: docs/tools.md); where ros2cli is installed, tt hands over to it{hint}',
+              '(ros2cli has no PyPI wheels; these are run, topic, node, param, service, '
+              'interface, pkg and bag: docs/tools.md); where ros2cli is installed, tt hands '
+              f'over to it{hint}',
               file=sys.stderr)
         return 2
     only_run = argv[:1] == ['run']

@@ -216,6 +216,12 @@ def absolute_name(name):
     return name if name.startswith('/') else '/' + name
 
 
+def hidden_name(name):
+    """Whether a topic's, service's or node's name is hidden: one of its parts begins with
+    '_' (ros2cli's rule)."""
+    return any(part.startswith('_') for part in name.split('/'))
+
+
 def absolute_node_name(name):
     """:func:`absolute_name` of a node's name from the command line; ValueError (one line)
     for one no node can have."""

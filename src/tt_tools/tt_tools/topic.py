@@ -37,6 +37,7 @@ from tt_tools.rosutil import (
     CliNode,
     absolute_name,
     add_spin_time_argument,
+    hidden_name,
     node_full_name,
     node_names,
     qos_matching,
@@ -154,10 +155,6 @@ def split_node_name(full_name):
     return name, ns or '/'
 
 
-def _hidden(name):
-    return any(part.startswith('_') for part in name.split('/'))
-
-
 def node_info(args):
     name, ns = split_node_name(args.node_name)
     full = node_full_name(name, ns)
@@ -186,7 +183,7 @@ def node_info(args):
     for title, names_and_types in sections:
         lines.append(f'  {title}:')
         shown = [f'    {n}: {", ".join(t)}' for n, t in sorted(names_and_types)
-                 if args.include_hidden or not _hidden(n)]
+                 if args.include_hidden or not hidden_name(n)]
         lines.extend(shown or [''])
     write('\n'.join(lines) + '\n')
     return 0
