@@ -9,6 +9,7 @@ from tt_tools.introspect import (
     dict_to_message,
     get_field,
     import_message_type,
+    message_to_csv,
     message_to_dict,
     message_to_yaml,
     parse_yaml_values,
@@ -40,6 +41,21 @@ def test_ball_state_round_trip_keeps_every_value_in_field_order():
     back = message_to_dict(msg)
     assert list(back) == list(BallState.get_fields_and_field_types())
     assert back == values
+
+
+def test_csv_is_every_value_in_the_order_of_the_msg_file():
+    # BallState.msg: header (stamp sec, nanosec; frame_id), position, velocity, spin (x, y, z
+    # each), covariance[81], track_id: 3 + 9 + 81 + 1 = 94 values, written out here by hand.
+    msg = dict_to_message(_ball_state_values(), BallState)
+    head = ['1700000000', '250000000', 'table', '-1.2', '0.3', '0.25', '4.5', '-0.2', '1.0',
+            '0.0', '-150.0', '30.0']
+    covariance = [repr(0.001 * (i + 1)) for i in range(81)]
+    assert message_to_csv(msg).split(',') == head + covariance + ['42']
+    assert message_to_csv(msg, arrays=False).split(',') == head + ['42']
+    assert message_to_csv(msg, arrays=False, strings=False).split(',') == (
+        head[:2] + head[3:] + ['42'])
+    assert message_to_csv(msg, field='spin') == '0.0,-150.0,30.0'
+    assert message_to_csv(msg, field='position.z') == '0.25'
 
 
 def test_prediction_round_trip_with_fixed_arrays_and_signed_fields():

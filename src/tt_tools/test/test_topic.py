@@ -44,6 +44,24 @@ def test_echo_once_prints_a_published_ball_state_as_yaml(graph, procs, topic):
     assert echo.stdout.count('---\n') == 1  # --once
 
 
+def test_echo_csv_prints_one_line_of_values_a_message(graph, procs, topic):
+    echo = procs('topic', 'echo', topic, '--csv', '--no-arr', '--times', '2')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    msg = dict_to_message(STATE, BallState)
+
+    def printed():
+        if echo.stdout.count('\n') < 2 and echo.proc.poll() is None:
+            pub.publish(msg)
+            return False
+        return True
+
+    graph.spin_until(printed, 60, 'echo --csv to print two messages')
+    assert echo.wait() == 0, echo.stderr
+    # STATE's values in BallState.msg's order, its covariance (an array) left out.
+    row = '1700000000,5,table,-1.0,0.2,0.3,5.0,0.0,1.5,0.0,120.0,0.0,17'
+    assert echo.stdout.splitlines() == [row, row]
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_while_the_verb_starts_ends_it_once_its_node_exists(monkeypatch, topic, sig):
     # A Ctrl-C that comes while ``ros2`` still imports is noted, not raised: echo then ends at

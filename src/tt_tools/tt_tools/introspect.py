@@ -246,6 +246,32 @@ def message_to_yaml(msg, truncate_length=128, field=None):
     return text[:-len('...\n')] if text.endswith('\n...\n') else text
 
 
+def message_to_csv(msg, arrays=True, strings=True, field=None):
+    """One CSV line of a message (or of one dotted ``field`` of it), as ``ros2 topic echo
+    --csv`` prints it: every field's value in declaration order, nested messages' fields in
+    place, arrays one value per element (all of them; none without ``arrays``), strings as
+    they are (none without ``strings``), floats as Python prints them."""
+    values = []
+
+    def add(plain):
+        if isinstance(plain, dict):
+            for value in plain.values():
+                add(value)
+        elif isinstance(plain, list):
+            if arrays:
+                for value in plain:
+                    add(value)
+        elif isinstance(plain, str):
+            if strings:
+                values.append(plain)
+        else:
+            values.append(repr(plain) if isinstance(plain, float) else str(plain))
+
+    value, slot_type = _field_and_type(msg, field)
+    add(message_to_dict(msg) if slot_type is None else _value_to_plain(value, slot_type, None))
+    return ','.join(values)
+
+
 def parse_yaml_values(text):
     """Parse the YAML (or JSON) field values given on a command line; ValueError if invalid."""
     try:

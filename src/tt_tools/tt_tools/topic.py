@@ -17,6 +17,7 @@ from tt_tools.introspect import (
     dict_to_message,
     get_field,
     import_message_type,
+    message_to_csv,
     message_to_yaml,
     parse_yaml_values,
     split_type,
@@ -207,10 +208,13 @@ def topic_echo(args):
             if state['done']:
                 return
             msg = deserialize_message(data, cls)
-            text = message_to_yaml(msg, None if args.full_length else args.truncate_length,
-                                   args.field)
+            if args.csv:
+                text = message_to_csv(msg, not args.no_arr, not args.no_str, args.field) + '\n'
+            else:
+                text = message_to_yaml(msg, None if args.full_length else args.truncate_length,
+                                       args.field) + '---\n'
             state['count'] += 1
-            state['done'] = not write(text + '---\n') or (
+            state['done'] = not write(text) or (
                 args.once or (args.times and state['count'] >= args.times))
 
         cli.node.create_subscription(cls, topic, on_message, qos, raw=True)
@@ -399,6 +403,11 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('--truncate-length', type=int, default=128,
                    help='cut arrays and strings longer than this (default 128)')
     p.add_argument('--full-length', action='store_true', help='never cut arrays or strings')
+    p.add_argument('--csv', action='store_true',
+                   help='one line of comma-separated values a message (every field, nested '
+                        'ones in place, arrays whole), e.g. for plotting')
+    p.add_argument('--no-arr', action='store_true', help='with --csv, leave arrays out')
+    p.add_argument('--no-str', action='store_true', help='with --csv, leave strings out')
     qos_args(p)
     p.set_defaults(func=topic_echo)
 
