@@ -35,8 +35,9 @@ def service_list(args):
 def service_type(args):
     name = absolute_name(args.service_name)
     with CliNode('service_type') as cli:
-        cli.settle(args.spin_time, done=lambda: name in _services(cli))
-        # What its servers serve; the graph's types (its clients' too) when it has none.
+        # What its servers serve (a client of the name can be seen before its server); the
+        # graph's types (its clients' too) when discovery settles without a server.
+        cli.settle(args.spin_time, done=lambda: bool(_served_types(cli, name)))
         found = sorted(_served_types(cli, name)) or _services(cli).get(name)
     if not found:
         raise ValueError(f"Unknown service '{name}'")
