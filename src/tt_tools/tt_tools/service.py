@@ -3,7 +3,12 @@
 import difflib
 
 from tt_tools.argtypes import positive_float
-from tt_tools.introspect import dict_to_message, import_service_type, parse_yaml_values
+from tt_tools.introspect import (
+    dict_to_message,
+    import_service_type,
+    parse_yaml_values,
+    type_string,
+)
 from tt_tools.output import write
 from tt_tools.rosutil import CliNode, absolute_name, add_spin_time_argument, hidden_name
 
@@ -48,7 +53,7 @@ def service_type(args):
 def service_call(args):
     name = absolute_name(args.service_name)
     cls = import_service_type(args.service_type)
-    wanted = f'{cls.__module__.split(".")[0]}/srv/{cls.__name__}'
+    wanted = type_string(cls)
     values = parse_yaml_values(args.values)
     dict_to_message(values, cls.Request, now=lambda: None)  # bad values fail before DDS set-up
     with CliNode('service_call') as cli:

@@ -21,6 +21,7 @@ from tt_tools.introspect import (
     message_to_yaml,
     parse_yaml_values,
     split_type,
+    type_string,
 )
 from tt_tools.output import say, write
 from tt_tools.rate import (
@@ -271,8 +272,8 @@ def topic_delay(args):
 
     def watch(cli, cls):
         if 'header' not in cls.get_fields_and_field_types():
-            raise ValueError(f'{absolute_name(args.topic)}: {cls.__module__.split(".")[0]}/msg/'
-                             f'{cls.__name__} has no header, so no stamp to measure a delay from')
+            raise ValueError(f'{absolute_name(args.topic)}: {type_string(cls)} has no header, so '
+                             'no stamp to measure a delay from')
         clock = cli.node.get_clock()
 
         def on_message(msg):
