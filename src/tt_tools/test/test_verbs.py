@@ -347,6 +347,58 @@ def test_interface_show_of_a_service_and_bad_names():
     assert rc == 1 and len(error_lines(err)) == 1 and 'invalid interface name' in err
 
 
+def test_interface_proto_prints_a_default_message_to_fill_in():
+    # A ROS user's way to a `topic pub` argument: every field of the .msg at its default
+    # (float64 0.0, bool false), in quotes unless --no-quotes; a service's request.
+    rc, out, err = ros2('interface', 'proto', 'geometry_msgs/msg/Point')
+    assert (rc, out) == (0, '"x: 0.0\ny: 0.0\nz: 0.0\n"\n'), err
+    rc, out, err = ros2('interface', 'proto', 'std_srvs/srv/SetBool', '--no-quotes')
+    assert (rc, out) == (0, 'data: false\n'), err
+    rc, out, err = ros2('interface', 'proto', 'tt_msgs/msg/BallState', '--no-quotes')
+    assert rc == 0, err
+    values = yaml.safe_load(out)
+    assert list(values) == list(BallState.get_fields_and_field_types())
+    assert values['covariance'] == [0.0] * 81              # float64[81], not cut at 128 chars
+    assert values['header'] == {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': ''}
+    for bad, says in (('tt_msgs/msg/NoSuch', "unknown message type 'tt_msgs/msg/NoSuch'"),
+                      ('std_srvs/srv/NoSuch', "unknown service type 'std_srvs/srv/NoSuch'"),
+                      ('BallState', "bad message type 'BallState'")):
+        rc, out, err = ros2('interface', 'proto', bad)
+        assert rc == 1 and out == '' and len(error_lines(err)) == 1 and says in err, err
+
+
+def test_topic_and_service_find_list_the_names_of_a_type(graph, topic):
+    from std_msgs.msg import Char
+    from std_srvs.srv import Empty
+
+    qos = QoSProfile(depth=1)
+    for name in (f'{topic}/grip', f'{topic}/_grip'):   # the second is hidden: '_' begins a part
+        graph.node.create_publisher(Char, name, qos)
+        graph.node.create_service(Empty, name + '_reset', lambda request, response: response)
+    graph.node.create_publisher(BallState, f'{topic}/state', qos)
+    found, short, hidden, count, states, srv, srv_hidden, srv_count, bad, lst = run_all(
+        graph,
+        ('topic', 'find', 'std_msgs/msg/Char'),
+        ('topic', 'find', 'std_msgs/Char'),
+        ('topic', 'find', 'std_msgs/msg/Char', '--include-hidden-topics'),
+        ('topic', 'find', 'std_msgs/msg/Char', '-c', '--include-hidden-topics'),
+        ('topic', 'find', 'tt_msgs/msg/BallState'),
+        ('service', 'find', 'std_srvs/srv/Empty'),
+        ('service', 'find', 'std_srvs/Empty', '--include-hidden-services'),
+        ('service', 'find', 'std_srvs/srv/Empty', '-c'),
+        ('topic', 'find', 'Char'),
+        ('topic', 'list'))
+    assert found == short == (0, f'{topic}/grip\n', ''), found
+    assert hidden[:2] == (0, f'{topic}/_grip\n{topic}/grip\n') and count[:2] == (0, '2\n')
+    assert states[:2] == (0, f'{topic}/state\n')
+    assert srv[:2] == (0, f'{topic}/grip_reset\n') and srv_count[:2] == (0, '1\n')
+    assert srv_hidden[:2] == (0, f'{topic}/_grip_reset\n{topic}/grip_reset\n')
+    assert bad[:2] == (1, '') and error_lines(bad[2]) == [
+        "ros2 topic: bad message type 'Char': expected 'package/msg/Type'"]
+    # `topic list` leaves hidden topics out too, as ros2cli's does.
+    assert lst[0] == 0 and f'{topic}/grip' in lst[1].split() and '_grip' not in lst[1]
+
+
 def test_pkg_executables():
     rc, out, err = ros2('pkg', 'executables', 'tt_prediction')
     assert rc == 0, err

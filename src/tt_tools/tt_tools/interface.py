@@ -1,5 +1,5 @@
-"""``ros2 interface show | list | package`` and ``ros2 pkg executables`` (pure: no rclpy,
-files only).
+"""``ros2 interface show | list | package | proto`` and ``ros2 pkg executables`` (pure: no
+rclpy; files and the generated classes only).
 
 ``interface show pkg/msg/Type`` prints the installed ``.msg`` (``.srv``, ``.action``) file as
 ros2cli does: the file's own comments and blank lines, then, under each field of a message
@@ -12,6 +12,7 @@ import os
 from rosidl_adapter.parser import parse_message_string
 from tt_ros.index import interface_file, interfaces, package_prefix, packages
 
+from tt_tools.introspect import import_message_type, import_service_type, message_to_yaml
 from tt_tools.output import write
 from tt_tools.run import RunError, executables
 
@@ -83,6 +84,30 @@ def interface_show(args):
     return 0
 
 
+def prototype(type_str):
+    """The YAML of a default ``type_str`` message (``'pkg/msg/Type'``, or a service's request:
+    ``'pkg/srv/Type'``), every field at its .msg's default and no array or string cut, as
+    ``ros2 interface proto`` prints it inside its quotes; ValueError (one line) for a name
+    that is neither."""
+    parts = type_str.strip('/').split('/')
+    if len(parts) == 3 and parts[1] == 'srv':
+        cls = import_service_type(type_str).Request
+    elif len(parts) == 3 and parts[1] == 'action':
+        raise ValueError(f"'{type_str}' is an action: tt's ros2 interface proto gives "
+                         "messages and services' requests")
+    else:
+        cls = import_message_type(type_str)
+    return message_to_yaml(cls(), truncate_length=None)
+
+
+def interface_proto(args):
+    """``ros2 interface proto TYPE [--no-quotes]``: a message to fill in and hand to
+    ``ros2 topic pub`` (or ``service call``), in double quotes unless ``--no-quotes``."""
+    text = prototype(args.type)
+    write(text if args.no_quotes else f'"{text}"\n')
+    return 0
+
+
 def interface_list(args):
     """``ros2 interface list``: the interfaces of the ament index under ``Messages:``,
     ``Services:``, ``Actions:``, four spaces in, as ros2cli prints them (``-m``, ``-s``,
@@ -135,7 +160,7 @@ def pkg_list(args):
 
 
 def add_arguments(interface_sub, pkg_sub):
-    """Register ``interface show | list | package`` and ``pkg executables | list | prefix``
+    """Register ``interface show | list | package | proto`` and ``pkg executables | list | prefix``
     on argparse sub-parsers."""
     p = interface_sub.add_parser('show', help='print the definition of a msg, srv or action')
     p.add_argument('type', help="interface name, e.g. 'tt_msgs/msg/BallState'")
@@ -155,6 +180,11 @@ def add_arguments(interface_sub, pkg_sub):
     p = interface_sub.add_parser('package', help='list the interfaces of one package')
     p.add_argument('package', help='the package, e.g. tt_msgs')
     p.set_defaults(func=interface_package)
+
+    p = interface_sub.add_parser('proto', help='print a message (a request) to fill in, as YAML')
+    p.add_argument('type', help="e.g. 'geometry_msgs/msg/Point' or 'std_srvs/srv/SetBool'")
+    p.add_argument('--no-quotes', action='store_true', help='without the outer double quotes')
+    p.set_defaults(func=interface_proto)
 
     p = pkg_sub.add_parser('executables', help="print '<package> <executable>' lines")
     p.add_argument('package', nargs='?', help='only this package')

@@ -58,15 +58,21 @@ def import_message_type(type_str):
     return cls
 
 
-def import_service_type(type_str):
-    """The Python service class named by ``'pkg/srv/Type'`` (or ``'pkg/Type'``).
-
-    Raises ValueError with a one-line message when the name, package or type is bad."""
+def split_service_type(type_str):
+    """``'pkg/srv/Type'`` or ``'pkg/Type'`` -> ``('pkg', 'srv', 'Type')``; ValueError if bad."""
     parts = type_str.strip('/').split('/')
     if len(parts) == 2:
         parts.insert(1, 'srv')
     if len(parts) != 3 or parts[1] != 'srv' or not all(p.isidentifier() for p in parts):
         raise ValueError(f"bad service type '{type_str}': expected 'package/srv/Type'")
+    return tuple(parts)
+
+
+def import_service_type(type_str):
+    """The Python service class named by ``'pkg/srv/Type'`` (or ``'pkg/Type'``).
+
+    Raises ValueError with a one-line message when the name, package or type is bad."""
+    parts = split_service_type(type_str)
     try:
         module = importlib.import_module(f'{parts[0]}.srv')
     except ImportError:

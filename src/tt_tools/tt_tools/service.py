@@ -1,4 +1,4 @@
-"""``ros2 service list | type | call`` on rclpy."""
+"""``ros2 service list | type | find | call`` on rclpy."""
 
 import difflib
 
@@ -7,6 +7,7 @@ from tt_tools.introspect import (
     dict_to_message,
     import_service_type,
     parse_yaml_values,
+    split_service_type,
     type_string,
 )
 from tt_tools.output import write
@@ -27,13 +28,29 @@ def _served_types(cli, name):
             for t in types}
 
 
-def service_list(args):
-    with CliNode('service_list') as cli:
+def _listed(args, name):
+    """[(service, [type, ...])] of the graph once discovery settled, sorted, hidden ones only
+    with ``args.include_hidden_services``."""
+    with CliNode(name) as cli:
         cli.settle(args.spin_time)
         services = sorted(_services(cli).items())
-    for name, types in services:
-        if args.include_hidden_services or not hidden_name(name):
-            write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+    return [(s, types) for s, types in services
+            if args.include_hidden_services or not hidden_name(s)]
+
+
+def service_list(args):
+    for name, types in _listed(args, 'service_list'):
+        write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+    return 0
+
+
+def service_find(args):
+    """``ros2 service find TYPE [-c]``: the services of that type, one a line, or their
+    count (a name only clients use counts, as in ``list``)."""
+    wanted = split_service_type(args.service_type)
+    names = [name for name, types in _listed(args, 'service_find')
+             if any(split_service_type(t) == wanted for t in types)]
+    write(f'{len(names)}\n' if args.count_services else ''.join(n + '\n' for n in names))
     return 0
 
 
@@ -98,6 +115,15 @@ def add_arguments(sub):
                    help='also hidden services')
     add_spin_time_argument(p)
     p.set_defaults(func=service_list)
+
+    p = sub.add_parser('find', help='list the services of a service type')
+    p.add_argument('service_type', help="service type, e.g. 'std_srvs/srv/SetBool'")
+    p.add_argument('-c', '--count-services', action='store_true',
+                   help='print only how many there are')
+    p.add_argument('--include-hidden-services', action='store_true',
+                   help='also hidden services')
+    add_spin_time_argument(p)
+    p.set_defaults(func=service_find)
 
     p = sub.add_parser('type', help='print the type of a service')
     p.add_argument('service_name')

@@ -1,4 +1,5 @@
-"""``ros2 topic list | echo | hz | delay | bw | info | pub`` and ``ros2 node list`` on rclpy."""
+"""``ros2 topic list | find | echo | hz | delay | bw | info | pub`` and ``ros2 node list`` on
+rclpy."""
 
 import collections
 import difflib
@@ -93,11 +94,29 @@ def _wait_for_publishers(cli, topic, type_str):
     return import_message_type(state['type']), state['pubs']
 
 
-def topic_list(args):
-    with CliNode('topic_list') as cli:
+def _topics(args, name):
+    """[(topic, [type, ...])] of the graph once discovery settled, sorted, hidden ones only
+    with ``args.include_hidden_topics``."""
+    with CliNode(name) as cli:
         cli.settle(args.spin_time)
-        for name, types in sorted(cli.node.get_topic_names_and_types()):
-            write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+        found = sorted(cli.node.get_topic_names_and_types())
+    return [(t, types) for t, types in found
+            if args.include_hidden_topics or not hidden_name(t)]
+
+
+def topic_list(args):
+    for name, types in _topics(args, 'topic_list'):
+        write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
+    return 0
+
+
+def topic_find(args):
+    """``ros2 topic find TYPE [-c]``: the topics of that type (``'pkg/msg/Type'`` or
+    ``'pkg/Type'``), one a line, or their count."""
+    wanted = split_type(args.topic_type)
+    names = [name for name, types in _topics(args, 'topic_find')
+             if any(split_type(t) == wanted for t in types)]
+    write(f'{len(names)}\n' if args.count_topics else ''.join(n + '\n' for n in names))
     return 0
 
 
@@ -380,8 +399,17 @@ def add_arguments(topic_sub, node_sub):
 
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
+    p.add_argument('--include-hidden-topics', action='store_true', help='also hidden topics')
     add_spin_time_argument(p)
     p.set_defaults(func=topic_list)
+
+    p = topic_sub.add_parser('find', help='list the topics of a message type')
+    p.add_argument('topic_type', help="message type, e.g. 'tt_msgs/msg/BallState'")
+    p.add_argument('-c', '--count-topics', action='store_true',
+                   help='print only how many there are')
+    p.add_argument('--include-hidden-topics', action='store_true', help='also hidden topics')
+    add_spin_time_argument(p)
+    p.set_defaults(func=topic_find)
 
     p = topic_sub.add_parser('info', help='type and endpoints of a topic')
     p.add_argument('topic')
