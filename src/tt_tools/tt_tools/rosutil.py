@@ -222,6 +222,18 @@ def hidden_name(name):
     return any(part.startswith('_') for part in name.split('/'))
 
 
+def graph_names(spin_time, node_name, include_hidden, services=False):
+    """[(name, [type, ...])] of the topics (``services``: the services) in the graph once
+    discovery settled (:meth:`CliNode.settle`), sorted; hidden ones (:func:`hidden_name`) only
+    with ``include_hidden``. ``node_name``: the command's own node's."""
+    with CliNode(node_name) as cli:
+        cli.settle(spin_time)
+        node = cli.node
+        found = sorted(node.get_service_names_and_types() if services
+                       else node.get_topic_names_and_types())
+    return [(name, types) for name, types in found if include_hidden or not hidden_name(name)]
+
+
 def absolute_node_name(name):
     """:func:`absolute_name` of a node's name from the command line; ValueError (one line)
     for one no node can have."""

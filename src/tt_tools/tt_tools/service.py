@@ -11,7 +11,7 @@ from tt_tools.introspect import (
     type_string,
 )
 from tt_tools.output import write
-from tt_tools.rosutil import CliNode, absolute_name, add_spin_time_argument, hidden_name
+from tt_tools.rosutil import CliNode, absolute_name, add_spin_time_argument, graph_names
 
 
 def _services(cli):
@@ -28,18 +28,9 @@ def _served_types(cli, name):
             for t in types}
 
 
-def _listed(args, name):
-    """[(service, [type, ...])] of the graph once discovery settled, sorted, hidden ones only
-    with ``args.include_hidden_services``."""
-    with CliNode(name) as cli:
-        cli.settle(args.spin_time)
-        services = sorted(_services(cli).items())
-    return [(s, types) for s, types in services
-            if args.include_hidden_services or not hidden_name(s)]
-
-
 def service_list(args):
-    for name, types in _listed(args, 'service_list'):
+    for name, types in graph_names(args.spin_time, 'service_list', args.include_hidden_services,
+                                   services=True):
         write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
     return 0
 
@@ -48,7 +39,9 @@ def service_find(args):
     """``ros2 service find TYPE [-c]``: the services of that type, one a line, or their
     count (a name only clients use counts, as in ``list``)."""
     wanted = split_service_type(args.service_type)
-    names = [name for name, types in _listed(args, 'service_find')
+    found = graph_names(args.spin_time, 'service_find', args.include_hidden_services,
+                        services=True)
+    names = [name for name, types in found
              if any(split_service_type(t) == wanted for t in types)]
     write(f'{len(names)}\n' if args.count_services else ''.join(n + '\n' for n in names))
     return 0

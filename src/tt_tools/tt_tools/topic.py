@@ -40,6 +40,7 @@ from tt_tools.rosutil import (
     CliNode,
     absolute_name,
     add_spin_time_argument,
+    graph_names,
     hidden_name,
     node_full_name,
     node_names,
@@ -94,18 +95,8 @@ def _wait_for_publishers(cli, topic, type_str):
     return import_message_type(state['type']), state['pubs']
 
 
-def _topics(args, name):
-    """[(topic, [type, ...])] of the graph once discovery settled, sorted, hidden ones only
-    with ``args.include_hidden_topics``."""
-    with CliNode(name) as cli:
-        cli.settle(args.spin_time)
-        found = sorted(cli.node.get_topic_names_and_types())
-    return [(t, types) for t, types in found
-            if args.include_hidden_topics or not hidden_name(t)]
-
-
 def topic_list(args):
-    for name, types in _topics(args, 'topic_list'):
+    for name, types in graph_names(args.spin_time, 'topic_list', args.include_hidden_topics):
         write(f'{name} [{", ".join(types)}]\n' if args.show_types else f'{name}\n')
     return 0
 
@@ -114,8 +105,8 @@ def topic_find(args):
     """``ros2 topic find TYPE [-c]``: the topics of that type (``'pkg/msg/Type'`` or
     ``'pkg/Type'``), one a line, or their count."""
     wanted = split_type(args.topic_type)
-    names = [name for name, types in _topics(args, 'topic_find')
-             if any(split_type(t) == wanted for t in types)]
+    found = graph_names(args.spin_time, 'topic_find', args.include_hidden_topics)
+    names = [name for name, types in found if any(split_type(t) == wanted for t in types)]
     write(f'{len(names)}\n' if args.count_topics else ''.join(n + '\n' for n in names))
     return 0
 
