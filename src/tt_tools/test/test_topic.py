@@ -5,10 +5,13 @@ import os
 import signal
 import time
 
-from conftest import Ros2Process, error_lines, ros2
+from builtin_interfaces.msg import Time
+from conftest import Graph, Ros2Process, error_lines, ros2
 import pytest
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
+from tt_ros.testing import unique_domain
 from tt_tools.introspect import dict_to_message
 import yaml
 
@@ -146,6 +149,46 @@ def test_delay_reports_how_old_each_stamp_is_on_arrival(graph, procs, topic):
     assert back - 0.0005 <= shortest <= mean + 0.0005 <= longest + 0.001
     assert longest < back + 5.0
     assert 1 <= int(fields[-1]) <= 40
+
+
+def test_delay_and_pub_read_the_time_of_clock_with_use_sim_time(procs, topic):
+    # A bag played with --clock: the time is /clock's (1000 s on, 50 ms a tick), far from this
+    # machine's (1.8e9 s) and from the 0 a sim-time node has before its first /clock.
+    back, step = 250_000_000, 50_000_000
+    published = []
+    domain = unique_domain()        # /clock is shared: a domain of this test's own
+    env = {'ROS_DOMAIN_ID': str(domain)}
+    with Graph(domain_id=domain) as g:
+        clock_pub = g.node.create_publisher(Clock, '/clock', QoSProfile(depth=10))
+        state_pub = g.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+
+        def tick():
+            now = 1000 * 10**9 + len(published) * step
+            published.append(now)
+            clock_pub.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
+            msg = BallState()
+            msg.header.stamp = Time(sec=(now - back) // 10**9, nanosec=(now - back) % 10**9)
+            state_pub.publish(msg)
+
+        stamps = []
+        g.node.create_subscription(BallState, topic + '/stamped', stamps.append,
+                                   QoSProfile(depth=10))
+        g.node.create_timer(0.05, tick)
+        delay = procs('topic', 'delay', topic, '--use-sim-time', env=env)
+        pub = procs('topic', 'pub', topic + '/stamped', 'tt_msgs/msg/BallState',
+                    '{header: {stamp: now}}', '--once', '--use-sim-time', env=env)
+        g.spin_until(lambda: delay.stdout.count('average delay') >= 2 and stamps, 60,
+                     'two delay reports and a stamped message')
+        delay.signal(signal.SIGINT)
+        assert delay.wait() == 0 and pub.wait() == 0, delay.stderr + pub.stderr
+    # The time a sim-time node reads is the last /clock it received: one of those sent.
+    stamp = stamps[0].header.stamp
+    assert stamp.sec * 10**9 + stamp.nanosec in published
+    # Each state is 0.25 s older than the /clock sent with it; the one the command had last
+    # read may be a tick older (-0.05 s) or, with the state late, a few ticks newer.
+    head, fields = (line.split() for line in delay.stdout.strip().splitlines()[-2:])
+    shortest, longest = float(fields[1][:-1]), float(fields[3][:-1])
+    assert (back - step) * 1e-9 - 0.0005 <= shortest <= float(head[2]) <= longest < 1.0
 
 
 def test_delay_of_a_message_without_a_header_is_one_line_and_exit_1(graph, topic):

@@ -379,7 +379,7 @@ def test_topic_and_service_find_list_the_names_of_a_type(graph, topic):
     found, short, hidden, count, states, srv, srv_hidden, srv_count, bad, lst = run_all(
         graph,
         ('topic', 'find', 'std_msgs/msg/Char'),
-        ('topic', 'find', 'std_msgs/Char'),
+        ('topic', 'find', 'std_msgs/Char', '--no-daemon'),     # as ros2cli's scripts give it
         ('topic', 'find', 'std_msgs/msg/Char', '--include-hidden-topics'),
         ('topic', 'find', 'std_msgs/msg/Char', '-c', '--include-hidden-topics'),
         ('topic', 'find', 'tt_msgs/msg/BallState'),

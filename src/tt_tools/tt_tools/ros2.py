@@ -69,20 +69,34 @@ def build_parser(only_run=False):
     interface.add_arguments(
         interface_sub, p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
+    for verb in GRAPH_VERBS:
+        for sub in _subparsers(verbs.choices[verb]):
+            sub.add_argument('--no-daemon', action='store_true',
+                             help="accepted as ros2cli's scripts give it: tt's ros2 has no "
+                                  'daemon (every command discovers the graph itself)')
+
     p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
     bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
     _remember_parsers(parser)
     return parser
 
 
+GRAPH_VERBS = ('topic', 'node', 'param', 'service')
+"""The verbs whose commands look at the graph (ros2cli's take ``--no-daemon``)."""
+
+
+def _subparsers(parser):
+    """The parsers of ``parser``'s subcommands."""
+    return [sub for action in parser._actions if isinstance(action, argparse._SubParsersAction)
+            for sub in action.choices.values()]
+
+
 def _remember_parsers(parser):
     """Each (sub)command's parser as its ``_parser`` default, so that an argument too many
     is reported with that command's usage (``ros2 param get``'s), not the top level's."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                sub.set_defaults(_parser=sub)
-                _remember_parsers(sub)
+    for sub in _subparsers(parser):
+        sub.set_defaults(_parser=sub)
+        _remember_parsers(sub)
 
 
 def _run(args):

@@ -7,6 +7,7 @@ import time
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -54,21 +55,26 @@ DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
 
 class CliNode:
     """A hidden node in its own context; SIGINT/SIGTERM set ``stopped`` instead of raising.
+    ``use_sim_time``: its clock is the ROS time of /clock instead of this machine's.
 
     Use as a context manager; ``spin_until(condition)`` spins in 0.1 s steps, so a signal is
     noticed between callbacks (never inside one: a bag being written stays consistent).
     """
 
-    def __init__(self, name):
+    def __init__(self, name, use_sim_time=False):
         # The handlers first: a signal from here on (the node is in the graph as soon as it
         # exists) stops the verb; one that came while it was importing (stop.requested) too.
         self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         self.stopped = stop.requested
         self._participants = 0
+        self.use_sim_time = use_sim_time
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(f'_ros2cli_{name}_{os.getpid()}', context=self.context,
-                                      start_parameter_services=False)
+        # use_sim_time: the node's clock reads /clock (a bag played with --clock).
+        self.node = rclpy.create_node(
+            f'_ros2cli_{name}_{os.getpid()}', context=self.context,
+            start_parameter_services=False,
+            parameter_overrides=[Parameter('use_sim_time', value=True)] if use_sim_time else [])
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -177,6 +183,15 @@ class CliNode:
         say(message())
         return self.spin_until(condition)
 
+    def wait_for_clock(self):
+        """With ``use_sim_time``, spin until the first /clock message has given the node a
+        time (True) or a signal (False), saying so once discovery settled without one (the
+        time is 0 until then: a stamp of 0, a delay of minus the stamp); else True."""
+        clock = self.node.get_clock()
+        return not self.use_sim_time or self.wait_saying(
+            lambda: clock.now().nanoseconds > 0,
+            lambda: 'waiting for /clock (--use-sim-time: no time until its first message)')
+
     def drain(self, progress, idle_rounds=3):
         """Run callbacks already waiting (messages received before a stop) without blocking.
 
@@ -208,6 +223,13 @@ def add_spin_time_argument(parser):
         help='seconds to wait for discovery (default: until discovery has settled: the graph '
              f'unchanged for {SETTLE_QUIET_S:g} s, at least {SETTLE_MIN_S:g} s, at most '
              f'{SETTLE_MAX_S:g} s)')
+
+
+def add_use_sim_time_argument(parser):
+    """``--use-sim-time`` of the verbs that read the clock (``topic delay``, ``topic pub``)."""
+    parser.add_argument('--use-sim-time', action='store_true',
+                        help='read the time from /clock (e.g. a bag played with --clock) '
+                             "instead of this machine's clock")
 
 
 def absolute_name(name):

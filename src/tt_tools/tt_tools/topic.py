@@ -40,6 +40,7 @@ from tt_tools.rosutil import (
     CliNode,
     absolute_name,
     add_spin_time_argument,
+    add_use_sim_time_argument,
     graph_names,
     hidden_name,
     node_full_name,
@@ -240,9 +241,9 @@ def _report_each_second(args, name, watch, raw=True):
     (``on_message``, called with the serialized bytes with ``raw``, else the message;
     ``report()``, the text or None when there is nothing to say yet)."""
     topic = absolute_name(args.topic)
-    with CliNode(name) as cli:
+    with CliNode(name, getattr(args, 'use_sim_time', False)) as cli:
         found = _wait_for_publishers(cli, topic, args.type)
-        if found is None:
+        if found is None or not cli.wait_for_clock():
             return 0
         cls, pubs = found
         on_message, report = watch(cli, cls)
@@ -345,7 +346,7 @@ def topic_pub(args):
     if wait_subs is None:
         wait_subs = 1 if times else 0
     dict_to_message(values, cls, now=lambda: None)  # bad values fail before any DDS set-up
-    with CliNode('pub') as cli:
+    with CliNode('pub', args.use_sim_time) as cli:
         def build():
             return dict_to_message(values, cls, now=lambda: cli.node.get_clock().now().to_msg())
 
@@ -356,6 +357,8 @@ def topic_pub(args):
         if wait_subs and not _wait_for_subscriptions(cli, pub, topic, args.type, wait_subs,
                                                      args.max_wait_time_secs):
             return 1 if not cli.stopped else 0
+        if not cli.wait_for_clock():
+            return 0
         write('publisher: beginning loop\n')
         state = {'count': 0}
 
@@ -441,6 +444,8 @@ def add_arguments(topic_sub, node_sub):
         p.add_argument('type', nargs='?', help='message type (default: from graph)')
         p.add_argument('--window', '-w', type=positive_int, default=window,
                        help=f'number of messages in the rolling window (default {window})')
+        if verb == 'delay':
+            add_use_sim_time_argument(p)
         p.set_defaults(func=func)
 
     p = topic_sub.add_parser('pub', help='publish a message given as YAML')
@@ -463,6 +468,7 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('--keep-alive', type=float, default=1.0,
                    help='with --once/--times, wait up to this long (s) for delivery')
     qos_args(p, 'reliable', 'volatile')
+    add_use_sim_time_argument(p)
     p.set_defaults(func=topic_pub)
 
     p = node_sub.add_parser('list', help='list the nodes in the graph')
