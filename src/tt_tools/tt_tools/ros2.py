@@ -57,13 +57,14 @@ def build_parser(only_run=False):
     node_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
     topic.add_arguments(topic_sub, node_sub)
 
-    p = verbs.add_parser('param', help="list, get, set, describe and dump a node's parameters")
+    p = verbs.add_parser('param',
+                         help="list, get, set, describe, dump and load a node's parameters")
     param.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
-    p = verbs.add_parser('service', help='list, inspect and call services')
+    p = verbs.add_parser('service', help='list, find, inspect and call services')
     service.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
-    p = verbs.add_parser('interface', help='show message, service and action definitions')
+    p = verbs.add_parser('interface', help='list and show msg, srv and action definitions')
     interface_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
     p = verbs.add_parser('pkg', help='packages and their executables')
     interface.add_arguments(
