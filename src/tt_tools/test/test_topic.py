@@ -8,7 +8,7 @@ import time
 from builtin_interfaces.msg import Time
 from conftest import Graph, Ros2Process, error_lines, ros2
 import pytest
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from tt_ros.testing import unique_domain
@@ -149,6 +149,33 @@ def test_delay_reports_how_old_each_stamp_is_on_arrival(graph, procs, topic):
     assert back - 0.0005 <= shortest <= mean + 0.0005 <= longest + 0.001
     assert longest < back + 5.0
     assert 1 <= int(fields[-1]) <= 40
+
+
+def test_qos_profile_presets_and_their_overrides(graph, procs, topic):
+    # ros2cli's --qos-profile: rclpy's preset (sensor_data: best effort) in place of the QoS
+    # matching the publishers (reliable here), a --qos-* option in place of its part.
+    graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))   # reliable
+    echos = [procs('topic', 'echo', topic, '--qos-profile', 'sensor_data'),
+             procs('topic', 'echo', topic, '--qos-profile', 'sensor_data',
+                   '--qos-reliability', 'reliable')]
+    pubs = [procs('topic', 'pub', topic + '/out', 'tt_msgs/msg/BallState', '-r', '1',
+                  *extra) for extra in ((), ('--qos-profile', 'sensor_data'))]
+
+    def endpoints(infos):
+        return sorted(ReliabilityPolicy(i.qos_profile.reliability).name for i in infos
+                      if i.node_name.startswith('_ros2cli_'))
+
+    def seen():
+        return (len(endpoints(graph.node.get_subscriptions_info_by_topic(topic))) == 2
+                and len(endpoints(graph.node.get_publishers_info_by_topic(topic + '/out'))) == 2)
+
+    graph.spin_until(seen, 60, "the commands' subscriptions and publishers")
+    both = ['BEST_EFFORT', 'RELIABLE']
+    assert endpoints(graph.node.get_subscriptions_info_by_topic(topic)) == both
+    assert endpoints(graph.node.get_publishers_info_by_topic(topic + '/out')) == both
+    for proc in echos + pubs:
+        proc.signal(signal.SIGINT)
+        assert proc.wait() == 0, proc.stderr
 
 
 def test_delay_and_pub_read_the_time_of_clock_with_use_sim_time(procs, topic):

@@ -12,6 +12,7 @@ from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
+    QoSPresetProfiles,
     QoSProfile,
     ReliabilityPolicy,
 )
@@ -298,25 +299,48 @@ def _compatible_policies(offered, empty_reliable):
             DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
 
 
-def qos_matching(publishers, reliability=None, durability=None, depth=10):
+def qos_matching(publishers, depth=10):
     """A subscription QoS that matches every publisher in ``publishers`` (endpoint infos).
 
     Reliable only if all publishers offer reliable, transient-local only if all do (what
-    ros2cli and rosbag2 choose); ``reliability`` / ``durability`` names override.
-    ``depth`` None: keep all (a slow reader then holds reliable publishers back rather than
-    losing their messages).
+    ros2cli and rosbag2 choose). ``depth`` None: keep all (a slow reader then holds reliable
+    publishers back rather than losing their messages).
     """
     rel, dur = _compatible_policies(
         [(p.qos_profile.reliability, p.qos_profile.durability) for p in publishers],
         empty_reliable=False)
-    if reliability is not None:
-        rel = RELIABILITY[reliability]
-    if durability is not None:
-        dur = DURABILITY[durability]
     if depth is None:
         return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel, durability=dur)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
                       durability=dur)
+
+
+QOS_PROFILES = [k for k in QoSPresetProfiles.short_keys() if k != 'unknown']
+"""``--qos-profile`` choices: rclpy's presets by ros2cli's names (``sensor_data``, ...)."""
+
+
+def chosen_qos(args, publishers=None, reliability='reliable', durability='volatile'):
+    """The QoS ``topic echo`` (``publishers`` given) or ``topic pub`` asks for:
+    ``args.qos_profile``'s preset, else one matching the ``publishers``
+    (:func:`qos_matching`), else ``reliability`` and ``durability``, depth 10; then
+    ``args.qos_reliability``, ``qos_durability`` and ``qos_depth`` in place of the preset's
+    where given."""
+    if args.qos_profile:
+        preset = QoSPresetProfiles.get_from_short_key(args.qos_profile)
+        qos = QoSProfile(history=preset.history, depth=preset.depth,
+                         reliability=preset.reliability, durability=preset.durability)
+    elif publishers is not None:
+        qos = qos_matching(publishers)
+    else:
+        qos = QoSProfile(depth=10, reliability=RELIABILITY[reliability],
+                         durability=DURABILITY[durability])
+    if args.qos_reliability:
+        qos.reliability = RELIABILITY[args.qos_reliability]
+    if args.qos_durability:
+        qos.durability = DURABILITY[args.qos_durability]
+    if args.qos_depth is not None:
+        qos.history, qos.depth = HistoryPolicy.KEEP_LAST, args.qos_depth
+    return qos
 
 
 def _qos_time(duration):

@@ -10,7 +10,7 @@ from rclpy.action import (
     get_action_server_names_and_types_by_node,
 )
 from rclpy.duration import Duration
-from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from tt_tools.argtypes import non_negative_int, positive_float, positive_int
@@ -36,11 +36,13 @@ from tt_tools.rate import (
 from tt_tools.rosutil import (
     DURABILITY,
     LATE_NODE_S,
+    QOS_PROFILES,
     RELIABILITY,
     CliNode,
     absolute_name,
     add_spin_time_argument,
     add_use_sim_time_argument,
+    chosen_qos,
     graph_names,
     hidden_name,
     node_full_name,
@@ -213,7 +215,7 @@ def topic_echo(args):
         cls, pubs = found
         if args.field:
             get_field(cls(), args.field)
-        qos = qos_matching(pubs, args.qos_reliability, args.qos_durability, args.qos_depth)
+        qos = chosen_qos(args, pubs)
         state = {'count': 0, 'done': False}
 
         def on_message(data):
@@ -350,9 +352,7 @@ def topic_pub(args):
         def build():
             return dict_to_message(values, cls, now=lambda: cli.node.get_clock().now().to_msg())
 
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=args.qos_depth,
-                         reliability=RELIABILITY[args.qos_reliability],
-                         durability=DURABILITY[args.qos_durability])
+        qos = chosen_qos(args)
         pub = cli.node.create_publisher(cls, topic, qos)
         if wait_subs and not _wait_for_subscriptions(cli, pub, topic, args.type, wait_subs,
                                                      args.max_wait_time_secs):
@@ -373,23 +373,23 @@ def topic_pub(args):
         if period is not None:
             cli.node.create_timer(period, tick)
         cli.spin_until(lambda: bool(times) and state['count'] >= times)
-        if times and args.qos_reliability == 'reliable':
+        if times and qos.reliability == ReliabilityPolicy.RELIABLE:
             pub.wait_for_all_acked(Duration(seconds=args.keep_alive))
     return 0
 
 
 def add_arguments(topic_sub, node_sub):
     """Register the topic and node verbs on argparse sub-parsers."""
-    def qos_args(p, reliability_default=None, durability_default=None):
+    def qos_args(p, default):
+        p.add_argument('--qos-profile', choices=QOS_PROFILES,
+                       help=f'a preset QoS profile (default: {default}); the options below '
+                            'change its parts')
         p.add_argument('--qos-reliability', choices=sorted(RELIABILITY),
-                       default=reliability_default,
-                       help='QoS reliability (default: match the publishers)'
-                       if reliability_default is None else 'QoS reliability')
+                       help="QoS reliability (default: the profile's)")
         p.add_argument('--qos-durability', choices=sorted(DURABILITY),
-                       default=durability_default,
-                       help='QoS durability (default: match the publishers)'
-                       if durability_default is None else 'QoS durability')
-        p.add_argument('--qos-depth', type=positive_int, default=10, help='QoS history depth')
+                       help="QoS durability (default: the profile's)")
+        p.add_argument('--qos-depth', type=positive_int,
+                       help="QoS history depth (default: the profile's, else 10)")
 
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
@@ -431,7 +431,7 @@ def add_arguments(topic_sub, node_sub):
                         'ones in place, arrays whole), e.g. for plotting')
     p.add_argument('--no-arr', action='store_true', help='with --csv, leave arrays out')
     p.add_argument('--no-str', action='store_true', help='with --csv, leave strings out')
-    qos_args(p)
+    qos_args(p, "one matching the topic's publishers")
     p.set_defaults(func=topic_echo)
 
     for verb, func, window, text in (
@@ -467,7 +467,7 @@ def add_arguments(topic_sub, node_sub):
                         'subscriptions appear, saying so on stderr)')
     p.add_argument('--keep-alive', type=float, default=1.0,
                    help='with --once/--times, wait up to this long (s) for delivery')
-    qos_args(p, 'reliable', 'volatile')
+    qos_args(p, 'reliable, volatile')
     add_use_sim_time_argument(p)
     p.set_defaults(func=topic_pub)
 
