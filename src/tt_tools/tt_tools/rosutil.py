@@ -319,12 +319,11 @@ QOS_PROFILES = [k for k in QoSPresetProfiles.short_keys() if k != 'unknown']
 """``--qos-profile`` choices: rclpy's presets by ros2cli's names (``sensor_data``, ...)."""
 
 
-def chosen_qos(args, publishers=None, reliability='reliable', durability='volatile'):
+def chosen_qos(args, publishers=None):
     """The QoS ``topic echo`` (``publishers`` given) or ``topic pub`` asks for:
     ``args.qos_profile``'s preset, else one matching the ``publishers``
-    (:func:`qos_matching`), else ``reliability`` and ``durability``, depth 10; then
-    ``args.qos_reliability``, ``qos_durability`` and ``qos_depth`` in place of the preset's
-    where given."""
+    (:func:`qos_matching`), else reliable, volatile, depth 10; then ``args.qos_reliability``,
+    ``qos_durability`` and ``qos_depth`` in place of the preset's where given."""
     if args.qos_profile:
         preset = QoSPresetProfiles.get_from_short_key(args.qos_profile)
         qos = QoSProfile(history=preset.history, depth=preset.depth,
@@ -332,8 +331,8 @@ def chosen_qos(args, publishers=None, reliability='reliable', durability='volati
     elif publishers is not None:
         qos = qos_matching(publishers)
     else:
-        qos = QoSProfile(depth=10, reliability=RELIABILITY[reliability],
-                         durability=DURABILITY[durability])
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
     if args.qos_reliability:
         qos.reliability = RELIABILITY[args.qos_reliability]
     if args.qos_durability:

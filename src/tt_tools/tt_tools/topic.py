@@ -236,14 +236,15 @@ def topic_echo(args):
     return 0
 
 
-def _report_each_second(args, name, watch, raw=True):
+def _report_each_second(args, name, watch, raw=True, use_sim_time=False):
     """The run of ``hz``, ``delay`` and ``bw``: wait for a publisher of ``args.topic`` (of
     ``args.type``), subscribe to it and write a report at the end of every second that
     brought a message, until a signal or a closed stdout. ``watch(cli, cls)`` gives
     (``on_message``, called with the serialized bytes with ``raw``, else the message;
-    ``report()``, the text or None when there is nothing to say yet)."""
+    ``report()``, the text or None when there is nothing to say yet). ``use_sim_time``: the
+    clock ``watch`` reads is /clock's (:class:`tt_tools.rosutil.CliNode`)."""
     topic = absolute_name(args.topic)
-    with CliNode(name, getattr(args, 'use_sim_time', False)) as cli:
+    with CliNode(name, use_sim_time) as cli:
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None or not cli.wait_for_clock():
             return 0
@@ -295,7 +296,7 @@ def topic_delay(args):
 
         return on_message, lambda: format_delay(delay_stats(list(delays)))
 
-    return _report_each_second(args, 'delay', watch, raw=False)
+    return _report_each_second(args, 'delay', watch, raw=False, use_sim_time=args.use_sim_time)
 
 
 def topic_bw(args):
