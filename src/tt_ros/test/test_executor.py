@@ -129,6 +129,19 @@ def test_a_bad_params_file_is_one_line_and_exit_2(tmp_path, content):
     assert lines[0].startswith(f'executor_test: cannot read --params-file {path}: '), lines
 
 
+@pytest.mark.parametrize('domain_id', ['abc', '233'])
+def test_a_domain_id_rcl_cannot_use_is_one_line_and_exit_2(domain_id):
+    """rcl's RCLError traceback ('abc') and Fast DDS ending the process at the first node
+    (233: no ports) are a line naming the variable before rclpy starts."""
+    env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+           'ROS_DOMAIN_ID': domain_id}
+    proc = subprocess.run([sys.executable, '-c', ARGV_CHILD.format(pid=os.getpid())],
+                          env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.splitlines() == [proc.stderr.strip()], proc.stderr
+    assert proc.stderr.startswith('executor_test: ROS_DOMAIN_ID '), proc.stderr
+
+
 def _handled_with_a_second_signal_inside(signals, at):
     """Run ``signals``' SIGTERM handler in a thread, with a second SIGTERM handled at its
     ``at``-th traced line (its own or those of what it calls). Returns the thread, joined

@@ -36,6 +36,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 import yaml
 
+from tt_ros.rosenv import domain_id_error
+
 EXECUTOR_ENV = 'TT_EXECUTOR'
 EXECUTORS = ('events', 'single')
 SPIN_TIMEOUT_S = 0.1
@@ -277,9 +279,10 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
     cleanly: ``on_exit(node)`` (may log), the node destroyed, the context shut down, exit
     status 0 and no traceback.
 
-    A :class:`StartupError` from ``make_node`` or from :func:`check_ros_args` on ``args``
-    (None: ``sys.argv``) ends the process with status 2 and the line ``<name>: <reason>`` on
-    stderr (``name``: the executable's name by default). A signal that comes while the node
+    A :class:`StartupError` from ``make_node``, from :func:`check_ros_args` on ``args``
+    (None: ``sys.argv``) or for a ``ROS_DOMAIN_ID`` rcl cannot use (:mod:`tt_ros.rosenv`)
+    ends the process with status 2 and the line ``<name>: <reason>`` on stderr (``name``:
+    the executable's name by default). A signal that comes while the node
     starts (compiling its kernels, say) stops it once started.
 
     ``-h`` or ``--help``, before or after ``--ros-args``, prints :func:`node_help` of
@@ -298,6 +301,9 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
         raise SystemExit(0)
     try:
         rest = check_ros_args(argv)
+        error = domain_id_error()
+        if error:
+            raise StartupError(error)
     except StartupError as exc:
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         raise SystemExit(STARTUP_EXIT) from None

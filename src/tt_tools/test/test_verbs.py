@@ -475,6 +475,16 @@ def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
     assert ('ros2 run tt_tools bringup' in said[0]) == (verb == 'launch')
 
 
+def test_a_domain_id_rcl_cannot_use_is_one_line_naming_it():
+    """rcl's traceback for a ROS_DOMAIN_ID that is no number; Fast DDS ending the command
+    with its own log lines for one without ports (233)."""
+    for value, why in (('abc', "ROS_DOMAIN_ID 'abc' is not a domain id"),
+                       ('233', 'ROS_DOMAIN_ID 233 is out of range')):
+        rc, out, err = ros2('topic', 'list', env={'ROS_DOMAIN_ID': value})
+        assert rc == 1 and out == '', err
+        assert err.splitlines() == [err.strip()] and err.startswith(f'ros2 topic: {why}'), err
+
+
 def test_echo_and_hz_say_what_they_wait_for(graph, procs, topic):
     """Issue 17: `echo` on a misspelled topic waited forever without a word."""
     pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))

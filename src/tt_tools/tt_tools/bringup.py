@@ -27,7 +27,8 @@ prefixed with its name.
 
 The shipped files (``share/tt_tools/config``): ``robot.yaml`` (live cameras) and
 ``replay.yaml`` (video files or bags: video time on /clock, the other nodes on it).
-Bad input (no file, bad YAML, no tt node named) is one line and exit 2.
+Bad input (no file, bad YAML, no tt node named, a ROS_DOMAIN_ID rcl cannot use) is one line
+and exit 2.
 """
 
 import argparse
@@ -41,6 +42,7 @@ import threading
 import time
 
 from tt_ros.executor import NOT_PARAMS
+from tt_ros.rosenv import domain_id_error
 from tt_ros.shm import remove_dead_segments
 import yaml
 
@@ -441,6 +443,9 @@ def parse_args(argv):
 def main(argv=None):
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
+        error = domain_id_error()
+        if error:  # each node would refuse it; --show's node would not start
+            raise BringupError(error)
         sections = read_params(args.params_file)
         nodes = nodes_in(sections, args.params_file)
         if args.nodes is not None:                    # '' names no node: refused too

@@ -26,6 +26,7 @@ import sys
 import time
 
 from tt_prediction.cli import hit_plane_error
+from tt_ros.rosenv import domain_id_error
 
 from .procs import ProcessGroup, ros_env, wait_until
 
@@ -176,6 +177,10 @@ def show_bag_info(session):
 
 def main(argv=None):
     args = parse_args(argv)
+    error = domain_id_error()
+    if error:
+        print(f'demo: {error}', file=sys.stderr)
+        return 2
     os.environ.update(ros_env(large_messages=True))
     out = pathlib.Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

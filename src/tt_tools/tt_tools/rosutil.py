@@ -26,6 +26,7 @@ from rosbags.interfaces import (
     QosTime,
 )
 from tt_ros.names import name_error
+from tt_ros.rosenv import domain_id_error
 
 from tt_tools import stop
 from tt_tools.argtypes import positive_float
@@ -63,6 +64,9 @@ class CliNode:
     """
 
     def __init__(self, name, use_sim_time=False):
+        error = domain_id_error()
+        if error:  # rcl's traceback, or Fast DDS ending the process, otherwise
+            raise ValueError(error)
         # The handlers first: a signal from here on (the node is in the graph as soon as it
         # exists) stops the verb; one that came while it was importing (stop.requested) too.
         self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
