@@ -1,5 +1,5 @@
-"""tt's ``ros2`` command: run, topic, node, param, interface, pkg and bag verbs where ros2cli
-is not installed.
+"""tt's ``ros2`` command: run, topic, node, param, service, interface, pkg, bag and doctor
+verbs where ros2cli is not installed.
 
 Where a real ros2cli is importable, ``main`` hands the whole command line to it (set
 ``TT_ROS2_NO_HANDOVER=1`` to keep tt's own). Errors are one line on stderr and exit 1
@@ -34,7 +34,7 @@ def build_parser(only_run=False):
     the executable without that second of imports)."""
     parser = argparse.ArgumentParser(
         prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, "
-                                 'param, service, interface, pkg, bag)')
+                                 'param, service, interface, pkg, bag, doctor)')
     verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
 
     p = verbs.add_parser('run', help='run an executable of a package')
@@ -49,7 +49,7 @@ def build_parser(only_run=False):
     p.set_defaults(func=_run)
     if only_run:
         return parser
-    from tt_tools import bag, interface, param, service, topic
+    from tt_tools import bag, doctor, interface, param, service, topic
 
     p = verbs.add_parser('topic', help='inspect and publish topics')
     topic_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
@@ -78,6 +78,11 @@ def build_parser(only_run=False):
 
     p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
     bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
+
+    for name in ('doctor', 'wtf'):    # ros2cli's alias too
+        doctor.add_arguments(verbs.add_parser(
+            name, help='check the ROS environment and the graph for what keeps messages '
+                       'from flowing' if name == 'doctor' else 'the same as doctor'))
     _remember_parsers(parser)
     return parser
 
@@ -148,8 +153,8 @@ def _one_line(exc):
     return re.sub(r', at [^ ]+:[0-9]+$', '', text)
 
 
-ROS2CLI_ONLY = ('action', 'launch', 'lifecycle', 'component', 'daemon', 'doctor',
-                'wtf', 'multicast', 'security', 'extensions', 'extension_points')
+ROS2CLI_ONLY = ('action', 'launch', 'lifecycle', 'component', 'daemon', 'multicast',
+                'security', 'extensions', 'extension_points')
 """ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
 LAUNCH_HINT = ('; the graph starts with `ros2 run tt_tools bringup --params-file '
                'install/tt_tools/share/tt_tools/config/robot.yaml` (docs/demo.md)')
@@ -164,8 +169,8 @@ def _main(argv):
         hint = LAUNCH_HINT if argv[0] == 'launch' else ''
         print(f"ros2: '{argv[0]}' is a verb of ros2cli that tt's ros2 command does not have "
               '(ros2cli has no PyPI wheels; these are run, topic, node, param, service, '
-              'interface, pkg and bag: docs/tools.md); where ros2cli is installed, tt hands '
-              f'over to it{hint}',
+              'interface, pkg, bag and doctor: docs/tools.md); where ros2cli is installed, '
+              f'tt hands over to it{hint}',
               file=sys.stderr)
         return 2
     only_run = argv[:1] == ['run']
