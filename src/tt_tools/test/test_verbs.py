@@ -475,6 +475,15 @@ def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
     assert ('ros2 run tt_tools bringup' in said[0]) == (verb == 'launch')
 
 
+def test_daemon_verbs_say_there_is_none_and_let_a_script_go_on():
+    """Scripts written for ros2cli stop its daemon before a test; tt's ros2 has none."""
+    for subverb, said in (('stop', 'The daemon is not running\n'),
+                          ('status', 'The daemon is not running\n'),
+                          ('start', "tt's ros2 has no daemon to start: each command discovers "
+                                    'the graph itself\n')):
+        assert ros2('daemon', subverb)[:2] == (0, said)
+
+
 def test_a_domain_id_rcl_cannot_use_is_one_line_naming_it():
     """rcl's traceback for a ROS_DOMAIN_ID that is no number; Fast DDS ending the command
     with its own log lines for one without ports (233)."""

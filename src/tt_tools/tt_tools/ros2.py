@@ -16,6 +16,7 @@ import sys
 from tt_ros.entry import finish_output
 
 from tt_tools import stop
+from tt_tools.output import write
 
 HANDOVER_ENV = 'TT_ROS2_NO_HANDOVER'
 
@@ -34,7 +35,7 @@ def build_parser(only_run=False):
     the executable without that second of imports)."""
     parser = argparse.ArgumentParser(
         prog='ros2', description="tt's ros2 command (a subset of ros2cli: run, topic, node, "
-                                 'param, service, interface, pkg, bag, doctor)')
+                                 'param, service, interface, pkg, bag, doctor, daemon)')
     verbs = parser.add_subparsers(dest='verb', metavar='verb', required=True)
 
     p = verbs.add_parser('run', help='run an executable of a package')
@@ -79,6 +80,13 @@ def build_parser(only_run=False):
     p = verbs.add_parser('bag', help='record, play and inspect rosbag2 bags')
     bag.add_arguments(p.add_subparsers(dest='subverb', metavar='subverb', required=True))
 
+    p = verbs.add_parser('daemon', help="start, stop or ask for the ros2 daemon (tt's ros2 "
+                                        'has none: each command discovers the graph)')
+    daemon_sub = p.add_subparsers(dest='subverb', metavar='subverb', required=True)
+    for name in ('start', 'stop', 'status'):
+        daemon_sub.add_parser(name, help=f'{name}: says there is no daemon, exit 0'
+                              ).set_defaults(func=_daemon)
+
     for name in ('doctor', 'wtf'):    # ros2cli's alias too
         doctor.add_arguments(verbs.add_parser(
             name, help='check the ROS environment and the graph for what keeps messages '
@@ -103,6 +111,17 @@ def _remember_parsers(parser):
     for sub in _subparsers(parser):
         sub.set_defaults(_parser=sub)
         _remember_parsers(sub)
+
+
+def _daemon(args):
+    """``ros2 daemon start | stop | status``, as scripts written for ros2cli run them (before a
+    test, say): there is no daemon to start or stop, and each command discovers the graph
+    itself, so the script goes on (exit 0)."""
+    if args.subverb == 'start':
+        write("tt's ros2 has no daemon to start: each command discovers the graph itself\n")
+    else:
+        write('The daemon is not running\n')     # ros2cli's words when none runs
+    return 0
 
 
 def _run(args):
@@ -153,7 +172,7 @@ def _one_line(exc):
     return re.sub(r', at [^ ]+:[0-9]+$', '', text)
 
 
-ROS2CLI_ONLY = ('action', 'launch', 'lifecycle', 'component', 'daemon', 'multicast',
+ROS2CLI_ONLY = ('action', 'launch', 'lifecycle', 'component', 'multicast',
                 'security', 'extensions', 'extension_points')
 """ros2cli's verbs that tt's ros2 command does not have (docs/tools.md, Limits)."""
 LAUNCH_HINT = ('; the graph starts with `ros2 run tt_tools bringup --params-file '
