@@ -65,31 +65,41 @@ def network_findings(environ):
     return found
 
 
-def _qos_reasons(text):
-    """rclpy's ``'ERROR: a;WARNING: b;'`` as ['a', 'b']."""
-    return [re.sub(r'^(ERROR|WARNING): ', '', part).strip()
-            for part in text.split(';') if part.strip()]
+def _checked(topics):
+    """``topics`` without the infrastructure and hidden ones, sorted by name."""
+    return {name: endpoints for name, endpoints in sorted(topics.items())
+            if name not in INFRASTRUCTURE_TOPICS and not hidden_name(name)}
+
+
+def _pairs(endpoints):
+    """(publisher, subscription) pairs of one type among a topic's ``endpoints``."""
+    return [(pub, sub) for pub in endpoints if pub.kind == 'publisher'
+            for sub in endpoints if sub.kind != 'publisher' and sub.type == pub.type]
+
+
+def _compatibility(pub, sub):
+    """('OK' | 'WARNING' | 'ERROR', [reason, ...]) of a publisher and subscription's QoS, by
+    rclpy's ``qos_check_compatible`` (its 'ERROR: a;WARNING: b;' split into reasons)."""
+    from rclpy.qos import qos_check_compatible
+
+    level, text = qos_check_compatible(pub.qos, sub.qos)
+    return level.name, [re.sub(r'^(ERROR|WARNING): ', '', part).strip()
+                        for part in text.split(';') if part.strip()]
 
 
 def graph_findings(topics):
     """Findings of the ``topic``, ``type`` and ``qos`` checks on ``topics``, {name: [Endpoint,
     ...]}; infrastructure topics and hidden ones are not looked at."""
-    from rclpy.qos import QoSCompatibility, qos_check_compatible
-
     found = []
-    for name, endpoints in sorted(topics.items()):
-        if name in INFRASTRUCTURE_TOPICS or hidden_name(name):
-            continue
-        pubs = [e for e in endpoints if e.kind == 'publisher']
-        subs = [e for e in endpoints if e.kind != 'publisher']
+    for name, endpoints in _checked(topics).items():
+        pubs = sorted({e.node for e in endpoints if e.kind == 'publisher'})
+        subs = sorted({e.node for e in endpoints if e.kind != 'publisher'})
         if pubs and not subs:
             found.append(Finding('topic', 'warning', (
-                f'publisher without subscription on {name} '
-                f'({", ".join(sorted({e.node for e in pubs}))})')))
+                f'publisher without subscription on {name} ({", ".join(pubs)})')))
         elif subs and not pubs:
             found.append(Finding('topic', 'warning', (
-                f'subscription without publisher on {name} '
-                f'({", ".join(sorted({e.node for e in subs}))})')))
+                f'subscription without publisher on {name} ({", ".join(subs)})')))
         types = sorted({e.type for e in endpoints})
         if len(types) > 1:
             by_type = '; '.join(
@@ -98,17 +108,12 @@ def graph_findings(topics):
             found.append(Finding('type', 'error', (
                 f'{name} has endpoints of {len(types)} types, between which no message '
                 f'passes ({by_type})')))
-        for pub in pubs:
-            for sub in subs:
-                if pub.type != sub.type:
-                    continue
-                level, reason = qos_check_compatible(pub.qos, sub.qos)
-                if level == QoSCompatibility.OK:
-                    continue
-                found.append(Finding('qos', 'error' if level == QoSCompatibility.ERROR
-                                     else 'warning', (
+        for pub, sub in _pairs(endpoints):
+            level, reasons = _compatibility(pub, sub)
+            if level != 'OK':
+                found.append(Finding('qos', level.lower(), (
                     f'{name}: publisher of {pub.node} and subscription of {sub.node}: '
-                    f'{"; ".join(_qos_reasons(reason))}')))
+                    f'{"; ".join(reasons)}')))
     return found
 
 
@@ -159,8 +164,7 @@ def report(environ, topics, rmw):
                 'ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                 'ROS_LOCALHOST_ONLY', 'FASTRTPS_DEFAULT_PROFILES_FILE'))]),
     }
-    checked = {name: endpoints for name, endpoints in sorted(topics.items())
-               if name not in INFRASTRUCTURE_TOPICS and not hidden_name(name)}
+    checked = _checked(topics)
     sections['topic'] = _section('TOPIC LIST', [
         row for name, endpoints in checked.items() for row in (
             ('topic', name),
@@ -169,24 +173,15 @@ def report(environ, topics, rmw):
     sections['type'] = _section('TOPIC TYPES', [
         (name, ', '.join(sorted({e.type for e in endpoints})))
         for name, endpoints in checked.items()])
-    pairs = []
+    rows = []
     for name, endpoints in checked.items():
-        for pub in (e for e in endpoints if e.kind == 'publisher'):
-            for sub in (e for e in endpoints if e.kind != 'publisher' and e.type == pub.type):
-                pairs.append((name, pub, sub))
-    sections['qos'] = _section('QOS COMPATIBILITY LIST', [
-        row for name, pub, sub in pairs for row in (
-            ('topic [type]', f'{name} [{pub.type}]'), ('publisher node', pub.node),
-            ('subscriber node', sub.node), ('compatibility status', _status(pub, sub)))])
+        for pub, sub in _pairs(endpoints):
+            level, reasons = _compatibility(pub, sub)
+            status = level if level == 'OK' else f'{level}: {"; ".join(reasons)}'
+            rows += [('topic [type]', f'{name} [{pub.type}]'), ('publisher node', pub.node),
+                     ('subscriber node', sub.node), ('compatibility status', status)]
+    sections['qos'] = _section('QOS COMPATIBILITY LIST', rows)
     return sections
-
-
-def _status(pub, sub):
-    from rclpy.qos import QoSCompatibility, qos_check_compatible
-
-    level, reason = qos_check_compatible(pub.qos, sub.qos)
-    return 'OK' if level == QoSCompatibility.OK else f'{level.name}: ' + '; '.join(
-        _qos_reasons(reason))
 
 
 def doctor(args):

@@ -188,8 +188,8 @@ def _main(argv):
         hint = LAUNCH_HINT if argv[0] == 'launch' else ''
         print(f"ros2: '{argv[0]}' is a verb of ros2cli that tt's ros2 command does not have "
               '(ros2cli has no PyPI wheels; these are run, topic, node, param, service, '
-              'interface, pkg, bag and doctor: docs/tools.md); where ros2cli is installed, '
-              f'tt hands over to it{hint}',
+              'interface, pkg, bag, doctor and daemon: docs/tools.md); where ros2cli is '
+              f'installed, tt hands over to it{hint}',
               file=sys.stderr)
         return 2
     only_run = argv[:1] == ['run']
