@@ -5,7 +5,7 @@ import os
 import shutil
 import signal
 
-from conftest import Graph, Ros2Process, ros2
+from conftest import Graph, Ros2Process, error_lines, ros2
 from mcap.reader import make_reader
 import pytest
 from rclpy.duration import Duration
@@ -20,6 +20,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
 from tt_ros.bagfile import BagError, BagWriter, TypeRegistry, open_bag
 from tt_ros.testing import unique_domain, unique_prefix
+from tt_tools.ros2 import build_parser
 from tt_tools.rosutil import CliNode
 
 from tt_msgs.msg import BallState
@@ -517,6 +518,70 @@ def test_record_all_topics_picks_up_a_new_publisher(graph, procs, tmp_path, topi
     assert rec.wait() == 0, rec.stderr
     got = [deserialize_message(raw, BallState) for _, raw in _bag_messages(out)[topic]]
     assert got == sent
+
+
+@pytest.mark.parametrize('argv, chosen', [
+    (['-a'], {'/ball/state', '/ball/prediction', '/cam0/image_raw', '/rosout'}),
+    (['-e', '^/ball/'], {'/ball/state', '/ball/prediction'}),
+    (['-e', 'image'], {'/cam0/image_raw'}),                      # anywhere in the name
+    (['-a', '-x', 'image|rosout'], {'/ball/state', '/ball/prediction'}),
+    (['-e', '/ball/', '--exclude-topics', '/ball/prediction'], {'/ball/state'}),
+    # A topic given by name is recorded whatever the exclusions say (rosbag2's).
+    (['/rosout', '-e', '/ball/', '-x', 'state|rosout'], {'/ball/prediction', '/rosout'}),
+])
+def test_record_chooses_topics_by_name_regex_and_exclusions(argv, chosen):
+    graph_topics = ['/ball/state', '/ball/prediction', '/cam0/image_raw', '/rosout']
+    args = build_parser().parse_args(['bag', 'record', *argv])
+    _, test = bag_verbs.topic_chooser(args)
+    assert {t for t in graph_topics if test(t)} == chosen
+
+
+def test_record_regex_records_the_matching_topics_only(graph, procs, tmp_path, topic):
+    out = tmp_path / 'regex'
+    rec = procs('bag', 'record', '-o', str(out), '-e', f'^{topic}/ball/', '-x', 'skip$',
+                f'{topic}/other')
+    pubs = {name: graph.node.create_publisher(BallState, f'{topic}/{name}',
+                                              QoSProfile(depth=10))
+            for name in ('ball/a', 'ball/skip', 'other', 'elsewhere')}
+    graph.spin_until(lambda: pubs['ball/a'].get_subscription_count() >= 1
+                     and pubs['other'].get_subscription_count() >= 1, 60,
+                     'the recorder to subscribe')
+    for i, pub in enumerate(pubs.values()):
+        pub.publish(_state(i))
+    assert pubs['ball/a'].wait_for_all_acked(Duration(seconds=10))
+    assert pubs['other'].wait_for_all_acked(Duration(seconds=10))
+    rec.signal(signal.SIGINT)
+    assert rec.wait() == 0, rec.stderr
+    assert set(_bag_messages(out)) == {f'{topic}/ball/a', f'{topic}/other'}
+    assert pubs['ball/skip'].get_subscription_count() == 0
+    assert pubs['elsewhere'].get_subscription_count() == 0
+
+
+def test_record_with_a_bad_regex_is_one_line_and_makes_no_bag(tmp_path):
+    out = tmp_path / 'bad'
+    rc, stdout, err = ros2('bag', 'record', '-o', str(out), '-e', '/ball/(')
+    assert (rc, stdout) == (1, '') and not out.exists()
+    assert err.startswith("ros2 bag: -e '/ball/(' is not a regular expression: ")
+    assert err.count('\n') == 1
+
+
+def test_play_remap_plays_a_topic_on_another_name(recorded, graph, procs):
+    out, topics, sent = recorded
+    renamed = topics['state'] + '_replayed'
+    got = []
+    graph.node.create_subscription(BallState, renamed, got.append, QoSProfile(depth=100))
+    play = procs('bag', 'play', str(out), '--topics', topics['state'], '--remap',
+                 f'{topics["state"]}:={renamed}', '--wait-for-subscribers')
+    graph.spin_until(lambda: len(got) == N_STATES, 60, 'the remapped states')
+    assert play.wait() == 0, play.stderr
+    assert got == sent['state']
+    assert graph.node.get_publishers_info_by_topic(topics['state']) == []
+    rc, stdout, err = ros2('bag', 'play', str(out), '--remap', '/not/in/bag:=/x')
+    assert (rc, stdout) == (1, '') and error_lines(err) == [
+        'ros2 bag: --remap /not/in/bag: not among the topics played']
+    rc, stdout, err = ros2('bag', 'play', str(out), '--remap', topics['state'])
+    assert rc == 1 and error_lines(err) == [
+        f"ros2 bag: --remap '{topics['state']}': not OLD_TOPIC:=NEW_TOPIC"]
 
 
 def test_play_loop_repeats_until_interrupted(recorded, graph, procs):

@@ -65,6 +65,50 @@ def test_echo_csv_prints_one_line_of_values_a_message(graph, procs, topic):
     assert echo.stdout.splitlines() == [row, row]
 
 
+def test_echo_filter_prints_and_counts_only_the_messages_it_passes(graph, procs, topic):
+    # ros2cli's --filter: a Python expression of the message m.
+    echo = procs('topic', 'echo', topic, '--filter', 'm.track_id % 3 == 0 and m.track_id > 0',
+                 '--times', '2', '--field', 'track_id')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    sent = []
+
+    def printed():
+        if echo.proc.poll() is None:
+            msg = BallState(track_id=len(sent))  # 0, 1, 2, ... until echo has printed two
+            sent.append(msg.track_id)
+            pub.publish(msg)
+            return False
+        return True
+
+    graph.spin_until(printed, 60, 'echo --filter to print two messages')
+    assert echo.wait() == 0, echo.stderr
+    # Two ids, multiples of 3 above 0: the messages between them were not printed, nor
+    # counted by --times (it would have ended after two messages whatever their ids).
+    got = [int(v) for v in echo.stdout.split('---\n') if v.strip()]
+    assert len(got) == 2 and 0 < got[0] < got[1] and got[0] % 3 == got[1] % 3 == 0, got
+    assert set(got) <= set(sent)
+
+
+def test_echo_filter_that_is_no_expression_or_fails_is_one_line(graph, procs, topic):
+    rc, out, err = ros2('topic', 'echo', topic, '--filter', 'm.track_id >')
+    assert (rc, out) == (1, '') and len(error_lines(err)) == 1
+    assert err.startswith("ros2 topic: --filter 'm.track_id >' is not a Python expression: ")
+    echo = procs('topic', 'echo', topic, '--filter', 'm.spin_rate > 1')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+
+    def ended():
+        if echo.proc.poll() is None:
+            pub.publish(BallState())
+            return False
+        return True
+
+    graph.spin_until(ended, 60, 'echo --filter to fail on a message')
+    assert echo.wait() == 1 and echo.stdout == ''
+    assert error_lines(echo.stderr) == [
+        "ros2 topic: --filter 'm.spin_rate > 1' failed on a BallState: AttributeError: "
+        "'BallState' object has no attribute 'spin_rate'"]
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_while_the_verb_starts_ends_it_once_its_node_exists(monkeypatch, topic, sig):
     # A Ctrl-C that comes while ``ros2`` still imports is noted, not raised: echo then ends at

@@ -1,6 +1,7 @@
 """``ros2 bag record | play | info`` on rclpy and rosbags (rosbag2's on-disk format)."""
 
 import os
+import re
 import sys
 import time
 
@@ -33,14 +34,48 @@ def bag_info(args):
     return 0
 
 
-def bag_record(args):
-    if not args.all and not args.topics:
-        raise BagError('give the topics to record, or -a for all')
-    for topic in args.topics:      # before the bag is made: no empty bag left behind
-        error = name_error(topic)
+def _topic_names(names, option=''):
+    """Absolute names of the topic ``names`` from the command line; BagError (one line, naming
+    ``option``) for one no topic can have."""
+    for name in names:
+        error = name_error(name)
         if error:
-            raise BagError(f"topic name '{absolute_name(topic)}' is invalid: {error}")
-    wanted = {absolute_name(t) for t in args.topics}
+            raise BagError(f"{option}topic name '{absolute_name(name)}' is invalid: {error}")
+    return {absolute_name(n) for n in names}
+
+
+def _regex(text, option):
+    """``text`` compiled; BagError (one line, naming ``option``) when it is no regex."""
+    try:
+        return re.compile(text)
+    except re.error as exc:
+        raise BagError(f"{option} '{text}' is not a regular expression: {exc}") from None
+
+
+def topic_chooser(args):
+    """(the topics ``bag record`` was given by name, a test of a topic's name): a topic is
+    recorded when given by name, or under ``-a`` or matching ``-e`` (anywhere in the name) and
+    then neither matching ``--exclude-regex`` nor in ``--exclude-topics`` (which apply to
+    ``-a`` and ``-e`` only, as rosbag2's). BagError (one line) for a bad name or regex."""
+    named = _topic_names(args.topics)
+    excluded = _topic_names(args.exclude_topics or [], '--exclude-topics: ')
+    include = None if args.regex is None else _regex(args.regex, '-e')
+    exclude = None if args.exclude_regex is None else _regex(args.exclude_regex,
+                                                             '--exclude-regex')
+
+    def chosen(name):
+        if name in named:
+            return True
+        return ((args.all or (include is not None and include.search(name) is not None))
+                and name not in excluded and not (exclude is not None and exclude.search(name)))
+
+    return named, chosen
+
+
+def bag_record(args):
+    if not args.all and not args.topics and args.regex is None:
+        raise BagError('give the topics to record, -e REGEX, or -a for all')
+    named, chosen = topic_chooser(args)   # before the bag is made: no empty bag left behind
     out = args.output or default_bag_name()
     if os.path.exists(out):
         raise BagError(f"output '{out}' already exists")
@@ -77,10 +112,10 @@ def bag_record(args):
 
         def discover():
             # Called between spins: subscribe to wanted topics as their publishers appear.
-            topics = ([name for name, _ in cli.node.get_topic_names_and_types()]
-                      if args.all else wanted)
+            topics = (named if not args.all and args.regex is None
+                      else [name for name, _ in cli.node.get_topic_names_and_types()])
             for topic in topics:
-                if topic not in subscribed and topic not in skipped:
+                if topic not in subscribed and topic not in skipped and chosen(topic):
                     subscribe(topic)
             return False
 
@@ -112,8 +147,22 @@ def _playable(reader, topics):
     return [c for c in conns if c.id in classes], classes
 
 
+def remappings(pairs):
+    """{bag topic: topic to play it on} from ``--remap``'s 'OLD:=NEW' pairs; BagError (one
+    line) for a pair that is not one, or a name no topic can have."""
+    out = {}
+    for pair in pairs or []:
+        old, sep, new = pair.partition(':=')
+        if not sep or not old or not new:
+            raise BagError(f"--remap '{pair}': not OLD_TOPIC:=NEW_TOPIC")
+        _topic_names([old, new], '--remap: ')
+        out[absolute_name(old)] = absolute_name(new)
+    return out
+
+
 def bag_play(args):
     topics = {absolute_name(t) for t in args.topics or []}
+    remap = remappings(args.remap)
     chain = sorted({absolute_name(t) for t in args.wait_for_topic or []})
     reader = open_bag(args.bag)
     try:
@@ -124,11 +173,15 @@ def bag_play(args):
             raise BagError(f'--start-offset {args.start_offset:g} s is past the end of the bag '
                            f'({length:.2f} s long): nothing to play')
         conns, classes = _playable(reader, topics)
+        unknown = sorted(set(remap) - {c.topic for c in conns})
+        if unknown:
+            raise BagError(f'--remap {" ".join(unknown)}: not among the topics played')
         with CliNode('bag_play') as cli:
             pubs = {}
             for conn in conns:
                 qos = qos_from_bag(conn.ext.offered_qos_profiles, depth=args.qos_depth)
-                pubs[conn.id] = cli.node.create_publisher(classes[conn.id], conn.topic, qos)
+                pubs[conn.id] = cli.node.create_publisher(
+                    classes[conn.id], remap.get(conn.topic, conn.topic), qos)
             # /clock's publisher with the others, and waited for as they are: made after the
             # wait, a node on /clock matched it up to 2 s after the first messages, and judged
             # them against the clock a previous player had left (stale, too late). Every
@@ -237,6 +290,13 @@ def add_arguments(bag_sub):
     p = bag_sub.add_parser('record', help='record topics into a rosbag2 bag')
     p.add_argument('topics', nargs='*', help='topics to record')
     p.add_argument('-a', '--all', action='store_true', help='record every topic')
+    p.add_argument('-e', '--regex', metavar='REGEX',
+                   help='also record every topic whose name this regular expression matches '
+                        "(anywhere in it: '/ball/' records /ball/state and /ball/prediction)")
+    p.add_argument('-x', '--exclude-regex', metavar='REGEX',
+                   help='leave out of -a and -e the topics this regular expression matches')
+    p.add_argument('--exclude-topics', nargs='+', metavar='TOPIC',
+                   help='leave these topics out of -a and -e')
     p.add_argument('-o', '--output', help='bag directory (default rosbag2_<date>-<time>)')
     p.add_argument('-s', '--storage', choices=sorted(STORAGES), default='mcap',
                    help='storage format (default mcap)')
@@ -250,6 +310,8 @@ def add_arguments(bag_sub):
                    help='playback speed factor')
     p.add_argument('-l', '--loop', action='store_true', help='play again from the start')
     p.add_argument('--topics', nargs='+', help='replay only these topics')
+    p.add_argument('-m', '--remap', nargs='+', metavar='OLD:=NEW',
+                   help="play a recorded topic on another name, e.g. '/ball/state:=/replay/state'")
     p.add_argument('--start-offset', type=non_negative_float, default=0.0,
                    help='start this many seconds after the beginning of the bag')
     p.add_argument('-d', '--delay', type=non_negative_float, default=0.0,

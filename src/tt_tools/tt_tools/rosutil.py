@@ -74,7 +74,10 @@ class CliNode:
         self._participants = 0
         self.use_sim_time = use_sim_time
         self.context = rclpy.context.Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        # No command line for rcl: it would take any 'a:=b' among the verb's arguments (bag
+        # play --remap's, a YAML value of topic pub's) for a deprecated remap rule of its own.
+        rclpy.init(args=[], context=self.context,
+                   signal_handler_options=SignalHandlerOptions.NO)
         # use_sim_time: the node's clock reads /clock (a bag played with --clock).
         self.node = rclpy.create_node(
             f'_ros2cli_{name}_{os.getpid()}', context=self.context,

@@ -204,10 +204,31 @@ def node_info(args):
     return 0
 
 
+def message_filter(expression):
+    """``--filter``'s test: a function of the message ``m`` that is true for the messages to
+    print, from a Python expression (``'m.position.z > 0.1'``; Python's builtins usable, as
+    in ros2cli); ValueError (one line) for text that is no expression."""
+    try:
+        return eval(f'lambda m: ({expression})')    # the user's own filter, as ros2cli's
+    except SyntaxError as exc:
+        raise ValueError(f"--filter '{expression}' is not a Python expression: "
+                         f'{exc.msg}') from None
+
+
+def _passes(test, expression, msg):
+    """Whether ``msg`` passes ``--filter``; an expression that fails on it is one line."""
+    try:
+        return bool(test(msg))
+    except Exception as exc:                        # whatever the expression raises
+        raise ValueError(f"--filter '{expression}' failed on a {type(msg).__name__}: "
+                         f'{type(exc).__name__}: {exc}') from None
+
+
 def topic_echo(args):
     topic = absolute_name(args.topic)
     if args.type:
         import_message_type(args.type)  # a bad type fails before any waiting
+    test = message_filter(args.filter) if args.filter else None
     with CliNode('echo') as cli:
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None:  # interrupted while waiting: a clean exit
@@ -222,6 +243,8 @@ def topic_echo(args):
             if state['done']:
                 return
             msg = deserialize_message(data, cls)
+            if test is not None and not _passes(test, args.filter, msg):
+                return                          # not printed, not counted by --once/--times
             if args.csv:
                 text = message_to_csv(msg, not args.no_arr, not args.no_str, args.field) + '\n'
             else:
@@ -432,6 +455,9 @@ def add_arguments(topic_sub, node_sub):
                         'ones in place, arrays whole), e.g. for plotting')
     p.add_argument('--no-arr', action='store_true', help='with --csv, leave arrays out')
     p.add_argument('--no-str', action='store_true', help='with --csv, leave strings out')
+    p.add_argument('--filter', metavar='EXPR',
+                   help="print only the messages m for which this Python expression is true, "
+                        "e.g. 'm.position.z > 0.1' (--once and --times count those only)")
     qos_args(p, "one matching the topic's publishers")
     p.set_defaults(func=topic_echo)
 
