@@ -8,6 +8,7 @@ import time
 from builtin_interfaces.msg import Time
 from conftest import Graph, Ros2Process, error_lines, ros2
 import pytest
+from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
@@ -165,6 +166,25 @@ def test_hz_reports_the_rate_of_a_timer_publisher(graph, procs, topic):
     assert shortest - 0.0005 <= 1 / rate <= longest + 0.0005 and longest > 0
     assert float(fields[6][:-1]) >= 0
     assert 2 <= window <= min(40, len(sent))
+
+
+def test_hz_filter_counts_only_the_messages_it_passes(graph, procs, topic):
+    # 30 states sent at once, once hz has subscribed: ids 0, 3, ..., 27 pass (10 of them).
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=100))
+    hz = procs('topic', 'hz', topic, '--filter', 'm.track_id % 3 == 0')
+    graph.spin_until(lambda: pub.get_subscription_count() >= 1, 60, 'hz to subscribe')
+    for i in range(30):
+        pub.publish(BallState(track_id=i))
+    assert pub.wait_for_all_acked(Duration(seconds=10))
+
+    def windows():
+        return [int(line.split()[-1]) for line in hz.stdout.splitlines() if 'window:' in line]
+
+    # A report each second that brought messages: the last counts them all.
+    graph.spin_until(lambda: windows() and windows()[-1] >= 10, 60, 'hz to count them all')
+    hz.signal(signal.SIGINT)
+    assert hz.wait() == 0, hz.stderr
+    assert windows()[-1] == 10 and max(windows()) == 10, hz.stdout
 
 
 def test_delay_reports_how_old_each_stamp_is_on_arrival(graph, procs, topic):

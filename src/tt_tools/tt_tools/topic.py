@@ -295,13 +295,21 @@ def _report_each_second(args, name, watch, raw=True, use_sim_time=False):
 
 def topic_hz(args):
     arrivals = collections.deque(maxlen=args.window)
+    test = message_filter(args.filter) if args.filter else None
 
     def report():
         stats = rate_stats(list(arrivals))
         return None if stats is None else format_stats(stats)
 
-    return _report_each_second(args, 'hz', lambda cli, cls: (
-        lambda _data: arrivals.append(time.monotonic()), report))
+    def watch(cli, cls):
+        def on_message(data):
+            now = time.monotonic()
+            if test is None or _passes(test, args.filter, deserialize_message(data, cls)):
+                arrivals.append(now)
+
+        return on_message, report
+
+    return _report_each_second(args, 'hz', watch)
 
 
 def topic_delay(args):
@@ -473,6 +481,10 @@ def add_arguments(topic_sub, node_sub):
                        help=f'number of messages in the rolling window (default {window})')
         if verb == 'delay':
             add_use_sim_time_argument(p)
+        if verb == 'hz':
+            p.add_argument('--filter', metavar='EXPR',
+                           help='count only the messages m for which this Python expression '
+                                "is true, e.g. 'm.track_id == 3'")
         p.set_defaults(func=func)
 
     p = topic_sub.add_parser('pub', help='publish a message given as YAML')
