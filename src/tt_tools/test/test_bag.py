@@ -594,3 +594,74 @@ def test_play_loop_repeats_until_interrupted(recorded, graph, procs):
     play.signal(signal.SIGINT)
     assert play.wait() == 0 and 'Traceback' not in play.stderr
     assert got[:2 * N_STATES] == sent['state'] * 2
+
+
+@pytest.mark.parametrize('argv, chosen', [
+    ([], {'/ball/state', '/ball/prediction', '/cam0/image_raw', '/rosout'}),
+    (['--topics', '/ball/state', 'rosout'], {'/ball/state', '/rosout'}),
+    (['-e', '^/ball/'], {'/ball/state', '/ball/prediction'}),
+    (['-e', 'image', '--topics', '/rosout'], {'/cam0/image_raw', '/rosout'}),
+    (['-x', 'image|rosout'], {'/ball/state', '/ball/prediction'}),
+    (['--exclude-topics', '/ball/prediction', '/rosout'], {'/ball/state', '/cam0/image_raw'}),
+    # Unlike record's, play's exclusions apply to topics named too (rosbag2's play).
+    (['--topics', '/ball/state', '/rosout', '-x', 'state'], {'/rosout'}),
+])
+def test_play_chooses_topics_by_name_regex_and_exclusions(argv, chosen):
+    bag_topics = ['/ball/state', '/ball/prediction', '/cam0/image_raw', '/rosout']
+    test = bag_verbs.play_chooser(build_parser().parse_args(['bag', 'play', 'b', *argv]))
+    assert {t for t in bag_topics if test(t)} == chosen
+
+
+def test_play_leaves_out_the_excluded_topics(recorded, monkeypatch):
+    out, topics, _ = recorded
+    _, published = _play_on_fake_time(monkeypatch, [str(out), '-x', 'info$'])
+    assert [topic for _, topic, _ in published if topic in topics.values()] == \
+        [topics['state']] * N_STATES
+
+
+@pytest.mark.parametrize('argv, first_s, last_s', [
+    (['--playback-duration', '0.5'], 0.0, 0.5),                 # both ends included
+    (['--start-offset', '1', '--playback-duration', '0.5'], 1.0, 1.5),
+    (['--start-offset', '1', '--playback-duration', '100'], 1.0, 2.99),
+    (['--playback-until-nsec', str(10**18 + 2 * 10**9)], 0.0, 2.0),
+    (['--playback-until-sec', '1000000002.0055'], 0.0, 2.0055),
+    # Whichever ends first.
+    (['--playback-duration', '0.3', '--playback-until-nsec', str(10**18 + 2 * 10**9)], 0.0, 0.3),
+    (['--start-offset', '1', '--playback-duration', '2', '--playback-until-sec',
+      '1000000002.5'], 1.0, 2.5),
+])
+def test_play_plays_the_messages_recorded_within_its_window(tmp_path, monkeypatch, argv,
+                                                             first_s, last_s):
+    # 300 messages 10 ms apart from 10**18 ns; a window [first, last] s after the bag's start
+    # (rosbag2's --playback-duration from the start offset, --playback-until-* a bag time).
+    bag = _small_bag(tmp_path / 'bag', 'mcap')
+    stamps = [t for t, _ in _bag_messages(bag)['/ball/state']]
+    expected = [raw for t, raw in _bag_messages(bag)['/ball/state']
+                if round(first_s * 1e9) <= t - stamps[0] <= round(last_s * 1e9)]
+    assert 0 < len(expected) < len(stamps)
+    start, published = _play_on_fake_time(monkeypatch, [str(bag), *argv])
+    played = [(t, msg) for t, topic, msg in published if topic == '/ball/state']
+    assert [msg for _, msg in played] == expected
+    assert played[0][0] == start            # the window's first message at once
+
+
+def test_play_window_and_choice_that_leave_nothing_are_one_line(tmp_path):
+    bag = _small_bag(tmp_path / 'bag', 'mcap')           # /ball/state, 10**18 ns to 2.99 s on
+    for argv, error in [
+            (['--playback-until-nsec', str(10**18 - 1)],
+             '--playback-until-nsec: 999999999.999999999 s is before the play starts '
+             '(1000000000.000000000 s): nothing to play'),
+            (['--start-offset', '1', '--playback-until-sec', '1000000000.5'],
+             '--playback-until-sec: 1000000000.500000000 s is before the play starts '
+             '(1000000001.000000000 s): nothing to play'),
+            (['--exclude-topics', 'state', '/ball/state'],
+             '--exclude-topics: no topic of the bag chosen (it has /ball/state)'),
+            (['--topics', '/ball/pred', '-e', 'image'],
+             '--topics, -e: no topic of the bag chosen (it has /ball/state)')]:
+        rc, out, err = ros2('bag', 'play', str(bag), *argv)
+        assert (rc, out) == (1, '') and error_lines(err) == [f'ros2 bag: {error}'], argv
+    rc, out, err = ros2('bag', 'play', str(bag), '-x', '[')
+    assert (rc, out) == (1, '') and err.startswith("ros2 bag: --exclude-regex '[' is not a ")
+    rc, out, err = ros2('bag', 'play', str(bag), '--playback-until-sec', '1e9',
+                        '--playback-until-nsec', '1')
+    assert (rc, out) == (2, '') and 'not allowed with argument' in err

@@ -10,7 +10,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
 from tt_ros.names import name_error
 
-from tt_tools.argtypes import non_negative_float, positive_float, positive_int
+from tt_tools.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
 from tt_tools.introspect import import_message_type
 from tt_tools.rosutil import CliNode, absolute_name, qos_from_bag, qos_matching, qos_to_bag
 
@@ -52,16 +52,23 @@ def _regex(text, option):
         raise BagError(f"{option} '{text}' is not a regular expression: {exc}") from None
 
 
+def _filters(args, named_option=''):
+    """(topics named, --exclude-topics, -e's regex, --exclude-regex's) of ``args``; None for a
+    regex not given. BagError (one line) for a bad name or regex."""
+    named = _topic_names(args.topics or [], named_option)
+    excluded = _topic_names(args.exclude_topics or [], '--exclude-topics: ')
+    include = None if args.regex is None else _regex(args.regex, '-e')
+    exclude = None if args.exclude_regex is None else _regex(args.exclude_regex,
+                                                             '--exclude-regex')
+    return named, excluded, include, exclude
+
+
 def topic_chooser(args):
     """(the topics ``bag record`` was given by name, a test of a topic's name): a topic is
     recorded when given by name, or under ``-a`` or matching ``-e`` (anywhere in the name) and
     then neither matching ``--exclude-regex`` nor in ``--exclude-topics`` (which apply to
     ``-a`` and ``-e`` only, as rosbag2's). BagError (one line) for a bad name or regex."""
-    named = _topic_names(args.topics)
-    excluded = _topic_names(args.exclude_topics or [], '--exclude-topics: ')
-    include = None if args.regex is None else _regex(args.regex, '-e')
-    exclude = None if args.exclude_regex is None else _regex(args.exclude_regex,
-                                                             '--exclude-regex')
+    named, excluded, include, exclude = _filters(args)
 
     def chosen(name):
         if name in named:
@@ -70,6 +77,23 @@ def topic_chooser(args):
                 and name not in excluded and not (exclude is not None and exclude.search(name)))
 
     return named, chosen
+
+
+def play_chooser(args):
+    """A test of a recorded topic's name for ``bag play``: every topic when neither
+    ``--topics`` nor ``-e`` is given, else those named and those ``-e`` matches (anywhere in
+    the name); then none that ``--exclude-regex`` matches or ``--exclude-topics`` names (they
+    apply to every topic, named ones too, as rosbag2's play). BagError (one line) for a bad
+    name or regex."""
+    named, excluded, include, exclude = _filters(args, '--topics: ')
+
+    def chosen(name):
+        wanted = ((not named and include is None) or name in named
+                  or (include is not None and include.search(name) is not None))
+        return (wanted and name not in excluded
+                and not (exclude is not None and exclude.search(name)))
+
+    return chosen
 
 
 def bag_record(args):
@@ -131,20 +155,56 @@ def bag_record(args):
     return 0
 
 
-def _playable(reader, topics):
-    """Connections to replay (those of ``topics`` when given) and their message classes."""
-    conns = [c for c in reader.connections if not topics or c.topic in topics]
-    if topics and not conns:
-        raise BagError(f'none of the topics {" ".join(sorted(topics))} is in the bag')
+def _playable(reader, chosen, args):
+    """Connections to replay (those whose topic ``chosen`` passes) and their message
+    classes."""
+    conns = [c for c in reader.connections if chosen(c.topic)]
+    if not conns:
+        given = [option for option, value in (
+            ('--topics', args.topics), ('-e', args.regex), ('--exclude-regex', args.exclude_regex),
+            ('--exclude-topics', args.exclude_topics)) if value is not None]
+        raise BagError(f'{", ".join(given)}: no topic of the bag chosen (it has '
+                       + ' '.join(sorted({c.topic for c in reader.connections})) + ')')
     classes = {}
     for conn in conns:
         try:
             classes[conn.id] = import_message_type(conn.msgtype)
         except ValueError as exc:
             _say(f"[WARN] not playing '{conn.topic}': {exc}")
-    if conns and not classes:
+    if not classes:
         raise BagError('no topic of the bag has a message type installed here')
     return [c for c in conns if c.id in classes], classes
+
+
+def _seconds(ns):
+    """A time in ns as seconds, every digit kept (a float keeps 0.1 us at today's epoch)."""
+    return f'{ns // 10**9}.{ns % 10**9:09d}'
+
+
+def play_window(args, start_ns, end_ns):
+    """(first, last) bag time to play, ns, both included: from ``--start-offset`` after the
+    bag's start ``start_ns``, until ``--playback-duration`` after that or
+    ``--playback-until-sec`` / ``--playback-until-nsec``, whichever comes first (rosbag2's),
+    else the bag's end ``end_ns``. BagError (one line) when that leaves nothing to play."""
+    length = (end_ns - start_ns) / 1e9
+    if args.start_offset > length:
+        raise BagError(f'--start-offset {args.start_offset:g} s is past the end of the bag '
+                       f'({length:.2f} s long): nothing to play')
+    first = start_ns + int(round(args.start_offset * 1e9))
+    last = end_ns
+    if args.playback_duration is not None:
+        last = min(last, first + int(round(args.playback_duration * 1e9)))
+    until = (args.playback_until_nsec if args.playback_until_nsec is not None
+             else None if args.playback_until_sec is None
+             else int(round(args.playback_until_sec * 1e9)))
+    if until is not None:
+        if until < first:
+            option = ('--playback-until-nsec' if args.playback_until_nsec is not None
+                      else '--playback-until-sec')
+            raise BagError(f'{option}: {_seconds(until)} s is before the play starts '
+                           f'({_seconds(first)} s): nothing to play')
+        last = min(last, until)
+    return first, last
 
 
 def remappings(pairs):
@@ -161,18 +221,15 @@ def remappings(pairs):
 
 
 def bag_play(args):
-    topics = {absolute_name(t) for t in args.topics or []}
+    chosen = play_chooser(args)
     remap = remappings(args.remap)
     chain = sorted({absolute_name(t) for t in args.wait_for_topic or []})
     reader = open_bag(args.bag)
     try:
         if reader.message_count == 0:
             raise BagError(f"bag '{args.bag}' holds no message: nothing to play")
-        length = (reader.end_time - reader.start_time) / 1e9
-        if args.start_offset > length:
-            raise BagError(f'--start-offset {args.start_offset:g} s is past the end of the bag '
-                           f'({length:.2f} s long): nothing to play')
-        conns, classes = _playable(reader, topics)
+        first, last = play_window(args, reader.start_time, reader.end_time)
+        conns, classes = _playable(reader, chosen, args)
         unknown = sorted(set(remap) - {c.topic for c in conns})
         if unknown:
             raise BagError(f'--remap {" ".join(unknown)}: not among the topics played')
@@ -221,7 +278,6 @@ def bag_play(args):
                 cli.spin_until(timeout=args.delay)          # the delay, or a signal
                 if cli.stopped:
                     return 0
-            first = reader.start_time + int(args.start_offset * 1e9)
             # Bag time now = first + (monotonic time since t0) * rate.
             state = {'t0': time.monotonic()}
             tick = None
@@ -237,7 +293,8 @@ def bag_play(args):
                     # the first messages were stale by the bag's length.
                     tick()
                 played = 0
-                for conn, stamp, data in reader.messages(connections=conns, start=first):
+                for conn, stamp, data in reader.messages(connections=conns, start=first,
+                                                    stop=last + 1):
                     due = state['t0'] + (stamp - first) / 1e9 / args.rate
                     cli.spin_until(timeout=due - time.monotonic())
                     if cli.stopped:
@@ -309,13 +366,31 @@ def add_arguments(bag_sub):
     p.add_argument('-r', '--rate', type=positive_float, default=1.0,
                    help='playback speed factor')
     p.add_argument('-l', '--loop', action='store_true', help='play again from the start')
-    p.add_argument('--topics', nargs='+', help='replay only these topics')
+    p.add_argument('--topics', nargs='+', help='replay only these topics (and those of -e)')
+    p.add_argument('-e', '--regex', metavar='REGEX',
+                   help='replay only the topics this regular expression matches (anywhere in '
+                        'the name) and those of --topics')
+    p.add_argument('-x', '--exclude-regex', metavar='REGEX',
+                   help='do not replay the topics this regular expression matches')
+    p.add_argument('--exclude-topics', nargs='+', metavar='TOPIC',
+                   help='do not replay these topics')
     p.add_argument('-m', '--remap', nargs='+', metavar='OLD:=NEW',
                    help="play a recorded topic on another name, e.g. '/ball/state:=/replay/state'")
     p.add_argument('--start-offset', type=non_negative_float, default=0.0,
                    help='start this many seconds after the beginning of the bag')
     p.add_argument('-d', '--delay', type=non_negative_float, default=0.0,
                    help='wait this many seconds before playing')
+    p.add_argument('--playback-duration', type=non_negative_float, default=None, metavar='S',
+                   help='play only this many seconds of the bag (from --start-offset)')
+    until = p.add_mutually_exclusive_group()
+    until.add_argument('--playback-until-sec', type=non_negative_float, default=None,
+                       metavar='T', help='play the messages recorded until this time (s since '
+                                         'the epoch, as ros2 bag info prints the end)')
+    until.add_argument('--playback-until-nsec', type=non_negative_int, default=None,
+                       metavar='NS', help='the same in nanoseconds')
+    p.add_argument('--disable-keyboard-controls', action='store_true',
+                   help='accepted for scripts written for rosbag2: this player has no '
+                        'keyboard controls')
     p.add_argument('--wait-for-subscribers', action='store_true',
                    help='(tt) wait until every topic has a matched subscription (with '
                         '--clock, /clock too: each node on sim time the graph shows)')
