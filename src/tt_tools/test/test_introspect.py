@@ -2,7 +2,7 @@
 
 import math
 
-from geometry_msgs.msg import PoseArray
+from geometry_msgs.msg import Pose, PoseArray
 import pytest
 from sensor_msgs.msg import CameraInfo, Image
 from tt_tools.introspect import (
@@ -51,9 +51,11 @@ def test_csv_is_every_value_in_the_order_of_the_msg_file():
             '0.0', '-150.0', '30.0']
     covariance = [repr(0.001 * (i + 1)) for i in range(81)]
     assert message_to_csv(msg).split(',') == head + covariance + ['42']
-    assert message_to_csv(msg, arrays=False).split(',') == head + ['42']
-    assert message_to_csv(msg, arrays=False, strings=False).split(',') == (
-        head[:2] + head[3:] + ['42'])
+    # --no-arr, --no-str (rosidl_runtime_py's words): one value naming each array, string.
+    assert message_to_csv(msg, no_arr=True).split(',') == head + ['<array type: double[81]>',
+                                                                  '42']
+    assert message_to_csv(msg, no_arr=True, no_str=True).split(',') == (
+        head[:2] + ['<string length: <5>>'] + head[3:] + ['<array type: double[81]>', '42'])
     assert message_to_csv(msg, field='spin') == '0.0,-150.0,30.0'
     assert message_to_csv(msg, field='position.z') == '0.25'
 
@@ -164,3 +166,20 @@ def test_command_line_yaml():
         parse_yaml_values('{x: [1, 2')
     with pytest.raises(ValueError, match='mapping'):
         parse_yaml_values('[1, 2]')
+
+
+def test_no_arr_and_no_str_name_each_array_and_string_and_flow_style_is_one_line():
+    # ros2 topic echo --no-arr --no-str: BallState's covariance is float64[81] (a fixed array),
+    # geometry_msgs/PoseArray's poses an unbounded sequence of Pose, a frame_id a string.
+    msg = dict_to_message(_ball_state_values(), BallState)
+    plain = yaml.safe_load(message_to_yaml(msg, no_arr=True, no_str=True))
+    assert plain['covariance'] == '<array type: double[81]>'
+    assert plain['header']['frame_id'] == '<string length: <5>>'
+    assert plain['spin'] == _ball_state_values()['spin']
+    poses = PoseArray()
+    poses.poses = [Pose(), Pose(), Pose()]
+    assert yaml.safe_load(message_to_yaml(poses, no_arr=True))['poses'] == \
+        '<sequence type: geometry_msgs/msg/Pose, length: 3>'
+    flow = message_to_yaml(msg, truncate_length=None, flow_style=True)
+    assert flow.count('\n') == 1 and flow.startswith('{header: {stamp: {sec: 1700000000')
+    assert yaml.safe_load(flow) == _ball_state_values()

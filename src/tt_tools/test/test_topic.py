@@ -61,15 +61,16 @@ def test_echo_csv_prints_one_line_of_values_a_message(graph, procs, topic):
 
     graph.spin_until(printed, 60, 'echo --csv to print two messages')
     assert echo.wait() == 0, echo.stderr
-    # STATE's values in BallState.msg's order, its covariance (an array) left out.
-    row = '1700000000,5,table,-1.0,0.2,0.3,5.0,0.0,1.5,0.0,120.0,0.0,17'
+    # STATE's values in BallState.msg's order, its covariance (float64[81]) named by --no-arr
+    # as rosidl_runtime_py names it.
+    row = '1700000000,5,table,-1.0,0.2,0.3,5.0,0.0,1.5,0.0,120.0,0.0,<array type: double[81]>,17'
     assert echo.stdout.splitlines() == [row, row]
 
 
 def test_echo_filter_prints_and_counts_only_the_messages_it_passes(graph, procs, topic):
-    # ros2cli's --filter: a Python expression of the message m.
-    echo = procs('topic', 'echo', topic, '--filter', 'm.track_id % 3 == 0 and m.track_id > 0',
-                 '--times', '2', '--field', 'track_id')
+    # ros2cli's --filter: a Python expression of m, the message or, with --field, that field.
+    echo = procs('topic', 'echo', topic, '--filter', 'm % 3 == 0 and m > 0', '--times', '2',
+                 '--field', 'track_id')
     pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
     sent = []
 
@@ -88,6 +89,58 @@ def test_echo_filter_prints_and_counts_only_the_messages_it_passes(graph, procs,
     got = [int(v) for v in echo.stdout.split('---\n') if v.strip()]
     assert len(got) == 2 and 0 < got[0] < got[1] and got[0] % 3 == got[1] % 3 == 0, got
     assert set(got) <= set(sent)
+
+
+def test_echo_message_info_flow_style_and_no_arr(graph, procs, topic):
+    # -i: each message's info first (ros2cli's keys, sorted as its YAML prints them), then the
+    # message: --flow-style on one line, --no-arr naming the covariance (float64[81]).
+    echo = procs('topic', 'echo', topic, '-i', '--flow-style', '--no-arr', '--once')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    msg = dict_to_message(STATE, BallState)
+
+    def printed():
+        if echo.proc.poll() is None:
+            pub.publish(msg)
+            return False
+        return True
+
+    graph.spin_until(printed, 60, 'echo -i to print a message')
+    assert echo.wait() == 0, echo.stderr
+    info, message, rest = echo.stdout.split('---\n')
+    info = yaml.safe_load(info)
+    assert list(info) == ['publication_sequence_number', 'received_timestamp',
+                          'reception_sequence_number', 'source_timestamp']
+    # Stamped by the publisher's and the echo's clocks: both this machine's, now.
+    assert abs(info['source_timestamp'] / 1e9 - time.time()) < 60
+    assert 0 <= info['received_timestamp'] - info['source_timestamp'] < 30e9
+    assert info['publication_sequence_number'] >= 1 and rest == ''
+    assert message.count('\n') == 1 and message.startswith('{')
+    assert yaml.safe_load(message) == {**STATE, 'covariance': '<array type: double[81]>'}
+
+
+def test_echo_timeout_ends_without_a_message_and_raw_is_not_with_field(topic):
+    # --timeout: no publisher ever comes; echo ends by itself (exit 0, as ros2cli's).
+    rc, out, err = ros2('topic', 'echo', topic, 'tt_msgs/msg/BallState', '--timeout', '2')
+    assert (rc, out) == (0, '') and 'Traceback' not in err
+    rc, out, err = ros2('topic', 'echo', topic, '--raw', '--field', 'position')
+    assert (rc, out) == (1, '') and error_lines(err) == [
+        'ros2 topic: --raw prints the serialized message: not with --csv or --field']
+
+
+def test_echo_raw_prints_the_serialized_message(graph, procs, topic):
+    echo = procs('topic', 'echo', topic, '--raw', '--once')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    msg = dict_to_message(STATE, BallState)
+
+    def printed():
+        if echo.proc.poll() is None:
+            pub.publish(msg)
+            return False
+        return True
+
+    graph.spin_until(printed, 60, 'echo --raw to print a message')
+    assert echo.wait() == 0, echo.stderr
+    assert echo.stdout == repr(serialize_message(msg)) + '\n---\n'
 
 
 def test_echo_filter_that_is_no_expression_or_fails_is_one_line(graph, procs, topic):

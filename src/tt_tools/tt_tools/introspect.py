@@ -99,15 +99,42 @@ def _fields(msg):
     return zip(msg.get_fields_and_field_types(), msg.SLOT_TYPES, strict=True)
 
 
-def _value_to_plain(value, slot_type, truncate_length):
+def _element_type_name(slot_type):
+    """'double', 'string', 'geometry_msgs/msg/Pose': an array's element type as ros2cli's
+    ``--no-arr`` names it."""
+    if isinstance(slot_type, BasicType):
+        return slot_type.typename
+    if isinstance(slot_type, AbstractWString):
+        return 'wstring'
+    if isinstance(slot_type, AbstractString):
+        return 'string'
     if isinstance(slot_type, NamespacedType):
-        return message_to_dict(value, truncate_length)
+        return '/'.join(slot_type.namespaced_name())
+    return 'unknown'
+
+
+def _array_summary(items, slot_type):
+    """What ``--no-arr`` prints in place of an array field (rosidl_runtime_py's words)."""
+    element = _element_type_name(slot_type.value_type)
+    if isinstance(slot_type, Array):
+        return f'<array type: {element}[{slot_type.size}]>'
+    if isinstance(slot_type, BoundedSequence):
+        return f'<sequence type: {element}[{slot_type.maximum_size}], length: {len(items)}>'
+    return f'<sequence type: {element}, length: {len(items)}>'
+
+
+def _value_to_plain(value, slot_type, truncate_length, no_arr=False, no_str=False):
+    if isinstance(slot_type, NamespacedType):
+        return message_to_dict(value, truncate_length, no_arr, no_str)
     if isinstance(slot_type, AbstractNestedType):
         items = list(value)
+        if no_arr:
+            return _array_summary(items, slot_type)
         truncated = truncate_length is not None and len(items) > truncate_length
         if truncated:
             items = items[:truncate_length]
-        out = [_value_to_plain(v, slot_type.value_type, truncate_length) for v in items]
+        out = [_value_to_plain(v, slot_type.value_type, truncate_length, no_arr, no_str)
+               for v in items]
         if truncated:
             out.append('...')
         return out
@@ -115,18 +142,24 @@ def _value_to_plain(value, slot_type, truncate_length):
         return value[0] if len(value) == 1 else list(value)
     if isinstance(value, np.generic):
         return value.item()
+    if isinstance(value, str) and no_str:
+        return f'<string length: <{len(value)}>>'
     if isinstance(value, str) and truncate_length is not None and len(value) > truncate_length:
         return value[:truncate_length] + '...'
     return value
 
 
-def message_to_dict(msg, truncate_length=None):
+def message_to_dict(msg, truncate_length=None, no_arr=False, no_str=False):
     """Insertion-ordered dict of a message; lists for arrays/sequences, dicts for nested types.
 
     ``truncate_length``: longer arrays and strings are cut and end in ``'...'`` (as echo does).
+    ``no_arr``, ``no_str``: each array, each string, in nested messages too, replaced by a line
+    that names its type and length, as ``ros2 topic echo --no-arr --no-str`` prints them
+    (``'<array type: double[81]>'``, ``'<sequence type: double, length: 3>'``,
+    ``'<string length: <5>>'``).
     """
     return {
-        name: _value_to_plain(getattr(msg, name), slot_type, truncate_length)
+        name: _value_to_plain(getattr(msg, name), slot_type, truncate_length, no_arr, no_str)
         for name, slot_type in _fields(msg)
     }
 
@@ -237,26 +270,36 @@ def _represent_float(dumper, value):
 _Dumper.add_representer(float, _represent_float)
 
 
-def to_yaml(value):
-    """Block-style YAML of a plain value (dict in field order), as ``ros2 topic echo`` prints."""
-    return yaml.dump(value, Dumper=_Dumper, default_flow_style=False, sort_keys=False,
+def to_yaml(value, flow_style=False):
+    """Block-style YAML of a plain value (dict in field order), as ``ros2 topic echo`` prints
+    (with ``flow_style``, flow style: ``{x: 1.0, y: 2.0}``)."""
+    return yaml.dump(value, Dumper=_Dumper, default_flow_style=flow_style, sort_keys=False,
                      allow_unicode=True, width=float('inf'))
 
 
-def message_to_yaml(msg, truncate_length=128, field=None):
-    """YAML text of a message (or of one dotted ``field`` of it), without the ``---`` line."""
+def _selected(msg, field, truncate_length, no_arr, no_str):
+    """The plain value of ``msg`` or of its dotted ``field`` (:func:`message_to_dict`)."""
     value, slot_type = _field_and_type(msg, field)
-    plain = (message_to_dict(msg, truncate_length) if slot_type is None
-             else _value_to_plain(value, slot_type, truncate_length))
-    text = to_yaml(plain)
+    if slot_type is None:
+        return message_to_dict(msg, truncate_length, no_arr, no_str)
+    return _value_to_plain(value, slot_type, truncate_length, no_arr, no_str)
+
+
+def message_to_yaml(msg, truncate_length=128, field=None, no_arr=False, no_str=False,
+                    flow_style=False):
+    """YAML text of a message (or of one dotted ``field`` of it), without the ``---`` line;
+    ``no_arr``, ``no_str`` as :func:`message_to_dict`; ``flow_style``: collections in YAML's
+    flow style (``{x: 1.0, y: 2.0}``), as ``ros2 topic echo --flow-style``."""
+    text = to_yaml(_selected(msg, field, truncate_length, no_arr, no_str), flow_style)
     return text[:-len('...\n')] if text.endswith('\n...\n') else text
 
 
-def message_to_csv(msg, arrays=True, strings=True, field=None):
+def message_to_csv(msg, no_arr=False, no_str=False, field=None):
     """One CSV line of a message (or of one dotted ``field`` of it), as ``ros2 topic echo
     --csv`` prints it: every field's value in declaration order, nested messages' fields in
-    place, arrays one value per element (all of them; none without ``arrays``), strings as
-    they are (none without ``strings``), floats as Python prints them."""
+    place, arrays one value per element (all of them), strings as they are, floats as Python
+    prints them; with ``no_arr``, ``no_str`` one value naming each array, each string, in its
+    place (:func:`message_to_dict`)."""
     values = []
 
     def add(plain):
@@ -264,17 +307,12 @@ def message_to_csv(msg, arrays=True, strings=True, field=None):
             for value in plain.values():
                 add(value)
         elif isinstance(plain, list):
-            if arrays:
-                for value in plain:
-                    add(value)
-        elif isinstance(plain, str):
-            if strings:
-                values.append(plain)
+            for value in plain:
+                add(value)
         else:
             values.append(repr(plain) if isinstance(plain, float) else str(plain))
 
-    value, slot_type = _field_and_type(msg, field)
-    add(message_to_dict(msg) if slot_type is None else _value_to_plain(value, slot_type, None))
+    add(_selected(msg, field, None, no_arr, no_str))
     return ','.join(values)
 
 

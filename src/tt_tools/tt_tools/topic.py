@@ -22,6 +22,7 @@ from tt_tools.introspect import (
     message_to_yaml,
     parse_yaml_values,
     split_type,
+    to_yaml,
     type_string,
 )
 from tt_tools.output import say, write
@@ -215,21 +216,51 @@ def message_filter(expression):
                          f'{exc.msg}') from None
 
 
-def _passes(test, expression, msg):
-    """Whether ``msg`` passes ``--filter``; an expression that fails on it is one line."""
+def _passes(test, expression, value):
+    """Whether ``value`` (the message, or its ``--field``) passes ``--filter``; an expression
+    that fails on it is one line."""
     try:
-        return bool(test(msg))
+        return bool(test(value))
     except Exception as exc:                        # whatever the expression raises
-        raise ValueError(f"--filter '{expression}' failed on a {type(msg).__name__}: "
+        raise ValueError(f"--filter '{expression}' failed on a {type(value).__name__}: "
                          f'{type(exc).__name__}: {exc}') from None
+
+
+MESSAGE_INFO_KEYS = ('source_timestamp', 'received_timestamp', 'publication_sequence_number',
+                     'reception_sequence_number')
+"""The message info ``echo -i`` prints, in ros2cli's CSV order (its YAML sorts them)."""
+
+
+def _echo_text(args, test, data, cls, info):
+    """What ``echo`` prints of one message (serialized ``data``, its message ``info``), or None
+    when ``--filter``'s ``test`` leaves it out."""
+    msg = data if args.raw else deserialize_message(data, cls)
+    if test is not None:
+        chosen = msg if args.field is None else get_field(msg, args.field)
+        if not _passes(test, args.filter, chosen):
+            return None
+    keys = MESSAGE_INFO_KEYS if args.include_message_info else ()
+    if args.csv:
+        return ''.join(f'{info[k]},' for k in keys) + message_to_csv(
+            msg, args.no_arr, args.no_str, args.field) + '\n'
+    head = to_yaml({k: info[k] for k in sorted(keys)}) + '---\n' if keys else ''
+    if args.raw:
+        return f'{head}{msg!r}\n---\n'
+    return head + message_to_yaml(
+        msg, None if args.full_length else args.truncate_length, args.field, args.no_arr,
+        args.no_str, args.flow_style) + '---\n'
 
 
 def topic_echo(args):
     topic = absolute_name(args.topic)
+    if args.raw and (args.csv or args.field):
+        raise ValueError('--raw prints the serialized message: not with --csv or --field')
     if args.type:
         import_message_type(args.type)  # a bad type fails before any waiting
     test = message_filter(args.filter) if args.filter else None
     with CliNode('echo') as cli:
+        if args.timeout is not None:    # ends the command as a signal would: exit 0
+            cli.node.create_timer(args.timeout, lambda: setattr(cli, 'stopped', True))
         found = _wait_for_publishers(cli, topic, args.type)
         if found is None:  # interrupted while waiting: a clean exit
             return 0
@@ -239,17 +270,12 @@ def topic_echo(args):
         qos = chosen_qos(args, pubs)
         state = {'count': 0, 'done': False}
 
-        def on_message(data):
+        def on_message(data, info):
             if state['done']:
                 return
-            msg = deserialize_message(data, cls)
-            if test is not None and not _passes(test, args.filter, msg):
+            text = _echo_text(args, test, data, cls, info)
+            if text is None:
                 return                          # not printed, not counted by --once/--times
-            if args.csv:
-                text = message_to_csv(msg, not args.no_arr, not args.no_str, args.field) + '\n'
-            else:
-                text = message_to_yaml(msg, None if args.full_length else args.truncate_length,
-                                       args.field) + '---\n'
             state['count'] += 1
             state['done'] = not write(text) or (
                 args.once or (args.times and state['count'] >= args.times))
@@ -455,17 +481,34 @@ def add_arguments(topic_sub, node_sub):
     p.add_argument('--times', type=non_negative_int, default=0,
                    help='print N messages and exit (0: no limit)')
     p.add_argument('--field', help="print only this dotted field, e.g. 'position.x'")
-    p.add_argument('--truncate-length', type=int, default=128,
+    p.add_argument('-l', '--truncate-length', type=non_negative_int, default=128,
                    help='cut arrays and strings longer than this (default 128)')
-    p.add_argument('--full-length', action='store_true', help='never cut arrays or strings')
+    p.add_argument('-f', '--full-length', action='store_true',
+                   help='never cut arrays or strings')
     p.add_argument('--csv', action='store_true',
                    help='one line of comma-separated values a message (every field, nested '
                         'ones in place, arrays whole), e.g. for plotting')
-    p.add_argument('--no-arr', action='store_true', help='with --csv, leave arrays out')
-    p.add_argument('--no-str', action='store_true', help='with --csv, leave strings out')
+    p.add_argument('--no-arr', action='store_true',
+                   help="print each array as its type and length ('<array type: "
+                        "double[81]>')")
+    p.add_argument('--no-str', action='store_true',
+                   help="print each string as its length ('<string length: <5>>')")
+    p.add_argument('--flow-style', action='store_true',
+                   help='print collections in YAML flow style ({x: 1.0, y: 2.0})')
+    p.add_argument('-i', '--include-message-info', action='store_true',
+                   help="also print each message's info: source and received timestamps "
+                        '(ns), publication and reception sequence numbers')
+    p.add_argument('--raw', action='store_true',
+                   help='print the serialized message (CDR bytes)')
     p.add_argument('--filter', metavar='EXPR',
                    help="print only the messages m for which this Python expression is true, "
-                        "e.g. 'm.position.z > 0.1' (--once and --times count those only)")
+                        "e.g. 'm.position.z > 0.1'; with --field, m is that field (--once and "
+                        "--times count those only)")
+    p.add_argument('--timeout', type=positive_float, default=None, metavar='S',
+                   help='end after this many seconds (exit 0), message or not')
+    p.add_argument('--no-lost-messages', action='store_true',
+                   help='accepted for scripts written for ros2cli: lost messages are not '
+                        'reported here')
     qos_args(p, "one matching the topic's publishers")
     p.set_defaults(func=topic_echo)
 
