@@ -30,37 +30,33 @@ STATE = {
 }
 
 
-def test_echo_once_prints_a_published_ball_state_as_yaml(graph, procs, topic):
-    echo = procs('topic', 'echo', topic, '--once')
+def _echo_of_state(graph, procs, topic, *options):
+    """``ros2 topic echo topic *options`` (which must end by itself, e.g. with ``--once``) while
+    STATE is published on ``topic`` until it has; the ended process."""
+    echo = procs('topic', 'echo', topic, *options)
     pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
     msg = dict_to_message(STATE, BallState)
 
-    def printed():
-        if '---' not in echo.stdout and echo.proc.poll() is None:
-            pub.publish(msg)  # until the subscription has matched and one got through
+    def ended():
+        if echo.proc.poll() is None:
+            pub.publish(msg)    # until the subscription has matched and one got through
             return False
         return True
 
-    graph.spin_until(printed, 60, 'echo to print a message')
+    graph.spin_until(ended, 60, f'echo {" ".join(options)} to end')
     assert echo.wait() == 0, echo.stderr
+    return echo
+
+
+def test_echo_once_prints_a_published_ball_state_as_yaml(graph, procs, topic):
+    echo = _echo_of_state(graph, procs, topic, '--once')
     first = echo.stdout.split('---\n')[0]
     assert yaml.safe_load(first) == STATE
     assert echo.stdout.count('---\n') == 1  # --once
 
 
 def test_echo_csv_prints_one_line_of_values_a_message(graph, procs, topic):
-    echo = procs('topic', 'echo', topic, '--csv', '--no-arr', '--times', '2')
-    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
-    msg = dict_to_message(STATE, BallState)
-
-    def printed():
-        if echo.stdout.count('\n') < 2 and echo.proc.poll() is None:
-            pub.publish(msg)
-            return False
-        return True
-
-    graph.spin_until(printed, 60, 'echo --csv to print two messages')
-    assert echo.wait() == 0, echo.stderr
+    echo = _echo_of_state(graph, procs, topic, '--csv', '--no-arr', '--times', '2')
     # STATE's values in BallState.msg's order, its covariance (float64[81]) named by --no-arr
     # as rosidl_runtime_py names it.
     row = '1700000000,5,table,-1.0,0.2,0.3,5.0,0.0,1.5,0.0,120.0,0.0,<array type: double[81]>,17'
@@ -94,18 +90,7 @@ def test_echo_filter_prints_and_counts_only_the_messages_it_passes(graph, procs,
 def test_echo_message_info_flow_style_and_no_arr(graph, procs, topic):
     # -i: each message's info first (ros2cli's keys, sorted as its YAML prints them), then the
     # message: --flow-style on one line, --no-arr naming the covariance (float64[81]).
-    echo = procs('topic', 'echo', topic, '-i', '--flow-style', '--no-arr', '--once')
-    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
-    msg = dict_to_message(STATE, BallState)
-
-    def printed():
-        if echo.proc.poll() is None:
-            pub.publish(msg)
-            return False
-        return True
-
-    graph.spin_until(printed, 60, 'echo -i to print a message')
-    assert echo.wait() == 0, echo.stderr
+    echo = _echo_of_state(graph, procs, topic, '-i', '--flow-style', '--no-arr', '--once')
     info, message, rest = echo.stdout.split('---\n')
     info = yaml.safe_load(info)
     assert list(info) == ['publication_sequence_number', 'received_timestamp',
@@ -128,19 +113,8 @@ def test_echo_timeout_ends_without_a_message_and_raw_is_not_with_field(topic):
 
 
 def test_echo_raw_prints_the_serialized_message(graph, procs, topic):
-    echo = procs('topic', 'echo', topic, '--raw', '--once')
-    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
-    msg = dict_to_message(STATE, BallState)
-
-    def printed():
-        if echo.proc.poll() is None:
-            pub.publish(msg)
-            return False
-        return True
-
-    graph.spin_until(printed, 60, 'echo --raw to print a message')
-    assert echo.wait() == 0, echo.stderr
-    assert echo.stdout == repr(serialize_message(msg)) + '\n---\n'
+    echo = _echo_of_state(graph, procs, topic, '--raw', '--once')
+    assert echo.stdout == repr(serialize_message(dict_to_message(STATE, BallState))) + '\n---\n'
 
 
 def test_echo_filter_that_is_no_expression_or_fails_is_one_line(graph, procs, topic):
