@@ -406,6 +406,25 @@ def test_pub_once_delivers_the_yaml_values(graph, procs, topic):
     assert got[0].header.frame_id == 'table'
 
 
+def test_pub_names_its_node_and_prints_every_nth_message(graph, procs, topic):
+    # -n: the publisher's node as the graph shows it; -p 5: 'publishing #5', '#10', ... only.
+    name = f'tt_pub_test_{os.getpid()}'
+    got = []
+    graph.node.create_subscription(BallState, topic, got.append, QoSProfile(depth=100))
+    pub = procs('topic', 'pub', topic, 'tt_msgs/msg/BallState', '{track_id: 3}', '-r', '20',
+                '-p', '5', '-n', name)
+    graph.spin_until(lambda: len(got) >= 12, 60, 'a dozen published states')
+    assert [p.node_name for p in graph.node.get_publishers_info_by_topic(topic)] == [name]
+    pub.signal(signal.SIGINT)
+    assert pub.wait() == 0, pub.stderr
+    printed = [line for line in pub.stdout.splitlines() if line.startswith('publishing #')]
+    numbers = [int(line.split('#')[1].split(':')[0]) for line in printed]
+    assert len(numbers) >= 2 and numbers == list(range(5, 5 * len(numbers) + 1, 5)), numbers
+    rc, out, err = ros2('topic', 'pub', topic, 'tt_msgs/msg/BallState', '-n', 'bad name')
+    assert (rc, out) == (1, '') and len(error_lines(err)) == 1
+    assert err.startswith('ros2 topic: Invalid node name: node name must not contain '), err
+
+
 def test_pub_of_another_type_than_subscribed_is_one_line_and_exit_1(graph, topic):
     # Waiting for a subscription that can never match is said as echo says it.
     graph.node.create_subscription(BallState, topic, lambda m: None, QoSProfile(depth=10))

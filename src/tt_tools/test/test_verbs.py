@@ -3,6 +3,7 @@ what they wait for, a closed pipe, and list/info under load: each verb against l
 
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -596,3 +597,21 @@ def test_list_and_info_see_every_live_entity_under_load(graph, topic, burners):
         assert rc == 0, err
         assert out.splitlines() == ['Type: tt_msgs/msg/BallState', 'Publisher count: 1',
                                     'Subscription count: 2']
+
+
+def test_pkg_xml_prints_the_installed_manifest_and_a_tags_values():
+    # colcon installs the source's package.xml as it is; -t prints each element's text.
+    source = pathlib.Path(__file__).parents[3] / 'src' / 'tt_prediction' / 'package.xml'
+    text = source.read_text()
+    rc, out, err = ros2('pkg', 'xml', 'tt_prediction')
+    assert (rc, out) == (0, text), err
+    rc, out, err = ros2('pkg', 'xml', 'tt_prediction', '-t', 'exec_depend')
+    assert rc == 0 and out.splitlines() == re.findall(r'<exec_depend>\s*([^<\s]+)\s*<', text)
+    rc, out, _ = ros2('pkg', 'xml', 'tt_prediction', '--tag', 'export/build_type')
+    assert (rc, out) == (0, 'ament_python\n')
+    for argv, said in [
+            (['no_such_pkg'], "Package 'no_such_pkg' not found"),
+            (['tt_prediction', '-t', 'maintainers'], "no tag 'maintainers'"),
+            (['tt_prediction', '-t', 'a['], "--tag 'a[' is not an element path")]:
+        rc, out, err = ros2('pkg', 'xml', *argv)
+        assert (rc, out) == (1, '') and len(error_lines(err)) == 1 and said in err, err

@@ -1,4 +1,4 @@
-"""``ros2 interface show | list | package | proto`` and ``ros2 pkg executables`` (pure: no
+"""``ros2 interface show | list | package | proto`` and ``ros2 pkg`` (pure: no
 rclpy; files and the generated classes only).
 
 ``interface show pkg/msg/Type`` prints the installed ``.msg`` (``.srv``, ``.action``) file as
@@ -8,6 +8,7 @@ type, that type's definition indented by one tab per level (without its comments
 """
 
 import os
+from xml.etree import ElementTree
 
 from rosidl_adapter.parser import parse_message_string
 from tt_ros.index import interface_file, interfaces, package_prefix, packages
@@ -154,14 +155,45 @@ def pkg_prefix(args):
     return 0
 
 
+def pkg_xml(args):
+    """``ros2 pkg xml PACKAGE [-t TAG]``: the package's installed package.xml, or the text of
+    each element ``TAG`` names (an ElementTree path: ``depend``, ``export/build_type``), one a
+    line, as ros2cli prints them."""
+    prefix = package_prefix(args.package)
+    if prefix is None:
+        raise ValueError(f"Package '{args.package}' not found")
+    path = os.path.join(prefix, 'share', args.package, 'package.xml')
+    try:
+        with open(path, encoding='utf-8') as f:
+            text = f.read()
+    except FileNotFoundError:
+        raise ValueError(f'{path}: no package.xml installed for {args.package}') from None
+    if args.tag is None:
+        write(text)
+        return 0
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError as exc:
+        raise ValueError(f'{path}: not XML: {exc}') from None
+    try:
+        elements = root.findall(args.tag)
+    except (SyntaxError, TypeError, KeyError):     # what ElementPath raises for a bad path
+        raise ValueError(f"--tag '{args.tag}' is not an element path (e.g. 'depend', "
+                         "'export/build_type')") from None
+    if not elements:
+        raise ValueError(f"{path}: no tag '{args.tag}'")
+    write(''.join(f'{e.text}\n' for e in elements))
+    return 0
+
+
 def pkg_list(args):
     write(''.join(name + '\n' for name in packages()))
     return 0
 
 
 def add_arguments(interface_sub, pkg_sub):
-    """Register ``interface show | list | package | proto`` and ``pkg executables | list | prefix``
-    on argparse sub-parsers."""
+    """Register ``interface show | list | package | proto`` and ``pkg executables | list | xml |
+    prefix`` on argparse sub-parsers."""
     p = interface_sub.add_parser('show', help='print the definition of a msg, srv or action')
     p.add_argument('type', help="interface name, e.g. 'tt_msgs/msg/BallState'")
     group = p.add_mutually_exclusive_group()
@@ -192,6 +224,11 @@ def add_arguments(interface_sub, pkg_sub):
 
     p = pkg_sub.add_parser('list', help='print the packages of the ament index')
     p.set_defaults(func=pkg_list)
+
+    p = pkg_sub.add_parser('xml', help="print a package's package.xml, or one tag's values")
+    p.add_argument('package', help='the package, e.g. tt_prediction')
+    p.add_argument('-t', '--tag', help="print only this tag's text, one a line, e.g. depend")
+    p.set_defaults(func=pkg_xml)
 
     p = pkg_sub.add_parser('prefix', help='print the install prefix of a package')
     p.add_argument('package', help='the package, e.g. tt_tools')

@@ -58,12 +58,14 @@ DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
 class CliNode:
     """A hidden node in its own context; SIGINT/SIGTERM set ``stopped`` instead of raising.
     ``use_sim_time``: its clock is the ROS time of /clock instead of this machine's.
+    ``node_name``: the node's name (a valid one, checked by the caller) instead of the hidden
+    ``_ros2cli_<name>_<pid>``.
 
     Use as a context manager; ``spin_until(condition)`` spins in 0.1 s steps, so a signal is
     noticed between callbacks (never inside one: a bag being written stays consistent).
     """
 
-    def __init__(self, name, use_sim_time=False):
+    def __init__(self, name, use_sim_time=False, node_name=None):
         error = domain_id_error()
         if error:  # rcl's traceback, or Fast DDS ending the process, otherwise
             raise ValueError(error)
@@ -80,7 +82,7 @@ class CliNode:
                    signal_handler_options=SignalHandlerOptions.NO)
         # use_sim_time: the node's clock reads /clock (a bag played with --clock).
         self.node = rclpy.create_node(
-            f'_ros2cli_{name}_{os.getpid()}', context=self.context,
+            node_name or f'_ros2cli_{name}_{os.getpid()}', context=self.context,
             start_parameter_services=False,
             parameter_overrides=[Parameter('use_sim_time', value=True)] if use_sim_time else [])
         self.executor = SingleThreadedExecutor(context=self.context)

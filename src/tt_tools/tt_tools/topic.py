@@ -12,6 +12,7 @@ from rclpy.action import (
 from rclpy.duration import Duration
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rclpy.validate_node_name import validate_node_name
 
 from tt_tools.argtypes import non_negative_int, positive_float, positive_int
 from tt_tools.introspect import (
@@ -406,7 +407,9 @@ def topic_pub(args):
     if wait_subs is None:
         wait_subs = 1 if times else 0
     dict_to_message(values, cls, now=lambda: None)  # bad values fail before any DDS set-up
-    with CliNode('pub', args.use_sim_time) as cli:
+    if args.node_name is not None:
+        validate_node_name(args.node_name)          # one line, before rclpy starts
+    with CliNode('pub', args.use_sim_time, args.node_name) as cli:
         def build():
             return dict_to_message(values, cls, now=lambda: cli.node.get_clock().now().to_msg())
 
@@ -424,7 +427,8 @@ def topic_pub(args):
             msg = build()
             pub.publish(msg)
             state['count'] += 1
-            write(f'publishing #{state["count"]}: {msg}\n\n')
+            if args.print and state['count'] % args.print == 0:
+                write(f'publishing #{state["count"]}: {msg}\n\n')
 
         period = 1.0 / args.rate if args.rate > 0 else None
         tick()
@@ -549,6 +553,10 @@ def add_arguments(topic_sub, node_sub):
                         'subscriptions appear, saying so on stderr)')
     p.add_argument('--keep-alive', type=float, default=1.0,
                    help='with --once/--times, wait up to this long (s) for delivery')
+    p.add_argument('-p', '--print', type=non_negative_int, default=1, metavar='N',
+                   help='print every N-th message published (0: none; default 1)')
+    p.add_argument('-n', '--node-name',
+                   help='name of the publishing node (default: a hidden _ros2cli_pub_<pid>)')
     qos_args(p, 'reliable, volatile')
     add_use_sim_time_argument(p)
     p.set_defaults(func=topic_pub)
