@@ -28,7 +28,6 @@ import threading
 import time
 
 import cv2
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rclpy.clock import Clock, ClockType
@@ -38,6 +37,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tt_prediction.ball import load_model
 from tt_prediction.identify.blas import blas_threads
+from tt_ros.diagnostics import OK, WARN, percentile_values, report_status
 from tt_ros.errors import one_line_reason
 from tt_ros.executor import StartupError, run_node
 from tt_ros.messages import set_time, set_xyz
@@ -74,7 +74,6 @@ from .sources import (
 STATE_TOPIC = 'ball/state'
 """The ball states' topic, relative to the node's namespace (/ball/state in the root one,
 the name of tt-perceive's bags)."""
-DIAGNOSTICS_TOPIC = '/diagnostics'
 CAMERAS_DIAGNOSTIC = 'perception_node: cameras'
 """Name of the status on /diagnostics with the counts of the in-process cameras (frames read,
 dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
@@ -354,8 +353,7 @@ class PerceptionNode(Node):
         if devices or files:
             self._worker = threading.Thread(target=self._work, daemon=True, name='perception')
             self._worker.start()
-            self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
-            self.create_timer(1.0, self._publish_diagnostics, clock=self.steady)
+            report_status(self, CAMERAS_DIAGNOSTIC, self.rig.path, self._cameras_status)
         for reader in self._readers:
             reader.start()
         if files:
@@ -535,13 +533,11 @@ class PerceptionNode(Node):
                                 f'camera {self.rig.cameras[frame.camera].name}: frame not '
                                 f'processed: {type(exc).__name__}: {exc}')
 
-    def _publish_diagnostics(self):
-        """/diagnostics: frames read and lost per camera, frame pairs lost, latency and the
-        time of each stage (a camera's read and detection, the processing of a frame)."""
+    def _cameras_status(self):
+        """The status on /diagnostics: frames read and lost per camera, frame pairs lost,
+        latency and the time of each stage (a camera's read and detection, the processing of a
+        frame)."""
         lost, pairs = self.drops.snapshot()
-        status = DiagnosticStatus(name=CAMERAS_DIAGNOSTIC, hardware_id=self.rig.path)
-        status.level = DiagnosticStatus.OK if pairs == 0 else DiagnosticStatus.WARN
-        status.message = f'{pairs} frame pairs dropped'
         values = {'frame_pairs_dropped': pairs, 'frames_processed': self.frames_received,
                   'states_published': self.states_published,
                   'queue_high_water': self.frames_queue.high_water,
@@ -558,10 +554,7 @@ class PerceptionNode(Node):
         values.update(_percentiles('process', self.process_time))
         for k, cam in enumerate(self.rig.cameras):
             values[f'{cam.name}_frames_dropped'] = lost[k]
-        status.values = [KeyValue(key=key, value=str(v)) for key, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self.diagnostics.publish(msg)
+        return (OK if pairs == 0 else WARN), f'{pairs} frame pairs dropped', values
 
     # --- processing and output ---------------------------------------------------------
 
@@ -674,8 +667,7 @@ def _freeze_garbage():
 
 def _percentiles(key, window):
     """/diagnostics values ``<key>_p50_ms`` and ``<key>_p99_ms`` of a :class:`LatencyWindow`."""
-    p50, p99 = window.percentiles_ms()
-    return {f'{key}_p50_ms': f'{p50:.3f}', f'{key}_p99_ms': f'{p99:.3f}'}
+    return percentile_values(key, *window.percentiles_ms())
 
 
 def _check_topic(name, what):

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Path
 import numpy as np
 import pytest
@@ -45,7 +46,8 @@ class Graph(testing.Graph):
         super().__init__(args=args)
         self.prefix = unique_prefix()
         remap = remap_args(self.prefix, ('/ball/state', '/ball/prediction',
-                                         '/ball/predicted_path', '/tt/markers', '/clock'))
+                                         '/ball/predicted_path', '/tt/markers', '/clock',
+                                         '/diagnostics'))
         self.node = self.add(PredictionNode(
             context=self.context, cli_args=remap,
             parameter_overrides=[rclpy.parameter.Parameter('use_sim_time', value=True),
@@ -244,6 +246,35 @@ def test_states_received_late_are_counted_in_the_exit_line(graph):
     assert graph.node.n_late == 1
     assert graph.node.work_summary().endswith(
         f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp')
+
+
+def test_diagnostics_report_the_counts_and_warn_of_a_dropped_state(graph):
+    # /diagnostics once a second of the steady clock (this node's /clock stands still): the
+    # totals, WARN for the report that first counts the dropped state, OK for the next.
+    reports = []
+    graph.test.create_subscription(DiagnosticArray, f'{graph.prefix}/diagnostics',
+                                   lambda m: reports.extend(m.status), 10)
+    graph.pub.publish(graph.state(GOOD, track_id=2))
+    graph.pub.publish(graph.state([math.nan, 0, 0.3, -6, 0, 1, 0, 0, 0], track_id=3))
+
+    def values(status):
+        return {kv.key: kv.value for kv in status.values}
+
+    graph.spin_until(lambda: any(values(r)['states_received'] == '2' for r in reports), 10.0,
+                     'a report counting both states')
+    first = next(k for k, r in enumerate(reports) if values(r)['states_received'] == '2')
+    status = reports[first]
+    assert status.name == 'prediction_node: predictions'
+    got = values(status)
+    assert {k: got[k] for k in ('states_received', 'predictions_published', 'states_dropped',
+                                'states_late')} == {'states_received': '2',
+                                                    'predictions_published': '1',
+                                                    'states_dropped': '1', 'states_late': '0'}
+    assert 0 < float(got['callback_p50_ms']) <= float(got['callback_p99_ms'])
+    assert status.level == DiagnosticStatus.WARN and ', 1 dropped, ' in status.message
+    graph.spin_until(lambda: len(reports) > first + 1, 10.0, 'the next report')
+    assert reports[first + 1].level == DiagnosticStatus.OK
+    assert reports[first + 1].message.startswith('0 states, 0 predictions, 0 dropped, 0 ')
 
 
 def test_a_state_without_a_stamp_is_dropped_on_a_wall_clock(graph):

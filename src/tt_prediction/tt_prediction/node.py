@@ -18,6 +18,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
+from tt_ros.diagnostics import OK, WARN, Since, percentile_values, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -208,6 +209,8 @@ class PredictionNode(Node):
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos)
+        self.since_report = Since()
+        report_status(self, f'{self.get_name()}: predictions', '', self._status)
         self.get_logger().info(
             f'predicting {self.sub.topic_name} -> {self.pub.topic_name}, hitting plane x = '
             f'{self.p.hit_plane_x:.3f} m, model '
@@ -238,6 +241,20 @@ class PredictionNode(Node):
                 f'{np.percentile(times, 99):.3f} ms (last {len(times)}); stamps {first} '
                 f'to {last} s; {self.n_late} received more than {LATE_S * 1e3:.0f} ms after '
                 'their stamp')
+
+    def _status(self):
+        """The status on /diagnostics: WARN when states were dropped or came late since the
+        last report; the totals, and the callback's time over the latest states."""
+        counts = {'states_received': self.n_received, 'predictions_published': self.n_predicted,
+                  'states_dropped': self.n_dropped, 'states_late': self.n_late}
+        new = self.since_report.delta(counts)
+        message = (f"{new['states_received']} states, {new['predictions_published']} "
+                   f"predictions, {new['states_dropped']} dropped, {new['states_late']} "
+                   f'received more than {LATE_S * 1e3:.0f} ms after their stamp, since the '
+                   'last report')
+        level = WARN if new['states_dropped'] or new['states_late'] else OK
+        return level, message, {**counts, **percentile_values('callback',
+                                                              *self.work.percentiles_ms())}
 
     def _on_state(self, msg):
         stamp_ns = to_ns(msg.header.stamp)

@@ -25,3 +25,10 @@ class CallbackTimes:
     def latest_ms(self):
         """The durations of the latest calls (at most ``size``, in no particular order), ms."""
         return self._s[:min(self.count, len(self._s))] * 1e3
+
+    def percentiles_ms(self, qs=(50, 99)):
+        """The ``qs`` percentiles of the latest calls' durations, ms (NaN before the first)."""
+        times = self.latest_ms()
+        if not len(times):
+            return [float('nan')] * len(qs)
+        return [float(v) for v in np.percentile(times, qs)]

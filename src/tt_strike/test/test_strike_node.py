@@ -5,6 +5,7 @@ import math
 import pathlib
 import re
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 import rclpy
@@ -39,7 +40,8 @@ class Graph(testing.Graph):
         # the too-late check does not depend on how fast this machine runs the test.
         overrides = [Parameter('use_sim_time', value=True), *overrides]
         remap = remap_args(self.prefix, ('/ball/prediction', '/strike/target',
-                                         '/strike/command', '/tt/markers', '/clock'))
+                                         '/strike/command', '/tt/markers', '/clock',
+                                         '/diagnostics'))
         self.node = self.add(StrikeNode(context=self.context, cli_args=remap,
                                         parameter_overrides=list(overrides)))
         self.test = self.create_node()
@@ -217,6 +219,37 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
                             r'\(last 3\)', times), times
         assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
                           'stroke): 1: 1/0 -, 2: 1/0 -, 3: 1/1 infeasible')
+
+
+def test_diagnostics_report_the_counts_and_warn_of_dropped_predictions():
+    # /diagnostics once a second of the steady clock: the totals, WARN for the report that
+    # counts the last dropped prediction, OK for the next one.
+    with Graph() as g:
+        reports = []
+        g.test.create_subscription(DiagnosticArray, f'{g.prefix}/diagnostics',
+                                   lambda m: reports.extend(m.status), 10)
+        g.pub.publish(prediction_msg(1))
+        g.pub.publish(prediction_msg(2, hit_valid=False))
+        g.pub.publish(prediction_msg(3, hit_valid=False))
+
+        def values(status):
+            return {kv.key: kv.value for kv in status.values}
+
+        g.spin_until(lambda: any(values(r)['predictions_received'] == '3' for r in reports),
+                     20.0, 'a report counting the three predictions')
+        first = next(k for k, r in enumerate(reports)
+                     if values(r)['predictions_received'] == '3')
+        status = reports[first]
+        assert status.name == 'strike_node: strokes'
+        got = values(status)
+        assert {k: v for k, v in got.items() if not k.startswith('callback_')} == {
+            'predictions_received': '3', 'commands_published': '1', 'predictions_dropped': '2',
+            'strokes_too_late': '0', 'after_stroke_sent': '0', 'struck_balls_lost': '0'}
+        assert 0 < float(got['callback_p50_ms']) <= float(got['callback_p99_ms'])
+        assert status.level == DiagnosticStatus.WARN
+        g.spin_until(lambda: len(reports) > first + 1, 10.0, 'the next report')
+        assert reports[first + 1].level == DiagnosticStatus.OK
+        assert reports[first + 1].message.startswith('0 predictions, 0 commands, 0 dropped')
 
 
 def test_a_ball_without_a_hit_point_after_its_stroke_is_not_warned_of():

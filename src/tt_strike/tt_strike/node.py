@@ -33,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
+from tt_ros.diagnostics import OK, WARN, Since, percentile_values, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -210,6 +211,8 @@ class StrikeNode(Node):
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
+        self.since_report = Since()
+        report_status(self, f'{self.get_name()}: strokes', '', self._status)
         self.get_logger().info(self._start_up_text())
 
     # --- target and parameters ---------------------------------------------------------
@@ -308,6 +311,22 @@ class StrikeNode(Node):
                 f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
                 f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
                 f"first command's status; {ok} with an ok stroke): {tracks}")
+
+    def _status(self):
+        """The status on /diagnostics: WARN when, since the last report, predictions were
+        dropped, strokes came too late to send or struck balls were lost before the plane;
+        the totals, and the callback's time over the latest predictions."""
+        counts = {'predictions_received': self.n_received, 'commands_published': self.n_commands,
+                  'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
+                  'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost}
+        new = self.since_report.delta(counts)
+        message = (f"{new['predictions_received']} predictions, {new['commands_published']} "
+                   f"commands, {new['predictions_dropped']} dropped, "
+                   f"{new['strokes_too_late']} too late, {new['struck_balls_lost']} struck "
+                   'balls lost, since the last report')
+        warn = new['predictions_dropped'] or new['strokes_too_late'] or new['struck_balls_lost']
+        return (WARN if warn else OK), message, {
+            **counts, **percentile_values('callback', *self.work.percentiles_ms())}
 
     def on_prediction(self, msg):
         self.work.call(self._on_prediction, msg)

@@ -1,0 +1,57 @@
+"""A node's status on /diagnostics (diagnostic_msgs/DiagnosticArray), once a second of the
+machine's steady clock, as diagnostic_updater publishes one: what ``ros2 topic echo
+/diagnostics``, rqt_robot_monitor and diagnostic_aggregator read.
+
+A status is (level, message, values): ``DiagnosticStatus.OK`` or ``WARN``, one line, and a
+mapping of key to value (each value sent as its ``str``). The clock is steady so that a node on
+simulated time (a bag played with ``--clock``) reports while /clock stands still.
+"""
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+
+DIAGNOSTICS_TOPIC = '/diagnostics'
+PERIOD_S = 1.0
+"""Time between two reports, s of the steady clock (diagnostic_updater's default)."""
+OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
+
+
+def diagnostic_array(stamp, name, hardware_id, level, message, values):
+    """A DiagnosticArray of one DiagnosticStatus, stamped ``stamp`` (builtin_interfaces/Time)."""
+    status = DiagnosticStatus(name=name, hardware_id=hardware_id, level=level, message=message)
+    status.values = [KeyValue(key=key, value=str(value)) for key, value in values.items()]
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = stamp
+    return msg
+
+
+def report_status(node, name, hardware_id, status):
+    """Publish ``status()`` (level, message, values) on /diagnostics every PERIOD_S of the
+    steady clock, under ``name`` (diagnostic_updater's ``'<node>: <what>'``); the timer."""
+    pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+
+    def tick():
+        level, message, values = status()
+        pub.publish(diagnostic_array(node.get_clock().now().to_msg(), name, hardware_id, level,
+                                     message, values))
+
+    return node.create_timer(PERIOD_S, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+
+def percentile_values(key, p50_ms, p99_ms):
+    """The values ``<key>_p50_ms`` and ``<key>_p99_ms`` of a time's median and p99, ms."""
+    return {f'{key}_p50_ms': f'{p50_ms:.3f}', f'{key}_p99_ms': f'{p99_ms:.3f}'}
+
+
+class Since:
+    """Counts since the last report: ``Since().delta(counts)`` gives each count's increase
+    since the previous call (the first: since 0)."""
+
+    def __init__(self):
+        self._last = {}
+
+    def delta(self, counts):
+        """{key: counts[key] - its value at the previous call}."""
+        out = {key: value - self._last.get(key, 0) for key, value in counts.items()}
+        self._last = dict(counts)
+        return out
