@@ -18,7 +18,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
-from tt_ros.diagnostics import OK, WARN, Since, percentile_values, report_status
+from tt_ros.diagnostics import Since, counts_report, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -245,16 +245,16 @@ class PredictionNode(Node):
     def _status(self):
         """The status on /diagnostics: WARN when states were dropped or came late since the
         last report; the totals, and the callback's time over the latest states."""
-        counts = {'states_received': self.n_received, 'predictions_published': self.n_predicted,
-                  'states_dropped': self.n_dropped, 'states_late': self.n_late}
-        new = self.since_report.delta(counts)
+        level, new, values = counts_report(
+            self.since_report,
+            {'states_received': self.n_received, 'predictions_published': self.n_predicted,
+             'states_dropped': self.n_dropped, 'states_late': self.n_late},
+            ('states_dropped', 'states_late'), self.work)
         message = (f"{new['states_received']} states, {new['predictions_published']} "
                    f"predictions, {new['states_dropped']} dropped, {new['states_late']} "
                    f'received more than {LATE_S * 1e3:.0f} ms after their stamp, since the '
                    'last report')
-        level = WARN if new['states_dropped'] or new['states_late'] else OK
-        return level, message, {**counts, **percentile_values('callback',
-                                                              *self.work.percentiles_ms())}
+        return level, message, values
 
     def _on_state(self, msg):
         stamp_ns = to_ns(msg.header.stamp)

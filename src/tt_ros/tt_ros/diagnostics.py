@@ -55,3 +55,13 @@ class Since:
         out = {key: value - self._last.get(key, 0) for key, value in counts.items()}
         self._last = dict(counts)
         return out
+
+
+def counts_report(since, counts, warn_on, work):
+    """(level, counts since the last report, values) of a node that counts what it did:
+    WARN when one of the counts named in ``warn_on`` grew since the last call (``since``, a
+    :class:`Since`), the totals ``counts`` and the callback's median and p99 over its latest
+    calls (``work``, a :class:`tt_ros.worktime.CallbackTimes`) as the values."""
+    new = since.delta(counts)
+    level = WARN if any(new[key] for key in warn_on) else OK
+    return level, new, {**counts, **percentile_values('callback', *work.percentiles_ms())}

@@ -33,7 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
-from tt_ros.diagnostics import OK, WARN, Since, percentile_values, report_status
+from tt_ros.diagnostics import Since, counts_report, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -316,17 +316,17 @@ class StrikeNode(Node):
         """The status on /diagnostics: WARN when, since the last report, predictions were
         dropped, strokes came too late to send or struck balls were lost before the plane;
         the totals, and the callback's time over the latest predictions."""
-        counts = {'predictions_received': self.n_received, 'commands_published': self.n_commands,
-                  'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
-                  'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost}
-        new = self.since_report.delta(counts)
+        level, new, values = counts_report(
+            self.since_report,
+            {'predictions_received': self.n_received, 'commands_published': self.n_commands,
+             'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
+             'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost},
+            ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost'), self.work)
         message = (f"{new['predictions_received']} predictions, {new['commands_published']} "
-                   f"commands, {new['predictions_dropped']} dropped, "
-                   f"{new['strokes_too_late']} too late, {new['struck_balls_lost']} struck "
-                   'balls lost, since the last report')
-        warn = new['predictions_dropped'] or new['strokes_too_late'] or new['struck_balls_lost']
-        return (WARN if warn else OK), message, {
-            **counts, **percentile_values('callback', *self.work.percentiles_ms())}
+                   f"commands, {new['predictions_dropped']} dropped, {new['strokes_too_late']} "
+                   f"too late, {new['struck_balls_lost']} struck balls lost, since the last "
+                   'report')
+        return level, message, values
 
     def on_prediction(self, msg):
         self.work.call(self._on_prediction, msg)
