@@ -18,7 +18,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
-from tt_ros.diagnostics import Since, counts_report, report_status
+from tt_ros.diagnostics import CountsStatus, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -209,7 +209,7 @@ class PredictionNode(Node):
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos)
-        self.since_report = Since()
+        self.counts_status = CountsStatus(('states_dropped', 'states_late'), self.work)
         report_status(self, f'{self.get_name()}: predictions', '', self._status)
         self.get_logger().info(
             f'predicting {self.sub.topic_name} -> {self.pub.topic_name}, hitting plane x = '
@@ -245,11 +245,9 @@ class PredictionNode(Node):
     def _status(self):
         """The status on /diagnostics: WARN when states were dropped or came late since the
         last report; the totals, and the callback's time over the latest states."""
-        level, new, values = counts_report(
-            self.since_report,
+        level, new, values = self.counts_status.report(
             {'states_received': self.n_received, 'predictions_published': self.n_predicted,
-             'states_dropped': self.n_dropped, 'states_late': self.n_late},
-            ('states_dropped', 'states_late'), self.work)
+             'states_dropped': self.n_dropped, 'states_late': self.n_late})
         message = (f"{new['states_received']} states, {new['predictions_published']} "
                    f"predictions, {new['states_dropped']} dropped, {new['states_late']} "
                    f'received more than {LATE_S * 1e3:.0f} ms after their stamp, since the '

@@ -43,25 +43,20 @@ def percentile_values(key, p50_ms, p99_ms):
     return {f'{key}_p50_ms': f'{p50_ms:.3f}', f'{key}_p99_ms': f'{p99_ms:.3f}'}
 
 
-class Since:
-    """Counts since the last report: ``Since().delta(counts)`` gives each count's increase
-    since the previous call (the first: since 0)."""
+class CountsStatus:
+    """The status of a node that counts what it did: ``report(counts)`` gives (level, the
+    counts since the previous report, values): WARN when one of the counts named in
+    ``warn_on`` grew since then, and as the values the totals ``counts`` with the callback's
+    median and p99 over its latest calls (``work``, a :class:`tt_ros.worktime.CallbackTimes`).
+    """
 
-    def __init__(self):
+    def __init__(self, warn_on, work):
+        self.warn_on, self.work = warn_on, work
         self._last = {}
 
-    def delta(self, counts):
-        """{key: counts[key] - its value at the previous call}."""
-        out = {key: value - self._last.get(key, 0) for key, value in counts.items()}
+    def report(self, counts):
+        new = {key: value - self._last.get(key, 0) for key, value in counts.items()}
         self._last = dict(counts)
-        return out
-
-
-def counts_report(since, counts, warn_on, work):
-    """(level, counts since the last report, values) of a node that counts what it did:
-    WARN when one of the counts named in ``warn_on`` grew since the last call (``since``, a
-    :class:`Since`), the totals ``counts`` and the callback's median and p99 over its latest
-    calls (``work``, a :class:`tt_ros.worktime.CallbackTimes`) as the values."""
-    new = since.delta(counts)
-    level = WARN if any(new[key] for key in warn_on) else OK
-    return level, new, {**counts, **percentile_values('callback', *work.percentiles_ms())}
+        level = WARN if any(new[key] for key in self.warn_on) else OK
+        return level, new, {**counts, **percentile_values('callback',
+                                                          *self.work.percentiles_ms())}

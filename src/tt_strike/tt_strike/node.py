@@ -33,7 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
-from tt_ros.diagnostics import Since, counts_report, report_status
+from tt_ros.diagnostics import CountsStatus, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
@@ -211,7 +211,8 @@ class StrikeNode(Node):
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
-        self.since_report = Since()
+        self.counts_status = CountsStatus(
+            ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost'), self.work)
         report_status(self, f'{self.get_name()}: strokes', '', self._status)
         self.get_logger().info(self._start_up_text())
 
@@ -316,12 +317,10 @@ class StrikeNode(Node):
         """The status on /diagnostics: WARN when, since the last report, predictions were
         dropped, strokes came too late to send or struck balls were lost before the plane;
         the totals, and the callback's time over the latest predictions."""
-        level, new, values = counts_report(
-            self.since_report,
+        level, new, values = self.counts_status.report(
             {'predictions_received': self.n_received, 'commands_published': self.n_commands,
              'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
-             'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost},
-            ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost'), self.work)
+             'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost})
         message = (f"{new['predictions_received']} predictions, {new['commands_published']} "
                    f"commands, {new['predictions_dropped']} dropped, {new['strokes_too_late']} "
                    f"too late, {new['struck_balls_lost']} struck balls lost, since the last "

@@ -113,28 +113,28 @@ def _element_type_name(slot_type):
     return 'unknown'
 
 
-def _array_summary(items, slot_type):
-    """What ``--no-arr`` prints in place of an array field (rosidl_runtime_py's words)."""
+def _array_summary(length, slot_type):
+    """What ``--no-arr`` prints in place of an array field of ``length`` elements
+    (rosidl_runtime_py's words)."""
     element = _element_type_name(slot_type.value_type)
     if isinstance(slot_type, Array):
         return f'<array type: {element}[{slot_type.size}]>'
     if isinstance(slot_type, BoundedSequence):
-        return f'<sequence type: {element}[{slot_type.maximum_size}], length: {len(items)}>'
-    return f'<sequence type: {element}, length: {len(items)}>'
+        return f'<sequence type: {element}[{slot_type.maximum_size}], length: {length}>'
+    return f'<sequence type: {element}, length: {length}>'
 
 
 def _value_to_plain(value, slot_type, truncate_length, no_arr=False, no_str=False):
     if isinstance(slot_type, NamespacedType):
         return message_to_dict(value, truncate_length, no_arr, no_str)
     if isinstance(slot_type, AbstractNestedType):
-        items = list(value)
+        # Length and slice of the field itself: an image's 921,600 bytes are not copied into
+        # a list to be named by --no-arr or cut to 128.
         if no_arr:
-            return _array_summary(items, slot_type)
-        truncated = truncate_length is not None and len(items) > truncate_length
-        if truncated:
-            items = items[:truncate_length]
+            return _array_summary(len(value), slot_type)
+        truncated = truncate_length is not None and len(value) > truncate_length
         out = [_value_to_plain(v, slot_type.value_type, truncate_length, no_arr, no_str)
-               for v in items]
+               for v in (value[:truncate_length] if truncated else value)]
         if truncated:
             out.append('...')
         return out
