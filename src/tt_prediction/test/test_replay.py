@@ -1122,3 +1122,55 @@ def test_a_track_left_out_of_the_score_says_why(data):
     why = reason(np.ones(len(t), dtype=bool), near)
     assert why.startswith('no sample between its bounce at t = ') and why.endswith(' m)')
     assert abs(float(why.split(' t = ')[1].split(' s ')[0]) - bounce) < 0.005
+
+
+def _rally(rng, noise=1e-3):
+    """A rally's track: the robot's return flies out with topspin, bounces on the opponent's
+    half and is struck back at x = 1.6 m with the opposite topspin; the incoming ball bounces
+    on the robot's half and crosses the plane. Returns (t, p, stroke time, incoming state)."""
+    out = np.array([-1.3, 0.0, 0.25, 5.5, 0.2, 1.2, 0.0, 150.0, 0.0])
+    t = np.arange(0.0, 2.0, 1.0 / RATE)
+    events, s_out = rollout(out, ModelParams(), plane_x=1.6, max_bounces=2, sample_times=t,
+                            t_max=2.0)
+    assert [e.kind for e in events] == ['bounce', 'plane']
+    t_stroke, at = events[-1].t, events[-1].state
+    back = np.concatenate([at[:3], [-6.5, -0.3, 2.0, 0.0, -150.0, 0.0]])
+    assert predict(back, t0=t_stroke, hit_plane_x=PLANE).status == 'ok'
+    _, s_in = rollout(back, ModelParams(), t0=t_stroke, sample_times=t[t > t_stroke],
+                      stop_at_plane=False, stop_at_net=False, max_bounces=2, t_max=2.0)
+    tm, pm = _measured(t, np.concatenate([s_out[t <= t_stroke], s_in]), rng, noise)
+    return tm, pm, t_stroke, back
+
+
+def test_a_rallys_incoming_flight_after_a_stroke_is_scored_from_the_stroke():
+    """A track holding the ball's way out, the opponent's stroke and its way in (a rally's
+    recording): its crossing was not measured ('no bounce located on the robot's half', the
+    track cut at the stroke), and the frame check warned that the tracks cross the plane
+    moving away from the robot. The crossing is the incoming flight's, and lead times count
+    from the stroke."""
+    from tt_prediction.identify.frame import frame_warnings
+    from tt_prediction.replay import replay_track
+    t, p, t_stroke, back = _rally(np.random.default_rng(3))
+    rp = replay_track('rally.csv', t, p, ModelParams(), hit_plane_x=PLANE)
+    truth = predict(back, t0=t_stroke, hit_plane_x=PLANE).hit
+    assert rp.crossing is not None
+    assert rp.crossing[0] == pytest.approx(truth.t, abs=1e-3)
+    assert rp.crossing[1] == pytest.approx(truth.p, abs=2e-3)
+    assert t_stroke < rp.first_t < t_stroke + 3.0 / RATE
+    assert not frame_warnings([('rally.csv', t, p)], ModelParams(), PLANE)
+
+
+def test_what_the_ball_did_before_a_stroke_does_not_move_the_prediction_after_it():
+    """After the stroke the ball has a spin of its own: the filter, restarted on the
+    incoming flight, predicts as it would from that flight alone. It kept the outgoing
+    ball's topspin, which for a ball coming back is backspin of 150 rad/s."""
+    from tt_prediction.replay import replay_samples
+    t, p, t_stroke, _ = _rally(np.random.default_rng(4))
+    rally = replay_samples(t, p, ModelParams(), hit_plane_x=PLANE)
+    after = t > t_stroke
+    alone = replay_samples(t[after], p[after], ModelParams(), hit_plane_x=PLANE)
+    rows = (rally[after, 0] > t_stroke + 0.1) & np.isfinite(rally[after, 14])
+    assert rows.sum() > 20
+    assert np.all(np.isfinite(alone[rows, 14]))
+    gap = np.linalg.norm(rally[after][rows, 14:17] - alone[rows, 14:17], axis=1)
+    assert np.max(gap) < 5e-4, np.max(gap)

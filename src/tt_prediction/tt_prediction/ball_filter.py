@@ -914,9 +914,11 @@ class TrackFilter:
         spin = spin_cov = None
         f = BallFilter(self.params, cfg)
         f_prior = f.spin_prior_cov
-        if self.filter is not None:
-            # Keep what is known of the spin (it changes little), with the prior's variance
-            # added back for what a racket hit or a bounce might have done to it.
+        if self.filter is not None and not (self.filter.x[3] > 0.0 > v[0]):
+            # Keep what is known of the spin (it changes little at a bounce the model
+            # missed), with the prior's variance added back for what it might have done to
+            # it. A ball struck back towards the robot has a spin of its own, of the
+            # population the prior describes: the prior's.
             spin = self.filter.x[6:].copy()
             spin_cov = self.filter.P[6:, 6:] + f_prior(v)
         f.start(t, p, v, self._R, vcov, spin, spin_cov)

@@ -59,6 +59,9 @@ MIN_HISTORY = 0.05
 it is counted as too short, not as missing, s."""
 CROSSING_WINDOW = 3
 """Samples on each side of the measured crossing used for its local quadratic fit."""
+NEXT_FLIGHT_OFF = 0.015
+"""A sample this far (m) from the extrapolated flight before it is on another flight (a
+stroke turns the ball by ~5 cm a sample at 180 Hz; the noise is ~1 mm)."""
 TEXTBOOK_SAMPLES = 20
 """The textbook predictor fits the flight model to this many last samples (~110 ms)."""
 
@@ -232,18 +235,51 @@ def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, dra
 
 def _ground_truth(name, t, p, params, plane_x):
     """Cleaned samples, located bounces (:class:`tt_prediction.identify.segment.Bounce`)
-    and measured crossing of one track."""
+    and measured crossing of one track's incoming flight, and the time that flight starts
+    where the track holds another before it (a rally: the ball goes out and is struck back,
+    or is lost for a while), else None."""
     tc, pc, notes = clean_samples(name, t, p)
     if len(tc) < 3:
-        return tc, pc, [], None
-    # Any length: a track seen from 100 ms before its bounce still has a crossing to score
-    # (tt-identify wants 0.2 s of flight to fit; the replay does not fit it).
-    seg, bounces = segment(Track(name, tc, pc, None, '', notes), params.radius, min_duration=0.0)
-    if seg is None:
+        return tc, pc, [], None, None
+    flights, start = [], 0
+    while len(tc) - start >= 8:
+        # Any length: a track seen from 100 ms before its bounce still has a crossing to
+        # score (tt-identify wants 0.2 s of flight to fit; the replay does not fit it).
+        seg, bounces = segment(Track(name, tc[start:], pc[start:], None, '', notes),
+                               params.radius, min_duration=0.0)
+        if seg is None:
+            break
+        flights.append((seg, bounces, start))
+        if any(b.p[0] < 0.0 for b in bounces) or len(seg.t) == len(tc) - start:
+            break
+        # Cut before any bounce on the robot's half (at a stroke, a gap, a contact it
+        # cannot resolve): the ball to return may come after it.
+        start = _next_flight(tc, pc, seg, params.gravity)
+    if not flights:
         tt, pp = drop_outliers(tc, pc, {}, params.radius)
-        return tt, pp, [], None
+        return tt, pp, [], None, None
+    seg, bounces, start = next((f for f in flights if any(b.p[0] < 0.0 for b in f[1])),
+                               flights[0])
     times = [(b.t, b.p[0]) for b in bounces]
-    return seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x)
+    return (seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x),
+            float(seg.t[0]) if start else None)
+
+
+def _next_flight(t, p, seg, gravity):
+    """Index of the first of ``t``'s samples past flight ``seg`` that is no longer on it: the
+    first of two in a row more than NEXT_FLIGHT_OFF from the ballistic extrapolation of seg's
+    last samples (segment() cuts a few samples before a contact), above the table."""
+    k = int(np.searchsorted(t, seg.t[-1], side='right'))
+    n = min(len(seg.t), 6)
+    dt = seg.t[-n:] - seg.t[-1]
+    fall = np.array([0.0, 0.0, -0.5 * gravity])
+    A = np.stack([np.ones(n), dt], axis=1)                   # p0 + v dt + g dt^2 / 2
+    coef = np.linalg.lstsq(A, seg.p[-n:] - np.outer(dt ** 2, fall), rcond=None)[0]
+    dt = t[k:] - seg.t[-1]
+    off = np.linalg.norm(p[k:] - coef[0] - np.outer(dt, coef[1]) - np.outer(dt ** 2, fall),
+                         axis=1) > NEXT_FLIGHT_OFF
+    new = np.flatnonzero(off[:-1] & off[1:] & (p[k:-1, 2] >= 0.0))
+    return k + int(new[0]) if len(new) else len(t)
 
 
 def no_crossing_reason(rp, plane_x):
@@ -273,10 +309,12 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
     config = config or FilterConfig()
     rows, nis, outlier_t = _replay_samples(t, p, params, config, hit_plane_x, spin)
-    tt, pp, bounces, crossing = _ground_truth(name, np.asarray(t, float), np.asarray(p, float),
-                                              params, hit_plane_x)
+    tt, pp, bounces, crossing, flight_t = _ground_truth(
+        name, np.asarray(t, float), np.asarray(p, float), params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
+    if flight_t is not None:
+        first = flight_t                    # lead times count from the stroke's flight
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
                        config.spin_prior_axes(), nis, tuple(config.spin_prior_mean),

@@ -118,7 +118,7 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
                    f'{HALF_LENGTH:g} m, |y| <= {HALF_WIDTH:g} m): are the tracks in {FRAME}?')
     xs = [p[np.isfinite(p[:, 0]), 0] for _, _, p in tracks]
     xs = [x for x in xs if len(x)]
-    directions = [d for _, t, p in tracks for d in [first_crossing_direction(
+    directions = [d for _, t, p in tracks for d in [crossing_direction(
         *_finite_sorted(t, p), hit_plane_x)] if d]
     if xs and not directions:
         out.append(f'no track crosses the hitting plane x = {hit_plane_x:g} m (the tracks '
@@ -131,9 +131,15 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
     return out
 
 
-def first_crossing_direction(t, p, plane_x):
-    """+1 or -1: the sign of the ball's motion along x where it first crosses x = plane_x
-    (samples in time order), 0 when it does not cross."""
+def crossing_direction(t, p, plane_x, span=3):
+    """-1 where the ball crosses x = plane_x along -x at least once (samples in time order;
+    a rally's track goes out before it comes in), +1 where it crosses only along +x, 0 where
+    it does not cross. Each crossing's direction is that of the ``span`` samples either
+    side of it (noise near the plane crosses it back and forth)."""
     side = np.sign(p[:, 0] - plane_x)
     change = np.flatnonzero(side[1:] != side[:-1])
-    return int(np.sign(p[change[0] + 1, 0] - p[change[0], 0])) if len(change) else 0
+    if not len(change):
+        return 0
+    last = len(p) - 1
+    moves = p[np.minimum(change + 1 + span, last), 0] - p[np.maximum(change - span, 0), 0]
+    return -1 if np.any(moves < 0.0) else 1
