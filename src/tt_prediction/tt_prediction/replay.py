@@ -241,7 +241,8 @@ def _ground_truth(name, t, p, params, plane_x):
     tc, pc, notes = clean_samples(name, t, p)
     if len(tc) < 3:
         return tc, pc, [], None, None
-    flights, start = [], 0
+    first = scored = None
+    start = 0
     while len(tc) - start >= 8:
         # Any length: a track seen from 100 ms before its bounce still has a crossing to
         # score (tt-identify wants 0.2 s of flight to fit; the replay does not fit it).
@@ -249,17 +250,19 @@ def _ground_truth(name, t, p, params, plane_x):
                                params.radius, min_duration=0.0)
         if seg is None:
             break
-        flights.append((seg, bounces, start))
-        if any(b.p[0] < 0.0 for b in bounces) or len(seg.t) == len(tc) - start:
+        first = first or (seg, bounces, start)
+        if any(b.p[0] < 0.0 for b in bounces):
+            scored = (seg, bounces, start)
+            break
+        if seg.t[-1] >= tc[-1]:
             break
         # Cut before any bounce on the robot's half (at a stroke, a gap, a contact it
         # cannot resolve): the ball to return may come after it.
         start = _next_flight(tc, pc, seg, params.gravity)
-    if not flights:
+    if first is None:
         tt, pp = drop_outliers(tc, pc, {}, params.radius)
         return tt, pp, [], None, None
-    seg, bounces, start = next((f for f in flights if any(b.p[0] < 0.0 for b in f[1])),
-                               flights[0])
+    seg, bounces, start = scored or first
     times = [(b.t, b.p[0]) for b in bounces]
     return (seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x),
             float(seg.t[0]) if start else None)
@@ -312,9 +315,10 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     tt, pp, bounces, crossing, flight_t = _ground_truth(
         name, np.asarray(t, float), np.asarray(p, float), params, hit_plane_x)
     valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
-    first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
     if flight_t is not None:
-        first = flight_t                    # lead times count from the stroke's flight
+        first = flight_t                    # lead times count from the incoming flight
+    else:
+        first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
                        config.spin_prior_axes(), nis, tuple(config.spin_prior_mean),
