@@ -118,4 +118,5 @@ def run():
 
 
 if __name__ == '__main__':
-    print(run())
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

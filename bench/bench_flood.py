@@ -11,6 +11,7 @@ reported too.
 """
 
 import pathlib
+import sys
 import time
 
 import numpy as np
@@ -101,3 +102,8 @@ def run():
     result['targets'] = {'rate_hz': RATE_HZ, 'duration_s': DURATION_S,
                          'max_growth_mb': MAX_GROWTH_MB}
     return result
+
+
+if __name__ == '__main__':
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

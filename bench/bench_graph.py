@@ -12,6 +12,7 @@ prediction_node's own latency target is in bench_prediction.
 
 import os
 import pathlib
+import sys
 import time
 
 import numpy as np
@@ -104,3 +105,8 @@ def run():
                 'p50': float(np.percentile(lat, 50)), 'p99': float(np.percentile(lat, 99))}
     result['passed'] = bool(lat_ms.size > 0 and balls_with_commands == len(rec.truths))
     return result
+
+
+if __name__ == '__main__':
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

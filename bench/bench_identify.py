@@ -12,6 +12,7 @@ which must be the only one selected; these two have no target. CPU times (proces
 are given besides, as the machine's 2 cores are shared.
 """
 
+import sys
 import time
 
 from tt_prediction.ball import ModelParams
@@ -61,4 +62,5 @@ def run():
 
 
 if __name__ == '__main__':
-    print(run())
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

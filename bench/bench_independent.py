@@ -391,5 +391,5 @@ def run():
 
 
 if __name__ == '__main__':
-    import json
-    print(json.dumps(run(), indent=2))
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

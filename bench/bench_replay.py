@@ -15,7 +15,6 @@
 Runs in about a minute. ``python bench/run_all.py --only replay`` or this file directly.
 """
 
-import json
 import os
 import pathlib
 import sys
@@ -97,9 +96,5 @@ def run():
 
 
 if __name__ == '__main__':
-    result = run()
-    print(json.dumps(result, indent=2))
-    out = pathlib.Path(__file__).resolve().parent / 'results'
-    out.mkdir(exist_ok=True)
-    (out / 'replay.json').write_text(json.dumps(result, indent=2))
-    sys.exit(0 if result['passed'] else 1)
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

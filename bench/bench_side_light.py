@@ -254,4 +254,5 @@ def run():
 
 
 if __name__ == '__main__':
-    print(json.dumps(run(), indent=2))
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run))

@@ -14,10 +14,9 @@ covariance (sigma 2 mm, 2 % velocity, 10 % spin: 1024 more flights).
 Run alone: python bench/bench_strike.py [--balls N]; writes bench/results/strike.json.
 """
 
-import argparse
-import json
 import os
 import pathlib
+import sys
 import time
 
 import numpy as np
@@ -30,7 +29,6 @@ from tt_strike.workspace import load_workspace
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT / 'data' / 'deepmind_states' / 'states_all.csv.gz'
-RESULT = ROOT / 'bench' / 'results' / 'strike.json'
 TARGET_MEDIAN_MS = 5.0
 TARGET_P99_MS = 20.0
 
@@ -81,10 +79,6 @@ def run(n_balls=300):
 
 
 if __name__ == '__main__':
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--balls', type=int, default=300)
-    args = parser.parse_args()
-    result = run(args.balls)
-    RESULT.parent.mkdir(exist_ok=True)
-    RESULT.write_text(json.dumps(result, indent=1))
-    print(json.dumps(result, indent=1))
+    from run_all import bench_main
+    sys.exit(bench_main(__file__, run, add_arguments=lambda parser: parser.add_argument(
+        '--balls', dest='n_balls', type=int, default=300, help='incoming balls to solve for')))

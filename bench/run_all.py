@@ -3,7 +3,8 @@
 Each bench module defines ``run() -> dict``: measured numbers, the targets they are held to,
 and ``passed``. Speed targets are checked here, as ratios to a reference measured in the same
 run where the issue asks for one, never in timed unit tests.
-Usage: python bench/run_all.py --out bench/results [--only NAME ...]
+Usage: python bench/run_all.py --out bench/results [--only NAME ...]; one bench alone:
+python bench/bench_NAME.py [--out DIR] (:func:`bench_main`).
 """
 
 import argparse
@@ -53,6 +54,33 @@ def main(argv=None):
               f'({result["wall_s"]} s) -> {out / (name + ".json")}', flush=True)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     return 0 if ok else 1
+
+
+def bench_main(path, run, argv=None, add_arguments=None):
+    """The command line of one bench file, ``python bench/bench_NAME.py [--out DIR]``: runs
+    ``run()``, prints its JSON, writes DIR/NAME.json with ``--out``; exit status 0 when the
+    bench passed, 1 when not (``--help`` describes the bench without running it).
+    ``add_arguments(parser)`` adds the bench's own options, passed to ``run`` by name."""
+    path = pathlib.Path(path)
+    name = path.stem[len('bench_'):]
+    doc = (sys.modules['__main__'].__doc__ or '').strip()
+    parser = argparse.ArgumentParser(
+        prog=f'python bench/{path.name}', description=doc.split('\n\n')[0] or None,
+        epilog='make bench runs every bench (bench/run_all.py)')
+    parser.add_argument('--out', metavar='DIR',
+                        help=f'also write the result to DIR/{name}.json')
+    if add_arguments:
+        add_arguments(parser)
+    options = vars(parser.parse_args(argv))
+    out = options.pop('out')
+    result = run(**options)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if out:
+        out = pathlib.Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f'{name}.json').write_text(text)
+    return 0 if result.get('passed') else 1
 
 
 if __name__ == '__main__':
