@@ -118,8 +118,8 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
                    f'{HALF_LENGTH:g} m, |y| <= {HALF_WIDTH:g} m): are the tracks in {FRAME}?')
     xs = [p[np.isfinite(p[:, 0]), 0] for _, _, p in tracks]
     xs = [x for x in xs if len(x)]
-    directions = [d for _, t, p in tracks for d in [crossing_direction(
-        *_finite_sorted(t, p), hit_plane_x)] if d]
+    directions = [d for _, t, p in tracks
+                  for d in [crossing_direction(_finite_sorted(t, p)[1], hit_plane_x)] if d]
     if xs and not directions:
         out.append(f'no track crosses the hitting plane x = {hit_plane_x:g} m (the tracks '
                    f'span x = {min(x.min() for x in xs):.2f} to {max(x.max() for x in xs):.2f}'
@@ -131,11 +131,12 @@ def frame_warnings(tracks, params, hit_plane_x, plane_option='--hit-plane-x'):
     return out
 
 
-def crossing_direction(t, p, plane_x, span=3):
-    """-1 where the ball crosses x = plane_x along -x at least once (samples in time order;
-    a rally's track goes out before it comes in), +1 where it crosses only along +x, 0 where
-    it does not cross. Each crossing's direction is that of the ``span`` samples either
-    side of it (noise near the plane crosses it back and forth)."""
+def crossing_direction(p, plane_x, span=3):
+    """-1 where the ball at positions ``p`` (n, 3), m, in time order, crosses x = plane_x
+    along -x at least once (a rally's track goes out before it comes in), +1 where it
+    crosses only along +x, 0 where it does not cross. Each crossing's direction is that of
+    the ``span`` samples either side of it (noise near the plane crosses it back and
+    forth)."""
     side = np.sign(p[:, 0] - plane_x)
     change = np.flatnonzero(side[1:] != side[:-1])
     if not len(change):
