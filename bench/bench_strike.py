@@ -11,7 +11,7 @@ are reported beside them, since on a shared machine the wall-clock tail is other
 time slices. ``plane_solve_ms`` times the old single solve at the plane x = -1.5 on the same
 balls, and ``probability_ms`` the chosen stroke with the in-zone probability of an incoming
 covariance (sigma 2 mm, 2 % velocity, 10 % spin: 1024 more flights).
-Run alone: python bench/bench_strike.py [--balls N]; writes bench/results/strike.json.
+Run alone: python bench/bench_strike.py [--balls N] [--out bench/results] (strike.json there).
 """
 
 import os
