@@ -19,6 +19,7 @@ import time
 
 import cv2
 import numpy as np
+from tt_perception.cli import pipeline_with_estimated_blurs
 from tt_perception.detect import DetectorConfig
 from tt_perception.pipeline import Pipeline, TrackerConfig
 from tt_prediction.identify.blas import blas_threads
@@ -79,7 +80,10 @@ def hall_accuracy():
     50 ms after the bounce left out) and the spin across the velocity within 20 % and 20
     degrees from 0.2 s on (:func:`accuracy`); the numbers are reported as they are. Each
     row is the live node's states; its ``smoothed`` the same numbers for those tt-perceive
-    writes by default (:meth:`tt_perception.pipeline.Pipeline.smoothed`)."""
+    writes by default (:meth:`tt_perception.pipeline.Pipeline.smoothed`); its
+    ``estimated_image_blur`` the live states with each camera's ``image_blur`` estimated
+    from the ball's outline fits, as tt-perceive sets it by default
+    (:func:`tt_perception.cli.pipeline_with_estimated_blurs`), and the blurs."""
     out = {}
     exposure = 2e-3
     state = synth.incoming_ball(speed=8.0, topspin_rps=40.0, sidespin_rps=10.0)
@@ -89,6 +93,7 @@ def hall_accuracy():
             frames, truth = synth.render_balls(rig, [state], [0.0], colour=colour,
                                                duration=0.8, lead_in=0.2, imaging='hall',
                                                exposure=exposure)
+            frames = list(frames)
             pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour),
                             tracker_config=TrackerConfig(smooth=True))
             estimates = []
@@ -99,6 +104,14 @@ def hall_accuracy():
                                               rendered_from=0.5 * exposure).sum())
             row = hall_row(estimates, truth[0], seen)
             row['smoothed'] = hall_row(pipe.smoothed(estimates), truth[0], seen)
+            pipe, _ = pipeline_with_estimated_blurs(rig, frames,
+                                                    detector_config=DetectorConfig(colour=colour))
+            estimates = []
+            for t, k, frame in frames:
+                estimates += pipe.process(t, k, frame)
+            row['estimated_image_blur'] = hall_row(estimates, truth[0], seen)
+            row['estimated_image_blur']['image_blur_px'] = [
+                round(d.config.image_blur, 3) for d in pipe.detectors]
             out[f'{colour}_{width}x{height}'] = row
     return out
 

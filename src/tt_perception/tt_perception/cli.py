@@ -53,6 +53,7 @@ from .detect import (
     RESPONSE_GAMMA_RANGE,
     BallDetector,
     DetectorConfig,
+    estimate_image_blur,
 )
 from .pipeline import Pipeline, TrackerConfig
 from .sources import file_frames, message_to_bgr
@@ -230,8 +231,54 @@ def estimate_offsets(rig, colour, detector_config=None):
     return notes
 
 
-def run(frames, pipeline):
-    """All estimates of the pipeline over ``frames``, and the first error met per camera."""
+BLUR_FITS = 400
+"""Outline fits per camera that :func:`estimate_blurs` reads at most (the first ones)."""
+BLUR_FITS_MIN = 30
+"""Fewest outline fits a camera's blur is estimated from."""
+
+
+def estimate_blurs(rig, frames, pipeline):
+    """Each camera's ``image_blur`` (px) estimated from the outline fits of the ball in
+    ``frames`` (:func:`tt_perception.detect.estimate_image_blur`), ``pipeline`` (a new
+    :class:`Pipeline` of the rig, its detectors' ``image_blur`` the blur it tracks with)
+    run over them until every camera has :data:`BLUR_FITS` fits; returns (the blurs, one
+    line per camera). A camera with fewer than :data:`BLUR_FITS_MIN` keeps its detector's
+    blur, with a warning."""
+    for detector in pipeline.detectors:
+        detector.fits = []
+    run(frames, pipeline,
+        until=lambda: all(len(d.fits) >= BLUR_FITS for d in pipeline.detectors))
+    blurs, notes = [], []
+    for cam, detector in zip(rig.cameras, pipeline.detectors, strict=True):
+        blur, n = estimate_image_blur(detector.fits[:BLUR_FITS])
+        if n < BLUR_FITS_MIN:
+            blur = detector.config.image_blur
+            notes.append(f'warning: {cam.name}: {n} outline fit(s) of the ball, too few to '
+                         f'estimate its image blur, {blur:g} px taken (set --image-blur)')
+        else:
+            notes.append(f'{cam.name}: image_blur {blur:.2f} px estimated from {n} outline '
+                         'fits of the ball')
+        blurs.append(blur)
+    return blurs, notes
+
+
+def pipeline_with_estimated_blurs(rig, frames, params=None, detector_config=None,
+                                  tracker_config=None):
+    """A new :class:`Pipeline` whose detectors each have their camera's ``image_blur``
+    estimated from ``frames`` (:func:`estimate_blurs`, tracking with ``detector_config``'s),
+    and the estimate's lines."""
+    blurs, notes = estimate_blurs(rig, frames, Pipeline(rig, params=params,
+                                                        detector_config=detector_config))
+    pipeline = Pipeline(rig, params=params, detector_config=detector_config,
+                        tracker_config=tracker_config)
+    for detector, blur in zip(pipeline.detectors, blurs, strict=True):
+        detector.config.image_blur = blur
+    return pipeline, notes
+
+
+def run(frames, pipeline, until=None):
+    """All estimates of the pipeline over ``frames``, and the first error met per camera;
+    stopped early when ``until()`` is true after a frame."""
     estimates, errors = [], {}
     t_ref = None
     for t, k, frame in frames:
@@ -240,6 +287,8 @@ def run(frames, pipeline):
         estimates += [(t_ref, e) for e in pipeline.process(t - t_ref, k, frame)]
         if pipeline.last_error and k not in errors:
             errors[k] = pipeline.last_error
+        if until is not None and until():
+            break
     return estimates, errors
 
 
@@ -359,16 +408,20 @@ def main(argv=None):
     return interruptible('tt-perceive', _main, argv)
 
 
-def _in_range(lo, hi):
-    """argparse type: a number in [lo, hi] (the node parameter's range), else a usage error
-    naming it (exit 2)."""
+def _in_range(lo, hi, word=None):
+    """argparse type: a number in [lo, hi] (the node parameter's range), or ``word`` when
+    given and typed (returned as None), else a usage error naming it (exit 2)."""
     def parse(text):
+        if word is not None and text == word:
+            return None
         try:
             value = float(text)
         except ValueError:
             value = float('nan')
         if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f'{text} is not a number in [{lo:g}, {hi:g}]')
+            also = f" or '{word}'" if word is not None else ''
+            raise argparse.ArgumentTypeError(
+                f'{text} is not a number in [{lo:g}, {hi:g}]{also}')
         return value
     return parse
 
@@ -397,11 +450,12 @@ def _main(argv=None):
                         default=DetectorConfig.exposure, metavar='S',
                         help="the cameras' exposure time, s: the ball's motion blur "
                              "(perception_node's exposure; default 0.002)")
-    parser.add_argument('--image-blur', type=_in_range(*IMAGE_BLUR_RANGE),
-                        default=DetectorConfig.image_blur, metavar='PX',
-                        help="the cameras' own blur, pixels (perception_node's image_blur; "
-                             "default 0.6, a Bayer colour camera's demosaicing; 0 for a sharp "
-                             'camera)')
+    parser.add_argument('--image-blur', type=_in_range(*IMAGE_BLUR_RANGE, word='auto'),
+                        default=None, metavar='PX',
+                        help="the cameras' own blur, pixels (perception_node's image_blur: "
+                             "0.6 a Bayer colour camera's demosaicing, 0 a sharp camera); "
+                             "default auto: each camera's, estimated from the ball's outline "
+                             'fits in a first pass over the frames and printed')
     parser.add_argument('--any-lighting', action='store_true',
                         help="the ball may be lit from any side (perception_node's "
                              'light_from_above false; default: the lights are above the '
@@ -431,16 +485,27 @@ def _main(argv=None):
         return 2
     try:
         detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
-                                  exposure=args.exposure, image_blur=args.image_blur,
-                                  light_from_above=not args.any_lighting)
+                                  exposure=args.exposure, light_from_above=not args.any_lighting)
+        if args.image_blur is not None:
+            detector.image_blur = args.image_blur
         if not args.bag:
             for note in estimate_offsets(rig, args.colour, detector):
                 print(f'tt-perceive: {note}', file=sys.stderr)
-        pipeline = Pipeline(rig, params=params, detector_config=detector,
-                            tracker_config=TrackerConfig(smooth=args.smooth))
+
+        def frames(cut):
+            return bag_frames(rig, args.bag, cut) if args.bag else file_frames(rig, cut)
+
+        tracker = TrackerConfig(smooth=args.smooth)
+        if args.image_blur is None:
+            pipeline, notes = pipeline_with_estimated_blurs(rig, frames([]), params, detector,
+                                                            tracker)
+            for note in notes:
+                print(f'tt-perceive: {note}', file=sys.stderr)
+        else:
+            pipeline = Pipeline(rig, params=params, detector_config=detector,
+                                tracker_config=tracker)
         cut = []
-        frames = bag_frames(rig, args.bag, cut) if args.bag else file_frames(rig, cut)
-        estimates, errors = run(frames, pipeline)
+        estimates, errors = run(frames(cut), pipeline)
         if args.smooth:
             smoothed = pipeline.smoothed([e for _, e in estimates])
             estimates = [(t_ref, e) for (t_ref, _), e in zip(estimates, smoothed, strict=True)]

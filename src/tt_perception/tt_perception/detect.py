@@ -39,6 +39,8 @@ RESPONSE_GAMMA_RANGE = (1.0, 3.0)
 """Accepted camera responses (:attr:`DetectorConfig.response_gamma`), as EXPOSURE_RANGE."""
 IMAGE_BLUR_RANGE = (0.0, 5.0)
 """Accepted camera blurs (:attr:`DetectorConfig.image_blur`), pixels, as EXPOSURE_RANGE."""
+IMAGE_BLUR_GRID = tuple(round(0.1 * i, 1) for i in range(16))
+"""Camera blurs tried by :func:`estimate_image_blur`, pixels: 0 to 1.5 in steps of 0.1."""
 
 
 @dataclasses.dataclass
@@ -659,6 +661,7 @@ class OutlineFit:
             pixels = (grey[ys, xs].astype(float), background[ys, xs].astype(float),
                       xs.astype(float), ys.astype(float))
         self.obs, self.bg, self.xs, self.ys = pixels
+        self.ball = ball
         self.whitening = _whiten(ball.outline)
         self.blur = (float(ball.blur[0]), float(ball.blur[1]))
         self.sampling = _sampling(ball, image_blur)
@@ -681,6 +684,12 @@ class OutlineFit:
             return None
         return centre, float(cost), self._lit_from_below(shading)
 
+    def with_blur(self, image_blur):
+        """The same fit of the same pixels with the camera blur ``image_blur`` (px)."""
+        curvature_weight, iterations, _ = self.options
+        return OutlineFit(None, None, None, self.ball, iterations, curvature_weight, image_blur,
+                          (self.obs, self.bg, self.xs, self.ys))
+
     def _lit_from_below(self, shading):
         if self.up is None:
             return False
@@ -690,6 +699,44 @@ class OutlineFit:
         size = math.hypot(*gradient)
         return bool(math.hypot(*across) > SHADING_MIN * abs(shading[0])
                     and gradient @ self.up < -LIT_FROM_BELOW_COS * size)
+
+
+def estimate_image_blur(fits, blurs=IMAGE_BLUR_GRID):
+    """The camera's blur (:attr:`DetectorConfig.image_blur`), px, that explains the pixels of
+    the outline fits ``fits`` best, and the number of fits it rests on: (blur, n), or
+    (None, 0) when no fit succeeds at every blur.
+
+    ``fits``: (:class:`OutlineFit`, centre) pairs, the fitted candidates of one camera
+    (:attr:`BallDetector.fits`). Each is fitted again from its centre with every blur of
+    ``blurs`` (evenly spaced, increasing); the blur of least summed cost over the fits that
+    succeed at all of them, moved to the vertex of the parabola through it and its two
+    neighbours when it is not at either end. A blur the camera does not have leaves a
+    residual along the whole outline, on the lit and the shaded side alike, so the fits'
+    cost is least near the camera's own (docs/perception.md, "Estimating the camera's
+    blur": within 0.2 px of the blur that places the ball best on scenes of two renderers
+    written apart from tt)."""
+    blurs = np.asarray(blurs, dtype=float)
+    costs = []
+    for fitter, centre in fits:
+        row = []
+        for blur in blurs:
+            fit = fitter.with_blur(float(blur)).fit(centre)
+            if fit is None:
+                break
+            row.append(fit[1])
+        else:
+            costs.append(row)
+    if not costs:
+        return None, 0
+    total = np.sum(costs, axis=0)
+    i = int(np.argmin(total))
+    blur = blurs[i]
+    if 0 < i < blurs.size - 1:
+        left, mid, right = total[i - 1:i + 2]
+        curvature = left - 2.0 * mid + right
+        if curvature > 0.0:
+            blur += 0.5 * (left - right) / curvature * (blurs[i + 1] - blurs[i])
+    return float(blur), len(costs)
 
 
 def warm_up():
@@ -959,6 +1006,9 @@ class BallDetector:
         self._bg_colour = None
         self._count = 0
         self._pending = None
+        self.fits = None
+        """A list to keep each fitted candidate's (:class:`OutlineFit`, centre) in, for
+        :func:`estimate_image_blur`; None: they are not kept."""
         self.colourless = None
         """Whether this camera's frames are grey given as BGR (its first frame's three
         channels equal: a monochrome camera's mono8, a grey video): they are then taken as
@@ -1193,7 +1243,11 @@ class BallDetector:
                 fit = fitter.fit((u - ax + step * du, v - ay + step * dv))
                 if better(fit, best):
                     best = fit
-        return None if best is None else (best[0][0] + ax, best[0][1] + ay)
+        if best is None:
+            return None
+        if self.fits is not None:
+            self.fits.append((fitter, best[0]))
+        return best[0][0] + ax, best[0][1] + ay
 
     def _update_background(self, frame, window, mask, x0, y0):
         """Exponential average of the frame into the background, except under blobs (``mask``,
