@@ -105,7 +105,8 @@ class DetectorConfig:
     centre away from the lit side, which no value takes out ("A camera without a mosaic").
     0: a sharp camera (synth's clean mode; the ramp of one sub-sample). docs/perception.md,
     "The camera's blur and the lit side". It costs no time (a fit samples each pixel once
-    with it, four times without)."""
+    with it, four times without). :func:`estimate_image_blur` measures it from the fits
+    (tt-perceive does by default)."""
 
 
 @dataclasses.dataclass

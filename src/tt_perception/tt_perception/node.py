@@ -110,7 +110,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      '(0: a free quadratic, for a single compact light with no ambient)', '', 0.0, 100.0),
     ('image_blur', DetectorConfig.image_blur,
      "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian standard deviation; 0.6: "
-     "a Bayer colour camera's demosaicing; 0: sharp", 'pixels', *IMAGE_BLUR_RANGE),
+     "a Bayer colour camera's demosaicing; 0: sharp; tt-perceive prints each camera's, "
+     'estimated from a recording', 'pixels', *IMAGE_BLUR_RANGE),
     ('light_from_above', DetectorConfig.light_from_above,
      "The lights are above the table (the ball's top is its lit side): of the outline fits "
      'from several starts, one lit from below is kept only when all are; false: any '
