@@ -140,6 +140,22 @@ def test_each_cameras_blur_is_estimated_by_default_and_tracked_with(scene, tmp_p
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
 
 
+def test_the_blur_estimate_keeps_a_bounded_number_of_fits_a_camera(scene, tmp_path,
+                                                                    monkeypatch, capsys):
+    """A long recording does not pile up outline fits: each camera keeps its latest
+    ``BLUR_FITS`` (here 20, of about 70 a camera in this flight), the first pass stops once
+    every camera has them, and the estimate rests on that many."""
+    base, rig_path, frames, truth = scene
+    monkeypatch.setattr(cli, 'BLUR_FITS', 20)
+    monkeypatch.setattr(cli, 'BLUR_FITS_MIN', 10)
+    rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
+    out = tmp_path / 'out'
+    assert cli.main(['--rig', rig, '--out', str(out)]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if 'image_blur' in line]
+    assert len(lines) == 2 and all('from 20 outline fits' in line for line in lines), lines
+    assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
+
+
 @pytest.mark.parametrize('value', ['-0.5', '6', 'wide'])
 def test_a_camera_blur_out_of_range_is_a_usage_error_naming_it(scene, tmp_path, capsys, value):
     base, rig_path, frames, truth = scene

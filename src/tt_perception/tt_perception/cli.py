@@ -25,6 +25,7 @@ pass of detection over the files), reported on stderr.
 """
 
 import argparse
+import collections
 import contextlib
 import csv
 import dataclasses
@@ -232,7 +233,8 @@ def estimate_offsets(rig, colour, detector_config=None):
 
 
 BLUR_FITS = 400
-"""Outline fits per camera that :func:`estimate_blurs` reads at most (the first ones)."""
+"""Outline fits per camera that :func:`estimate_blurs` reads at most (the latest ones: a
+camera that sees the ball less makes the pass longer, not the other's list)."""
 BLUR_FITS_MIN = 30
 """Fewest outline fits a camera's blur is estimated from."""
 
@@ -245,12 +247,12 @@ def estimate_blurs(rig, frames, pipeline):
     line per camera). A camera with fewer than :data:`BLUR_FITS_MIN` keeps its detector's
     blur, with a warning."""
     for detector in pipeline.detectors:
-        detector.fits = []
+        detector.fits = collections.deque(maxlen=BLUR_FITS)
     run(frames, pipeline,
-        until=lambda: all(len(d.fits) >= BLUR_FITS for d in pipeline.detectors))
+        until=lambda: all(len(d.fits) == BLUR_FITS for d in pipeline.detectors))
     blurs, notes = [], []
     for cam, detector in zip(rig.cameras, pipeline.detectors, strict=True):
-        blur, n = estimate_image_blur(detector.fits[:BLUR_FITS])
+        blur, n = estimate_image_blur(detector.fits)
         if n < BLUR_FITS_MIN:
             blur = detector.config.image_blur
             notes.append(f'warning: {cam.name}: {n} outline fit(s) of the ball, too few to '

@@ -1008,8 +1008,9 @@ class BallDetector:
         self._count = 0
         self._pending = None
         self.fits = None
-        """A list to keep each fitted candidate's (:class:`OutlineFit`, centre) in, for
-        :func:`estimate_image_blur`; None: they are not kept."""
+        """A list (or a bounded deque) to append each fitted candidate's
+        (:class:`OutlineFit`, centre) to, for :func:`estimate_image_blur`; None: they are
+        not kept."""
         self.colourless = None
         """Whether this camera's frames are grey given as BGR (its first frame's three
         channels equal: a monochrome camera's mono8, a grey video): they are then taken as
