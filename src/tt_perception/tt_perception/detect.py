@@ -713,9 +713,9 @@ def estimate_image_blur(fits, blurs=IMAGE_BLUR_GRID):
     succeed at all of them, moved to the vertex of the parabola through it and its two
     neighbours when it is not at either end. A blur the camera does not have leaves a
     residual along the whole outline, on the lit and the shaded side alike, so the fits'
-    cost is least near the camera's own (docs/perception.md, "Estimating the camera's
-    blur": within 0.2 px of the blur that places the ball best on scenes of two renderers
-    written apart from tt)."""
+    cost is least near the camera's own (docs/perception.md, "The cameras' blur,
+    estimated": within about 0.2 px of the blur that places the ball best on the scenes of
+    two renderers written apart from tt_perception.synth)."""
     blurs = np.asarray(blurs, dtype=float)
     costs = []
     for fitter, centre in fits:
