@@ -94,7 +94,8 @@ def hall_accuracy():
                                                duration=0.8, lead_in=0.2, imaging='hall',
                                                exposure=exposure)
             frames = list(frames)
-            pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour),
+            detector = DetectorConfig(colour=colour)
+            pipe = Pipeline(rig, detector_config=detector,
                             tracker_config=TrackerConfig(smooth=True))
             estimates = []
             for t, k, frame in frames:
@@ -104,8 +105,7 @@ def hall_accuracy():
                                               rendered_from=0.5 * exposure).sum())
             row = hall_row(estimates, truth[0], seen)
             row['smoothed'] = hall_row(pipe.smoothed(estimates), truth[0], seen)
-            pipe, _ = pipeline_with_estimated_blurs(rig, frames,
-                                                    detector_config=DetectorConfig(colour=colour))
+            pipe, _ = pipeline_with_estimated_blurs(rig, frames, detector_config=detector)
             estimates = []
             for t, k, frame in frames:
                 estimates += pipe.process(t, k, frame)

@@ -239,13 +239,13 @@ BLUR_FITS_MIN = 30
 """Fewest outline fits a camera's blur is estimated from."""
 
 
-def estimate_blurs(rig, frames, pipeline):
+def estimate_blurs(rig, frames, params=None, detector_config=None):
     """Each camera's ``image_blur`` (px) estimated from the outline fits of the ball in
-    ``frames`` (:func:`tt_perception.detect.estimate_image_blur`), ``pipeline`` (a new
-    :class:`Pipeline` of the rig, its detectors' ``image_blur`` the blur it tracks with)
-    run over them until every camera has :data:`BLUR_FITS` fits; returns (the blurs, one
-    line per camera). A camera with fewer than :data:`BLUR_FITS_MIN` keeps its detector's
-    blur, with a warning."""
+    ``frames`` (:func:`tt_perception.detect.estimate_image_blur`), tracked by a pipeline
+    with ``detector_config``'s blur until every camera has :data:`BLUR_FITS` fits; returns
+    (the blurs, one line per camera). A camera with fewer than :data:`BLUR_FITS_MIN` keeps
+    ``detector_config``'s blur, with a warning."""
+    pipeline = Pipeline(rig, params=params, detector_config=detector_config)
     for detector in pipeline.detectors:
         detector.fits = collections.deque(maxlen=BLUR_FITS)
     run(frames, pipeline,
@@ -269,8 +269,7 @@ def pipeline_with_estimated_blurs(rig, frames, params=None, detector_config=None
     """A new :class:`Pipeline` whose detectors each have their camera's ``image_blur``
     estimated from ``frames`` (:func:`estimate_blurs`, tracking with ``detector_config``'s),
     and the estimate's lines."""
-    blurs, notes = estimate_blurs(rig, frames, Pipeline(rig, params=params,
-                                                        detector_config=detector_config))
+    blurs, notes = estimate_blurs(rig, frames, params, detector_config)
     pipeline = Pipeline(rig, params=params, detector_config=detector_config,
                         tracker_config=tracker_config)
     for detector, blur in zip(pipeline.detectors, blurs, strict=True):

@@ -314,10 +314,10 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     rows, nis, outlier_t = _replay_samples(t, p, params, config, hit_plane_x, spin)
     tt, pp, bounces, crossing, flight_t = _ground_truth(
         name, np.asarray(t, float), np.asarray(p, float), params, hit_plane_x)
-    valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     if flight_t is not None:
         first = flight_t                    # lead times count from the incoming flight
     else:
+        valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
         first = float(np.min(np.asarray(t)[valid])) if valid.any() else math.nan
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
