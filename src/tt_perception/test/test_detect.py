@@ -95,6 +95,46 @@ def test_a_washed_out_orange_blob_is_kept_but_not_sure_of_its_colour(change, kep
         assert found[0].colour_sure is sure and abs(found[0].u - 80) < 0.5
 
 
+def streaked_disc(table, colour, start, end, radius, steps=24):
+    """A disc of ``colour`` (B, G, R) swept from ``start`` to ``end`` over a ``table``
+    background during the exposure: the mean of its images along the path (120 x 160)."""
+    frames = [cv2.circle(np.tile(np.asarray(table, np.float32), (120, 160, 1)),
+                         tuple(int(round(c * 16)) for c in p), int(round(radius * 16)),
+                         tuple(float(c) for c in colour), -1, cv2.LINE_AA, shift=4)
+              for p in np.linspace(start, end, steps)]
+    return np.rint(np.mean(frames, axis=0)).astype(np.uint8)
+
+
+@pytest.mark.parametrize('colour, path, white', [
+    ((230, 230, 230), ((55.0, 50.0), (85.0, 65.0)), True),   # the blue table shows through
+    ((40, 120, 230), ((55.0, 50.0), (85.0, 65.0)), False),   # an orange ball, the same way
+    ((120, 150, 200), ((70.0, 57.5), (70.0, 57.5)), False),  # skin, held still
+], ids=['white', 'orange', 'skin'])
+def test_a_white_ball_streaked_over_a_blue_table_is_white(colour, path, white):
+    """A ball swept over three times its diameter in the exposure covers each pixel for a
+    part of it only, so its pixels mix in the table's blue: their mean colour is not
+    balanced enough to be white, but with some of the table's colour taken out it is
+    (detect's _white_mixed). An orange ball streaked the same way, or a reddish thing
+    held still, is not. (A reddish thing streaked over blue mixes to grey: no colour test
+    can tell it from a dimmer white ball.)"""
+    table = (95, 60, 25)
+    d = BallDetector(DetectorConfig(colour='white'))
+    d.detect(np.tile(np.array(table, np.uint8), (120, 160, 1)))
+    frame = streaked_disc(table, colour, *path, 5.0)
+    found = d.detect(frame)
+    if white:
+        # The case meant: the brighter half of the streak's pixels, as a mean, is not white.
+        grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        changed = np.abs(grey.astype(int) - int(np.mean(table) + 0.5)) > 22
+        lit = changed & (grey >= np.median(grey[changed]))
+        mean = frame[lit].mean(axis=0)
+        assert mean.min() < 0.72 * mean.max()
+        assert len(found) == 1 and found[0].colour_sure
+        assert np.hypot(found[0].u - 70.0, found[0].v - 57.5) < 0.5
+    else:
+        assert found == []
+
+
 def test_shading_and_a_contact_shadow_do_not_move_the_centre():
     """Overhead light: a bright top, an underside dimmer than the threshold in grey but of
     another colour than the blue table, and a shadow below it: the centre stays the disc's."""
