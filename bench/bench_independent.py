@@ -31,10 +31,10 @@ settings at their defaults) and is scored against the renderer's truth:
   triangulation and tracker (median and p90 over 10 draws): the reference the pipeline's
   number is read against, as the tracker cannot know the spin at a track's start;
 - ``tracks``: distinct track ids; ``stray_states``: states farther than 5 cm from the ball;
-- ``estimated_image_blur``: the same numbers with each camera's ``image_blur`` estimated
-  from the ball's outline fits, as tt-perceive sets it by default (reported, not part of
-  ``passed``: the rows above are perception_node's, whose default, 0.6 px, is this
-  renderer's Bayer camera's), and the blurs;
+- ``estimated_blurs``: the same numbers with each camera's exposure and ``image_blur``
+  estimated from the ball's outline fits, as tt-perceive sets them by default (reported,
+  not part of ``passed``: the rows above are perception_node's, told the 2 ms exposure,
+  and whose default blur, 0.6 px, is this renderer's Bayer camera's), and the estimates;
 - ``smoothed``: the same numbers for the states ``tt-perceive`` writes by default, each
   given all of its track's frames (:meth:`tt_perception.pipeline.Pipeline.smoothed`), with
   their checks, the velocity's included. The live node's states are the rows above.
@@ -257,11 +257,12 @@ def checks(row):
 
 
 def estimated_blur_row(rig, frames, colour, flight, truth, response_gamma=CAMERA_GAMMA):
-    """The live states' numbers with each camera's ``image_blur`` estimated from the frames,
-    as tt-perceive sets it by default (:func:`tt_perception.cli.
-    pipeline_with_estimated_blurs`), and the blurs."""
+    """The live states' numbers with each camera's exposure and ``image_blur`` estimated
+    from the frames, as tt-perceive sets them by default (:func:`tt_perception.cli.
+    pipeline_with_estimated_blurs`), and the estimates."""
     detector = DetectorConfig(colour=colour, response_gamma=response_gamma)
-    pipe, _ = pipeline_with_estimated_blurs(rig, frames, detector_config=detector)
+    pipe, _ = pipeline_with_estimated_blurs(rig, frames, detector_config=detector,
+                                            exposure=True)
     estimates = []
     for t, k, frame in frames:
         estimates += pipe.process(t, k, frame)
@@ -269,6 +270,7 @@ def estimated_blur_row(rig, frames, colour, flight, truth, response_gamma=CAMERA
     out = {k: row.get(k) for k in ('position_rms_mm', 'mean_error_mm', 'coverage', 'tracks',
                                    'velocity_max_err_m_s')}
     out['image_blur_px'] = [round(d.config.image_blur, 3) for d in pipe.detectors]
+    out['exposure_ms'] = [round(d.config.exposure * 1e3, 3) for d in pipe.detectors]
     out['checks'] = checks(row)
     out['within_limits'] = all(out['checks'][c] for c in ('rms_ok', 'mean_ok', 'coverage_ok',
                                                           'one_track_ok'))
@@ -297,8 +299,8 @@ def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None,
     row['frames'] = len(frames)
     row['pipeline_s'] = round(pipe_s, 2)
     if estimate_blur:
-        row['estimated_image_blur'] = estimated_blur_row(rig, frames, colour, flight, truth[0],
-                                                         response_gamma)
+        row['estimated_blurs'] = estimated_blur_row(rig, frames, colour, flight, truth[0],
+                                                    response_gamma)
     return row
 
 
@@ -334,7 +336,7 @@ def no_mosaic(rig, renderer, flights):
         out[colour] = {name: {k: row.get(k) for k in ('position_rms_mm', 'mean_error_mm',
                                                       'coverage', 'tracks',
                                                       'velocity_max_err_m_s', 'checks',
-                                                      'passed', 'estimated_image_blur')}
+                                                      'passed', 'estimated_blurs')}
                        for name, row in rows.items()}
     return out
 
@@ -399,8 +401,9 @@ def run():
                             r['tracks'], r.get('velocity_max_err_m_s'),
                             r.get('spin_perp_max_rel_err'), r.get('spin_perp_max_angle_deg'),
                             r['render_s'],
-                            [r['estimated_image_blur'][k] for k in (
-                                'image_blur_px', 'position_rms_mm', 'mean_error_mm')])
+                            [r['estimated_blurs'][k] for k in (
+                                'exposure_ms', 'image_blur_px', 'position_rms_mm',
+                                'mean_error_mm')])
                         for n, r in rows.items()}, out['distractor'][key]['states'],
                   flush=True)
         if (width, height) == SIZES[0]:

@@ -81,9 +81,9 @@ def hall_accuracy():
     degrees from 0.2 s on (:func:`accuracy`); the numbers are reported as they are. Each
     row is the live node's states; its ``smoothed`` the same numbers for those tt-perceive
     writes by default (:meth:`tt_perception.pipeline.Pipeline.smoothed`); its
-    ``estimated_image_blur`` the live states with each camera's ``image_blur`` estimated
-    from the ball's outline fits, as tt-perceive sets it by default
-    (:func:`tt_perception.cli.pipeline_with_estimated_blurs`), and the blurs."""
+    ``estimated_blurs`` the live states with each camera's exposure and ``image_blur``
+    estimated from the ball's outline fits, as tt-perceive sets them by default
+    (:func:`tt_perception.cli.pipeline_with_estimated_blurs`), and the estimates."""
     out = {}
     exposure = 2e-3
     state = synth.incoming_ball(speed=8.0, topspin_rps=40.0, sidespin_rps=10.0)
@@ -105,13 +105,16 @@ def hall_accuracy():
                                               rendered_from=0.5 * exposure).sum())
             row = hall_row(estimates, truth[0], seen)
             row['smoothed'] = hall_row(pipe.smoothed(estimates), truth[0], seen)
-            pipe, _ = pipeline_with_estimated_blurs(rig, frames, detector_config=detector)
+            pipe, _ = pipeline_with_estimated_blurs(rig, frames, detector_config=detector,
+                                                    exposure=True)
             estimates = []
             for t, k, frame in frames:
                 estimates += pipe.process(t, k, frame)
-            row['estimated_image_blur'] = hall_row(estimates, truth[0], seen)
-            row['estimated_image_blur']['image_blur_px'] = [
+            row['estimated_blurs'] = hall_row(estimates, truth[0], seen)
+            row['estimated_blurs']['image_blur_px'] = [
                 round(d.config.image_blur, 3) for d in pipe.detectors]
+            row['estimated_blurs']['exposure_ms'] = [
+                round(d.config.exposure * 1e3, 3) for d in pipe.detectors]
             out[f'{colour}_{width}x{height}'] = row
     return out
 

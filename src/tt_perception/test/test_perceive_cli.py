@@ -65,7 +65,8 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
     # The scene's frames as a camera with an sRGB-like response records them (pixel =
     # 255 (light / full)^(1 / 2.2)): told its gamma, tt-perceive sees the light the linear
     # camera saw, and gives its track. It had no option for it: 2-4 times the error, the
-    # height high, on another renderer's camera (a new user's walk-through).
+    # height high, on another renderer's camera (a new user's walk-through). The exposure
+    # and blur are told (the scene's), as estimated they take up part of an untold gamma.
     base, rig_path, frames, truth = scene
     lut = np.round(255.0 * (np.arange(256) / 255.0) ** (1.0 / 2.2)).astype(np.uint8)
     rigs = {name: synth.write_scene(str(tmp_path / name), rig_path, scene_frames, [truth],
@@ -76,7 +77,8 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
     for name, rig, gamma in (('linear', rigs['linear'], '1'), ('webcam', rigs['webcam'], '2.2'),
                              ('webcam_untold', rigs['webcam'], '1')):
         out = tmp_path / f'out_{name}'
-        assert cli.main(['--rig', rig, '--out', str(out), '--response-gamma', gamma]) == 0
+        assert cli.main(['--rig', rig, '--out', str(out), '--response-gamma', gamma,
+                         '--exposure', '0.0015', '--image-blur', '0']) == 0
         tracks[name] = read_track(out / 'track_001.csv')
     capsys.readouterr()
     def off(name):          # RMS distance to the linear camera's track, m
@@ -89,13 +91,15 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
 
 @pytest.mark.parametrize('option, setting, value', [
     ([], 'light_from_above', True), (['--any-lighting'], 'light_from_above', False),
-    (['--image-blur', '0.6'], 'image_blur', 0.6), (['--image-blur', '0'], 'image_blur', 0.0)])
+    (['--image-blur', '0.6'], 'image_blur', 0.6), (['--image-blur', '0'], 'image_blur', 0.0),
+    (['--exposure', '0.003'], 'exposure', 0.003)])
 def test_the_detector_options_reach_the_detector(scene, tmp_path, monkeypatch, option, setting,
                                                  value):
     # perception_node's light_from_above (the outline fit's choice between a ball lit from
-    # above and one lit from below) and image_blur (the cameras' own blur in the outline
-    # fit: 0.6 px a Bayer camera's demosaicing; synth's clean cameras are sharp) are
-    # tt-perceive's too; the track is right on this evenly lit scene either way.
+    # above and one lit from below), image_blur (the cameras' own blur in the outline
+    # fit: 0.6 px a Bayer camera's demosaicing; synth's clean cameras are sharp) and
+    # exposure (the ball's streak; this scene's is 1.5 ms) are tt-perceive's too; the track
+    # is right on this evenly lit scene either way.
     base, rig_path, frames, truth = scene
     made = []
     pipeline = cli.Pipeline
@@ -114,11 +118,14 @@ def test_the_detector_options_reach_the_detector(scene, tmp_path, monkeypatch, o
 
 def test_each_cameras_blur_is_estimated_by_default_and_tracked_with(scene, tmp_path,
                                                                      monkeypatch, capsys):
-    """Without --image-blur, tt-perceive estimates each camera's blur from the ball's outline
-    fits (a first pass) and tracks with it: synth's clean cameras are sharp (the ball drawn
-    anti-aliased on 1/16 px, no lens, mosaic or JPEG), so each camera's is found within 0.3
-    px of 0 (not the 0.6 px a Bayer camera has), printed, and given to that camera's
-    detector."""
+    """Without --exposure and --image-blur, tt-perceive estimates each camera's exposure
+    and blur from the ball's outline fits (a first pass, at 2 ms and 0.6 px) and tracks with
+    them. synth draws the ball over a 1.5 ms exposure at 5 instants spread evenly from its
+    start to its end, whose spread along the path (the second moment) is that of a
+    continuous streak sqrt((5 + 1) / (5 - 1)) times as long: 1.84 ms, found within 0.25 ms.
+    Its clean cameras are sharp (the ball drawn anti-aliased on 1/16 px, no lens, mosaic
+    or JPEG), so each camera's blur is found within 0.3 px of 0 (not the 0.6 px a Bayer
+    camera has). Each is printed and given to that camera's detector."""
     base, rig_path, frames, truth = scene
     made = []
     pipeline = cli.Pipeline
@@ -131,12 +138,19 @@ def test_each_cameras_blur_is_estimated_by_default_and_tracked_with(scene, tmp_p
     rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
     out = tmp_path / 'out'
     assert cli.main(['--rig', rig, '--out', str(out)]) == 0
-    lines = [line for line in capsys.readouterr().err.splitlines() if 'image_blur' in line]
+    err = capsys.readouterr().err.splitlines()
+    lines = [line for line in err if 'image_blur' in line]
     printed = [float(line.split('image_blur ')[1].split(' px')[0]) for line in lines]
     assert [line.split(':')[1].strip() for line in lines] == ['cam0', 'cam1']
     assert all(0.0 <= b < 0.3 for b in printed), lines
     assert [d.config.image_blur for d in made[-1].detectors] == pytest.approx(printed,
                                                                              abs=0.005)
+    lines = [line for line in err if 'exposure' in line]
+    printed = [float(line.split('exposure ')[1].split(' ms')[0]) * 1e-3 for line in lines]
+    assert [line.split(':')[1].strip() for line in lines] == ['cam0', 'cam1']
+    assert printed == pytest.approx([1.5e-3 * np.sqrt(6.0 / 4.0)] * 2, abs=0.25e-3), lines
+    assert [d.config.exposure for d in made[-1].detectors] == pytest.approx(printed,
+                                                                           abs=5e-6)
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
 
 
@@ -151,8 +165,8 @@ def test_the_blur_estimate_keeps_a_bounded_number_of_fits_a_camera(scene, tmp_pa
     rig = synth.write_scene(str(tmp_path / 'video'), rig_path, frames, [truth], fmt='png')
     out = tmp_path / 'out'
     assert cli.main(['--rig', rig, '--out', str(out)]) == 0
-    lines = [line for line in capsys.readouterr().err.splitlines() if 'image_blur' in line]
-    assert len(lines) == 2 and all('from 20 outline fits' in line for line in lines), lines
+    lines = [line for line in capsys.readouterr().err.splitlines() if 'outline fits' in line]
+    assert len(lines) == 4 and all('from 20 outline fits' in line for line in lines), lines
     assert_matches_truth(read_track(out / 'track_001.csv'), truth, -LEAD_IN)
 
 

@@ -1,8 +1,8 @@
 """tt-perceive: the perception pipeline offline, over the rig's video files or a bag.
 
     tt-perceive --rig RIG.yaml --out DIR [--bag BAG] [--colour white|orange|any] [--model FILE]
-                [--out-bag BAG] [--response-gamma G] [--exposure S] [--any-lighting]
-                [--smooth]
+                [--out-bag BAG] [--response-gamma G] [--exposure S|auto]
+                [--image-blur PX|auto] [--any-lighting] [--smooth]
 
 Writes a trajectory folder (DESIGN.md): one CSV per track, ``track_NNN.csv`` with columns
 ``t,x,y,z,vx,vy,vz,wx,wy,wz`` (``t`` in s from the first frame of camera 0 for video files, the
@@ -54,6 +54,8 @@ from .detect import (
     RESPONSE_GAMMA_RANGE,
     BallDetector,
     DetectorConfig,
+    estimate_exposure,
+    estimate_exposure_and_blur,
     estimate_image_blur,
 )
 from .pipeline import Pipeline, TrackerConfig
@@ -239,40 +241,62 @@ BLUR_FITS_MIN = 30
 """Fewest outline fits a camera's blur is estimated from."""
 
 
-def estimate_blurs(rig, frames, params=None, detector_config=None):
-    """Each camera's ``image_blur`` (px) estimated from the outline fits of the ball in
-    ``frames`` (:func:`tt_perception.detect.estimate_image_blur`), tracked by a pipeline
-    with ``detector_config``'s blur until every camera has :data:`BLUR_FITS` fits; returns
-    (the blurs, one line per camera). A camera with fewer than :data:`BLUR_FITS_MIN` keeps
-    ``detector_config``'s blur, with a warning."""
+def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=False,
+                   image_blur=True):
+    """Each camera's exposure (s, with ``exposure``) and ``image_blur`` (px, with
+    ``image_blur``) estimated from the outline fits of the ball in ``frames``
+    (:func:`tt_perception.detect.estimate_exposure` first, then :func:`tt_perception.detect.
+    estimate_image_blur` with the ball's motion over that exposure), tracked by a pipeline
+    with ``detector_config``'s until every camera has :data:`BLUR_FITS` fits; returns (one
+    (exposure, image_blur) pair per camera, one line per estimate). What is not estimated,
+    or where a camera has fewer than :data:`BLUR_FITS_MIN` fits (with a warning), is
+    ``detector_config``'s."""
     pipeline = Pipeline(rig, params=params, detector_config=detector_config)
     for detector in pipeline.detectors:
         detector.fits = collections.deque(maxlen=BLUR_FITS)
     run(frames, pipeline,
         until=lambda: all(len(d.fits) == BLUR_FITS for d in pipeline.detectors))
-    blurs, notes = [], []
+    settings, notes = [], []
     for cam, detector in zip(rig.cameras, pipeline.detectors, strict=True):
-        blur, n = estimate_image_blur(detector.fits)
-        if n < BLUR_FITS_MIN:
-            blur = detector.config.image_blur
-            notes.append(f'warning: {cam.name}: {n} outline fit(s) of the ball, too few to '
-                         f'estimate its image blur, {blur:g} px taken (set --image-blur)')
+        seconds, blur = told = (detector.config.exposure, detector.config.image_blur)
+        fits = detector.fits if len(detector.fits) >= BLUR_FITS_MIN else []
+        if exposure and image_blur:
+            found_seconds, found_blur, n = estimate_exposure_and_blur(fits, seconds,
+                                                                      1.0 / rig.fps)
+        elif exposure:
+            (found_seconds, n), found_blur = estimate_exposure(fits, seconds,
+                                                               1.0 / rig.fps), blur
         else:
-            notes.append(f'{cam.name}: image_blur {blur:.2f} px estimated from {n} outline '
-                         'fits of the ball')
-        blurs.append(blur)
-    return blurs, notes
+            found_seconds, (found_blur, n) = seconds, estimate_image_blur(fits)
+        estimated = n >= BLUR_FITS_MIN
+        if estimated:
+            seconds, blur = max(found_seconds, EXPOSURE_RANGE[0]), found_blur
+        lines = []
+        if exposure:
+            lines.append(('exposure', f'{seconds * 1e3:.2f} ms', f'{told[0]:g} s', '--exposure'))
+        if image_blur:
+            lines.append(('image_blur', f'{blur:.2f} px', f'{told[1]:g} px', '--image-blur'))
+        for what, value, told_value, option in lines:
+            notes.append(f'{cam.name}: {what} {value} estimated from {n} outline fits of the '
+                         'ball' if estimated else
+                         f'warning: {cam.name}: {len(detector.fits)} outline fit(s) of the ball, '
+                         f'too few to estimate its {what}, {told_value} taken (set {option})')
+        settings.append((seconds, blur))
+    return settings, notes
 
 
 def pipeline_with_estimated_blurs(rig, frames, params=None, detector_config=None,
-                                  tracker_config=None):
-    """A new :class:`Pipeline` whose detectors each have their camera's ``image_blur``
-    estimated from ``frames`` (:func:`estimate_blurs`, tracking with ``detector_config``'s),
-    and the estimate's lines."""
-    blurs, notes = estimate_blurs(rig, frames, params, detector_config)
+                                  tracker_config=None, exposure=False, image_blur=True):
+    """A new :class:`Pipeline` whose detectors each have their camera's exposure (with
+    ``exposure``) and ``image_blur`` (with ``image_blur``) estimated from ``frames``
+    (:func:`estimate_blurs`, tracking with ``detector_config``'s), and the estimate's
+    lines."""
+    settings, notes = estimate_blurs(rig, frames, params, detector_config, exposure,
+                                     image_blur)
     pipeline = Pipeline(rig, params=params, detector_config=detector_config,
                         tracker_config=tracker_config)
-    for detector, blur in zip(pipeline.detectors, blurs, strict=True):
+    for detector, (seconds, blur) in zip(pipeline.detectors, settings, strict=True):
+        detector.config.exposure = seconds
         detector.config.image_blur = blur
     return pipeline, notes
 
@@ -447,10 +471,12 @@ def _main(argv=None):
                         help="the cameras' response, pixel = 255 (light / full)^(1/G): 1 "
                              'linear (machine-vision cameras), about 2.2 for sRGB-like '
                              "webcams (perception_node's response_gamma; default 1)")
-    parser.add_argument('--exposure', type=_in_range(*EXPOSURE_RANGE),
-                        default=DetectorConfig.exposure, metavar='S',
+    parser.add_argument('--exposure', type=_in_range(*EXPOSURE_RANGE, word='auto'),
+                        default=None, metavar='S',
                         help="the cameras' exposure time, s: the ball's motion blur "
-                             "(perception_node's exposure; default 0.002)")
+                             "(perception_node's exposure); default auto: each camera's, "
+                             "estimated from the ball's streaks in the first pass (which "
+                             'tracks at 0.002) and printed')
     parser.add_argument('--image-blur', type=_in_range(*IMAGE_BLUR_RANGE, word='auto'),
                         default=None, metavar='PX',
                         help="the cameras' own blur, pixels (perception_node's image_blur: "
@@ -486,7 +512,9 @@ def _main(argv=None):
         return 2
     try:
         detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
-                                  exposure=args.exposure, light_from_above=not args.any_lighting)
+                                  light_from_above=not args.any_lighting)
+        if args.exposure is not None:
+            detector.exposure = args.exposure
         if args.image_blur is not None:
             detector.image_blur = args.image_blur
         if not args.bag:
@@ -497,9 +525,10 @@ def _main(argv=None):
             return bag_frames(rig, args.bag, cut) if args.bag else file_frames(rig, cut)
 
         tracker = TrackerConfig(smooth=args.smooth)
-        if args.image_blur is None:
-            pipeline, notes = pipeline_with_estimated_blurs(rig, frames([]), params, detector,
-                                                            tracker)
+        if args.image_blur is None or args.exposure is None:
+            pipeline, notes = pipeline_with_estimated_blurs(
+                rig, frames([]), params, detector, tracker, exposure=args.exposure is None,
+                image_blur=args.image_blur is None)
             for note in notes:
                 print(f'tt-perceive: {note}', file=sys.stderr)
         else:
