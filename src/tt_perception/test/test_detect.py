@@ -681,21 +681,18 @@ def test_the_cameras_blur_is_estimated_from_the_outline_fits_of_its_balls(radius
     assert abs(found - blur) < 0.1, found
 
 
-@pytest.mark.parametrize('exposure, told', [(5e-3, 2e-3), (2e-3, 5e-3), (1e-3, 2e-3)])
-def test_the_exposure_is_estimated_from_the_streaks_of_the_balls(exposure, told):
-    """:func:`estimate_exposure` on 30 balls 3.2 px in radius lit from above, each streaked
-    over the exposure along its own direction at 1.6 px per ms (the mean of
-    :func:`top_lit_ball` at the middles of 24 equal parts of its path: drawn by OpenCV, not
-    by the fit's model), blurred by 0.5 px, with 2 grey levels of noise, fitted first with
-    the ``told`` exposure's streak as the detector fits them: the exposure found is the one
-    they were drawn with, within 0.1 ms (the grid tried is 0.33 ms apart; found 5.00, 2.01,
-    1.03 ms), and the camera's blur estimated at that exposure is theirs within 0.15 px."""
-    from tt_perception.detect import OutlineFit, estimate_exposure, estimate_image_blur
-    radius, blur, speed = 3.2, 0.5, 1.6e3                  # px, px, px/s
-    rng = np.random.default_rng(7)
+def streaked_top_lit_fits(exposure, told, blur, told_blur, n=30, seed=7):
+    """``n`` balls 3.2 px in radius lit from above, each streaked over ``exposure`` (s) along
+    its own direction at 1.6 px per ms (the mean of :func:`top_lit_ball` at the middles of
+    24 equal parts of its path: drawn by OpenCV, not by the fit's model), blurred by
+    ``blur`` px, with 2 grey levels of noise, each fitted with the ``told`` exposure's
+    streak and ``told_blur`` as the detector fits them: (OutlineFit, centre) pairs."""
+    from tt_perception.detect import OutlineFit
+    radius, speed = 3.2, 1.6e3                             # px, px/s
+    rng = np.random.default_rng(seed)
     size = int(2 * radius + speed * max(exposure, told)) + 14
     fits = []
-    for _ in range(30):
+    for _ in range(n):
         centre = 0.5 * size + rng.uniform(-1.0, 1.0, 2)
         angle = rng.uniform(0.0, 2.0 * np.pi)
         way = speed * np.array([np.cos(angle), np.sin(angle)])
@@ -705,19 +702,49 @@ def test_the_exposure_is_estimated_from_the_streaks_of_the_balls(exposure, told)
         grey += rng.normal(0.0, 2.0, grey.shape)
         ball = BallImage(0.0, 0.0, np.eye(2) * radius, way * told)
         fitter = OutlineFit(grey, background, np.ones((size, size), bool), ball,
-                            image_blur=blur)
+                            image_blur=told_blur)
         fits.append((fitter, fitter.fit(np.round(centre))[0]))
-    found, n = estimate_exposure(fits, told, 1.0 / 150.0)
+    return fits
+
+
+@pytest.mark.parametrize('exposure, told', [(5e-3, 2e-3), (2e-3, 5e-3), (1e-3, 2e-3)])
+def test_the_exposure_is_estimated_from_the_streaks_of_the_balls(exposure, told):
+    """:func:`estimate_exposure` on :func:`streaked_top_lit_fits` blurred by 0.5 px and
+    fitted so: the exposure found is the one they were drawn with, within 0.1 ms (the grid
+    tried is 0.33 ms apart; found 5.00, 2.01, 1.03 ms)."""
+    from tt_perception.detect import estimate_exposure
+    found, n = estimate_exposure(streaked_top_lit_fits(exposure, told, 0.5, 0.5), told,
+                                 1.0 / 150.0)
     assert n == 30
     assert abs(found - exposure) < 0.1e-3, found
-    found_blur, n = estimate_image_blur(fits, motion=found / told)
-    assert n == 30 and abs(found_blur - blur) < 0.15, found_blur
+
+
+@pytest.mark.parametrize('exposure, blur', [(5e-3, 0.0), (1e-3, 1.0)])
+def test_the_exposure_and_the_blur_are_estimated_together(exposure, blur):
+    """:func:`estimate_exposure_and_blur` on :func:`streaked_top_lit_fits` fitted first as
+    the detector's first pass fits them, at 2 ms and 0.6 px, which a sharp camera's ball
+    streaked for 5 ms, or a blurred one for 1 ms, is not: both are found, the exposure
+    within 0.15 ms and the blur within 0.15 px. (The exposure alone, at 0.6 px, is 0.3 ms
+    short on the sharp camera.)"""
+    from tt_perception.detect import estimate_exposure_and_blur
+    fits = streaked_top_lit_fits(exposure, 2e-3, blur, 0.6, seed=11)
+    found, found_blur, n = estimate_exposure_and_blur(fits, 2e-3, 1.0 / 150.0)
+    assert n == 30
+    assert abs(found - exposure) < 0.15e-3 and abs(found_blur - blur) < 0.15, (found,
+                                                                               found_blur)
 
 
 def test_no_fit_gives_no_blur_estimate():
-    from tt_perception.detect import OutlineFit, estimate_exposure, estimate_image_blur
+    from tt_perception.detect import (
+        OutlineFit,
+        estimate_exposure,
+        estimate_exposure_and_blur,
+        estimate_image_blur,
+    )
     empty = OutlineFit(np.zeros((9, 9)), np.zeros((9, 9)), np.zeros((9, 9), bool),
                        BallImage(0.0, 0.0, np.eye(2) * 3.0, np.zeros(2)))
     assert estimate_image_blur([]) == (None, 0)
     assert estimate_image_blur([(empty, (4.0, 4.0))]) == (None, 0)      # no pixel to fit
     assert estimate_exposure([(empty, (4.0, 4.0))], 2e-3, 1.0 / 150.0) == (None, 0)
+    assert estimate_exposure_and_blur([(empty, (4.0, 4.0))], 2e-3, 1.0 / 150.0) == (None,
+                                                                                   None, 0)

@@ -780,28 +780,27 @@ def estimate_exposure(fits, exposure, longest, steps=EXPOSURE_STEPS):
     return _least_cost(fits, grid, lambda fitter, e: fitter.with_blur(motion=e / exposure))
 
 
-def estimate_exposure_and_blur(fits, exposure, longest, rounds=3):
+def estimate_exposure_and_blur(fits, exposure, longest, rounds=4):
     """The exposure (s) and the camera's blur (px) that explain the pixels of the outline
     fits ``fits`` (fitted with ``exposure``, s) best together, and the number of fits they
     rest on: (exposure, blur, n), or (None, None, 0).
 
-    The two trade against each other (a sharp camera's ball fitted with 0.6 px of blur is
-    explained best by no motion at all), so they are found in turn: the blur
-    (:func:`estimate_image_blur`) with the exposure found last (first ``exposure``), then
-    the exposure (:func:`estimate_exposure`, up to ``longest``) with that blur, for at most
-    ``rounds`` rounds or until neither moves by more than a tenth of its grid's step; the
-    rounds after the first try only the grid's 7 values around the last estimate. Three
-    rounds came within 0.05 px and 0.1 ms of the least cost over both on the independent
-    renderer's 5 ms scene (docs/perception.md, "The cameras' exposure, estimated")."""
+    The two trade against each other (a streak shorter than the ball's is explained best
+    by the most blur tried; a sharp camera's ball fitted with 0.6 px of blur by no motion
+    at all), so they are found in turn: the blur (:func:`estimate_image_blur`) with the
+    exposure found last (first ``exposure``), then the exposure (:func:`estimate_exposure`,
+    up to ``longest``) with that blur, each over its whole grid, for at most ``rounds``
+    rounds or until neither moves by more than a tenth of its grid's step
+    (docs/perception.md, "The cameras' exposure, estimated")."""
     exposures = np.linspace(0.0, longest, EXPOSURE_STEPS)
     blurs = np.asarray(IMAGE_BLUR_GRID, dtype=float)
     seconds, blur = exposure, None
     for _ in range(rounds):
-        found_blur, n = _least_cost(fits, _near(blurs, blur),
+        found_blur, n = _least_cost(fits, blurs,
                                     lambda f, b, motion=seconds / exposure: f.with_blur(b, motion))
         if found_blur is None:
             return None, None, 0
-        found, n = _least_cost(fits, _near(exposures, None if blur is None else seconds),
+        found, n = _least_cost(fits, exposures,
                                lambda f, e, b=found_blur: f.with_blur(b, e / exposure))
         if found is None:
             return None, None, 0
@@ -811,14 +810,6 @@ def estimate_exposure_and_blur(fits, exposure, longest, rounds=3):
         if settled:
             break
     return seconds, blur, n
-
-
-def _near(grid, value, reach=3):
-    """The values of ``grid`` (evenly spaced) within ``reach`` steps of ``value``; all of
-    them for None."""
-    if value is None:
-        return grid
-    return grid[np.abs(grid - value) <= (reach + 1e-9) * (grid[1] - grid[0])]
 
 
 def _least_cost(fits, values, refit):
