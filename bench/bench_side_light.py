@@ -25,9 +25,11 @@ process, with ``--colour`` the ball's colour, ``--exposure`` the case's exposure
 defaults (the states as the live node publishes them; each camera's blur estimated from the
 ball's outline fits, reported as ``estimated_image_blur_px``); its tracks go to a temporary
 folder. Each case is perceived a second time with ``--image-blur`` its cameras' own blur
-(:func:`camera_blur`: 0 for these sharp cameras, 0.4 px with JPEG), and a third with 0.6 px
-(a Bayer camera's, perception_node's default), reported as ``with_camera_blur`` and
-``with_image_blur_0.6`` and not judged. Scored against the renderer's truth (per camera 0
+(:func:`camera_blur`: 0 for these sharp cameras, 0.4 px with JPEG), a third with 0.6 px
+(a Bayer camera's, perception_node's default), and a fourth without ``--exposure`` (each
+camera's exposure estimated too, as tt-perceive does by default), reported as
+``with_camera_blur``, ``with_image_blur_0.6`` and ``with_exposure_estimated`` and not
+judged. Scored against the renderer's truth (per camera 0
 frame with the ball in flight):
 
 - ``tracks``, ``tracks_per_flight`` (tracks whose median error is within 5 cm, given to the
@@ -124,12 +126,15 @@ def perceive_command():
             'import sys; from tt_perception.entry import tt_perceive; sys.exit(tt_perceive())']
 
 
-def perceive(case_dir, tracks, opts, image_blur=None):
+def perceive(case_dir, tracks, opts, image_blur=None, told_exposure=True):
     """tt-perceive on the case's rig, as a user runs it (``image_blur``: its
-    ``--image-blur``, None for the default); returns (seconds, the blurs it estimated, px,
-    per camera)."""
+    ``--image-blur``, None for the default; ``told_exposure``: ``--exposure`` the case's,
+    else the default, estimated); returns (seconds, the blurs it estimated, px, per camera)
+    and, when estimated, the exposures (s)."""
     cmd = [*perceive_command(), '--rig', str(case_dir / 'rig.yaml'), '--out', str(tracks),
-           '--colour', opts['colour'], '--exposure', repr(max(opts['exposure'], 1e-4))]
+           '--colour', opts['colour']]
+    if told_exposure:
+        cmd += ['--exposure', repr(max(opts['exposure'], 1e-4))]
     if image_blur is not None:
         cmd += ['--image-blur', repr(image_blur)]
     start = time.perf_counter()
@@ -137,7 +142,11 @@ def perceive(case_dir, tracks, opts, image_blur=None):
     if proc.returncode != 0:
         raise RuntimeError(f'tt-perceive exit {proc.returncode}: {proc.stderr[-2000:]}')
     blurs = [float(b) for b in re.findall(r'image_blur ([0-9.]+) px estimated', proc.stderr)]
-    return time.perf_counter() - start, blurs
+    if told_exposure:
+        return time.perf_counter() - start, blurs
+    exposures = [float(e) * 1e-3
+                 for e in re.findall(r'exposure ([0-9.]+) ms estimated', proc.stderr)]
+    return time.perf_counter() - start, blurs, exposures
 
 
 def load_csv(path):
@@ -271,6 +280,17 @@ def run():
                 told[key]['image_blur_px'] = blur
                 if name in JUDGED:
                     told[key]['within_targets'] = all(checks(other).values())
+            key = 'with_exposure_estimated'
+            _, blurs, exposures = perceive(case_dir, pathlib.Path(tmp) / key, opts,
+                                           told_exposure=False)
+            other = score(case_dir, pathlib.Path(tmp) / key)
+            told[key] = {k: other.get(k) for k in (
+                'coverage_pct', 'rms3d_mm', 'mean_mm', 'max3d_mm', 'tracks_per_flight',
+                'false_tracks')}
+            told[key].update(estimated_exposure_ms=[round(e * 1e3, 3) for e in exposures],
+                             estimated_image_blur_px=blurs)
+            if name in JUDGED:
+                told[key]['within_targets'] = all(checks(other).values())
         row['colour'] = opts['colour']
         row['exposure_s'] = max(opts['exposure'], 1e-4)
         row['estimated_image_blur_px'] = estimated

@@ -244,13 +244,13 @@ BLUR_FITS_MIN = 30
 def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=False,
                    image_blur=True):
     """Each camera's exposure (s, with ``exposure``) and ``image_blur`` (px, with
-    ``image_blur``) estimated from the outline fits of the ball in ``frames``
-    (:func:`tt_perception.detect.estimate_exposure` first, then :func:`tt_perception.detect.
-    estimate_image_blur` with the ball's motion over that exposure), tracked by a pipeline
-    with ``detector_config``'s until every camera has :data:`BLUR_FITS` fits; returns (one
-    (exposure, image_blur) pair per camera, one line per estimate). What is not estimated,
-    or where a camera has fewer than :data:`BLUR_FITS_MIN` fits (with a warning), is
-    ``detector_config``'s."""
+    ``image_blur``) estimated from the outline fits of the ball in ``frames`` (both:
+    :func:`tt_perception.detect.estimate_exposure_and_blur`; one: :func:`tt_perception.
+    detect.estimate_exposure` or :func:`tt_perception.detect.estimate_image_blur`), tracked
+    by a pipeline with ``detector_config``'s until every camera has :data:`BLUR_FITS` fits;
+    returns (one (exposure, image_blur) pair per camera, one line per estimate). What is not
+    estimated, or where a camera has fewer than :data:`BLUR_FITS_MIN` fits (with a warning),
+    is ``detector_config``'s."""
     pipeline = Pipeline(rig, params=params, detector_config=detector_config)
     for detector in pipeline.detectors:
         detector.fits = collections.deque(maxlen=BLUR_FITS)
@@ -260,14 +260,15 @@ def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=Fals
     for cam, detector in zip(rig.cameras, pipeline.detectors, strict=True):
         seconds, blur = told = (detector.config.exposure, detector.config.image_blur)
         fits = detector.fits if len(detector.fits) >= BLUR_FITS_MIN else []
+        period = 1.0 / rig.fps
         if exposure and image_blur:
-            found_seconds, found_blur, n = estimate_exposure_and_blur(fits, seconds,
-                                                                      1.0 / rig.fps)
+            found_seconds, found_blur, n = estimate_exposure_and_blur(fits, seconds, period)
         elif exposure:
-            (found_seconds, n), found_blur = estimate_exposure(fits, seconds,
-                                                               1.0 / rig.fps), blur
+            found_seconds, n = estimate_exposure(fits, seconds, period)
+            found_blur = blur
         else:
-            found_seconds, (found_blur, n) = seconds, estimate_image_blur(fits)
+            found_blur, n = estimate_image_blur(fits)
+            found_seconds = seconds
         estimated = n >= BLUR_FITS_MIN
         if estimated:
             seconds, blur = max(found_seconds, EXPOSURE_RANGE[0]), found_blur

@@ -792,20 +792,18 @@ def estimate_exposure_and_blur(fits, exposure, longest, rounds=4):
     up to ``longest``) with that blur, each over its whole grid, for at most ``rounds``
     rounds or until neither moves by more than a tenth of its grid's step
     (docs/perception.md, "The cameras' exposure, estimated")."""
-    exposures = np.linspace(0.0, longest, EXPOSURE_STEPS)
-    blurs = np.asarray(IMAGE_BLUR_GRID, dtype=float)
+    blur_step = IMAGE_BLUR_GRID[1] - IMAGE_BLUR_GRID[0]
     seconds, blur = exposure, None
     for _ in range(rounds):
-        found_blur, n = _least_cost(fits, blurs,
-                                    lambda f, b, motion=seconds / exposure: f.with_blur(b, motion))
+        found_blur, n = estimate_image_blur(fits, motion=seconds / exposure)
         if found_blur is None:
             return None, None, 0
-        found, n = _least_cost(fits, exposures,
-                               lambda f, e, b=found_blur: f.with_blur(b, e / exposure))
+        found, n = estimate_exposure([(f.with_blur(found_blur), c) for f, c in fits],
+                                     exposure, longest)
         if found is None:
             return None, None, 0
-        settled = (blur is not None and abs(found_blur - blur) < 0.1 * (blurs[1] - blurs[0])
-                   and abs(found - seconds) < 0.1 * (exposures[1] - exposures[0]))
+        settled = (blur is not None and abs(found_blur - blur) < 0.1 * blur_step
+                   and abs(found - seconds) < 0.1 * longest / (EXPOSURE_STEPS - 1))
         seconds, blur = found, found_blur
         if settled:
             break
