@@ -26,6 +26,7 @@ pass of detection over the files), reported on stderr.
 
 import argparse
 import collections
+from concurrent.futures import ThreadPoolExecutor
 import contextlib
 import csv
 import dataclasses
@@ -256,19 +257,27 @@ def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=Fals
         detector.fits = collections.deque(maxlen=BLUR_FITS)
     run(frames, pipeline,
         until=lambda: all(len(d.fits) == BLUR_FITS for d in pipeline.detectors))
-    settings, notes = [], []
-    for cam, detector in zip(rig.cameras, pipeline.detectors, strict=True):
-        seconds, blur = told = (detector.config.exposure, detector.config.image_blur)
+
+    def estimate(detector):
+        """(exposure, blur, fits they rest on) of one camera's detector, as asked."""
+        seconds, blur = detector.config.exposure, detector.config.image_blur
         fits = detector.fits if len(detector.fits) >= BLUR_FITS_MIN else []
         period = 1.0 / rig.fps
         if exposure and image_blur:
-            found_seconds, found_blur, n = estimate_exposure_and_blur(fits, seconds, period)
-        elif exposure:
-            found_seconds, n = estimate_exposure(fits, seconds, period)
-            found_blur = blur
-        else:
-            found_blur, n = estimate_image_blur(fits)
-            found_seconds = seconds
+            return estimate_exposure_and_blur(fits, seconds, period)
+        if exposure:
+            found, n = estimate_exposure(fits, seconds, period)
+            return found, blur, n
+        found, n = estimate_image_blur(fits)
+        return seconds, found, n
+
+    # The refits run in numba without the GIL: one thread a camera.
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        found = list(pool.map(estimate, pipeline.detectors))
+    settings, notes = [], []
+    for cam, detector, (found_seconds, found_blur, n) in zip(rig.cameras, pipeline.detectors,
+                                                              found, strict=True):
+        seconds, blur = told = (detector.config.exposure, detector.config.image_blur)
         estimated = n >= BLUR_FITS_MIN
         if estimated:
             seconds, blur = max(found_seconds, EXPOSURE_RANGE[0]), found_blur

@@ -790,7 +790,7 @@ def estimate_exposure_and_blur(fits, exposure, longest, rounds=4):
     at all), so they are found in turn: the blur (:func:`estimate_image_blur`) with the
     exposure found last (first ``exposure``), then the exposure (:func:`estimate_exposure`,
     up to ``longest``) with that blur, each over its whole grid, for at most ``rounds``
-    rounds or until neither moves by more than a tenth of its grid's step
+    rounds or until neither moves by more than a quarter of its grid's step
     (docs/perception.md, "The cameras' exposure, estimated")."""
     blur_step = IMAGE_BLUR_GRID[1] - IMAGE_BLUR_GRID[0]
     seconds, blur = exposure, None
@@ -802,8 +802,8 @@ def estimate_exposure_and_blur(fits, exposure, longest, rounds=4):
                                      exposure, longest)
         if found is None:
             return None, None, 0
-        settled = (blur is not None and abs(found_blur - blur) < 0.1 * blur_step
-                   and abs(found - seconds) < 0.1 * longest / (EXPOSURE_STEPS - 1))
+        settled = (blur is not None and abs(found_blur - blur) < 0.25 * blur_step
+                   and abs(found - seconds) < 0.25 * longest / (EXPOSURE_STEPS - 1))
         seconds, blur = found, found_blur
         if settled:
             break
