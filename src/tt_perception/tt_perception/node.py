@@ -101,7 +101,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('roi_half_size', DetectorConfig.roi_half_size,
      'Half size of the search window around the predicted ball', 'pixels', 8, 2000),
     ('exposure', DetectorConfig.exposure,
-     'Exposure time of the cameras (the motion blur of the ball)', 's', *EXPOSURE_RANGE),
+     'Exposure time of the cameras (the motion blur of the ball); tt-perceive prints each '
+     "camera's, estimated from a recording", 's', *EXPOSURE_RANGE),
     ('response_gamma', DetectorConfig.response_gamma,
      "Cameras' response: pixel = 255 (light / full)^(1/gamma); 1 linear, about 2.2 for "
      'sRGB-like webcams', '', *RESPONSE_GAMMA_RANGE),
