@@ -129,8 +129,8 @@ def perceive_command():
 def perceive(case_dir, tracks, opts, image_blur=None, told_exposure=True):
     """tt-perceive on the case's rig, as a user runs it (``image_blur``: its
     ``--image-blur``, None for the default; ``told_exposure``: ``--exposure`` the case's,
-    else the default, estimated); returns (seconds, the blurs it estimated, px, per camera)
-    and, when estimated, the exposures (s)."""
+    else the default, estimated); returns (seconds, the blurs and the exposures (s) it
+    estimated, per camera: empty where told)."""
     cmd = [*perceive_command(), '--rig', str(case_dir / 'rig.yaml'), '--out', str(tracks),
            '--colour', opts['colour']]
     if told_exposure:
@@ -142,8 +142,6 @@ def perceive(case_dir, tracks, opts, image_blur=None, told_exposure=True):
     if proc.returncode != 0:
         raise RuntimeError(f'tt-perceive exit {proc.returncode}: {proc.stderr[-2000:]}')
     blurs = [float(b) for b in re.findall(r'image_blur ([0-9.]+) px estimated', proc.stderr)]
-    if told_exposure:
-        return time.perf_counter() - start, blurs
     exposures = [float(e) * 1e-3
                  for e in re.findall(r'exposure ([0-9.]+) ms estimated', proc.stderr)]
     return time.perf_counter() - start, blurs, exposures
@@ -267,30 +265,26 @@ def run():
         case_dir, render_s = make_scene(name)
         with tempfile.TemporaryDirectory(prefix=f'side_light_{name}_') as tmp:
             tracks = pathlib.Path(tmp) / 'tracks'
-            perceive_s, estimated = perceive(case_dir, tracks, opts)
+            perceive_s, estimated, _ = perceive(case_dir, tracks, opts)
             row = score(case_dir, tracks)
             told = {}
-            for key, blur in (('with_camera_blur', camera_blur(opts)),
-                              ('with_image_blur_0.6', 0.6)):
-                perceive(case_dir, pathlib.Path(tmp) / key, opts, blur)
+            for key, blur, told_exposure in (('with_camera_blur', camera_blur(opts), True),
+                                             ('with_image_blur_0.6', 0.6, True),
+                                             ('with_exposure_estimated', None, False)):
+                _, blurs, exposures = perceive(case_dir, pathlib.Path(tmp) / key, opts, blur,
+                                               told_exposure)
                 other = score(case_dir, pathlib.Path(tmp) / key)
                 told[key] = {k: other.get(k) for k in (
                     'coverage_pct', 'rms3d_mm', 'mean_mm', 'max3d_mm', 'tracks_per_flight',
                     'false_tracks')}
-                told[key]['image_blur_px'] = blur
+                if told_exposure:
+                    told[key]['image_blur_px'] = blur
+                else:
+                    told[key].update(
+                        estimated_exposure_ms=[round(e * 1e3, 3) for e in exposures],
+                        estimated_image_blur_px=blurs)
                 if name in JUDGED:
                     told[key]['within_targets'] = all(checks(other).values())
-            key = 'with_exposure_estimated'
-            _, blurs, exposures = perceive(case_dir, pathlib.Path(tmp) / key, opts,
-                                           told_exposure=False)
-            other = score(case_dir, pathlib.Path(tmp) / key)
-            told[key] = {k: other.get(k) for k in (
-                'coverage_pct', 'rms3d_mm', 'mean_mm', 'max3d_mm', 'tracks_per_flight',
-                'false_tracks')}
-            told[key].update(estimated_exposure_ms=[round(e * 1e3, 3) for e in exposures],
-                             estimated_image_blur_px=blurs)
-            if name in JUDGED:
-                told[key]['within_targets'] = all(checks(other).values())
         row['colour'] = opts['colour']
         row['exposure_s'] = max(opts['exposure'], 1e-4)
         row['estimated_image_blur_px'] = estimated
