@@ -6,7 +6,7 @@ import os
 import cv2
 import numpy as np
 import pytest
-from tt_perception.camera import CalibrationError, Camera, load_rig, project_optical
+from tt_perception.camera import CalibrationError, Camera, load_rig, project_optical, save_rig
 from tt_perception.triangulate import dlt, refine, triangulate
 from tt_prediction.ball import ModelParams, rollout
 from tt_prediction.ball_filter import BallFilter
@@ -72,6 +72,10 @@ def test_rig_round_trip(tmp_path):
         assert np.allclose(a.R, b.R) and np.allclose(a.t, b.t) and np.allclose(a.K, b.K)
         assert np.allclose(a.dist, b.dist) and a.source == b.source
     assert rig.cameras[1].time_offset == 0.002 and rig.fps == 150.0
+    assert [c.readout_time for c in rig.cameras] == [0.0, 0.0]     # a global shutter
+    rig.cameras[1].readout_time = 0.005
+    save_rig(path, rig)
+    assert [c.readout_time for c in load_rig(path).cameras] == [0.0, 0.005]
 
 
 @pytest.mark.parametrize('change, expect', [
@@ -113,7 +117,15 @@ def test_rig_round_trip(tmp_path):
      'time_offset 5 s is not within +-1 s (seconds, not milliseconds)'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_ofset=0.002)),
      "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
-     'rotation, translation, time_offset)'),
+     'rotation, translation, time_offset, readout_time)'),
+    # A rolling shutter's readout longer than a frame, or in milliseconds.
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(readout_time=5.0)),
+     'cameras[0] (cam0): readout_time 5 s is not within [0, 0.006667] s, the frame period '
+     'at 150 fps (seconds, not milliseconds)'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(readout_time=-1e-3)),
+     'readout_time -0.001 s is not within [0, 0.006667] s'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(readout_time='fast')),
+     'cameras[0] (cam0): readout_time is not a number'),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
     # Published states in 'world', each dropped by prediction_node ("is not 'table'").
     (lambda rig, info: _edit(rig, lambda d: d.update(frame_id='world')),
@@ -128,7 +140,7 @@ def test_rig_round_trip(tmp_path):
         'no translation', 'principal point off',
         'broken yaml', 'key given twice', 'bad fps', 'infinite fps', 'nan time offset',
         'time offset in ms',
-        'misspelt key',
+        'misspelt key', 'readout in ms', 'negative readout', 'readout not a number',
         'unknown rig key', 'frame not the table', 'fps true', 'width not whole'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'

@@ -62,6 +62,9 @@ class Camera:
     time_offset: float | None = None
     """This camera's clock minus camera 0's, s (None: unknown); on camera 0, a delay of its
     own stamps (each camera's stamps less it are the middle of its exposure)."""
+    readout_time: float = 0.0
+    """A rolling shutter's readout, s: the time from the first row's exposure to the last's
+    (0: a global shutter). The stamp (less ``time_offset``) is then the middle row's."""
     info_file: str = ''
     """The camera_info file as the rig names it (relative to the rig file)."""
 
@@ -107,6 +110,12 @@ class Camera:
         pts = np.ascontiguousarray(np.atleast_2d(pixels), dtype=float).reshape(-1, 1, 2)
         out = _undistort(pts, self.K, self.dist, R=_EYE, P=_EYE, criteria=UNDISTORT_CRITERIA)
         return out.reshape(-1, 2)
+
+    def row_delay(self, v):
+        """When image row ``v`` (pixels, 0 at the top; array or number) was exposed, s after
+        the frame's stamp less ``time_offset`` (the middle row's time): a rolling shutter's
+        rows in turn over :attr:`readout_time`; 0 for a global shutter."""
+        return (np.asarray(v, dtype=float) / (self.height - 1) - 0.5) * self.readout_time
 
     def in_front(self, points):
         """True where the table-frame points (n, 3) lie in front of the camera."""
@@ -277,7 +286,8 @@ MAX_TIME_OFFSET_S = 1.0
 estimates one (:mod:`tt_perception.sync`); 5 (ms meant) found no ball, without a word."""
 
 RIG_KEYS = ('frame_id', 'fps', 'cameras')
-CAMERA_KEYS = ('name', 'camera_info', 'source', 'rotation', 'translation', 'time_offset')
+CAMERA_KEYS = ('name', 'camera_info', 'source', 'rotation', 'translation', 'time_offset',
+               'readout_time')
 """The keys of a rig file and of each of its cameras (DESIGN.md, "Data formats")."""
 
 
@@ -288,6 +298,22 @@ def _known_keys(mapping, known, where):
     if unknown:
         raise CalibrationError(f"{where}: unknown key '{unknown[0]}' (known: "
                                f"{', '.join(known)})")
+
+
+def _readout_time(value, fps, where):
+    """A camera's ``readout_time`` (s) from its rig entry, checked: a number from 0 to the frame
+    period (a rolling shutter reads its rows within one frame)."""
+    try:
+        if isinstance(value, bool):
+            raise TypeError
+        readout = float(value)
+    except (TypeError, ValueError):
+        raise CalibrationError(f'{where}: readout_time is not a number') from None
+    if not 0.0 <= readout <= 1.0 / fps:     # nan too
+        raise CalibrationError(f'{where}: readout_time {readout:g} s is not within [0, '
+                               f'{1.0 / fps:.4g}] s, the frame period at {fps:g} fps '
+                               '(seconds, not milliseconds)')
+    return readout
 
 
 def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
@@ -356,6 +382,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
                 raise CalibrationError(
                     f'{where} ({name}): time_offset {offset:g} s is not within '
                     f'+-{MAX_TIME_OFFSET_S:g} s (seconds, not milliseconds)')
+        readout = _readout_time(entry.get('readout_time', 0.0), fps, f'{where} ({name})')
         source = entry.get('source')
         source = '' if source is None else str(source).strip()      # 0: /dev/video0
         if need_source and not source:
@@ -363,7 +390,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
             raise CalibrationError(f'{where} ({name}): no source (a video file, a folder of '
                                    'images, a V4L2 device or an image topic)')
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
-                              R, t, source=source, time_offset=offset,
+                              R, t, source=source, time_offset=offset, readout_time=readout,
                               info_file=str(entry['camera_info'])))
     if len(cameras) < min_cameras:
         raise CalibrationError(f'rig {path}: needs at least {min_cameras} cameras, has '
@@ -417,6 +444,8 @@ def save_rig(path, rig):
         }
         if cam.time_offset is not None:
             entry['time_offset'] = float(cam.time_offset)
+        if cam.readout_time:
+            entry['readout_time'] = float(cam.readout_time)
         entries.append(entry)
     data = {'frame_id': rig.frame_id, 'fps': float(rig.fps), 'cameras': entries}
     with open(path, 'w', encoding='utf-8') as f:

@@ -499,20 +499,29 @@ class Tracker:
             dt = t - t1
             v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
             if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
-                self.track_id += 1
-                self.filter = BallFilter(self.params, self.filter_config)
-                bias = np.eye(3) * cfg.blob_sigma ** 2
-                self.filter.start(t, X2, v, R2 + bias, (R1 + R2 + 2.0 * bias) / dt ** 2
-                                  + np.eye(3) * 0.05)
-                self.updates = 0
-                self.last_update = t
-                self.seeds = []
-                self.early = [t1, t]
-                if cfg.smooth:
-                    self.runs[self.track_id] = (t1, [self._step()])
+                self.start(t1, X1, R1, t, X2, R2)
                 return
         self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
         self.seeds.extend((t, X, R) for X, R in points)
+
+    def start(self, t1, X1, R1, t, X2, R2, new_track=True):
+        """Start a track at ``t`` from the seed points X1 at ``t1`` and X2 at ``t`` (m, with
+        their covariances R1, R2); ``new_track`` False: start the running one again (its id
+        kept)."""
+        cfg = self.config
+        dt = t - t1
+        v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
+        self.track_id += new_track
+        self.filter = BallFilter(self.params, self.filter_config)
+        bias = np.eye(3) * cfg.blob_sigma ** 2
+        self.filter.start(t, X2, v, R2 + bias, (R1 + R2 + 2.0 * bias) / dt ** 2
+                          + np.eye(3) * 0.05)
+        self.updates = 0
+        self.last_update = t
+        self.seeds = []
+        self.early = [t1, t]
+        if cfg.smooth:
+            self.runs[self.track_id] = (t1, [self._step()])
 
 
 class Pipeline:
@@ -529,6 +538,9 @@ class Pipeline:
         self.tracker = Tracker(rig.fps, self.params, filter_config, tracker_config)
         self.config = self.tracker.config
         self.offsets = [c.time_offset or 0.0 for c in self.cameras]
+        # A rolling shutter's last groups, for the seeds of a track (_restart_from_moved_seeds).
+        rolling = any(c.readout_time for c in self.cameras)
+        self.recent_groups = collections.deque(maxlen=4) if rolling else None
         self.last_error = None
         self.seen_by_two = 0        # instants with detections in two cameras or more
         self.triangulated = 0       # ... of which a point passed the gates
@@ -576,11 +588,17 @@ class Pipeline:
         out = []
         for t0, group in self.matcher.add(k, t, detections):
             self.tracker.advance(t0)
+            started = self.tracker.active
+            if self.recent_groups is not None:
+                self.recent_groups.append((t0, group))
+                group = self._at_frame_time(t0, group, self.tracker.snapshot())
             # A confirmed track takes only the fitted points: no triangulation of the blobs'.
             points = self._points(group, blobs=not self.tracker.confirmed)
             self.seen_by_two += sum(1 for dets in group if dets) >= 2
             self.triangulated += bool(points)
             out += self.tracker.add(t0, points)
+            if self.recent_groups is not None and not started and self.tracker.active:
+                self._restart_from_moved_seeds()
         return out
 
     def geometry_warning(self):
@@ -648,6 +666,11 @@ class Pipeline:
             # None: a ball not in front of this camera.
             expected = ball_image(cam, motion[0], motion[1], self.params.radius,
                                   self.detectors[k].config.exposure)
+            if expected is not None and cam.readout_time:
+                # A rolling shutter: the ball's rows were exposed at their own time.
+                motion = self.tracker.predicted_motion(t + cam.row_delay(expected.v), snap)
+                expected = ball_image(cam, motion[0], motion[1], self.params.radius,
+                                      self.detectors[k].config.exposure)
         if expected is not None:
             roi = (expected.u, expected.v)
         dets = self.detectors[k].detect(frame, roi, expected=expected,
@@ -661,6 +684,57 @@ class Pipeline:
                                       + [[d.blob_u, d.blob_v] for d in dets]))
         return [detection_row(c, d.width, d.hidden, b, d.colour_sure, d.bright_width)
                 for c, b, d in zip(both[:len(dets)], both[len(dets):], dets, strict=True)]
+
+    def _at_frame_time(self, t, group, snap):
+        """``group`` (one time-matched group at ``t``, :meth:`Matcher.add`) with the
+        detections of each rolling-shutter camera, seen when their rows were exposed
+        (:meth:`tt_perception.camera.Camera.row_delay`), moved back along the tracked ball's
+        predicted image motion (``snap``: :meth:`Tracker.snapshot`; None: unchanged) to where
+        they were at ``t``. The motion is taken in normalised image coordinates, each
+        detection's row through the lens (:func:`tt_perception.camera.project_optical`)."""
+        if snap is None:
+            return group
+        out = []
+        for cam, dets in zip(self.cameras, group, strict=True):
+            half = 0.5 * cam.readout_time
+            ends = [cam.R @ self.tracker.predicted_motion(t + dt, snap)[0] + cam.t
+                    for dt in (-half, half)] if dets and half else None
+            if ends is None or min(c[2] for c in ends) <= IN_FRONT_DEPTH:
+                out.append(dets)
+                continue
+            first, last = (c[:2] / c[2] for c in ends)
+            velocity = (last - first) / cam.readout_time     # normalised units per s
+            moved = []
+            for det in dets:
+                det = det.copy()
+                for cols in (XY, BLOB_XY):
+                    ray = np.array([[det[cols][0], det[cols][1], 1.0]])
+                    row = project_optical(ray, cam.intrinsics, cam.rational_dist)[0, 1]
+                    det[cols] -= cam.row_delay(row) * velocity
+                moved.append(det)
+            out.append(moved)
+        return out
+
+    def _restart_from_moved_seeds(self):
+        """A track of a rolling-shutter rig has just started from two seed points whose
+        detections nothing moved to their frame's time (no track predicted their motion):
+        it starts again from the same detections moved along its own motion
+        (:meth:`_at_frame_time`; without it a track's first states were up to 15 mm off
+        where the ball's image crossed the rows quickly, settling over 50 ms)."""
+        tracker = self.tracker
+        snap = tracker.snapshot()
+        seeds = []
+        for t, group in self.recent_groups:
+            if t not in tracker.early:
+                continue
+            blobs = [blob for _, blob in self._points(self._at_frame_time(t, group, snap))
+                     if blob is not None]
+            if not blobs:
+                return
+            nearest = tracker.predicted_motion(t, snap)[0]
+            seeds.append((t, *min(blobs, key=lambda b: np.linalg.norm(b[0] - nearest))))
+        if len(seeds) == 2:
+            tracker.start(*seeds[0], *seeds[1], new_track=False)
 
     def _points(self, group, blobs=True):
         """Triangulated, gated candidate points of one time-matched group, each a pair: the
