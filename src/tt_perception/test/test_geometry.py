@@ -2,6 +2,7 @@
 geometry or tt_prediction's integrator."""
 
 import os
+import pathlib
 
 import cv2
 import numpy as np
@@ -73,9 +74,12 @@ def test_rig_round_trip(tmp_path):
         assert np.allclose(a.dist, b.dist) and a.source == b.source
     assert rig.cameras[1].time_offset == 0.002 and rig.fps == 150.0
     assert [c.readout_time for c in rig.cameras] == [0.0, 0.0]     # a global shutter
+    assert [c.white_bgr for c in rig.cameras] == [(1.0, 1.0, 1.0)] * 2     # white light
     rig.cameras[1].readout_time = 0.005
     save_rig(path, rig)
     assert [c.readout_time for c in load_rig(path).cameras] == [0.0, 0.005]
+    _edit(pathlib.Path(path), lambda d: d['cameras'][0].update(white_bgr=[150, 200, 250]))
+    assert load_rig(path).cameras[0].white_bgr == (0.6, 0.8, 1.0)      # scaled to its largest
 
 
 @pytest.mark.parametrize('change, expect', [
@@ -117,7 +121,7 @@ def test_rig_round_trip(tmp_path):
      'time_offset 5 s is not within +-1 s (seconds, not milliseconds)'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_ofset=0.002)),
      "cameras[1] (cam1): unknown key 'time_ofset' (known: name, camera_info, source, "
-     'rotation, translation, time_offset, readout_time)'),
+     'rotation, translation, time_offset, readout_time, white_bgr)'),
     # A rolling shutter's readout longer than a frame, or in milliseconds.
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(readout_time=5.0)),
      'cameras[0] (cam0): readout_time 5 s is not within [0, 0.006667] s, the frame period '
@@ -126,6 +130,11 @@ def test_rig_round_trip(tmp_path):
      'readout_time -0.001 s is not within [0, 0.006667] s'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(readout_time='fast')),
      'cameras[0] (cam0): readout_time is not a number'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(white_bgr=[0, 200, 240])),
+     'cameras[1] (cam1): white_bgr must be 3 positive numbers, the B, G, R of a white surface'),
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(white_bgr='warm')),
+     "white_bgr must be 3 positive numbers, the B, G, R of a white surface in its images (e.g. "
+     "[150, 200, 240]), not 'warm'"),
     (lambda rig, info: _edit(rig, lambda d: d.update(frame=1)), "unknown key 'frame'"),
     # Published states in 'world', each dropped by prediction_node ("is not 'table'").
     (lambda rig, info: _edit(rig, lambda d: d.update(frame_id='world')),
@@ -141,6 +150,7 @@ def test_rig_round_trip(tmp_path):
         'broken yaml', 'key given twice', 'bad fps', 'infinite fps', 'nan time offset',
         'time offset in ms',
         'misspelt key', 'readout in ms', 'negative readout', 'readout not a number',
+        'white with a zero', 'white not numbers',
         'unknown rig key', 'frame not the table', 'fps true', 'width not whole'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'

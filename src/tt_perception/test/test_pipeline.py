@@ -504,6 +504,36 @@ def test_a_burst_of_dropped_frame_pairs_keeps_the_balls_track(gap):
     assert len(err) == len(estimates) and max(err) < 2e-3
 
 
+
+def test_a_white_ball_under_a_warm_light_is_white_once_the_rig_gives_the_cameras_white():
+    # A camera balanced for daylight under a warm lamp (about 3000 K): its blue and green come
+    # out 0.5 and 0.8 of a white surface's red, the ball's too, and the colour test (channels
+    # within 0.72 of each other) refused every blob: no state, without a word.
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=8.0, topspin_rps=TOPSPIN_RPS, sidespin_rps=10.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], colour='white', duration=0.6,
+                                       imaging='hall')
+    frames = list(frames)
+    warm = np.array([0.5, 0.8, 1.0])
+    warm_frames = [(t, k, np.clip(f * warm, 0, 255).astype(np.uint8)) for t, k, f in frames]
+    white_light, _ = run(rig, frames, colour='white')
+    assert len(white_light) > 60
+    untold = Pipeline(rig, detector_config=DetectorConfig(colour='white'))
+    assert [e for t, k, f in warm_frames for e in untold.process(t, k, f)] == []
+    warning = untold.colour_refused_warning()
+    assert warning.startswith('no track, and camera cam0 refused ')
+    b, g, r = (float(v) for v in warning.split('median B, G, R ')[1].split(')')[0].split(','))
+    assert b < 0.72 * r and g > b and r > g     # the warm light's tint, named
+    assert "give each camera's white_bgr in the rig" in warning
+    for cam in rig.cameras:
+        cam.white_bgr = tuple(warm)        # a white surface in its images, B, G, R over R
+    told_pipeline = Pipeline(rig, detector_config=DetectorConfig(colour='white'))
+    told = [e for t, k, f in warm_frames for e in told_pipeline.process(t, k, f)]
+    assert len(told) == len(white_light) and len({e.track_id for e in told}) == 1
+    assert told_pipeline.colour_refused_warning() is None
+    err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in matched(told, truth[0])])
+    assert np.sqrt(np.mean(err ** 2)) <= 1.5e-3
+
 @pytest.fixture(scope='module')
 def webcam_scene():
     """A white ball (11 m/s, 20 rps topspin) at 1280 x 720 rendered by the tests' independent

@@ -65,6 +65,10 @@ class Camera:
     readout_time: float = 0.0
     """A rolling shutter's readout, s: the time from the first row's exposure to the last's
     (0: a global shutter). The stamp (less ``time_offset``) is then the middle row's."""
+    white_bgr: tuple = (1.0, 1.0, 1.0)
+    """The colour (B, G, R) of a white surface in this camera's images, the largest 1: the
+    light's colour as the camera's white balance leaves it (the ball's colour is judged
+    against it)."""
     info_file: str = ''
     """The camera_info file as the rig names it (relative to the rig file)."""
 
@@ -287,7 +291,7 @@ estimates one (:mod:`tt_perception.sync`); 5 (ms meant) found no ball, without a
 
 RIG_KEYS = ('frame_id', 'fps', 'cameras')
 CAMERA_KEYS = ('name', 'camera_info', 'source', 'rotation', 'translation', 'time_offset',
-               'readout_time')
+               'readout_time', 'white_bgr')
 """The keys of a rig file and of each of its cameras (DESIGN.md, "Data formats")."""
 
 
@@ -314,6 +318,22 @@ def _readout_time(value, fps, where):
                                f'{1.0 / fps:.4g}] s, the frame period at {fps:g} fps '
                                '(seconds, not milliseconds)')
     return readout
+
+
+def _white_bgr(value, where):
+    """A camera's ``white_bgr`` from its rig entry, checked (three positive numbers, any
+    scale: a pixel of a white surface) and scaled to its largest 1."""
+    try:
+        if isinstance(value, (str, bytes)) or any(isinstance(v, bool) for v in value):
+            raise TypeError
+        white = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        white = np.full(0, np.nan)
+    if white.shape != (3,) or not np.all(np.isfinite(white)) or not np.all(white > 0.0):
+        raise CalibrationError(f'{where}: white_bgr must be 3 positive numbers, the B, G, R of '
+                               f'a white surface in its images (e.g. [150, 200, 240]), not '
+                               f'{value!r}')
+    return tuple(float(v) for v in white / white.max())
 
 
 def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
@@ -383,6 +403,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
                     f'{where} ({name}): time_offset {offset:g} s is not within '
                     f'+-{MAX_TIME_OFFSET_S:g} s (seconds, not milliseconds)')
         readout = _readout_time(entry.get('readout_time', 0.0), fps, f'{where} ({name})')
+        white = _white_bgr(entry.get('white_bgr', (1.0, 1.0, 1.0)), f'{where} ({name})')
         source = entry.get('source')
         source = '' if source is None else str(source).strip()      # 0: /dev/video0
         if need_source and not source:
@@ -391,6 +412,7 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
                                    'images, a V4L2 device or an image topic)')
         cameras.append(Camera(name, info['width'], info['height'], info['K'], info['dist'],
                               R, t, source=source, time_offset=offset, readout_time=readout,
+                              white_bgr=white,
                               info_file=str(entry['camera_info'])))
     if len(cameras) < min_cameras:
         raise CalibrationError(f'rig {path}: needs at least {min_cameras} cameras, has '
@@ -446,6 +468,8 @@ def save_rig(path, rig):
             entry['time_offset'] = float(cam.time_offset)
         if cam.readout_time:
             entry['readout_time'] = float(cam.readout_time)
+        if min(cam.white_bgr) < 1.0:
+            entry['white_bgr'] = [float(v) for v in cam.white_bgr]
         entries.append(entry)
     data = {'frame_id': rig.frame_id, 'fps': float(rig.fps), 'cameras': entries}
     with open(path, 'w', encoding='utf-8') as f:

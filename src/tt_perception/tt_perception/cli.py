@@ -148,7 +148,8 @@ def detections_per_camera(rig, frames, colours, detector_config=None):
     the frames with one detection, (times, normalised (n, 2)), and ``tracks`` every
     detection linked into image tracks (:func:`tt_perception.sync.image_tracks`)."""
     base = detector_config or DetectorConfig()
-    detectors = {c: [BallDetector(dataclasses.replace(base, colour=c)) for _ in rig.cameras]
+    detectors = {c: [BallDetector(dataclasses.replace(base, colour=c, white_bgr=cam.white_bgr))
+                     for cam in rig.cameras]
                  for c in colours}
     found = {c: [([], []) for _ in rig.cameras] for c in colours}
     for t, k, frame in frames:
@@ -552,7 +553,8 @@ def _main(argv=None):
     except (InputError, OSError) as exc:
         print(f'tt-perceive: {exc}', file=sys.stderr)
         return 1
-    found = [pipeline.colour_warning(), pipeline.geometry_warning()]
+    found = [pipeline.colour_warning(), pipeline.colour_refused_warning(),
+             pipeline.geometry_warning()]
     for message in [*cut, *errors.values(), *(m for m in found if m)]:
         print(f'tt-perceive: warning: {message}', file=sys.stderr)
     try:

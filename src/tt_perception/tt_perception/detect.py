@@ -25,6 +25,7 @@ update, one update every ``background_every`` frames) except under the blobs fou
 that hovers does not fade into it.
 """
 
+import collections
 import dataclasses
 import math
 
@@ -60,6 +61,10 @@ class DetectorConfig:
     """Largest blob width across its motion (ball diameter), pixels."""
     colour: str = 'any'
     """Ball colour: 'white', 'orange' or 'any'."""
+    white_bgr: tuple = (1.0, 1.0, 1.0)
+    """The colour (B, G, R) of a white surface in the camera's images, the largest 1 (the
+    rig's ``white_bgr``): the ball's colour is divided by it before it is judged
+    (:func:`colour_matches`), so that a white ball under a warm light is still white."""
     background_rate: float = 0.1
     """Weight of a new frame in the running background (per update)."""
     background_every: int = 3
@@ -1114,6 +1119,10 @@ class BallDetector:
         """Whether this camera's frames are grey given as BGR (its first frame's three
         channels equal: a monochrome camera's mono8, a grey video): they are then taken as
         grey, and the ball's ``colour`` cannot be checked (None before the first frame)."""
+        self.colour_refused = 0
+        """Blobs refused for their colour alone (:func:`colour_matches`)."""
+        self.refused_colours = collections.deque(maxlen=100)
+        """The last of their colours (B, G, R, divided by ``white_bgr``), for a warning."""
 
     def detect(self, frame, roi_centre=None, update_background=True, expected=None,
                search=False, later=False):
@@ -1238,10 +1247,12 @@ class BallDetector:
             if with_colour:
                 # The colour of the lit half of the blob: the shaded half and the outline
                 # take the background's colour (JPEG's halved chroma resolution spreads it).
-                colour = m[7:10]
-                change = colour - m[10:13] if known else None
+                colour = m[7:10] / np.asarray(cfg.white_bgr)
+                change = colour - m[10:13] / np.asarray(cfg.white_bgr) if known else None
                 if not colour_matches(colour, cfg.colour, change):
                     if not colour_possible(change, cfg.colour):
+                        self.colour_refused += 1
+                        self.refused_colours.append(colour)
                         continue
                     sure = False
             if self._bg_colour is not None and colour_frame:

@@ -518,9 +518,10 @@ class PerceptionNode(Node):
                 self._ended.add(frame.camera)
                 if self._files and self._ended >= set(self._files):
                     self.get_logger().info(f'end of the video files: {self.work_summary()}')
-                    geometry = self.pipeline.geometry_warning()
-                    if geometry:
-                        self.get_logger().warning(geometry)
+                    for warning in (self.pipeline.colour_refused_warning(),
+                                    self.pipeline.geometry_warning()):
+                        if warning:
+                            self.get_logger().warning(warning)
                 continue
             # Exposure times on the wall clock: live stamps are; video times start at the
             # files' start.

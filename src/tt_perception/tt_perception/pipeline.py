@@ -533,7 +533,8 @@ class Pipeline:
         self.cameras = rig.cameras
         self.params = params or ModelParams()
         dcfg = detector_config or DetectorConfig()
-        self.detectors = [BallDetector(dataclasses.replace(dcfg)) for _ in self.cameras]
+        self.detectors = [BallDetector(dataclasses.replace(dcfg, white_bgr=cam.white_bgr))
+                          for cam in self.cameras]
         self.matcher = Matcher(len(self.cameras), 1.0 / rig.fps)
         self.tracker = Tracker(rig.fps, self.params, filter_config, tracker_config)
         self.config = self.tracker.config
@@ -616,6 +617,23 @@ class Pipeline:
                 "camera's time_offset (its clock minus camera 0's), or whether what they saw "
                 'is the ball (one of another colour than the colour setting, or of a pixel or '
                 'two, is matched to other things)')
+
+    def colour_refused_warning(self, least=20):
+        """One line when no track ever started but a camera refused ``least`` ball-like blobs
+        or more for their colour alone: a ball under a light the camera is not balanced for
+        (a white ball under a warm lamp is yellow), named with their median colour; else
+        None."""
+        if self.tracker.track_id or self.detectors[0].config.colour == 'any':
+            return None
+        for cam, d in zip(self.cameras, self.detectors, strict=True):
+            if d.colour_refused >= least:
+                b, g, r = np.median(np.array(d.refused_colours), axis=0)
+                return (f"no track, and camera {cam.name} refused {d.colour_refused} ball-like "
+                        f"blobs for their colour (not {d.config.colour!r}; median B, G, R "
+                        f'{b:.0f}, {g:.0f}, {r:.0f}): under a coloured light give each '
+                        "camera's white_bgr in the rig (a white surface's B, G, R in its "
+                        'images), or the colour any')
+        return None
 
     def colour_warning(self):
         """One line when the ball's colour is set but a camera's frames are grey (its
