@@ -504,7 +504,6 @@ def test_a_burst_of_dropped_frame_pairs_keeps_the_balls_track(gap):
     assert len(err) == len(estimates) and max(err) < 2e-3
 
 
-
 def test_a_white_ball_under_a_warm_light_is_white_once_the_rig_gives_the_cameras_white():
     # A camera balanced for daylight under a warm lamp (about 3000 K): its blue and green come
     # out 0.5 and 0.8 of a white surface's red, the ball's too, and the colour test (channels
@@ -533,6 +532,7 @@ def test_a_white_ball_under_a_warm_light_is_white_once_the_rig_gives_the_cameras
     assert told_pipeline.colour_refused_warning() is None
     err = np.array([np.linalg.norm(e.state[:3] - s[:3]) for e, s in matched(told, truth[0])])
     assert np.sqrt(np.mean(err ** 2)) <= 1.5e-3
+
 
 @pytest.fixture(scope='module')
 def webcam_scene():
