@@ -49,7 +49,9 @@ mosaic, no JPEG) is the control of the renderer and the scoring; then the lit ba
 the clean sensor, with noise and mosaic but no JPEG, and with JPEG alone; and the whole
 imaging with the camera's response not undone (``response_gamma`` 1). ``no_mosaic_640x480``:
 every ball and colour at 640 x 480 through a camera without the mosaic (noise and JPEG
-only), reported with its checks, not part of ``passed``.
+only), reported with its checks, not part of ``passed``: with the defaults (``image_blur``
+0.6 px, a Bayer camera's), with each camera's blurs estimated (``estimated_blurs``) and
+with ``image_blur`` 0 told, as for a camera without a mosaic (``told_image_blur_0``).
 
 ``passed`` per combination (colour x size): every ball within the issue's limits on
 position RMS, mean error per axis, coverage and one track (``LIMITS``; the velocity and
@@ -115,11 +117,12 @@ CAMERA_GAMMA = scene.Sensor().gamma
 """The renderer camera's response exponent, told to the detector (``response_gamma``)."""
 
 
-def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA, smooth=False):
+def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA, smooth=False, detector=None):
     """The pipeline's estimates over ``frames``; with ``smooth``, (estimates, their smoothed
-    states as tt-perceive writes them)."""
+    states as tt-perceive writes them). ``detector``: other DetectorConfig settings."""
     pipe = Pipeline(rig, detector_config=DetectorConfig(colour=colour,
-                                                        response_gamma=response_gamma),
+                                                        response_gamma=response_gamma,
+                                                        **(detector or {})),
                     tracker_config=TrackerConfig(smooth=smooth))
     estimates = []
     for t, k, frame in frames:
@@ -278,7 +281,7 @@ def estimated_blur_row(rig, frames, colour, flight, truth, response_gamma=CAMERA
 
 
 def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None,
-               response_gamma=CAMERA_GAMMA, estimate_blur=False):
+               response_gamma=CAMERA_GAMMA, estimate_blur=False, detector=None):
     start = time.perf_counter()
     frames, truth = scene.render_scene(rig, [flight], colour, T_BEGIN, T_END,
                                        time_offsets=time_offsets, renderer=renderer,
@@ -286,7 +289,8 @@ def ball_scene(rig, renderer, colour, flight, time_offsets=None, sensor=None,
     frames = list(frames)
     render_s = time.perf_counter() - start
     start = time.perf_counter()
-    estimates, smoothed = run_pipeline(rig, frames, colour, response_gamma, smooth=True)
+    estimates, smoothed = run_pipeline(rig, frames, colour, response_gamma, smooth=True,
+                                       detector=detector)
     pipe_s = time.perf_counter() - start
     row = score(rig, estimates, flight, truth[0])
     row['checks'] = checks(row)
@@ -327,17 +331,21 @@ def ablation(rig, renderer, flight):
 def no_mosaic(rig, renderer, flights):
     """Every ball and colour through a camera without a mosaic (noise and JPEG q30, no
     demosaicing): the issue's own list of imaging effects, reported with its checks and not
-    part of ``passed`` (the detector's default ``image_blur`` is a Bayer camera's)."""
+    part of ``passed`` (the detector's default ``image_blur`` is a Bayer camera's; the
+    camera's blurs estimated, and ``image_blur`` 0 told)."""
     sensor = scene.Sensor(bayer=False)
+    keys = ('position_rms_mm', 'mean_error_mm', 'coverage', 'tracks', 'velocity_max_err_m_s',
+            'checks', 'passed')
     out = {}
     for colour in COLOURS:
-        rows = {name: ball_scene(rig, renderer, colour, f, sensor=sensor, estimate_blur=True)
-                for name, f in flights.items()}
-        out[colour] = {name: {k: row.get(k) for k in ('position_rms_mm', 'mean_error_mm',
-                                                      'coverage', 'tracks',
-                                                      'velocity_max_err_m_s', 'checks',
-                                                      'passed', 'estimated_blurs')}
-                       for name, row in rows.items()}
+        out[colour] = {}
+        for name, f in flights.items():
+            row = ball_scene(rig, renderer, colour, f, sensor=sensor, estimate_blur=True)
+            sharp = ball_scene(rig, renderer, colour, f, sensor=sensor,
+                               detector={'image_blur': 0.0})
+            out[colour][name] = {**{k: row.get(k) for k in keys},
+                                 'estimated_blurs': row['estimated_blurs'],
+                                 'told_image_blur_0': {k: sharp.get(k) for k in keys}}
     return out
 
 

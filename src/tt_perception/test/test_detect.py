@@ -534,7 +534,7 @@ def test_a_fit_knows_a_ball_lit_from_below():
                     grey = background * (1.0 - cover) + basis @ shading
                     fitter = OutlineFit(None, None, None, ball,
                                         pixels=(grey, background, xs, ys))
-                    centre, _, lit_from_below = fitter.fit((12.2, 11.9))
+                    centre, _, lit_from_below, _ = fitter.fit((12.2, 11.9))
                     np.testing.assert_allclose(centre, (12.0, 12.0), atol=0.01)
                     expected = below and strong and up is not None
                     assert lit_from_below == expected, (outline, angle, size, up)
@@ -748,3 +748,45 @@ def test_no_fit_gives_no_blur_estimate():
     assert estimate_exposure([(empty, (4.0, 4.0))], 2e-3, 1.0 / 150.0) == (None, 0)
     assert estimate_exposure_and_blur([(empty, (4.0, 4.0))], 2e-3, 1.0 / 150.0) == (None,
                                                                                    None, 0)
+
+
+
+@pytest.mark.parametrize('background_light', [0.05, 0.15])
+def test_a_blur_of_the_encoded_values_is_fitted_without_a_lean(background_light):
+    """A camera that blurs its pixel values after its response (JPEG's smoothing after a
+    gamma response) blurs the encoded values, not the light: undone to light, an edge's
+    half-way level moves toward its bright side by more where its contrast ratio is larger,
+    so the lit top's edge moves into the ball more than the shaded bottom's. A ball 3.2 px in
+    radius lit from above (light 0.9 at its top falling linearly to 0.15 at its bottom, over
+    a background of 0.05 or 0.15 of full scale), averaged over each pixel on 8 x 8 points,
+    encoded with a 2.2 response, blurred on the pixel grid by SciPy's Gaussian filter of
+    0.5 px and rounded to 8 bits, at 80 sub-pixel positions, linearised as the detector
+    does: fitted as a blur of the light of the same 0.5 px the centre leans down, away from
+    the lit top, by more than 0.05 px (mean); with the blur of the encoded values modelled
+    (``encoded``, 0.5 px) within 0.025 px on each axis."""
+    from scipy.ndimage import gaussian_filter
+    from tt_perception.detect import OutlineFit
+    radius, size, sub, gamma, blur = 3.2, 24, 8, 2.2, 0.5
+    rng = np.random.default_rng(11)
+    ball = BallImage(0.0, 0.0, np.eye(2) * radius, np.zeros(2))
+    fine = (np.arange(size * sub) + 0.5) / sub - 0.5
+    gy, gx = np.meshgrid(fine, fine, indexing='ij')
+    background = np.full((size, size), 255.0 * background_light)
+    usable = np.ones((size, size), bool)
+    errors = {'light': [], 'encoded': []}
+    for _ in range(80):
+        centre = 12.0 + rng.uniform(-1.0, 1.0, 2)
+        dy = (gy - centre[1]) / radius
+        light = np.where(np.hypot(gx - centre[0], gy - centre[1]) < radius,
+                         0.525 - 0.375 * dy, background_light)
+        light = light.reshape(size, sub, size, sub).mean(axis=(1, 3))
+        values = np.round(gaussian_filter(255.0 * light ** (1.0 / gamma), blur, mode='nearest'))
+        seen = 255.0 * (values / 255.0) ** gamma
+        for name, image_blur, encoded in (('light', blur, None),
+                                          ('encoded', 0.0, (background, gamma, blur))):
+            fit = OutlineFit(seen, background, usable, ball, curvature_weight=1.0,
+                             image_blur=image_blur, encoded=encoded).fit((12.0, 12.0))
+            errors[name].append(fit[0] - centre)
+    assert np.mean(errors['light'], axis=0)[1] > 0.05, np.mean(errors['light'], axis=0)
+    assert np.all(np.abs(np.mean(errors['encoded'], axis=0)) < 0.025), \
+        np.mean(errors['encoded'], axis=0)

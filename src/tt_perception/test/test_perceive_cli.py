@@ -66,7 +66,8 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
     # 255 (light / full)^(1 / 2.2)): told its gamma, tt-perceive sees the light the linear
     # camera saw, and gives its track. It had no option for it: 2-4 times the error, the
     # height high, on another renderer's camera (a new user's walk-through). The exposure
-    # and blur are told (the scene's), as estimated they take up part of an untold gamma.
+    # and blur are told (the scene's), as estimated they take up part of an untold gamma;
+    # the frames are PNG, not compressed: no blur of the values after the response.
     base, rig_path, frames, truth = scene
     lut = np.round(255.0 * (np.arange(256) / 255.0) ** (1.0 / 2.2)).astype(np.uint8)
     rigs = {name: synth.write_scene(str(tmp_path / name), rig_path, scene_frames, [truth],
@@ -78,7 +79,8 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
                              ('webcam_untold', rigs['webcam'], '1')):
         out = tmp_path / f'out_{name}'
         assert cli.main(['--rig', rig, '--out', str(out), '--response-gamma', gamma,
-                         '--exposure', '0.0015', '--image-blur', '0']) == 0
+                         '--exposure', '0.0015', '--image-blur', '0', '--encoded-blur',
+                         '0']) == 0
         tracks[name] = read_track(out / 'track_001.csv')
     capsys.readouterr()
     def off(name):          # RMS distance to the linear camera's track, m
@@ -92,13 +94,15 @@ def test_response_gamma_undoes_a_webcam_response(scene, tmp_path, capsys):
 @pytest.mark.parametrize('option, setting, value', [
     ([], 'light_from_above', True), (['--any-lighting'], 'light_from_above', False),
     (['--image-blur', '0.6'], 'image_blur', 0.6), (['--image-blur', '0'], 'image_blur', 0.0),
-    (['--exposure', '0.003'], 'exposure', 0.003)])
+    (['--exposure', '0.003'], 'exposure', 0.003), ([], 'encoded_blur', 0.5),
+    (['--encoded-blur', '0'], 'encoded_blur', 0.0)])
 def test_the_detector_options_reach_the_detector(scene, tmp_path, monkeypatch, option, setting,
                                                  value):
     # perception_node's light_from_above (the outline fit's choice between a ball lit from
     # above and one lit from below), image_blur (the cameras' own blur in the outline
     # fit: 0.6 px a Bayer camera's demosaicing; synth's clean cameras are sharp) and
-    # exposure (the ball's streak; this scene's is 1.5 ms) are tt-perceive's too; the track
+    # exposure (the ball's streak; this scene's is 1.5 ms) and encoded_blur (JPEG's blur of
+    # the values after a response, 0.5 px by default) are tt-perceive's too; the track
     # is right on this evenly lit scene either way.
     base, rig_path, frames, truth = scene
     made = []

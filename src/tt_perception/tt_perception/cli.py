@@ -494,6 +494,12 @@ def _main(argv=None):
                              "0.6 a Bayer colour camera's demosaicing, 0 a sharp camera); "
                              "default auto: each camera's, estimated from the ball's outline "
                              'fits in a first pass over the frames and printed')
+    parser.add_argument('--encoded-blur', type=_in_range(*IMAGE_BLUR_RANGE),
+                        default=DetectorConfig.encoded_blur, metavar='PX',
+                        help="the cameras' blur of their pixel values after the response, "
+                             "pixels, with --response-gamma (perception_node's encoded_blur: "
+                             f'{DetectorConfig.encoded_blur:g} JPEG q30, the default; 0 for '
+                             'frames that were not compressed)')
     parser.add_argument('--any-lighting', action='store_true',
                         help="the ball may be lit from any side (perception_node's "
                              'light_from_above false; default: the lights are above the '
@@ -523,6 +529,7 @@ def _main(argv=None):
         return 2
     try:
         detector = DetectorConfig(colour=args.colour, response_gamma=args.response_gamma,
+                                  encoded_blur=args.encoded_blur,
                                   light_from_above=not args.any_lighting)
         if args.exposure is not None:
             detector.exposure = args.exposure

@@ -114,7 +114,21 @@ class DetectorConfig:
     0: a sharp camera (synth's clean mode; the ramp of one sub-sample). docs/perception.md,
     "The camera's blur and the lit side". It costs no time (a fit samples each pixel once
     with it, four times without). :func:`estimate_image_blur` measures it from the fits
-    (tt-perceive does by default)."""
+    (tt-perceive does by default). With a response (``response_gamma`` not 1) it is the blur
+    of the light, before the response; the blur of the values after it is
+    ``encoded_blur``."""
+    encoded_blur: float = 0.5
+    """The part of the camera's blur that acts on its pixel values after its response, pixels
+    (the standard deviation of a Gaussian): JPEG's, which drops an edge's fine detail from the
+    encoded values. Used only with a response (``response_gamma`` not 1): a blur of encoded
+    values, undone to light, moves an edge's half-way level toward its bright side by more
+    where its contrast ratio is larger, so the lit top's edge moves into the ball more than
+    the shaded bottom's and a fit that blurs light reads the centre low (0.4-0.7 mm at
+    640x480 through a camera without a mosaic, JPEG q30 after a 2.2 response). The fit
+    models it (:class:`OutlineFit`, ``encoded``). 0.5 px: JPEG q30 on balls 2-7 px in radius
+    (the independent renderer's, at which their heights are least biased: "JPEG's blur of
+    the encoded values, modelled", docs/perception.md); 0 for frames that were not
+    compressed."""
 
 
 @dataclasses.dataclass
@@ -697,10 +711,21 @@ def fit_outline(grey, background, usable, start, ball, iterations=6, curvature_w
 class OutlineFit:
     """:func:`fit_outline` on one patch from as many starts as wanted (:meth:`fit`): the
     patch's usable pixels are gathered once (``usable`` of ``grey`` and ``background``, or
-    given gathered: ``pixels`` = (observed, background, x, y), float64 arrays)."""
+    given gathered: ``pixels`` = (observed, background, x, y), float64 arrays).
+
+    ``encoded`` = (background, gamma, blur): the camera blurs its encoded values by ``blur``
+    px after its response 255 (L / 255)^(1 / gamma) (:attr:`DetectorConfig.encoded_blur`);
+    ``background`` is the whole patch's (2-D, light). Each pixel is then modelled as
+    f^-1(g * f(L)), L the light image the fit models (``image_blur`` its blur) and g the
+    encoded values' Gaussian blur: the fit models g * L (blurred by both) and takes from the
+    observed light the difference f^-1(g * f(L)) - g * L, which only the response's
+    curvature makes (:func:`encoded_blur_offsets`), computed at the last fit's centre and
+    shading and refitted :data:`ENCODED_ITERATIONS` times (the difference moves little with
+    them: two rounds settle the centre within 0.01 px). None: a linear camera, or no blur
+    after the response."""
 
     def __init__(self, grey, background, usable, ball, iterations=6, curvature_weight=0.0,
-                 image_blur=0.0, pixels=None):
+                 image_blur=0.0, pixels=None, encoded=None):
         if pixels is None:
             ys, xs = np.nonzero(usable)
             pixels = (grey[ys, xs].astype(float), background[ys, xs].astype(float),
@@ -708,27 +733,50 @@ class OutlineFit:
         self.obs, self.bg, self.xs, self.ys = pixels
         self.ball = ball
         self.image_blur = image_blur
+        self.encoded = encoded
         self.whitening = _whiten(ball.outline)
         self.blur = (float(ball.blur[0]), float(ball.blur[1]))
-        self.sampling = _sampling(ball, image_blur)
+        self.sampling = _sampling(
+            ball, image_blur if encoded is None else math.hypot(image_blur, encoded[2]))
         self.options = (float(curvature_weight), int(iterations), CONVERGED)
         self.scale = _outline_extent(ball.outline)[1]
         self.up = None if ball.up is None else np.asarray(ball.up, dtype=float)
 
-    def fit(self, start):
-        """(centre, cost, lit_from_below) of the fit from ``start`` (patch pixels), or None
-        (:func:`fit_outline`); ``lit_from_below`` (:data:`LIT_FROM_BELOW_COS`) only when the
-        ball's ``up`` is known, else False."""
+    def fit(self, start, refine=True):
+        """(centre, cost, lit_from_below, shading) of the fit from ``start`` (patch pixels),
+        or None (:func:`fit_outline`); ``lit_from_below`` (:data:`LIT_FROM_BELOW_COS`) only
+        when the ball's ``up`` is known, else False. Not ``refine``: without the encoded
+        values' blur's difference (``encoded``), for a first choice among starts
+        (:meth:`refine` takes it on)."""
+        fit = self._fit_once(self.obs, start)
+        return self.refine(fit) if refine and fit is not None else fit
+
+    def refine(self, fit):
+        """The fit ``fit`` (from :meth:`fit`) refitted with the encoded values' blur
+        (``encoded``), or ``fit`` without it; None when a refit fails."""
+        if self.encoded is None:
+            return fit
+        background, gamma, blur = self.encoded
+        for _ in range(ENCODED_ITERATIONS):
+            offsets = encoded_blur_offsets(fit[0], fit[3], self.ball, self.whitening,
+                                           background, self.xs, self.ys, self.image_blur,
+                                           blur, gamma)
+            fit = self._fit_once(self.obs - offsets, fit[0])
+            if fit is None:
+                return None
+        return fit
+
+    def _fit_once(self, obs, start):
         if self.xs.size < 12:
             return None
-        ok, u, v, cost, shading = _fit(self.obs, self.bg, self.xs, self.ys, float(start[0]),
+        ok, u, v, cost, shading = _fit(obs, self.bg, self.xs, self.ys, float(start[0]),
                                        float(start[1]), self.whitening, *self.blur,
                                        *self.sampling, *self.options)
         centre = np.array([u, v])
         if (not ok or not np.all(np.isfinite(centre))
                 or np.hypot(*(centre - start)) > max(self.scale, 1.0)):
             return None
-        return centre, float(cost), self._lit_from_below(shading)
+        return centre, float(cost), self._lit_from_below(shading), shading
 
     def with_blur(self, image_blur=None, motion=1.0):
         """The same fit of the same pixels with the camera blur ``image_blur`` (px; None: this
@@ -739,7 +787,7 @@ class OutlineFit:
             self.ball, blur=(motion * self.blur[0], motion * self.blur[1]))
         return OutlineFit(None, None, None, ball, iterations, curvature_weight,
                           self.image_blur if image_blur is None else image_blur,
-                          (self.obs, self.bg, self.xs, self.ys))
+                          (self.obs, self.bg, self.xs, self.ys), self.encoded)
 
     def _lit_from_below(self, shading):
         if self.up is None:
@@ -964,6 +1012,35 @@ def _silhouette_moments(patch, background, seed, sx, sy, threshold):
                 cxy += c * (x - cu) * (y - cv)
     return cu, cv, cxx / m00, cyy / m00, cxy / m00
 
+
+ENCODED_ITERATIONS = 2
+"""Refits of :meth:`OutlineFit.refine`."""
+
+
+def encoded_blur_offsets(centre, shading, ball, whitening, background, xs, ys, image_blur,
+                         encoded_blur, gamma):
+    """What a blur of the encoded values adds to the light a pixel seems to have got, beyond
+    the same blur of the light: f^-1(g * f(L)) - g * L at the pixels (xs, ys) (float
+    arrays) of a patch whose background light is ``background`` (2-D), for the ball ``ball``
+    (:class:`BallImage`, ``whitening`` its outline's :func:`_whiten`) centred at ``centre``
+    with the brightness ``shading`` (:func:`ball_model`, blurred by ``image_blur`` px), the
+    response f(L) = 255 (L / 255)^(1 / ``gamma``) and g a Gaussian of ``encoded_blur`` px
+    over the patch's pixel grid (its edge's pixels repeated). Light in grey levels. Zero
+    for a linear response; a blur of the encoded values brings an edge's half-way light
+    toward its bright side by more where the edge's contrast ratio is larger."""
+    h, w = background.shape
+    gy, gx = np.mgrid[0:h, 0:w]
+    cover, basis, _, _ = ball_model(gx.ravel().astype(float), gy.ravel().astype(float),
+                                    centre, ball, whitening, image_blur)
+    light = background.ravel() * (1.0 - cover) + basis @ shading
+    light = np.clip(light, 0.0, 255.0).reshape(h, w)
+    size = 2 * int(math.ceil(3.0 * encoded_blur)) + 1
+    blurred = cv2.GaussianBlur(light, (size, size), encoded_blur,
+                               borderType=cv2.BORDER_REPLICATE)
+    encoded = cv2.GaussianBlur(255.0 * (light * (1.0 / 255.0)) ** (1.0 / gamma), (size, size),
+                               encoded_blur, borderType=cv2.BORDER_REPLICATE)
+    offsets = 255.0 * (encoded * (1.0 / 255.0)) ** gamma - blurred
+    return offsets[ys.astype(np.intp), xs.astype(np.intp)]
 
 
 def _grey(image):
@@ -1321,12 +1398,18 @@ class BallDetector:
             np.ascontiguousarray(self.background[ay:by, ax:bx]), float(u - ax), float(v - ay),
             float(reach + 1.5), shadows)
         gamma = self.config.response_gamma
+        encoded = None
         if gamma != 1.0:          # back to light: an outline pixel mixes light, not values
             obs = 255.0 * (obs * (1.0 / 255.0)) ** gamma
             background = 255.0 * (background * (1.0 / 255.0)) ** gamma
+            if self.config.encoded_blur > 0.0:
+                whole = self.background[ay:by, ax:bx].astype(float)
+                encoded = (255.0 * (whole * (1.0 / 255.0)) ** gamma, gamma,
+                           self.config.encoded_blur)
         fitter = OutlineFit(None, None, None, ball, curvature_weight=self.config.curvature_weight,
                             image_blur=self.config.image_blur,
-                            pixels=(obs.astype(float), background.astype(float), xs, ys))
+                            pixels=(obs.astype(float), background.astype(float), xs, ys),
+                            encoded=encoded)
         lit = self.config.light_from_above
 
         def better(fit, best):
@@ -1343,18 +1426,20 @@ class BallDetector:
         # From the candidate's own centre; on a ball of a few pixels JPEG's blocks can leave
         # a second minimum a pixel or two away, so when that fit ends more than half a pixel
         # from the predicted centre (or lit from below), from there too, and the better fit.
-        best = fitter.fit((u - ax, v - ay))
+        best = fitter.fit((u - ax, v - ay), refine=False)
         predicted = (ball.u - ax, ball.v - ay)
         if best is None or np.hypot(*(best[0] - predicted)) > 0.5 or (lit and best[2]):
-            fit = fitter.fit(predicted)
+            fit = fitter.fit(predicted, refine=False)
             if better(fit, best):
                 best = fit
         if search:
             step = SEARCH_STEP * fitter.scale
             for du, dv in SEARCH_OFFSETS:
-                fit = fitter.fit((u - ax + step * du, v - ay + step * dv))
+                fit = fitter.fit((u - ax + step * du, v - ay + step * dv), refine=False)
                 if better(fit, best):
                     best = fit
+        if best is not None:
+            best = fitter.refine(best)
         if best is None:
             return None
         if self.fits is not None:

@@ -113,6 +113,10 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian standard deviation; 0.6: "
      "a Bayer colour camera's demosaicing; 0: sharp; tt-perceive prints each camera's, "
      'estimated from a recording', 'pixels', *IMAGE_BLUR_RANGE),
+    ('encoded_blur', DetectorConfig.encoded_blur,
+     "The cameras' blur of their pixel values after the response (JPEG's), a Gaussian "
+     'standard deviation, used when response_gamma is not 1; 0.5: JPEG q30; 0: frames not '
+     'compressed', 'pixels', *IMAGE_BLUR_RANGE),
     ('light_from_above', DetectorConfig.light_from_above,
      "The lights are above the table (the ball's top is its lit side): of the outline fits "
      'from several starts, one lit from below is kept only when all are; false: any '
@@ -300,6 +304,7 @@ class PerceptionNode(Node):
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
             curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'),
+            encoded_blur=self._p('encoded_blur'),
             light_from_above=self._p('light_from_above'))
         filt = dataclasses.replace(PERCEPTION_FILTER, accel_noise=self._p('accel_noise'),
                                    accel_noise_speed=self._p('accel_noise_speed'),
