@@ -217,14 +217,16 @@ def test_outline_fit_where_half_the_ball_is_as_dark_as_the_background(light):
     colour: the silhouette's centroid leans a quarter of the ball toward the light; the fit of
     the known outline with a free quadratic brightness finds the centre within a tenth of a
     pixel, whatever the light's direction in the image. The default penalty on the
-    brightness's curvature, which such a sharp terminator needs, costs up to half a pixel
-    toward the light (measured 0.42-0.45 px; docs/perception.md)."""
+    brightness's curvature, which such a sharp terminator needs, costs about half a pixel
+    toward the light (measured 0.42-0.45 px; 0.46-0.50 px with the pixels inside the ball
+    weighted by the fit's residuals, ``inside_huber``, which weights down the terminator the
+    penalised shading cannot follow; docs/perception.md)."""
     fitted, plain = fitted_and_plain_errors(light)
     assert np.abs(fitted).max() < 0.1
     assert np.hypot(*plain.T).min() > 1.0
     default = DetectorConfig().curvature_weight
     penalised, _ = fitted_and_plain_errors(light, curvature_weight=default)
-    assert np.abs(penalised).max() < 0.5
+    assert np.abs(penalised).max() < 0.55
     toward = np.asarray(light[:2]) / np.linalg.norm(light[:2])
     assert penalised.mean(axis=0) @ toward > 0.05       # the bias is toward the light
 
@@ -534,7 +536,7 @@ def test_a_fit_knows_a_ball_lit_from_below():
                     grey = background * (1.0 - cover) + basis @ shading
                     fitter = OutlineFit(None, None, None, ball,
                                         pixels=(grey, background, xs, ys))
-                    centre, _, lit_from_below, _ = fitter.fit((12.2, 11.9))
+                    centre, _, lit_from_below = fitter.fit((12.2, 11.9))[:3]
                     np.testing.assert_allclose(centre, (12.0, 12.0), atol=0.01)
                     expected = below and strong and up is not None
                     assert lit_from_below == expected, (outline, angle, size, up)
@@ -749,6 +751,52 @@ def test_no_fit_gives_no_blur_estimate():
     assert estimate_exposure_and_blur([(empty, (4.0, 4.0))], 2e-3, 1.0 / 150.0) == (None,
                                                                                    None, 0)
 
+
+def lit_ball_with_highlight(centre, radius, blur, size, spot, sub=8):
+    """:func:`top_lit_ball`'s ball (its linear shading, which the fit's quadratic follows
+    exactly) with a Blinn-Phong highlight of 0.45 of full light and exponent 30 on the
+    sphere, whose peak normal is ``spot`` rad from the camera toward the image's top (a light
+    above a camera looking across): drawn here on ``sub`` x ``sub`` points per pixel, the
+    sphere's normal from the image position. Returns (the patch, its background), float."""
+    fine = (np.arange(size * sub) + 0.5) / sub - 0.5
+    gy, gx = np.meshgrid(fine, fine, indexing='ij')
+    dx, dy = (gx - centre[0]) / radius, (gy - centre[1]) / radius
+    inside = dx * dx + dy * dy < 1.0
+    toward_camera = np.sqrt(np.clip(1.0 - dx * dx - dy * dy, 0.0, 1.0))
+    cosine = np.clip(-dy * np.sin(spot) + toward_camera * np.cos(spot), 0.0, 1.0)
+    lit = np.where(inside, 0.6 - 0.4 * dy + 0.45 * cosine ** 30, 0.15)
+    if blur > 0.0:
+        lit = cv2.GaussianBlur(lit, (0, 0), blur * sub)
+    grey = 200.0 * lit.reshape(size, sub, size, sub).mean(axis=(1, 3))
+    return grey, np.full((size, size), 200.0 * 0.15)
+
+
+def test_a_specular_highlight_moves_the_fitted_centre_less_with_the_inside_weighted():
+    """A ball 6 px in radius lit from above with a specular highlight near its top
+    (:func:`lit_ball_with_highlight`), blurred by 0.5 px, with 2 grey levels of noise, at 40
+    sub-pixel positions. The highlight is a spot the quadratic shading cannot follow: fitted
+    with every pixel alike (``inside_huber`` 0) the centre leans away from it, down, by over
+    0.1 px on average (measured 0.125); with the pixels inside the ball weighted by how well
+    the fit explains them (the default) the lean is under 0.6 of that (measured 0.069), and
+    across the light (x) neither leans."""
+    from tt_perception.detect import OutlineFit
+    radius, blur, size = 6.0, 0.5, 32
+    rng = np.random.default_rng(5)
+    ball = BallImage(0.0, 0.0, np.eye(2) * radius, np.zeros(2))
+    errors = {0.0: [], DetectorConfig().inside_huber: []}
+    for _ in range(40):
+        centre = 0.5 * size + rng.uniform(-1.0, 1.0, 2)
+        grey, background = lit_ball_with_highlight(centre, radius, blur, size, spot=0.6)
+        grey += rng.normal(0.0, 2.0, grey.shape)
+        for huber in errors:
+            fit = OutlineFit(grey, background, np.ones(grey.shape, bool), ball,
+                             curvature_weight=DetectorConfig().curvature_weight,
+                             image_blur=blur, inside_huber=huber).fit(np.round(centre))
+            errors[huber].append(fit[0] - centre)
+    plain, weighted = (np.mean(e, axis=0) for e in errors.values())
+    assert plain[1] > 0.1, plain
+    assert 0.0 < weighted[1] < 0.6 * plain[1], (weighted, plain)
+    assert abs(plain[0]) < 0.02 and abs(weighted[0]) < 0.02
 
 
 @pytest.mark.parametrize('background_light', [0.05, 0.15])
