@@ -109,6 +109,10 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
     ('curvature_weight', DetectorConfig.curvature_weight,
      "Penalty of the outline fit on the ball's brightness curving beyond a linear shading "
      '(0: a free quadratic, for a single compact light with no ambient)', '', 0.0, 100.0),
+    ('inside_huber', DetectorConfig.inside_huber,
+     "Threshold of the Huber weights of the pixels inside the ball in the outline fit's refit, "
+     "in units of the fit's residual scale (a specular highlight counts less); 0: every pixel "
+     'alike', '', 0.0, 100.0),
     ('image_blur', DetectorConfig.image_blur,
      "The cameras' own blur (demosaicing, JPEG, lens), a Gaussian standard deviation; 0.6: "
      "a Bayer colour camera's demosaicing; 0: sharp; tt-perceive prints each camera's, "
@@ -304,7 +308,7 @@ class PerceptionNode(Node):
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
             curvature_weight=self._p('curvature_weight'), image_blur=self._p('image_blur'),
-            encoded_blur=self._p('encoded_blur'),
+            encoded_blur=self._p('encoded_blur'), inside_huber=self._p('inside_huber'),
             light_from_above=self._p('light_from_above'))
         filt = dataclasses.replace(PERCEPTION_FILTER, accel_noise=self._p('accel_noise'),
                                    accel_noise_speed=self._p('accel_noise_speed'),
