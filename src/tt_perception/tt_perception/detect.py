@@ -738,8 +738,8 @@ class OutlineFit:
 
     ``inside_huber`` > 0 (:attr:`DetectorConfig.inside_huber`): the refits of
     :meth:`refine` weight the pixels inside the ball by :func:`inside_weights` of the last
-    fit's residuals (:attr:`weight`, the square roots); the fits of :meth:`with_blur` weight
-    every pixel alike, so that the costs of the blurs or exposures they compare are of the
+    fit's residuals (their square roots, passed to each refit); the fits of :meth:`with_blur`
+    weight every pixel alike, so that the costs of the blurs or exposures they compare are of the
     same sum."""
 
     def __init__(self, grey, background, usable, ball, iterations=6, curvature_weight=0.0,
@@ -749,7 +749,7 @@ class OutlineFit:
             pixels = (grey[ys, xs].astype(float), background[ys, xs].astype(float),
                       xs.astype(float), ys.astype(float))
         self.obs, self.bg, self.xs, self.ys = pixels
-        self.weight = np.ones(self.xs.size)
+        self.alike = np.ones(self.xs.size)         # every pixel's weight alike
         self.inside_huber = inside_huber
         self.ball = ball
         self.image_blur = image_blur
@@ -783,7 +783,7 @@ class OutlineFit:
             refits = REFITS
         else:
             refits = INSIDE_REFITS if self.inside_huber > 0.0 else 0
-        obs = self.obs
+        obs, weight = self.obs, self.alike
         for _ in range(refits):
             if self.encoded is not None:
                 background, gamma, blur = self.encoded
@@ -791,18 +791,19 @@ class OutlineFit:
                     fit[0], fit[3], self.ball, self.whitening, background, self.xs, self.ys,
                     self.image_blur, blur, gamma)
             if self.inside_huber > 0.0:
-                self.weight = inside_weights(fit[4], fit[5], self.inside_huber)
-            fit = self._fit_once(obs, fit[0])
+                weight = inside_weights(fit[4], fit[5], self.inside_huber)
+            fit = self._fit_once(obs, fit[0], weight)
             if fit is None:
                 return None
         return fit
 
-    def _fit_once(self, obs, start):
+    def _fit_once(self, obs, start, weight=None):
         if self.xs.size < 12:
             return None
         ok, u, v, cost, shading, res, cover = _fit(
             obs, self.bg, self.xs, self.ys, float(start[0]), float(start[1]), self.whitening,
-            *self.blur, *self.sampling, *self.options, self.weight)
+            *self.blur, *self.sampling, *self.options,
+            self.alike if weight is None else weight)
         centre = np.array([u, v])
         if (not ok or not np.all(np.isfinite(centre))
                 or np.hypot(*(centre - start)) > max(self.scale, 1.0)):
