@@ -629,6 +629,12 @@ def _residuals(obs, bg, cover, basis, shading, res):
 
 
 @njit(cache=True, nogil=True)
+def _not_posed(cx, cy, n):
+    """:func:`_fit`'s answer when the fit is not posed, at the centre it had reached."""
+    return False, cx, cy, 0.0, np.zeros(N_SHADING), np.zeros(n), np.zeros(n)
+
+
+@njit(cache=True, nogil=True)
 def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, iterations,
          converged, weight):
     """Kernel of :func:`fit_outline` on its usable pixels (obs, bg, xs, ys): (ok, u, v, cost,
@@ -644,7 +650,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     basis, dbasis = np.empty((n, N_SHADING)), np.empty((n, 2, N_SHADING))
     _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
     if np.count_nonzero(cover) < k:
-        return False, cx, cy, 0.0, np.zeros(N_SHADING), np.zeros(n), np.zeros(n)
+        return _not_posed(cx, cy, n)
     penalty = np.zeros((k, k))
     if curvature_weight > 0.0:
         penalty[:N_SHADING, :N_SHADING] = curvature_penalty(basis, curvature_weight)
@@ -653,7 +659,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
     shading, ok = _solve(_gram(weighted, weighted) + ridge,
                          _gram_vector(weighted, (obs - bg * (1.0 - cover)) * weight))
     if not ok:          # the shading is not determined by these pixels
-        return False, cx, cy, 0.0, np.zeros(N_SHADING), np.zeros(n), np.zeros(n)
+        return _not_posed(cx, cy, n)
     jac = np.empty((n, k))
     res = np.empty(n)
     for _ in range(iterations):
@@ -673,7 +679,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         gradient[:N_SHADING] -= _gram_vector(ridge, shading)       # ridge is symmetric
         step, ok = _solve(_gram(jac, jac) + penalty, gradient)
         if not ok:
-            return False, cx, cy, 0.0, np.zeros(N_SHADING), np.zeros(n), np.zeros(n)
+            return _not_posed(cx, cy, n)
         length = math.hypot(step[N_SHADING], step[N_SHADING + 1])
         if length > 1.0:
             step = step / length
@@ -682,7 +688,7 @@ def _fit(obs, bg, xs, ys, cx, cy, a, bu, bv, steps, sub, psf, curvature_weight, 
         cy += step[N_SHADING + 1]
         _render(xs, ys, cx, cy, a, bu, bv, steps, sub, psf, cover, dcover, basis, dbasis)
         if np.count_nonzero(cover) < k:
-            return False, cx, cy, 0.0, np.zeros(N_SHADING), np.zeros(n), np.zeros(n)
+            return _not_posed(cx, cy, n)
         if length < converged:
             break
     _residuals(obs, bg, cover, basis, shading, res)
