@@ -21,7 +21,9 @@ class Ros2Process:
     def __init__(self, *args, env=None):
         self.proc = subprocess.Popen(
             [*ROS2, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            stdin=subprocess.DEVNULL, env=ros_env({'TT_ROS2_NO_HANDOVER': '1', **(env or {})}),
+            stdin=subprocess.DEVNULL,
+            # PYTHONFAULTHANDLER: a SIGABRT (``dump_stack``) writes every thread's stack.
+            env=ros_env({'TT_ROS2_NO_HANDOVER': '1', 'PYTHONFAULTHANDLER': '1', **(env or {})}),
             start_new_session=True)
         self._out, self._err = [], []
         self._threads = [threading.Thread(target=self._pump, args=(s, buf), daemon=True)
@@ -58,6 +60,18 @@ class Ros2Process:
         for t in self._threads:
             t.join(5)
         return self.proc.returncode
+
+    def dump_stack(self, timeout=5):
+        """Where a process that does not end is: SIGABRT makes Python's faulthandler write
+        every thread's stack to stderr (the process dies of it); that stderr's last lines."""
+        self.signal(signal.SIGABRT)
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pass
+        for t in self._threads:
+            t.join(1)
+        return '\n'.join(self.stderr.splitlines()[-40:])
 
     def stop(self):
         if self.proc.poll() is None:

@@ -41,8 +41,14 @@ def run_all(graph, *commands, timeout=300, env=None):
     took over 120 s once."""
     procs = [Ros2Process(*c, env=env) for c in commands]
     try:
-        graph.spin_until(lambda: all(p.proc.poll() is not None for p in procs), timeout,
-                         f'{len(procs)} ros2 commands to end')
+        try:
+            graph.spin_until(lambda: all(p.proc.poll() is not None for p in procs), timeout,
+                             f'{len(procs)} ros2 commands to end')
+        except TimeoutError as exc:   # say which did not end, and where each was
+            stuck = [f'ros2 {" ".join(c)}:\n{p.dump_stack()}'
+                     for c, p in zip(commands, procs, strict=True)
+                     if p.proc.poll() is None]
+            raise TimeoutError('\n'.join([str(exc), *stuck])) from None
         return [(p.wait(), p.stdout, p.stderr) for p in procs]
     finally:
         for p in procs:
