@@ -381,7 +381,8 @@ def test_a_video_file_that_cannot_be_opened_does_not_hold_back_the_other(graph, 
     assert node.frames_received == sum(1 for _, k, _ in frames if k == 0)
 
 
-def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
+@pytest.mark.parametrize('backfill', [False, True])
+def test_video_file_sources_are_read_by_the_node(graph, tmp_path, backfill):
     ctx, add = graph.context, graph.add
     _, _, state_topic = unique_topics()
     rig_path = synth.make_rig(str(tmp_path / 'calib'))
@@ -402,7 +403,8 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
                                                      f'/ball/state:={state_topic}', '-r',
                                                      f'/diagnostics:={diagnostics_topic}'],
                               parameter_overrides=[Parameter('rig_file', value=video_rig),
-                                                   Parameter('video_rate', value=0.0)]))
+                                                   Parameter('video_rate', value=0.0),
+                                                   Parameter('backfill', value=backfill)]))
     # video_rate 0: each frame read once processing takes the one before (real-time pacing is
     # bench_camrate's): every frame is processed, none lost. Both files end (their END item
     # comes after their last frame).
@@ -412,11 +414,20 @@ def test_video_file_sources_are_read_by_the_node(graph, tmp_path):
                      'more than 20 states, all received')
     # Video time runs from camera 0's first frame (the scene's -0.1 s).
     tr = truth[0]
+    stamps = []
     for msg in got:
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - 0.1
         i = int(np.argmin(np.abs(tr['t'] - t)))
         p = np.array([msg.position.x, msg.position.y, msg.position.z])
         assert abs(tr['t'][i] - t) < 1e-5 and np.linalg.norm(p - tr['state'][i, :3]) < 0.005
+        stamps.append(t)
+    # In time order, one state a frame pair. A track is confirmed on its 5th frame pair (seed,
+    # start, confirm_updates 3); with backfill its first 4 states come then too.
+    fps = load_rig(video_rig).fps
+    assert np.all(np.diff(stamps) > 0.5 / fps)
+    # render_balls draws the ball (launched at 0) in frames exposed after 0: 1.5 ms exposure.
+    first_seen = tr['t'][synth.both_cameras_see(load_rig(video_rig), tr, 0.75e-3)][0]
+    assert stamps[0] == pytest.approx(first_seen + (0 if backfill else 4) / fps, abs=1e-5)
     # /diagnostics (1 Hz) after both ends: the counts, and the time of each stage of the
     # frames' way (every camera's read and detection, the processing), p50 <= p99, each
     # under the frame's whole way (the wall time of the run).

@@ -163,6 +163,11 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'rad/s', 0.01, 1000),
     ('confirm_updates', TrackerConfig.confirm_updates,
      'Filter updates before a track is published', '', 1, 100),
+    ('backfill', False, "On a track's confirmation also publish the states of its frames "
+     'before it (the first 4: its seed, its start and 2 updates, carried back from the '
+     'confirming estimate; up to 27 ms late at 150 fps), so that /ball/state covers each '
+     'flight from its first frame pair (a recording); off: every state published is that of '
+     'the newest frame, which is what the robot needs'),
     ('max_coast', TrackerConfig.max_coast, 'Time without a measurement that ends a track', 's',
      0.001, 5),
     ('camera_timeout', 1.0, 'Time without frames after which a camera is reported lost', 's',
@@ -324,7 +329,7 @@ class PerceptionNode(Node):
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
                                 max_reprojection=self._p('max_reprojection'),
-                                backfill=False)    # only states newer than the last published
+                                backfill=self._p('backfill'))
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
         warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame
