@@ -127,6 +127,7 @@ def run_pipeline(rig, frames, colour, response_gamma=CAMERA_GAMMA, smooth=False,
     estimates = []
     for t, k, frame in frames:
         estimates += pipe.process(t, k, frame)
+    estimates += pipe.finish()
     return (estimates, pipe.smoothed(estimates)) if smooth else estimates
 
 
@@ -269,6 +270,7 @@ def estimated_blur_row(rig, frames, colour, flight, truth, response_gamma=CAMERA
     estimates = []
     for t, k, frame in frames:
         estimates += pipe.process(t, k, frame)
+    estimates += pipe.finish()
     row = score(rig, estimates, flight, truth)
     out = {k: row.get(k) for k in ('position_rms_mm', 'mean_error_mm', 'coverage', 'tracks',
                                    'velocity_max_err_m_s')}

@@ -100,6 +100,7 @@ def hall_accuracy():
             estimates = []
             for t, k, frame in frames:
                 estimates += pipe.process(t, k, frame)
+            estimates += pipe.finish()
             # The ball is launched at 0: frames from half an exposure on show it.
             seen = int(synth.both_cameras_see(rig, truth[0],
                                               rendered_from=0.5 * exposure).sum())
@@ -110,6 +111,7 @@ def hall_accuracy():
             estimates = []
             for t, k, frame in frames:
                 estimates += pipe.process(t, k, frame)
+            estimates += pipe.finish()
             row['estimated_blurs'] = hall_row(estimates, truth[0], seen)
             row['estimated_blurs']['image_blur_px'] = [
                 round(d.config.image_blur, 3) for d in pipe.detectors]

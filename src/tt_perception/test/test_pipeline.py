@@ -38,7 +38,7 @@ def run(rig, frames, colour='any', response_gamma=1.0, curvature_weight=None, im
         estimates += pipe.process(t, k, frame)
         if pipe.last_error:
             errors.append(pipe.last_error)
-    return estimates, errors
+    return estimates + pipe.finish(), errors
 
 
 def matched(estimates, truth):
@@ -593,11 +593,13 @@ def test_small_balls_are_placed_by_the_outline_not_by_a_curved_shading(small_bal
     the lit top (a second minimum of the fit 0.4 radius up, in about 40 % of the frames at
     4 px radius): the height is then millimetres off. With the default penalty on the
     brightness's curvature (``curvature_weight``) the flight meets the issue's 1.5 mm RMS,
-    under half the error without it, both with the outline modelled sharp (``image_blur``
-    0). What the penalty leaves then is the lean of a sharp outline toward the blurred lit
-    top (height mean above 0.3 mm); with the camera's blur modelled (the default
-    ``image_blur``, 0.6 px, the luma blur of a Bayer camera's bilinear demosaicing, which
-    this renderer's cameras have, before JPEG) the mean is within the issue's 0.3 mm too.
+    against 1.9 times as much without it (measured 1.35 / 2.57 mm; 1.25 / 2.34 over the
+    states after a track's first four, carried back from a later estimate), both with the
+    outline modelled sharp (``image_blur`` 0). What the penalty leaves then is the lean of a
+    sharp outline toward the blurred lit top (height mean above 0.3 mm); with the camera's
+    blur modelled (the default ``image_blur``, 0.6 px, the luma blur of a Bayer camera's
+    bilinear demosaicing, which this renderer's cameras have, before JPEG) the mean is within
+    the issue's 0.3 mm too.
     Modelled sharp: neither blur, the light's (``image_blur``) nor the encoded values'
     (``encoded_blur``)."""
     rig, frames, truth, gamma = small_ball_scene
@@ -612,7 +614,7 @@ def test_small_balls_are_placed_by_the_outline_not_by_a_curved_shading(small_bal
         rms[weight, blur] = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
         mean[weight, blur] = err.mean(axis=0)
     assert rms[None, 0.0] <= 1.5e-3
-    assert rms[0.0, 0.0] > 2.0 * rms[None, 0.0]
+    assert rms[0.0, 0.0] > 1.5 * rms[None, 0.0]
     assert mean[None, 0.0][2] > 0.3e-3
     assert rms[None, None] <= 1.5e-3
     assert np.all(np.abs(mean[None, None]) <= 0.3e-3), mean[None, None]
@@ -707,9 +709,10 @@ def test_a_small_ball_at_a_tracks_start_is_not_taken_for_one_lit_from_below():
     and a centre a radius higher whose lower half takes the same pixels, lit from below.
     Taking the cheaper one (``light_from_above`` false) put the first states up to 17 mm
     high (RMS 9.3 mm over the track's first 50 ms, the states carried back to its first
-    frames included). Told that the light comes from above (the default), the detector keeps
-    the fit lit from above: 3.0 mm RMS and no height off by more than 4 mm (the whole
-    flight: 1.6 mm RMS)."""
+    frames from the confirming estimate included: ``backfill_after`` 0, which shows the first
+    fits most). Told that the light comes from above (the default), the detector keeps the
+    fit lit from above: 3.0 mm RMS and no height off by more than 4 mm (the whole flight:
+    1.6 mm RMS)."""
     import independent_scene as scene
     rig = synth.demo_rig(640, 480)
     flight = scene.simulate(scene.serve(speed=8.0, topspin_rps=-30.0, target=(-0.6, 0.15)),
@@ -719,7 +722,8 @@ def test_a_small_ball_at_a_tracks_start_is_not_taken_for_one_lit_from_below():
     first = {}
     for light_from_above in (True, False):
         estimates, _ = run(rig, frames, colour='orange', response_gamma=scene.Sensor().gamma,
-                           light_from_above=light_from_above)
+                           light_from_above=light_from_above,
+                           tracker_config=TrackerConfig(backfill_after=0.0))
         pairs = matched(estimates, truth[0])
         start = min(e.t for e in estimates)
         first[light_from_above] = np.array([e.state[:3] - s[:3] for e, s in pairs
@@ -760,14 +764,18 @@ def test_a_narrow_blob_weakens_its_own_centre_and_not_the_one_fitted_to_the_outl
     assert ratio == pytest.approx((1.0 + cfg.narrow_weight * shortfall) ** 2, rel=0.05)
 
 
-@pytest.mark.parametrize('backfill', [True, False])
-def test_a_confirmed_track_gives_its_first_frames_states_at_once(backfill):
-    """The frame that confirms a track (its third update) gives the states of the track's
-    seed, start and first two updates too, in time order, on the ball's flight (the model's
-    own rollout, measured to 0.1 mm); without ``backfill`` (the live node) only the
-    confirming frame's."""
-    tracker = Tracker(150.0, config=TrackerConfig(backfill=backfill))
-    times = np.arange(7) / 150.0
+@pytest.mark.parametrize('backfill, after', [(True, 0.0), (False, 0.0), (True, 0.1),
+                                             (True, 1.0)])
+def test_a_confirmed_track_gives_its_first_frames_states(backfill, after):
+    """With ``backfill_after`` 0 (perception_node's ``backfill``) the frame that confirms a
+    track (its third update) gives the states of the track's seed, start and first two
+    updates too, in time order, on the ball's flight (the model's own rollout, measured to
+    0.1 mm); without ``backfill`` (the live node) only the confirming frame's. With
+    ``backfill_after`` 0.1 s they come, and the confirmed states held back till then, with
+    the first update 0.1 s from the seed, all in time order; with 1 s after the last frame
+    (Tracker.finish)."""
+    tracker = Tracker(150.0, config=TrackerConfig(backfill=backfill, backfill_after=after))
+    times = np.arange(22) / 150.0
     ball = np.array([1.2, 0.1, 0.3, -6.0, 0.2, 1.0, 0.0, -150.0, 0.0])
     _, truth = rollout(ball, tracker.params, sample_times=times, stop_at_plane=False,
                        stop_at_net=False, t_max=times[-1] + 1e-6)
@@ -776,10 +784,15 @@ def test_a_confirmed_track_gives_its_first_frames_states_at_once(backfill):
     for t, X in zip(times, truth[:, :3], strict=True):
         tracker.advance(t)
         given.append(tracker.add(t, [((X, cov), (X, cov))]))
-    assert given[:4] == [[]] * 4
-    assert [e.t for e in given[4]] == pytest.approx(times[:5] if backfill else times[4:5])
-    assert [[e.t for e in g] for g in given[5:]] == [[t] for t in times[5:]]
-    for e in given[4]:
+    given.append(tracker.finish())
+    # Frame 0 seeds, frame 1 starts the track, frames 2-4 update it: confirmed on frame 4.
+    at = {0.0: 4, 0.1: 15, 1.0: len(times)}[after] if backfill else 4
+    assert given[:at] == [[]] * at
+    assert [e.t for e in given[at]] == pytest.approx(times[:at + 1] if backfill
+                                                     else times[4:5])
+    assert [[e.t for e in g] for g in given[at + 1:]] == (
+        [[t] for t in times[at + 1:]] + [[]] if at < len(times) else [])
+    for e in given[at]:
         i = int(np.argmin(np.abs(times - e.t)))
         assert np.linalg.norm(e.state[:3] - truth[i, :3]) < 0.3e-3
         assert np.linalg.norm(e.state[3:6] - truth[i, 3:6]) < 0.05
@@ -792,7 +805,7 @@ def test_the_outline_search_runs_only_while_the_tracks_prediction_is_rough(searc
     track's start for ``search_updates`` updates and never once it is confirmed
     (``confirm_updates`` 3); with the default 2, not on the update that confirms it either,
     whose state is the first published and would wait for the search."""
-    tracker = Tracker(150.0, config=TrackerConfig(confirm_updates=3,
+    tracker = Tracker(150.0, config=TrackerConfig(confirm_updates=3, backfill=False,
                                                   search_updates=search_updates))
     p0, v0 = np.array([1.2, 0.1, 0.3]), np.array([-6.0, 0.2, 1.0])
     cov = np.eye(3) * 1e-6

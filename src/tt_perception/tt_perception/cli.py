@@ -325,6 +325,8 @@ def run(frames, pipeline, until=None):
             errors[k] = pipeline.last_error
         if until is not None and until():
             break
+    if t_ref is not None:      # the states of a track the last frames confirmed
+        estimates += [(t_ref, e) for e in pipeline.finish()]
     return estimates, errors
 
 

@@ -329,7 +329,7 @@ class PerceptionNode(Node):
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
                                 max_reprojection=self._p('max_reprojection'),
-                                backfill=self._p('backfill'))
+                                backfill=self._p('backfill'), backfill_after=0.0)
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
         warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame

@@ -87,11 +87,22 @@ class TrackerConfig:
     confirm_updates: int = 3
     """Filter updates after the start before states are published."""
     backfill: bool = True
-    """With the confirming update's state, also give the states of the track's earlier
-    frames (its seed, its start and the updates before confirmation), carried back from the
-    confirming estimate (:meth:`tt_prediction.ball_filter.BallFilter.earlier_state`): a
-    track then covers its whole flight. Off where only the newest state matters (the live
-    node: a state 30 ms old is of no use to the robot)."""
+    """Also give the states of a confirmed track's earlier frames (its seed, its start and
+    the updates before confirmation), carried back from a later estimate
+    (:meth:`tt_prediction.ball_filter.BallFilter.earlier_state`; ``backfill_after``): a track
+    then covers its whole flight. Off where only the newest state matters (the live node: a
+    state 30 ms old is of no use to the robot)."""
+    backfill_after: float = 0.1
+    """With ``backfill``, the time from a track's seed frame at which its earlier frames'
+    states are given, s: carried back from the estimate of the first update then, which has
+    every frame up to it (what the fixed-interval smoother gives when the process noise over
+    the interval is negligible), rather than from the confirming one, whose velocity rests on
+    4-5 frames (a far ball's 0.46 m/s off, the states carried back from it 4-13 mm;
+    docs/perception.md). The states of the updates in between are held back until then,
+    each its own (the filter's at its time), so that a track's states come in time order; a
+    track that ends sooner gives them as it ends, from its last estimate (:meth:`Tracker.add`;
+    after the last frame, :meth:`Pipeline.finish`). 0: with the confirming update's state
+    (perception_node's ``backfill``, which publishes every state as soon as it can)."""
     smooth: bool = False
     """Keep each track's filtered states and covariances (its start and every update), so
     that :meth:`Pipeline.smoothed` can give every state from all of the track's frames, the
@@ -335,6 +346,8 @@ class Tracker:
         self.last_update = -np.inf
         self.seeds = []
         self.early = []            # times of the running track's frames before confirmation
+        self.held = []             # its states since confirmation, while early ones wait
+        self.ended = []            # the states held back of a track that ended, for add()
         self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
         self.kink = None           # the last update's extra covariance (a rebound's kink)
         self.kinked = None         # the bounce (t, x, y) whose kink was taken
@@ -376,8 +389,29 @@ class Tracker:
         return None if f is None else (f.t, f.x[:6].copy(), self.rough)
 
     def end(self):
+        """End the running track; its states held back (``backfill_after``) come with the
+        next :meth:`add`."""
+        self.ended += self.finish()
         self.filter = None
         self.updates = 0
+        self.early = []
+
+    def finish(self):
+        """The states the running track holds back (a confirmed track younger than
+        ``backfill_after``): its earlier frames' carried back from its estimate now, then
+        those of its updates since confirmation. A list of :class:`BallEstimate`, in time
+        order."""
+        if not (self.config.backfill and self.early and self.confirmed):
+            return []
+        f = self.filter
+        out = []
+        for te in self.early:
+            state = f.earlier_state(te)
+            if state is not None:
+                out.append(BallEstimate(te, state[0], state[1], self.track_id))
+        out += self.held
+        self.early, self.held = [], []
+        return out
 
     def advance(self, t):
         """Bring the running track to ``t`` (s): predicted there, or ended when it has had no
@@ -398,29 +432,31 @@ class Tracker:
         (:meth:`Pipeline._points`: pairs of (X, cov) from the detections' centres and from
         their blobs' own centres, either None; the blobs' are not needed while the track is
         confirmed); returns the list of :class:`BallEstimate` it completes, in time order:
-        the state at ``t`` when a confirmed track was updated, preceded on the confirming
-        update by those of the track's earlier frames (``backfill``)."""
+        the state at ``t`` when a confirmed track was updated, preceded by the states it
+        held back on its first update ``backfill_after`` from its seed (``backfill``), and
+        first those a track that has ended held back (:meth:`end`)."""
         cfg = self.config
+        out, self.ended = self.ended, []
         if self.filter is None:
             self._seed(t, [blob for _, blob in points if blob is not None])
-            return []
+            return out
         if not self._update(points):
-            return []
+            return out
         self.updates += 1
         self.last_update = t
         if cfg.smooth:
             self.runs[self.track_id][1].append(self._step())
         if self.updates < cfg.confirm_updates:
             self.early.append(t)
-            return []
+            return out
         f = self.filter
-        out = []
-        if self.updates == cfg.confirm_updates and cfg.backfill:
-            for te in self.early:
-                state = f.earlier_state(te)
-                if state is not None:
-                    out.append(BallEstimate(te, state[0], state[1], self.track_id))
-        out.append(BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id))
+        state = BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
+        if cfg.backfill and self.early:
+            if t - self.early[0] < cfg.backfill_after - 1e-9:
+                self.held.append(state)
+                return out
+            out += self.finish()
+        out.append(state)
         return out
 
     def _update(self, points):
@@ -519,7 +555,7 @@ class Tracker:
         self.updates = 0
         self.last_update = t
         self.seeds = []
-        self.early = [t1, t]
+        self.early, self.held = [t1, t], []
         if cfg.smooth:
             self.runs[self.track_id] = (t1, [self._step()])
 
@@ -646,6 +682,12 @@ class Pipeline:
             return None
         return (f"camera(s) {', '.join(grey)}: grey images, so the ball colour {colour!r} is "
                 'not checked there (any ball-like blob is taken)')
+
+    def finish(self):
+        """After the last frame: the states the tracker still holds back
+        (:meth:`Tracker.finish`; a list of :class:`BallEstimate`)."""
+        out, self.tracker.ended = self.tracker.ended, []
+        return out + self.tracker.finish()
 
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
