@@ -509,7 +509,8 @@ def _main(argv=None):
     parser.add_argument('--smooth', action='store_true',
                         help="each state from all of its track's frames, the later ones too "
                              '(fixed-interval smoother; default: as perception_node publishes '
-                             'it, from the frames up to it)')
+                             "it, from the frames up to it; a track's first 4 frames' carried "
+                             'back from 0.1 s into it)')
     args = parser.parse_args(argv)
     out_error = output_folder_error(args.out, OUTPUT_FILE, 'tt-perceive')
     if not out_error and args.out_bag is not None:
