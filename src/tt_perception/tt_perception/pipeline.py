@@ -19,7 +19,10 @@
    (:mod:`tt_prediction.ball_filter`) with Mahalanobis gating, confirmation after
    ``confirm_updates`` updates (gated on the blobs' own centres, so that a ball-coloured
    object that is not a ball is not confirmed on centres fitted to a ball), end after
-   ``max_coast`` s without a measurement or when the ball leaves the volume above the floor.
+   ``max_coast`` s without a measurement or when the ball leaves the volume above the floor;
+   a track's frames before confirmation get states carried back from a later estimate
+   (:attr:`TrackerConfig.backfill`), so that what a track holds back is given by
+   :meth:`Pipeline.finish` after the last frame.
 
 Offline (``tt-perceive``), :meth:`Pipeline.smoothed` then replaces each track's states by
 those of a fixed-interval smoother (:attr:`TrackerConfig.smooth`).
