@@ -799,6 +799,29 @@ def test_a_confirmed_track_gives_its_first_frames_states(backfill, after):
         assert np.all(np.linalg.eigvalsh(e.covariance) > 0.0)
 
 
+def test_a_track_that_ends_before_backfill_after_gives_what_it_held_back():
+    """A confirmed track that loses its ball before ``backfill_after`` (0.1 s from its seed)
+    gives its earlier frames' states and those it held back when it ends (``max_coast``
+    without a point), with the next frame's add(): nothing of it is lost, in time order."""
+    tracker = Tracker(150.0)
+    cfg = tracker.config
+    times = np.arange(40) / 150.0
+    ball = np.array([1.2, 0.1, 0.3, -6.0, 0.2, 1.0, 0.0, -150.0, 0.0])
+    _, truth = rollout(ball, tracker.params, sample_times=times, stop_at_plane=False,
+                       stop_at_net=False, t_max=times[-1] + 1e-6)
+    cov = np.eye(3) * 1e-8
+    seen = 7                                   # frames 0-6: confirmed on 4 (3 updates)
+    given = []
+    for n, (t, X) in enumerate(zip(times, truth[:, :3], strict=True)):
+        tracker.advance(t)
+        given.append(tracker.add(t, [((X, cov), (X, cov))] if n < seen else []))
+    assert seen / 150.0 < cfg.backfill_after
+    ends = next(n for n, t in enumerate(times) if t - times[seen - 1] > cfg.max_coast)
+    assert all(g == [] for n, g in enumerate(given) if n != ends)
+    assert [e.t for e in given[ends]] == pytest.approx(times[:seen])
+    assert not tracker.active and tracker.finish() == []
+
+
 @pytest.mark.parametrize('search_updates', [0, 1, 2, 3, 4])
 def test_the_outline_search_runs_only_while_the_tracks_prediction_is_rough(search_updates):
     """Tracker.rough (the detector's ``search``, four more fits per candidate) holds from a
