@@ -822,6 +822,29 @@ def test_a_track_that_ends_before_backfill_after_gives_what_it_held_back():
     assert not tracker.active and tracker.finish() == []
 
 
+def test_a_tracks_first_states_before_a_bounce_are_carried_back_from_before_it():
+    """A track that starts 40 ms before the ball bounces: its estimate 0.1 s from its seed is
+    past the bounce, and the flight model has no path back across it
+    (``BallFilter.earlier_state``), so its first frames' states are those carried back from
+    the confirming estimate, before the bounce: every frame has its state, on the ball."""
+    tracker = Tracker(150.0)
+    times = np.arange(25) / 150.0
+    ball = np.array([0.6, 0.05, 0.14, -5.0, 0.1, -2.5, 0.0, -100.0, 0.0])
+    _, truth = rollout(ball, tracker.params, sample_times=times, stop_at_plane=False,
+                       stop_at_net=False, t_max=times[-1] + 1e-6)
+    bounce = times[np.argmax(np.diff(truth[:, 5]) > 1.0) + 1]
+    assert 0.03 < bounce < tracker.config.backfill_after
+    cov = np.eye(3) * 1e-8
+    given = []
+    for t, X in zip(times, truth[:, :3], strict=True):
+        tracker.advance(t)
+        given += tracker.add(t, [((X, cov), (X, cov))])
+    given += tracker.finish()
+    assert [e.t for e in given] == pytest.approx(times)
+    for e, s in zip(given, truth, strict=True):
+        assert np.linalg.norm(e.state[:3] - s[:3]) < 1e-3, e.t
+
+
 @pytest.mark.parametrize('search_updates', [0, 1, 2, 3, 4])
 def test_the_outline_search_runs_only_while_the_tracks_prediction_is_rough(search_updates):
     """Tracker.rough (the detector's ``search``, four more fits per candidate) holds from a

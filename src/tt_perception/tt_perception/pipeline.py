@@ -101,7 +101,8 @@ class TrackerConfig:
     every frame up to it (what the fixed-interval smoother gives when the process noise over
     the interval is negligible), rather than from the confirming one, whose velocity rests on
     4-5 frames (a far ball's 0.46 m/s off, the states carried back from it 4-13 mm;
-    docs/perception.md). The states of the updates in between are held back until then,
+    docs/perception.md); a frame with a bounce between it and that estimate (no path back)
+    gets the confirming estimate's. The states of the updates in between are held back until then,
     each its own (the filter's at its time), so that a track's states come in time order; a
     track that ends sooner gives them as it ends, from its last estimate (:meth:`Tracker.add`;
     after the last frame, :meth:`Pipeline.finish`). 0: with the confirming update's state
@@ -350,6 +351,7 @@ class Tracker:
         self.seeds = []
         self.early = []            # times of the running track's frames before confirmation
         self.held = []             # its states since confirmation, while early ones wait
+        self.fallback = {}         # early time -> state carried back from the confirming one
         self.ended = []            # the states held back of a track that ended, for add()
         self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
         self.kink = None           # the last update's extra covariance (a rebound's kink)
@@ -409,11 +411,11 @@ class Tracker:
         f = self.filter
         out = []
         for te in self.early:
-            state = f.earlier_state(te)
+            state = f.earlier_state(te) or self.fallback.get(te)
             if state is not None:
                 out.append(BallEstimate(te, state[0], state[1], self.track_id))
         out += self.held
-        self.early, self.held = [], []
+        self.early, self.held, self.fallback = [], [], {}
         return out
 
     def advance(self, t):
@@ -456,6 +458,8 @@ class Tracker:
         state = BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
         if cfg.backfill and self.early:
             if t - self.early[0] < cfg.backfill_after - 1e-9:
+                if not self.held:   # for a bounce between: no path back from a later one
+                    self.fallback = {te: f.earlier_state(te) for te in self.early}
                 self.held.append(state)
                 return out
             out += self.finish()
@@ -558,7 +562,7 @@ class Tracker:
         self.updates = 0
         self.last_update = t
         self.seeds = []
-        self.early, self.held = [t1, t], []
+        self.early, self.held, self.fallback = [t1, t], [], {}
         if cfg.smooth:
             self.runs[self.track_id] = (t1, [self._step()])
 
