@@ -790,9 +790,9 @@ class OutlineFit:
         else:
             refits = INSIDE_REFITS if self.inside_huber > 0.0 else 0
         obs, weight = self.obs, self.alike
+        background, gamma, blur = self.encoded or (None, None, None)
         for _ in range(refits):
             if self.encoded is not None:
-                background, gamma, blur = self.encoded
                 obs = self.obs - encoded_blur_offsets(
                     fit[0], fit[3], self.ball, self.whitening, background, self.xs, self.ys,
                     self.image_blur, blur, gamma)

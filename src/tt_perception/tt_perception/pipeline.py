@@ -396,12 +396,18 @@ class Tracker:
     def end(self):
         """End the running track; its states held back (``backfill_after``) come with the
         next :meth:`add`."""
-        self.ended += self.finish()
+        self.ended += self._release()
         self.filter = None
         self.updates = 0
         self.early = []
 
     def finish(self):
+        """After the last frame: the states held back (``backfill_after``) by a track that
+        ended since the last :meth:`add`, then by the running one (:meth:`_release`)."""
+        out, self.ended = self.ended, []
+        return out + self._release()
+
+    def _release(self):
         """The states the running track holds back (a confirmed track younger than
         ``backfill_after``): its earlier frames' carried back from its estimate now, then
         those of its updates since confirmation. A list of :class:`BallEstimate`, in time
@@ -462,7 +468,7 @@ class Tracker:
                     self.fallback = {te: f.earlier_state(te) for te in self.early}
                 self.held.append(state)
                 return out
-            out += self.finish()
+            out += self._release()
         out.append(state)
         return out
 
@@ -693,8 +699,7 @@ class Pipeline:
     def finish(self):
         """After the last frame: the states the tracker still holds back
         (:meth:`Tracker.finish`; a list of :class:`BallEstimate`)."""
-        out, self.tracker.ended = self.tracker.ended, []
-        return out + self.tracker.finish()
+        return self.tracker.finish()
 
     def smoothed(self, estimates):
         """``estimates`` (:class:`BallEstimate` of :meth:`process`) with each state and
