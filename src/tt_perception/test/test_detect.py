@@ -45,6 +45,11 @@ def test_motion_blur_keeps_the_mid_exposure_centre_and_the_width():
     assert len(found) == 1
     assert np.hypot(found[0].u - 62.0, found[0].v - 63.0) < 0.2
     assert 8.0 <= found[0].width <= 10.0            # across the motion: the diameter
+    # Along it, a disc of radius r swept over b px has variance r^2 / 4 + b^2 / 12: the
+    # measure sqrt(4 r^2 + 4 b^2 / 3) (29.7 px), less the faint ends under the threshold,
+    # plus the anti-aliased edge (as the width's).
+    along = np.sqrt(4 * 4.0 ** 2 + 4 * np.hypot(24.0, 6.0) ** 2 / 3)
+    assert 0.85 * along < found[0].bright_length < along + 2.0
 
 
 def test_large_object_and_static_things_are_not_balls():

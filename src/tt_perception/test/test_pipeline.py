@@ -1,6 +1,8 @@
 """Perception on rendered scenes (two cameras at 150 fps, 640 x 480): the issue's accuracy,
 spin and robustness criteria, each checked against the model's truth of the scene."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -762,6 +764,31 @@ def test_a_narrow_blob_weakens_its_own_centre_and_not_the_one_fitted_to_the_outl
     np.testing.assert_allclose(fitted[1], plain, rtol=1e-9)
     ratio = np.trace(own[1]) / np.trace(plain)
     assert ratio == pytest.approx((1.0 + cfg.narrow_weight * shortfall) ** 2, rel=0.05)
+
+
+@pytest.mark.parametrize('length, height, kept', [(math.nan, 0.25, True), (1.5, 0.25, True),
+                                                  (2.5, 0.25, False), (2.5, 0.03, True)])
+def test_a_blob_longer_than_the_ball_beyond_its_blur_makes_no_point(length, height, kept):
+    """A ball's blob is the ball stretched along its image velocity by its blur; a racket's
+    disc seen at a slant is as wide as a ball two diameters across and longer still (the
+    independent renderer's distractor through other rigs: docs/perception.md, "Other
+    rigs"). Blobs whose length beyond the tracked ball's predicted blur
+    (``length_over_blur``, in diameters here) is more than ``width_ratio``'s upper bound make
+    no point; NaN (no track to predict the blur) is not judged, nor a ball within a diameter
+    of the table, whose blob takes in its contact shadow."""
+    rig = synth.demo_rig(640, 480)
+    pipe = Pipeline(rig)
+    X = np.array([0.4, 0.05, height])
+    obs = []
+    for cam in rig.cameras:
+        diameter = 2.0 * cam.focal * pipe.params.radius / cam.to_camera(X[None])[0, 2]
+        obs.append(detection_row(cam.normalise(cam.project(X[None]))[0], diameter,
+                                 length_over_blur=length * diameter))
+    obs = np.array(obs)
+    point = pipe._point(rig.cameras, obs[:, XY], obs)
+    assert (point is not None) == kept
+    if kept:
+        np.testing.assert_allclose(point[0], X, atol=1e-9)
 
 
 @pytest.mark.parametrize('backfill, after', [(True, 0.0), (False, 0.0), (True, 0.1),

@@ -168,6 +168,10 @@ class Detection:
     the detection threshold), pixels; ``width`` is the silhouette's, which takes in the
     shaded side too and, around a ball of a few pixels behind JPEG, the ringing of its
     compression block. The bright blob is not wider than the object."""
+    bright_length: float = math.nan
+    """The bright blob's length, the same measure as ``bright_width`` along its longest axis,
+    pixels: a ball's is its width stretched by its motion over the exposure, a racket's
+    disc seen at a slant is longer."""
 
 
 @dataclasses.dataclass
@@ -253,12 +257,15 @@ def colour_possible(change, colour):
     return dr > 0.0 and dr >= max(db, dg) - 10.0
 
 
-def _width_from_moments(cxx, cyy, cxy):
+def _width_from_moments(cxx, cyy, cxy, longest=False):
     """Width across the motion blur (the ball's diameter), pixels, from the central second
     moments of a blob's pixels (each pixel adds 1/12 of its own): a disc of radius r has
-    variance r^2 / 4 along any axis, and blur only lengthens the other axis."""
-    small = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
-    return 4.0 * np.sqrt(max(small, 0.0) + 1.0 / 12.0)
+    variance r^2 / 4 along any axis, and blur only lengthens the other axis. ``longest``:
+    the same measure along that other axis (a disc's diameter; a ball blurred by b px,
+    sqrt(4 r^2 + 4 b^2 / 3))."""
+    spread = np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy ** 2)
+    axis = 0.5 * (cxx + cyy) + (spread if longest else -spread)
+    return 4.0 * np.sqrt(max(axis, 0.0) + 1.0 / 12.0)
 
 
 SUBPIXELS = 2
@@ -1383,6 +1390,7 @@ class BallDetector:
                 continue
             cu, cv = bx + cu, by + cv                 # difference-weighted centroid
             width = bright_width = _width_from_moments(cxx, cyy, cxy)
+            bright_length = _width_from_moments(cxx, cyy, cxy, longest=True)
             if width > cfg.max_width:
                 continue
             sure = True
@@ -1408,7 +1416,7 @@ class BallDetector:
             u, v = (blob_u, blob_v) if fitted is None else fitted
             out.append(Detection(float(u), float(v), float(area), float(width),
                                  float(total / area), float(hidden), fitted is not None,
-                                 blob_u, blob_v, sure, bright_width))
+                                 blob_u, blob_v, sure, bright_width, bright_length))
         out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
         return out[:cfg.max_candidates]
 

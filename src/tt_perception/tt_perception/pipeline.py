@@ -13,8 +13,9 @@
    synchronised, otherwise the detections of the frames just before and after, interpolated
    linearly in time along the ball's image track (never the nearest frame taken blindly);
 3. triangulation of every combination of candidates of >= 2 cameras, gated on the
-   reprojection error and on the blob width against the ball's diameter at that depth (a
-   narrower blob, part of the ball lost against a same-coloured background, is down-weighted);
+   reprojection error and on the blob width against the ball's diameter at that depth, and
+   its length beyond the tracked ball's blur (a narrower blob, part of the ball lost against
+   a same-coloured background, is down-weighted);
 4. a :class:`Tracker`: track start from two points at a plausible speed, EKF
    (:mod:`tt_prediction.ball_filter`) with Mahalanobis gating, confirmation after
    ``confirm_updates`` updates (gated on the blobs' own centres, so that a ball-coloured
@@ -59,18 +60,21 @@ params.yaml of `tt-predict --tracks` sets it with the accel_noise learned at it.
 
 # Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).
 XY, WIDTH, HIDDEN, BLOB_XY, SURE, BRIGHT_WIDTH = slice(0, 2), 2, 3, slice(4, 6), 6, 7
+LENGTH_OVER_BLUR = 8
 
 
-def detection_row(xy, width, hidden=0.0, blob_xy=None, sure=True, bright_width=None):
+def detection_row(xy, width, hidden=0.0, blob_xy=None, sure=True, bright_width=None,
+                  length_over_blur=math.nan):
     """One detection as the pipeline passes it between its stages (:meth:`Matcher.add`,
     :meth:`Pipeline._points`): its centre ``xy`` and its blob's own centre ``blob_xy``
     (normalised image coordinates; ``xy`` when None), the silhouette's and the bright blob's
     widths (pixels; the bright blob's ``width`` when None), ``hidden``
-    (:attr:`tt_perception.detect.Detection.hidden`) and whether its colour is sure."""
+    (:attr:`tt_perception.detect.Detection.hidden`), whether its colour is sure, and the
+    bright blob's length less the tracked ball's predicted blur (pixels; NaN: not known)."""
     blob_xy = xy if blob_xy is None else blob_xy
     bright_width = width if bright_width is None else bright_width
     return np.array([xy[0], xy[1], width, hidden, blob_xy[0], blob_xy[1], float(sure),
-                     bright_width])
+                     bright_width, length_over_blur])
 
 
 @dataclasses.dataclass
@@ -147,7 +151,11 @@ class TrackerConfig:
     silhouette's and the bright blob's (:attr:`tt_perception.detect.Detection.bright_width`),
     as around a ball of 2-3 px radius behind JPEG q30 the silhouette takes in its compression
     block's ringing (twice the ball's width) while its bright part is no wider than the
-    ball."""
+    ball. The upper bound also holds the bright blob's length beyond the tracked ball's
+    predicted blur (:attr:`tt_perception.detect.Detection.bright_length`): a racket's disc
+    seen at a slant is as wide as a ball twice its size, and longer. Not within a diameter
+    of the table, where a ball's blob takes in its contact shadow (the difference from the
+    background is a shadow's too: a side light's sharp shadow made it 2 diameters long)."""
     fitted_width_min: float = 0.1
     """Too narrow for a centre fitted to the ball's outline: its silhouette narrower than this
     part of the ball's expected diameter (``width_ratio``'s lower bound is the blob's own
@@ -754,7 +762,10 @@ class Pipeline:
         # The centres and the blobs' centres in one call (each call holds the GIL).
         both = cam.normalise(np.array([[d.u, d.v] for d in dets]
                                       + [[d.blob_u, d.blob_v] for d in dets]))
-        return [detection_row(c, d.width, d.hidden, b, d.colour_sure, d.bright_width)
+        # A ball's blob is no longer than the ball stretched by its predicted blur.
+        blur = math.hypot(*expected.blur) if expected is not None else math.nan
+        return [detection_row(c, d.width, d.hidden, b, d.colour_sure, d.bright_width,
+                              d.bright_length - blur)
                 for c, b, d in zip(both[:len(dets)], both[len(dets):], dets, strict=True)]
 
     def _at_frame_time(self, t, group, snap):
@@ -852,6 +863,11 @@ class Pipeline:
         fitted = np.any(centres != obs[:, BLOB_XY], axis=1)
         least = np.where(fitted, cfg.fitted_width_min, cfg.width_ratio[0])
         if np.any(ratio < least) or np.any(np.fmin(ratio, bright) > cfg.width_ratio[1]):
+            return None
+        # Nor longer, beyond the tracked ball's blur (a racket's disc seen at a slant), but
+        # on the table, where a ball's blob takes in its contact shadow.
+        if (X[2] > 2.0 * self.params.radius
+                and np.any(obs[:, LENGTH_OVER_BLUR] > cfg.width_ratio[1] * diameter)):
             return None
         # A blob narrower than the ball, or bordered by background as bright as the ball,
         # may have lost part of it (a white line behind a white ball): its own centre may be
