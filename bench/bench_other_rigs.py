@@ -2,13 +2,14 @@
 
 Every scene of bench_independent and synth's hall is seen by one rig, ``synth.demo_rig``
 (a camera 1.45 m high behind the robot's end, one 1.1 m high to the side of its half: lines
-of sight 15-25 degrees below the horizontal). A user's rig is not that one. Here the same
-independent renderer (``src/tt_perception/test/independent_scene.py``, its lamps, ball,
-sensor, JPEG) renders bench_independent's three balls (:data:`bench_independent.BALLS`) and
-its distractor scene, white and orange at 640 x 480, through two other rigs:
+of sight 13-35 degrees below the horizontal while the ball is over the table). A user's rig
+is not that one. Here the same independent renderer
+(``src/tt_perception/test/independent_scene.py``, its lamps, ball, sensor, JPEG) renders
+bench_independent's three balls (:data:`bench_independent.BALLS`) and its distractor scene,
+white and orange at 640 x 480, through two other rigs:
 
 - ``ceiling``: two cameras 2.6 m above the floor over the robot's end, 1.3 m to either
-  side, looking down at the table's middle (lines of sight 40-60 degrees below the
+  side, looking down at the table's middle (lines of sight 34-65 degrees below the
   horizontal), 70 degree lenses, 150 fps;
 - ``wide_side``: a camera 0.9 m high 2.2 m to the side of the table's middle and one 1.2 m
   high behind the robot's end and to the other side, 80 degree lenses with stronger barrel
