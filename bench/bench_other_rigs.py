@@ -79,7 +79,7 @@ def run():
         rig = make_rig(**spec)
         renderer = bi.scene.Renderer(rig, seed=0)
         start = time.perf_counter()
-        entry = {'rig': {k: v for k, v in spec.items()}, 'combinations': {},
+        entry = {'rig': dict(spec), 'combinations': {},
                  'sight_below_horizontal_deg': {
                      name: sight_elevations_deg(rig, f) for name, f in flights.items()}}
         for colour in COLOURS:

@@ -1390,9 +1390,9 @@ class BallDetector:
                 continue
             cu, cv = bx + cu, by + cv                 # difference-weighted centroid
             width = bright_width = _width_from_moments(cxx, cyy, cxy)
-            bright_length = _width_from_moments(cxx, cyy, cxy, longest=True)
             if width > cfg.max_width:
                 continue
+            bright_length = _width_from_moments(cxx, cyy, cxy, longest=True)
             sure = True
             if with_colour:
                 # The colour of the lit half of the blob: the shaded half and the outline
