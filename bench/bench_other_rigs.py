@@ -29,7 +29,8 @@ import time
 import bench_independent as bi
 import cv2
 import numpy as np
-from tt_perception.camera import Camera, Rig, look_at
+
+from tt_perception import synth
 
 RIGS = {
     'ceiling': {'poses': (((-1.6, -1.3, 2.6), (-0.3, 0.0, 0.1)),
@@ -45,17 +46,10 @@ SIZE = (640, 480)
 COLOURS = ('white', 'orange')
 
 
-def make_rig(poses, fov_deg, dist, fps, width=SIZE[0], height=SIZE[1]):
-    """A :class:`tt_perception.camera.Rig` of cameras at ``poses`` with one lens."""
-    focal = 0.5 * width / np.tan(np.radians(0.5 * fov_deg))
-    K = np.array([[focal, 0.0, 0.5 * width - 4.5], [0.0, focal, 0.5 * height + 2.5],
-                  [0.0, 0.0, 1.0]])
-    cameras = []
-    for i, (eye, target) in enumerate(poses):
-        R, t = look_at(eye, target)
-        cameras.append(Camera(f'cam{i}', width, height, K, np.array(dist, dtype=float), R, t,
-                              source=f'/cam{i}/image_raw'))
-    return Rig(cameras, float(fps))
+def make_rig(poses, fov_deg, dist, fps):
+    """A rig of :data:`RIGS` at :data:`SIZE` (its principal point 4 px left of and 3 px
+    below the image's centre)."""
+    return synth.look_at_rig(poses, fov_deg, dist, fps, *SIZE, principal_offset=(-4.0, 3.0))
 
 
 def sight_elevations_deg(rig, flight):
@@ -64,7 +58,7 @@ def sight_elevations_deg(rig, flight):
     positions = flight.state(t)[:, :3]
     out = []
     for cam in rig.cameras:
-        sight = (cam.R.T @ -cam.t)[None] - positions
+        sight = cam.centre[None] - positions
         angle = np.degrees(np.arcsin(sight[:, 2] / np.linalg.norm(sight, axis=1)))
         out.append([round(float(angle.min()), 1), round(float(angle.max()), 1)])
     return out

@@ -10,6 +10,8 @@ bounces included) at the frame times.
 Public API (used by the tests and ``make demo``):
 
 - :func:`make_rig` writes a 2-camera rig (rig.yaml + one camera_info YAML per camera).
+  :func:`demo_rig` is that rig in memory; :func:`look_at_rig` any rig of cameras looking
+  from an eye at a target (``bench/bench_other_rigs.py``'s).
 - :func:`render_balls` yields ``(t, camera_index, frame)`` in time order and returns the truth.
 - :func:`write_scene` writes the frames as video files (or PNG sequences) plus ``truth.csv``;
   :class:`CameraVideos` is its video writer (one MJPG file per camera).
@@ -63,13 +65,25 @@ def make_rig(directory, width=640, height=480, fps=150.0, sources=None, time_off
 
 def demo_rig(width=640, height=480, fps=150.0, sources=None, time_offsets=None):
     """The rig of :func:`make_rig` in memory (:class:`tt_perception.camera.Rig`)."""
-    focal = 0.5 * width / np.tan(np.radians(30.0))
-    K = np.array([[focal, 0.0, 0.5 * width - 0.5 + 3.0],
-                  [0.0, focal, 0.5 * height - 0.5 - 2.0],
+    return look_at_rig(_POSES, 60.0, (-0.11, 0.04, 0.0005, -0.0003, 0.0), fps, width, height,
+                       principal_offset=(3.0, -2.0), sources=sources,
+                       time_offsets=time_offsets)
+
+
+def look_at_rig(poses, fov_deg, dist, fps, width=640, height=480, principal_offset=(0.0, 0.0),
+                sources=None, time_offsets=None):
+    """A :class:`tt_perception.camera.Rig` of cameras ``cam0``, ``cam1``, ... at ``poses``
+    (eye, target; table frame, m), each looking from its eye at its target with the image's
+    up toward the table's +z, all with one lens: ``fov_deg`` horizontal field of view,
+    plumb-bob distortion ``dist`` (5,), the principal point ``principal_offset`` (px) from
+    the image's centre. ``sources`` default to the image topics ``/camN/image_raw``."""
+    focal = 0.5 * width / np.tan(np.radians(0.5 * fov_deg))
+    K = np.array([[focal, 0.0, 0.5 * width - 0.5 + principal_offset[0]],
+                  [0.0, focal, 0.5 * height - 0.5 + principal_offset[1]],
                   [0.0, 0.0, 1.0]])
-    dist = np.array([-0.11, 0.04, 0.0005, -0.0003, 0.0])
+    dist = np.array(dist, dtype=float)
     cameras = []
-    for i, (eye, target) in enumerate(_POSES):
+    for i, (eye, target) in enumerate(poses):
         R, t = look_at(eye, target)
         source = sources[i] if sources else f'/cam{i}/image_raw'
         offset = time_offsets[i] if time_offsets is not None else None
