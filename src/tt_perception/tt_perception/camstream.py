@@ -372,12 +372,13 @@ class CameraReader(threading.Thread):
     last frame of a file. ``on_status(text)`` reports a device's state changes.
     ``detect(camera, t, image)``: run on each frame in this thread (the ball detection of
     this camera, in parallel with the other cameras and the processing thread); its result
-    is queued as ``Frame.detections`` in place of the image. ``after(camera)``: run once the
-    frame's detections are queued, for what need not delay them (the detector's background
-    update)."""
+    is queued as ``Frame.detections`` in place of the image. ``ready(camera, t)``: run before
+    ``detect``, outside its time (perception_node waits there for the processing thread at a
+    track's start). ``after(camera)``: run once the frame's detections are queued, for what
+    need not delay them (the detector's background update)."""
 
     def __init__(self, camera, source, queue, drops, stamp=None, on_status=None, on_error=None,
-                 detect=None, after=None):
+                 detect=None, ready=None, after=None):
         super().__init__(daemon=True, name=f'camera-{camera}')
         self.camera = camera
         self.source = source
@@ -387,6 +388,7 @@ class CameraReader(threading.Thread):
         self.on_status = on_status
         self.on_error = on_error
         self.detect = detect
+        self.ready = ready
         self.after = after
         self.frames = 0
         self.read_time = LatencyWindow(STAGE_WINDOW)
@@ -418,6 +420,9 @@ class CameraReader(threading.Thread):
                 self.read_time.add(read - start)
                 self.frames += 1
                 if self.detect is not None:
+                    if self.ready is not None:
+                        self.ready(self.camera, t)
+                        read = time.perf_counter()
                     detections = self.detect(self.camera, t, image)
                     self.detect_time.add(time.perf_counter() - read)
                     self.queue.put(Frame(self.camera, index, t, detections=detections))

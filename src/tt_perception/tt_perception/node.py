@@ -80,6 +80,14 @@ dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
 CAMERA_BUFFERS = 8
 """Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
 emulates them): how long a camera thread may stall before frames are lost."""
+FRESH_WAIT = 0.5
+"""While no confirmed track runs, a camera thread waits up to this many frame periods for
+the processing thread to have taken every running camera's frame before its own, so that a
+track just started fits the ball in its next frames to the outline it predicts (a
+frame detected before its track started has only its blob's centre, which leans toward the
+lit side: a start that took such frames was 25 mm and 3 m/s off, an orange ball in synth's
+hall at 640x480). A confirmed track's window and outline are predicted along its flight to the
+frame's time (Tracker.predicted_motion), bounce included, and need no wait."""
 GIL_SWITCH_S = 5e-4
 """The interpreter's thread switch interval while cameras are read in-process, s (Python's
 default 5 ms)."""
@@ -256,6 +264,8 @@ class PerceptionNode(Node):
         self.latency = LatencyWindow()
         self.process_time = LatencyWindow(STAGE_WINDOW)   # a frame of the cameras, processed
         self._snapshot = None               # the track, for the camera threads' detection
+        self._processed = threading.Condition()     # ... and when it was taken (FRESH_WAIT)
+        self._processed_t = {}              # camera -> stamp of its latest frame processed, s
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_frame = {}
         self._image_types = {}      # camera index -> the message type its image topic needs
@@ -451,7 +461,7 @@ class PerceptionNode(Node):
                             on_status=lambda k, text: self.get_logger().warning(
                                 f'camera {self.rig.cameras[k].name}: {text}'),
                             on_error=self._reader_error, detect=self._detect,
-                            after=self._after_detect)
+                            ready=self._wait_for_track, after=self._after_detect)
 
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
@@ -501,7 +511,7 @@ class PerceptionNode(Node):
             readers.append(CameraReader(k, source, self.frames_queue, self.drops,
                                         stamp=lambda n, t0=t0: t0 + n / fps,
                                         on_error=self._reader_error, detect=self._detect,
-                                        after=self._after_detect))
+                                        ready=self._wait_for_track, after=self._after_detect))
         self._files = [r.camera for r in readers]
         self._readers += readers
         for reader in readers:
@@ -509,10 +519,29 @@ class PerceptionNode(Node):
         self.get_logger().info(f'video files started: video time 0 at wall time '
                                f'{self._video_start:.6f} s')
 
+    def _wait_for_track(self, k, stamp):
+        """Before camera ``k``'s detection of its frame stamped ``stamp`` (s), in its thread:
+        while no confirmed track runs, wait until the processing thread has taken every
+        running camera's frame before this instant, for up to :data:`FRESH_WAIT` frame
+        periods."""
+        snapshot = self._snapshot
+        if snapshot is not None and snapshot[3]:
+            return
+        period = 1.0 / self.rig.fps
+        running = [j for j in range(len(self.rig.cameras))
+                   if j not in self._lost and j not in self._ended and j not in self._disabled]
+
+        def taken():
+            return all(self._processed_t.get(j, -math.inf) >= stamp - 1.5 * period
+                       for j in running)
+
+        with self._processed:
+            self._processed.wait_for(taken, FRESH_WAIT * period)
+
     def _detect(self, k, stamp, image):
         """Camera ``k``'s ball detection, in its own thread (the search window from the
-        track as the processing thread last left it); its background update waits for
-        :meth:`_after_detect`."""
+        track as the processing thread last left it, :meth:`_wait_for_track`); its background
+        update waits for :meth:`_after_detect`."""
         return self.pipeline.detect(stamp - self._t_ref, k, image, self._snapshot, later=True)
 
     def _after_detect(self, k):
@@ -585,6 +614,9 @@ class PerceptionNode(Node):
         with self._lock:
             self._process_locked(k, stamp, frame, wall_base, detections)
             self._snapshot = self.pipeline.tracker.snapshot()
+        with self._processed:
+            self._processed_t[k] = max(self._processed_t.get(k, -math.inf), stamp)
+            self._processed.notify_all()
         if detections is not None:                  # a frame of the camera threads
             self.process_time.add(time.perf_counter() - start)
 
