@@ -33,10 +33,15 @@ TARGET_ZONE = 5
 HIT_PLANE_X = -1.5
 
 
-@pytest.fixture(scope='module')
-def recording(tmp_path_factory):
+@pytest.fixture(scope='module', params=[('clean', 'white'), ('hall', 'orange')],
+                ids=['clean', 'hall_orange'])
+def recording(request, tmp_path_factory):
+    """The recording of two balls: synth's clean imaging, and a hall's (overhead light,
+    shading and highlight, contact shadow, vignetting, shot noise, JPEG q30, 2 ms blur) with
+    an orange ball."""
+    imaging, colour = request.param
     return ensure_recording(tmp_path_factory.mktemp('rec') / 'recording', balls=2,
-                            hit_plane_x=HIT_PLANE_X, seed=11)
+                            hit_plane_x=HIT_PLANE_X, seed=11, imaging=imaging, colour=colour)
 
 
 def _spin_until(executor, condition, timeout, what):
@@ -64,7 +69,8 @@ def _replay(recording):
     nodes = []
     try:
         perception = PerceptionNode(context=context, cli_args=remap, parameter_overrides=[
-            rclpy.parameter.Parameter('rig_file', value=str(recording.path / 'rig.yaml'))])
+            rclpy.parameter.Parameter('rig_file', value=str(recording.path / 'rig.yaml')),
+            rclpy.parameter.Parameter('ball_colour', value=recording.colour)])
         prediction = PredictionNode(context=context, cli_args=remap, parameter_overrides=[
             rclpy.parameter.Parameter('hit_plane_x', value=HIT_PLANE_X),
             rclpy.parameter.Parameter('stale_after_s', value=0.0)])

@@ -14,7 +14,8 @@
    views) and shows `ros2 bag info` of the session bag.
 
 Usage: python -m tt_tools.demo [--out DIR] [--balls N] [--source video|topics] [--rate R]
-                               [--target-zone Z] [--hit-plane-x X]
+                               [--target-zone Z] [--hit-plane-x X] [--imaging clean|hall]
+                               [--ball white|orange]
 """
 
 import argparse
@@ -29,6 +30,7 @@ from tt_prediction.cli import hit_plane_error
 from tt_ros.rosenv import domain_id_error
 
 from .procs import ProcessGroup, ros_env, wait_until
+from .recording import COLOURS, IMAGING
 
 OUTPUT_TOPICS = ('/ball/state', '/ball/prediction', '/strike/command')
 YIELD_NICE = 5
@@ -54,6 +56,14 @@ def parse_args(argv):
                         help='zone 1..9 the strike aims at (default 5)')
     parser.add_argument('--hit-plane-x', type=float, default=-1.5,
                         help='hitting plane x, m (default -1.5)')
+    parser.add_argument('--imaging', choices=IMAGING, default='clean',
+                        help="the recording's rendering: clean (default), the flat-lit ball; "
+                             "hall, a hall's camera (overhead light with shading and "
+                             'highlight, contact shadow, vignetting, shot noise, JPEG q30, '
+                             '2 ms blur)')
+    parser.add_argument('--ball', choices=COLOURS, default='white',
+                        help="the balls' colour (default white); perception is told it "
+                             '(ball_colour)')
     args = parser.parse_args(argv)
     if not 1 <= args.target_zone <= 9:
         parser.error(f'--target-zone must be 1..9, got {args.target_zone}')
@@ -135,7 +145,7 @@ def run_graph_video(rec, session, log_dir, args, collector):
             'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
             '-p', f'rig_file:={rec.video_rig}', '-p', f'video_rate:={args.rate}',
             '-p', f'video_clock:={"wall" if live else "video"}',
-            '-p', 'wait_for_subscribers:=3'])
+            '-p', 'wait_for_subscribers:=3', '-p', f'ball_colour:={args.ball}'])
         os.nice(YIELD_NICE)      # this collector too yields to the cameras
         wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == cameras,
                    600.0, f'perception to play the videos (see {log_dir}/perception.log)')
@@ -150,7 +160,8 @@ def run_graph(recording, session, log_dir, args, collector):
     rig = recording / 'rig.yaml'
     with ProcessGroup(str(log_dir), large_messages=True) as group:
         group.start('perception', ['ros2', 'run', 'tt_perception', 'perception_node',
-                                   '--ros-args', '-p', f'rig_file:={rig}'])
+                                   '--ros-args', '-p', f'rig_file:={rig}',
+                                   '-p', f'ball_colour:={args.ball}'])
         start_outputs(group, session, args, wall_stamps=False)   # the recording's stamps
         wait_until(lambda: collector.spin_once() or collector.graph_ready(), 90.0,
                    'the three nodes and the recorder to join the graph (see '
@@ -188,7 +199,8 @@ def main(argv=None):
     from .collector import Collector
 
     rec = recording.ensure_recording(out / 'recording', balls=args.balls,
-                                     hit_plane_x=args.hit_plane_x)
+                                     hit_plane_x=args.hit_plane_x, imaging=args.imaging,
+                                     colour=args.ball)
     session = out / 'session'
     shutil.rmtree(session, ignore_errors=True)
     log_dir = out / 'logs'

@@ -2,7 +2,8 @@
 
 Layout of a recording folder::
 
-    recording.json   what it was made from (balls, seed, plane, size) and each ball's truth
+    recording.json   what it was made from (balls, seed, plane, size, imaging, colour) and
+                     each ball's truth
     rig.yaml         the rig (cameras' poses, sources /cam0/image_raw, /cam1/image_raw)
     cam0.yaml ...    camera_info YAML per camera
     bag/             rosbag2 (MCAP): /camN/image_raw (sensor_msgs/Image, bgr8) and
@@ -45,6 +46,8 @@ class Recording:
     """Rig of the videos (cameras read in-process)."""
     video_t0: float = 0.0
     """Scene time of the videos' first frame, s."""
+    colour: str = 'white'
+    """The balls' colour (perception_node's ``ball_colour``)."""
 
 
 def replay_publishers(node, image_topics, prefix=''):
@@ -117,16 +120,29 @@ def write_bag(bag_dir, rig, frames):
     return count
 
 
-def _request(balls, hit_plane_x, seed):
+IMAGING = ('clean', 'hall')
+"""Scene generator modes (``tt_perception.synth.render_balls``): the flat-lit ball, or a
+hall's camera (overhead light, shading and highlight, contact shadow, vignetting, shot noise,
+JPEG q30)."""
+COLOURS = ('white', 'orange')
+EXPOSURE_S = {'clean': 1.5e-3, 'hall': 2e-3}
+"""The cameras' exposure (the ball's motion blur), s: issue 15's 2 ms in a hall."""
+
+
+def _request(balls, hit_plane_x, seed, imaging, colour):
     return {'format': FORMAT_VERSION, 'balls': balls, 'hit_plane_x': hit_plane_x, 'seed': seed,
-            'width': 640, 'height': 480, 'fps': 150.0}
+            'width': 640, 'height': 480, 'fps': 150.0, 'imaging': imaging, 'colour': colour,
+            'exposure': EXPOSURE_S[imaging]}
 
 
-def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
+def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None, imaging='clean',
+                     colour='white'):
     """The recording at ``path``, rendered and written first if absent or made differently.
 
-    Truth times are scene times: message stamps minus STAMP_BASE_S. Written to a temporary
-    folder and renamed: a half-written recording never stays.
+    ``imaging`` (:data:`IMAGING`) and ``colour`` (:data:`COLOURS`, the balls') choose the
+    scene generator's rendering. Truth times are scene times: message stamps minus
+    STAMP_BASE_S. Written to a temporary folder and renamed: a half-written recording never
+    stays.
     """
     from tt_perception.camera import load_rig, save_rig
 
@@ -134,7 +150,10 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
 
     params = params or ModelParams()
     path = pathlib.Path(path)
-    request = _request(balls, hit_plane_x, seed)
+    if imaging not in IMAGING or colour not in COLOURS:
+        raise ValueError(f'imaging must be one of {IMAGING} and colour one of {COLOURS}, '
+                         f'not {imaging!r} and {colour!r}')
+    request = _request(balls, hit_plane_x, seed, imaging, colour)
     meta_file = path / 'recording.json'
     if not (meta_file.exists() and json.loads(meta_file.read_text())['request'] == request):
         # The balls first: a plane they do not reach raises before anything is written.
@@ -149,7 +168,8 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
             rig, [tr.ball.launch_state for tr in truths],
             [tr.ball.launch_time for tr in truths],
             duration=last.hit_time - last.ball.launch_time + 0.1, lead_in=LEAD_IN_S,
-            params=params, seed=seed)
+            params=params, seed=seed, colour=colour, imaging=imaging,
+            exposure=request['exposure'])
         print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
               f'{path / "bag"} (once; cached)', flush=True)
         with synth.CameraVideos(tmp, rig) as videos:      # the same frames as MJPG videos
@@ -174,4 +194,4 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None):
     truths = [fly(Ball(ball['launch_time'], np.array(ball['launch_state'])), params,
                   hit_plane_x) for ball in meta['truth']]
     return Recording(path, truths, params, tuple(cam.source for cam in rig.cameras),
-                     path / 'rig_video.yaml', meta['video_t0'])
+                     path / 'rig_video.yaml', meta['video_t0'], colour)
