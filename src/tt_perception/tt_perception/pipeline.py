@@ -37,9 +37,8 @@ import math
 
 from numba import njit
 import numpy as np
-from tt_prediction.ball import ModelParams
+from tt_prediction.ball import ModelParams, rollout
 from tt_prediction.ball_filter import BallFilter, FilterConfig, smooth
-from tt_prediction.integrate import rollout
 
 from .camera import IN_FRONT_DEPTH, MAX_TIME_OFFSET_S, project_optical
 from .detect import BallDetector, BallImage, DetectorConfig
