@@ -35,6 +35,8 @@ from .camera import Camera, Rig, load_rig, look_at, save_camera_info, save_rig
 
 BALL_COLOURS = {'white': (235, 238, 240), 'orange': (20, 120, 250)}
 """Ball colour (BGR, full light) by name."""
+IMAGING = ('clean', 'hall')
+"""The modes of :func:`render_balls`: the flat-lit ball, or what a hall's camera sees."""
 
 # Two poses of the demo rig: behind and above the robot's end, and to the side of its half.
 _POSES = (
@@ -301,7 +303,7 @@ def render_balls(rig, states, launch_times, colour='white', duration=1.5, lead_i
     part (``noise`` grey levels at mid-grey) and JPEG compression at quality 30; pass
     ``exposure=2e-3`` for the issue's 2 ms blur.
     """
-    if imaging not in ('clean', 'hall'):
+    if imaging not in IMAGING:
         raise ValueError(f"imaging must be 'clean' or 'hall', not {imaging!r}")
     hall = imaging == 'hall'
     params = params or ModelParams()

@@ -145,7 +145,7 @@ def run_graph_video(rec, session, log_dir, args, collector):
             'ros2', 'run', 'tt_perception', 'perception_node', '--ros-args',
             '-p', f'rig_file:={rec.video_rig}', '-p', f'video_rate:={args.rate}',
             '-p', f'video_clock:={"wall" if live else "video"}',
-            '-p', 'wait_for_subscribers:=3', '-p', f'ball_colour:={args.ball}'])
+            '-p', 'wait_for_subscribers:=3', '-p', f'ball_colour:={rec.colour}'])
         os.nice(YIELD_NICE)      # this collector too yields to the cameras
         wait_until(lambda: collector.spin_once() or diags.get('cameras_ended') == cameras,
                    600.0, f'perception to play the videos (see {log_dir}/perception.log)')

@@ -27,6 +27,8 @@ import shutil
 import numpy as np
 from tt_prediction.ball import ModelParams
 
+from tt_perception import synth
+
 from .scenario import Ball, demo_balls, fly
 
 FORMAT_VERSION = 3
@@ -120,11 +122,8 @@ def write_bag(bag_dir, rig, frames):
     return count
 
 
-IMAGING = ('clean', 'hall')
-"""Scene generator modes (``tt_perception.synth.render_balls``): the flat-lit ball, or a
-hall's camera (overhead light, shading and highlight, contact shadow, vignetting, shot noise,
-JPEG q30)."""
-COLOURS = ('white', 'orange')
+IMAGING = synth.IMAGING
+COLOURS = tuple(synth.BALL_COLOURS)
 EXPOSURE_S = {'clean': 1.5e-3, 'hall': 2e-3}
 """The cameras' exposure (the ball's motion blur), s: issue 15's 2 ms in a hall."""
 
@@ -145,8 +144,6 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None, imagi
     stays.
     """
     from tt_perception.camera import load_rig, save_rig
-
-    from tt_perception import synth
 
     params = params or ModelParams()
     path = pathlib.Path(path)
