@@ -384,16 +384,59 @@ def detections_of_a_ball(rig, sure=(True, True), widths=((1.0, 1.0), (1.0, 1.0))
     return [[row] for row in rows]
 
 
-def test_a_point_needs_one_camera_sure_of_the_colour():
-    """Two cameras' detections of the same ball triangulate to a point when at least one of
-    them is sure of the ball's colour, and to none when neither is (a washed-out blob in
-    each view may be anything of that brightness)."""
+def test_a_point_is_sure_when_one_camera_is_sure_of_the_colour():
+    """Two cameras' detections of the same ball triangulate to a point that is sure when at
+    least one of them is sure of the ball's colour, and unsure when neither is (a
+    washed-out blob in each view may be anything of that brightness)."""
     rig = synth.demo_rig()
     pipe = Pipeline(rig)
-    sure = pipe._points(detections_of_a_ball(rig))
-    assert len(sure) == 1 and np.allclose(sure[0][0][0], BALL_AT, atol=1e-6)
-    assert pipe._points(detections_of_a_ball(rig, sure=(False, False))) == []
-    assert len(pipe._points(detections_of_a_ball(rig, sure=(True, False)))) == 1
+    sure, unsure = pipe._points(detections_of_a_ball(rig))
+    assert len(sure) == 1 and not unsure and np.allclose(sure[0][0][0], BALL_AT, atol=1e-6)
+    sure, unsure = pipe._points(detections_of_a_ball(rig, sure=(False, False)))
+    assert not sure and len(unsure) == 1 and np.allclose(unsure[0][0][0], BALL_AT, atol=1e-6)
+    assert [len(p) for p in pipe._points(detections_of_a_ball(rig, sure=(True, False)))] == [
+        1, 0]
+
+
+def _unsure_flight(sure_at, **config):
+    """Tracker states of a ball on the model's flight (its rollout) whose points are unsure
+    of the colour but at the frame indices ``sure_at``; (published states' frame indices,
+    track ids). ``config``: TrackerConfig's settings."""
+    tracker = Tracker(150.0, config=TrackerConfig(backfill=False, **config))
+    times = np.arange(20) / 150.0
+    ball = np.array([1.2, 0.1, 0.3, -6.0, 0.2, 1.0, 0.0, -150.0, 0.0])
+    _, truth = rollout(ball, tracker.params, sample_times=times, stop_at_plane=False,
+                       stop_at_net=False, t_max=times[-1] + 1e-6)
+    cov = np.eye(3) * 1e-8
+    published, ids = [], set()
+    for n, (t, X) in enumerate(zip(times, truth[:, :3], strict=True)):
+        tracker.advance(t)
+        point = [((X, cov), (X, cov))]
+        given = (tracker.add(t, point) if n in sure_at else tracker.add(t, [], point))
+        published += [n] * len(given)
+        ids |= {e.track_id for e in given}
+    return published, ids
+
+
+def test_a_track_of_points_unsure_of_the_colour_is_confirmed_once_one_is_sure():
+    """A track starts and goes on from points no camera is sure of the colour of (a far
+    orange ball washed out by JPEG), but its states are published only from its
+    ``confirm_updates``-th update on which a camera has been sure of one of its points;
+    a track none of whose points is ever sure ends after ``unsure_updates`` more updates
+    without a state, and the next points start another."""
+    config = TrackerConfig()
+    # Frame 0 seeds, frame 1 starts the track, frames 2-4 update it: confirmed on frame 4
+    # when sure from the start, or on the first sure frame after that.
+    assert _unsure_flight(range(20))[0] == list(range(4, 20))
+    assert _unsure_flight({7})[0] == list(range(7, 20))
+    assert _unsure_flight({2})[0] == list(range(4, 20))
+    # Never sure: no state; the track ends after confirm_updates + unsure_updates updates
+    # (on frame 9) and the next two frames start another, which a sure point then confirms.
+    end = 1 + config.confirm_updates + config.unsure_updates
+    published, ids = _unsure_flight({end + 6})
+    assert published == list(range(end + 6, 20)) and ids == {2}
+    # A sure track waits for confirm_updates however many that is.
+    assert _unsure_flight(range(20), confirm_updates=12)[0] == list(range(13, 20))
 
 
 @pytest.mark.parametrize('silhouette, bright, kept', [
@@ -406,7 +449,7 @@ def test_a_point_is_gated_on_the_widths_of_the_silhouette_and_of_its_bright_part
     whose bright part is twice the ball's width is not the ball."""
     rig = synth.demo_rig()
     rows = detections_of_a_ball(rig, widths=((silhouette, bright), (1.0, 1.0)))
-    assert len(Pipeline(rig)._points(rows)) == int(kept)
+    assert len(Pipeline(rig)._points(rows)[0]) == int(kept)
 
 
 def test_two_balls_get_two_tracks():

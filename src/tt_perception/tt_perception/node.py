@@ -171,9 +171,13 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'rad/s', 0.01, 1000),
     ('confirm_updates', TrackerConfig.confirm_updates,
      'Filter updates before a track is published', '', 1, 100),
+    ('unsure_updates', TrackerConfig.unsure_updates, 'Updates beyond confirm_updates after '
+     "which a track no camera was sure of the ball's colour in (a far orange ball JPEG washed "
+     'out, or a grey thing) ends unpublished', '', 0, 100),
     ('backfill', False, "On a track's confirmation also publish the states of its frames "
-     'before it (the first 4: its seed, its start and 2 updates, carried back from the '
-     'confirming estimate; up to 27 ms late at 150 fps), so that /ball/state covers each '
+     'before it (its seed, its start and the updates before confirmation, carried back from '
+     'the confirming estimate; 4 frames, up to 27 ms late at 150 fps, unless it waited for '
+     "a camera sure of the ball's colour), so that /ball/state covers each "
      'flight from its first frame pair (a recording); off: every state published is that of '
      'the newest frame, which is what the robot needs'),
     ('max_coast', TrackerConfig.max_coast, 'Time without a measurement that ends a track', 's',
@@ -336,6 +340,7 @@ class PerceptionNode(Node):
                                    spin_outlier_rate=self._p('spin_outlier_rate'),
                                    spin_outlier_wait=self._p('spin_outlier_wait'))
         tracker = TrackerConfig(confirm_updates=self._p('confirm_updates'),
+                                unsure_updates=self._p('unsure_updates'),
                                 max_coast=self._p('max_coast'),
                                 pixel_sigma=self._p('pixel_sigma'),
                                 max_reprojection=self._p('max_reprojection'),

@@ -92,7 +92,16 @@ class TrackerConfig:
     """Track management (SI units)."""
 
     confirm_updates: int = 3
-    """Filter updates after the start before states are published."""
+    """Filter updates after the start before states are published (and a point among the
+    track's seen by a camera sure of the ball's colour: ``unsure_updates``)."""
+    unsure_updates: int = 5
+    """Updates beyond ``confirm_updates`` after which a track ends that no camera sure of the
+    ball's colour has seen (:attr:`tt_perception.detect.Detection.colour_sure`), without a
+    state. A track starts and goes on from
+    points no camera is sure of, but is confirmed (its states published) only once one is:
+    a far orange ball of 2-3 px radius, whose colour JPEG's halved chroma resolution washes
+    out, is sure in a camera only now and then, and its track started 0.05-0.1 s late
+    (docs/perception.md, "Other rigs"); a grey thing of the ball's size is never sure."""
     backfill: bool = True
     """Also give the states of a confirmed track's earlier frames (its seed, its start and
     the updates before confirmation), carried back from a later estimate
@@ -366,6 +375,7 @@ class Tracker:
         self.kink = None           # the last update's extra covariance (a rebound's kink)
         self.kinked = None         # the bounce (t, x, y) whose kink was taken
         self.doubtful = None       # the filter before its last update, when that was doubtful
+        self.sure = False          # a camera sure of the ball's colour saw one of its points
 
     @property
     def active(self):
@@ -394,7 +404,8 @@ class Tracker:
     @property
     def confirmed(self):
         """True while a track runs whose states are published."""
-        return self.filter is not None and self.updates >= self.config.confirm_updates
+        return (self.filter is not None and self.updates >= self.config.confirm_updates
+                and self.sure)
 
     @property
     def rough(self):
@@ -417,6 +428,7 @@ class Tracker:
         self.ended += self._release()
         self.filter = None
         self.doubtful = None
+        self.sure = False
         self.updates = 0
         self.early = []
 
@@ -457,27 +469,32 @@ class Tracker:
                 if self.filter.x[2] < cfg.min_z:
                     self.end()
 
-    def add(self, t, points):
+    def add(self, t, points, unsure=()):
         """Fuse the 3-D points seen at ``t``, after :meth:`advance` to ``t``
         (:meth:`Pipeline._points`: pairs of (X, cov) from the detections' centres and from
         their blobs' own centres, either None; the blobs' are not needed while the track is
-        confirmed); returns the list of :class:`BallEstimate` it completes, in time order:
+        confirmed; ``unsure``: those of detections no camera was sure of the ball's colour
+        in, which alone do not confirm a track: ``unsure_updates``); returns the list of
+        :class:`BallEstimate` it completes, in time order:
         the state at ``t`` when a confirmed track was updated, preceded by the states it
         held back on its first update ``backfill_after`` from its seed (``backfill``), and
         first those a track that has ended held back (:meth:`end`)."""
         cfg = self.config
         out, self.ended = self.ended, []
         if self.filter is None:
-            self._seed(t, [blob for _, blob in points if blob is not None])
+            self._seed(t, [(blob, sure) for pairs, sure in ((points, True), (unsure, False))
+                           for _, blob in pairs if blob is not None])
             return out
-        if not self._update(points):
+        if not self._update(points, unsure):
             return out
         self.updates += 1
         self.last_update = t
         if cfg.smooth:
             self.runs[self.track_id][1].append(self._step())
-        if self.updates < cfg.confirm_updates:
+        if not self.confirmed:
             self.early.append(t)
+            if not self.sure and self.updates >= cfg.confirm_updates + cfg.unsure_updates:
+                self.end()                  # never seen by a camera sure of the colour
             return out
         f = self.filter
         state = BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
@@ -491,8 +508,9 @@ class Tracker:
         out.append(state)
         return out
 
-    def _update(self, points):
-        """Update the running track with the nearest of ``points``; True when one passed.
+    def _update(self, points, unsure=()):
+        """Update the running track with the nearest of ``points`` and ``unsure`` (those no
+        camera is sure of the colour of); True when one passed.
 
         A confirmed track takes the detections' centres (fitted to the ball's outline). A
         track not confirmed yet is gated on the blobs' own centres, so that a ball-coloured
@@ -502,16 +520,17 @@ class Tracker:
         f = self.filter
         confirmed = self.confirmed
         best = None
-        for point, blob in points:
-            gated = point if confirmed else blob
-            if gated is None:
-                continue
-            d2 = f.innovation(*gated)[2]
-            if best is None or d2 < best[0]:
-                best = (d2, point, blob)
+        for pairs, sure in ((points, True), (unsure, False)):
+            for point, blob in pairs:
+                gated = point if confirmed else blob
+                if gated is None:
+                    continue
+                d2 = f.innovation(*gated)[2]
+                if best is None or d2 < best[0]:
+                    best = (d2, point, blob, sure)
         if best is None:
             return False
-        _, point, blob = best
+        _, point, blob, sure = best
         if confirmed:
             before = copy.copy(f)               # update() replaces arrays, never writes them
             if f.update(*point, rebounce=True):
@@ -546,6 +565,7 @@ class Tracker:
         trial = copy.copy(f)                    # update() replaces arrays, never writes them
         if not trial.update(*blob, rebounce=True):
             return False
+        self.sure |= sure
         if point is not None and point is not blob and f.update(*point, rebounce=True):
             return True
         # No fitted point that passes (none was made: a camera thread detected the frame
@@ -595,26 +615,32 @@ class Tracker:
         return step
 
     def _seed(self, t, points):
-        """Start a track from a previous point and one of ``points`` at a plausible speed."""
+        """Start a track from a previous point and one of ``points`` (pairs of (X, cov) and
+        whether a camera was sure of its colour) at a plausible speed; pairs of sure points
+        first."""
         cfg = self.config
         self.seeds = [s for s in self.seeds if 0.0 < t - s[0] <= 2.5 * self.period]
-        for (t1, X1, R1), (X2, R2) in itertools.product(self.seeds, points):
+        pairs = sorted(itertools.product(self.seeds, points), key=lambda p: -p[0][3] - p[1][1])
+        for (t1, X1, R1, sure1), ((X2, R2), sure2) in pairs:
             dt = t - t1
             v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
             if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
-                self.start(t1, X1, R1, t, X2, R2)
+                self.start(t1, X1, R1, t, X2, R2, sure=sure1 or sure2)
                 return
         self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
-        self.seeds.extend((t, X, R) for X, R in points)
+        self.seeds.extend((t, X, R, sure) for (X, R), sure in points)
 
-    def start(self, t1, X1, R1, t, X2, R2, new_track=True):
+    def start(self, t1, X1, R1, t, X2, R2, new_track=True, sure=True):
         """Start a track at ``t`` from the seed points X1 at ``t1`` and X2 at ``t`` (m, with
-        their covariances R1, R2); ``new_track`` False: start the running one again (its id
+        their covariances R1, R2), ``sure``: either seen by a camera sure of the ball's
+        colour; ``new_track`` False: start the running one again (its id and ``sure``
         kept)."""
         cfg = self.config
         dt = t - t1
         v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
         self.track_id += new_track
+        if new_track:
+            self.sure = sure
         self.filter = BallFilter(self.params, self.filter_config)
         bias = np.eye(3) * cfg.blob_sigma ** 2
         self.filter.start(t, X2, v, R2 + bias, (R1 + R2 + 2.0 * bias) / dt ** 2
@@ -626,6 +652,13 @@ class Tracker:
         self.early, self.held, self.fallback = [t1, t], [], {}
         if cfg.smooth:
             self.runs[self.track_id] = (t1, [self._step()])
+
+
+def _seen_by_most(points):
+    """The pairs (point, blob) of ``points`` (triples of the number of cameras that saw
+    them, point, blob) that the most cameras saw."""
+    most = max((n for n, _, _ in points), default=0)
+    return [(point, blob) for n, point, blob in points if n == most]
 
 
 class Pipeline:
@@ -697,11 +730,14 @@ class Pipeline:
             if self.recent_groups is not None:
                 self.recent_groups.append((t0, group))
                 group = self._at_frame_time(t0, group, self.tracker.snapshot())
-            # A confirmed track takes only the fitted points: no triangulation of the blobs'.
-            points = self._points(group, blobs=not self.tracker.confirmed)
+            # A confirmed track takes only the fitted points: no triangulation of the blobs';
+            # and from cameras none of which is sure of the colour too: its gate is enough.
+            confirmed = self.tracker.confirmed
+            points, unsure = self._points(group, blobs=not confirmed)
             self.seen_by_two += sum(1 for dets in group if dets) >= 2
-            self.triangulated += bool(points)
-            out += self.tracker.add(t0, points)
+            self.triangulated += bool(points or unsure)
+            out += (self.tracker.add(t0, points + unsure) if confirmed
+                    else self.tracker.add(t0, points, unsure))
             if self.recent_groups is not None and not started and self.tracker.active:
                 self._restart_from_moved_seeds()
         return out
@@ -857,8 +893,8 @@ class Pipeline:
         for t, group in self.recent_groups:
             if t not in tracker.early:
                 continue
-            blobs = [blob for _, blob in self._points(self._at_frame_time(t, group, snap))
-                     if blob is not None]
+            blobs = [blob for points in self._points(self._at_frame_time(t, group, snap))
+                     for _, blob in points if blob is not None]
             if not blobs:
                 return
             nearest = tracker.predicted_motion(t, snap)[0]
@@ -870,14 +906,17 @@ class Pipeline:
         """Triangulated, gated candidate points of one time-matched group, each a pair: the
         point (X, cov) of the detections' centres and that of their blobs' own centres (the
         same when none was fitted), either None when it fails the gates; for
-        :meth:`Tracker.add`. Without ``blobs`` (a confirmed track) a blobs' point that differs
-        is not triangulated: None. Only the points seen by the most cameras are kept."""
+        :meth:`Tracker.add`: two lists, the points seen by a camera sure of the ball's colour
+        (:attr:`tt_perception.detect.Detection.colour_sure`) and those seen by none. Without
+        ``blobs`` (a confirmed track) a blobs' point that differs is not triangulated: None.
+        Only the points seen by the most cameras are kept, in each list."""
         options = [list(dets) + [None] for dets in group]
         points = []
         for combo in itertools.product(*options):
             used = [k for k, d in enumerate(combo) if d is not None]
-            if len(used) < 2 or not any(combo[k][SURE] > 0.0 for k in used):
-                continue          # no camera sure of the ball's colour (Detection.colour_sure)
+            if len(used) < 2:
+                continue
+            sure = any(combo[k][SURE] > 0.0 for k in used)
             cams = [self.cameras[k] for k in used]
             obs = np.array([combo[k] for k in used])
             point = self._point(cams, obs[:, XY], obs)
@@ -886,11 +925,9 @@ class Pipeline:
             else:
                 blob = self._point(cams, obs[:, BLOB_XY], obs) if blobs else None
             if point is not None or blob is not None:
-                points.append((len(used), point, blob))
-        if not points:
-            return []
-        most = max(n for n, _, _ in points)
-        return [(point, blob) for n, point, blob in points if n == most]
+                points.append((len(used), sure, point, blob))
+        return tuple(_seen_by_most([(n, point, blob) for n, sure, point, blob in points
+                                    if sure == wanted]) for wanted in (True, False))
 
     def _point(self, cams, centres, obs):
         """(X, cov) triangulated from the normalised image ``centres`` (n, 2) of ``cams``,
