@@ -95,13 +95,14 @@ class TrackerConfig:
     """Filter updates after the start before states are published (and a point among the
     track's seen by a camera sure of the ball's colour: ``unsure_updates``)."""
     unsure_updates: int = 5
-    """Updates beyond ``confirm_updates`` after which a track ends that no camera sure of the
-    ball's colour has seen (:attr:`tt_perception.detect.Detection.colour_sure`), without a
-    state. A track starts and goes on from
+    """Updates beyond ``confirm_updates`` after which a track ends, without a state, that no
+    camera sure of the ball's colour has seen
+    (:attr:`tt_perception.detect.Detection.colour_sure`). A track starts and goes on from
     points no camera is sure of, but is confirmed (its states published) only once one is:
     a far orange ball of 2-3 px radius, whose colour JPEG's halved chroma resolution washes
-    out, is sure in a camera only now and then, and its track started 0.05-0.1 s late
-    (docs/perception.md, "Other rigs"); a grey thing of the ball's size is never sure."""
+    out, is sure in a camera only now and then, and its track started up to 0.09 s late
+    when its points had to be sure (docs/perception.md, "Other rigs"); a grey thing of the
+    ball's size is never sure."""
     backfill: bool = True
     """Also give the states of a confirmed track's earlier frames (its seed, its start and
     the updates before confirmation), carried back from a later estimate
