@@ -483,7 +483,7 @@ class Tracker:
         cfg = self.config
         out, self.ended = self.ended, []
         if self.filter is None:
-            self._seed(t, [(blob, sure) for pairs, sure in ((points, True), (unsure, False))
+            self._seed(t, [(*blob, sure) for pairs, sure in ((points, True), (unsure, False))
                            for _, blob in pairs if blob is not None])
             return out
         if not self._update(points, unsure):
@@ -511,7 +511,8 @@ class Tracker:
 
     def _update(self, points, unsure=()):
         """Update the running track with the nearest of ``points`` and ``unsure`` (those no
-        camera is sure of the colour of); True when one passed.
+        camera is sure of the colour of: a confirmed track takes them as the others, its gate
+        on the prediction the evidence); True when one passed.
 
         A confirmed track takes the detections' centres (fitted to the ball's outline). A
         track not confirmed yet is gated on the blobs' own centres, so that a ball-coloured
@@ -616,20 +617,20 @@ class Tracker:
         return step
 
     def _seed(self, t, points):
-        """Start a track from a previous point and one of ``points`` (pairs of (X, cov) and
-        whether a camera was sure of its colour) at a plausible speed; pairs of sure points
-        first."""
+        """Start a track from a previous point and one of ``points`` ((X, cov, whether a
+        camera was sure of its colour)) at a plausible speed; pairs of sure points first."""
         cfg = self.config
         self.seeds = [s for s in self.seeds if 0.0 < t - s[0] <= 2.5 * self.period]
-        pairs = sorted(itertools.product(self.seeds, points), key=lambda p: -p[0][3] - p[1][1])
-        for (t1, X1, R1, sure1), ((X2, R2), sure2) in pairs:
+        pairs = sorted(itertools.product(self.seeds, points),
+                       key=lambda pair: -(pair[0][3] + pair[1][2]))     # the sure first
+        for (t1, X1, R1, sure1), (X2, R2, sure2) in pairs:
             dt = t - t1
             v = (X2 - X1) / dt + 0.5 * self.gravity * dt  # velocity at t (constant accel.)
             if cfg.min_speed <= np.linalg.norm(v) <= cfg.max_speed:
                 self.start(t1, X1, R1, t, X2, R2, sure=sure1 or sure2)
                 return
         self.seeds = [s for s in self.seeds if t - s[0] < 1.5 * self.period]
-        self.seeds.extend((t, X, R, sure) for (X, R), sure in points)
+        self.seeds.extend((t, *point) for point in points)
 
     def start(self, t1, X1, R1, t, X2, R2, new_track=True, sure=True):
         """Start a track at ``t`` from the seed points X1 at ``t1`` and X2 at ``t`` (m, with
@@ -731,14 +732,11 @@ class Pipeline:
             if self.recent_groups is not None:
                 self.recent_groups.append((t0, group))
                 group = self._at_frame_time(t0, group, self.tracker.snapshot())
-            # A confirmed track takes only the fitted points: no triangulation of the blobs';
-            # and from cameras none of which is sure of the colour too: its gate is enough.
-            confirmed = self.tracker.confirmed
-            points, unsure = self._points(group, blobs=not confirmed)
+            # A confirmed track takes only the fitted points: no triangulation of the blobs'.
+            points, unsure = self._points(group, blobs=not self.tracker.confirmed)
             self.seen_by_two += sum(1 for dets in group if dets) >= 2
             self.triangulated += bool(points or unsure)
-            out += (self.tracker.add(t0, points + unsure) if confirmed
-                    else self.tracker.add(t0, points, unsure))
+            out += self.tracker.add(t0, points, unsure)
             if self.recent_groups is not None and not started and self.tracker.active:
                 self._restart_from_moved_seeds()
         return out
