@@ -152,7 +152,7 @@ def hit_plane_error(value):
         return '--hit-plane-x must be finite'
     lo, hi = HIT_PLANE_X_RANGE
     if not lo <= value <= hi:
-        return (f'--hit-plane-x must be a number in [{lo:g}, {hi:g}] m (the robot\'s half, '
+        return (f"--hit-plane-x must be a number in [{lo:g}, {hi:g}] m (the robot's half, "
                 f'x < 0 in the table frame), got {value:g}')
     return ''
 
