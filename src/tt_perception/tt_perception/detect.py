@@ -198,6 +198,9 @@ WHITE_MIXED_BACKGROUND = 0.5
 """Largest share of the background in the mean colour of a white ball's lit half that
 :func:`colour_matches` takes out: a ball blurred along its path over the exposure, or a few
 pixels across, covers its pixels only in part, and the table shows through."""
+ORANGE_MIXED_BACKGROUND = 0.5
+"""The same for an orange ball (:func:`colour_possible`): a ball so mixed with the
+background is possible, not sure (:attr:`Detection.colour_sure`)."""
 
 
 def colour_matches(bgr, colour, change=None):
@@ -223,38 +226,59 @@ def colour_matches(bgr, colour, change=None):
     return True
 
 
-def _white_mixed(bgr, background):
-    """Whether some share s of ``background`` (B, G, R), 0 < s <= WHITE_MIXED_BACKGROUND,
-    taken out of the colour ``bgr`` (a pixel I = (1 - s) W + s G) leaves a white W: every
-    channel i, j has (I_i - s G_i) > WHITE_BALANCE (I_j - s G_j). Each such condition is
-    linear in s, so the shares that meet them all are an interval, found exactly. (A blue
-    table mixed into a white ball's 5 ms blur: 180, 158, 128 against 90, 56, 23 is white
-    once 0.1 of the table is taken out.)"""
-    lo, hi = 0.0, WHITE_MIXED_BACKGROUND
-    for i in range(3):
-        for j in range(3):
-            if i == j:
-                continue
-            c0 = float(bgr[i]) - WHITE_BALANCE * float(bgr[j])     # c0 - s c1 > 0
-            c1 = float(background[i]) - WHITE_BALANCE * float(background[j])
-            if c1 > 0.0:
-                hi = min(hi, c0 / c1)
-            elif c1 < 0.0:
-                lo = max(lo, c0 / c1)
-            elif c0 <= 0.0:
-                return False
+def _mixed_share(conditions, most):
+    """Whether some share s, 0 < s <= ``most``, meets every condition c0 - s c1 > 0 of
+    ``conditions`` [(c0, c1), ...]: each is linear in s, so the shares that meet them all are
+    an interval, found exactly."""
+    lo, hi = 0.0, most
+    for c0, c1 in conditions:
+        if c1 > 0.0:
+            hi = min(hi, c0 / c1)
+        elif c1 < 0.0:
+            lo = max(lo, c0 / c1)
+        elif c0 <= 0.0:
+            return False
     return lo < hi
 
 
-def colour_possible(change, colour):
-    """True when a blob whose mean colour is not the ``colour`` ball's (:func:`colour_matches`)
-    may still be that ball: for an orange ball, a ``change`` against the background (B, G, R)
-    that adds red at least as much as blue or green, less 10 grey levels (a ball of 2-3 px
-    radius behind JPEG 4:2:0 is grey, e.g. +43, +46, +54). Never for a white ball."""
+def _white_mixed(bgr, background):
+    """Whether some share s of ``background`` (B, G, R), 0 < s <= WHITE_MIXED_BACKGROUND,
+    taken out of the colour ``bgr`` (a pixel I = (1 - s) W + s G) leaves a white W: every
+    channel i, j has (I_i - s G_i) > WHITE_BALANCE (I_j - s G_j). (A blue table mixed into a
+    white ball's 5 ms blur: 180, 158, 128 against 90, 56, 23 is white once 0.1 of the table
+    is taken out.)"""
+    return _mixed_share([(float(bgr[i]) - WHITE_BALANCE * float(bgr[j]),
+                          float(background[i]) - WHITE_BALANCE * float(background[j]))
+                         for i in range(3) for j in range(3) if i != j],
+                        WHITE_MIXED_BACKGROUND)
+
+
+def _orange_mixed(bgr, background):
+    """Whether some share s of ``background`` (B, G, R), 0 < s <= ORANGE_MIXED_BACKGROUND,
+    taken out of the colour ``bgr`` (I = (1 - s) O + s G) leaves an orange O, one that
+    :func:`colour_matches` takes without a background (each of its three conditions, times
+    1 - s, is linear in s), with no channel below 0. An orange ball in front of a white
+    line, its shaded half and outline mixed with the line: 112, 127, 146 against 190, 177,
+    164 is 34, 77, 128 with half the line taken out."""
+    (b, g, r), (gb, gg, gr) = ((float(c) for c in bgr), (float(c) for c in background))
+    return _mixed_share([(r - 90.0, gr - 90.0), (r - 1.6 * b - 20.0, gr - 1.6 * gb - 20.0),
+                         (r - g, gr - gg), (b, gb), (g, gg)], ORANGE_MIXED_BACKGROUND)
+
+
+def colour_possible(change, colour, bgr=None):
+    """True when a blob whose mean colour ``bgr`` is not the ``colour`` ball's
+    (:func:`colour_matches`) may still be that ball: for an orange ball, a ``change`` against
+    the background (B, G, R) that adds red at least as much as blue or green, less 10 grey
+    levels (a ball of 2-3 px radius behind JPEG 4:2:0 is grey, e.g. +43, +46, +54), or a
+    colour that is orange once up to half the background is taken out of it
+    (:func:`_orange_mixed`: a ball in front of something brighter, a white line, darkens
+    every channel). Never for a white ball."""
     if colour != 'orange' or change is None:
         return False
     db, dg, dr = (float(c) for c in change)
-    return dr > 0.0 and dr >= max(db, dg) - 10.0
+    if dr > 0.0 and dr >= max(db, dg) - 10.0:
+        return True
+    return bgr is not None and _orange_mixed(bgr, np.subtract(bgr, change))
 
 
 def _width_from_moments(cxx, cyy, cxy, longest=False):
@@ -1400,7 +1424,7 @@ class BallDetector:
                 colour = m[7:10] / np.asarray(cfg.white_bgr)
                 change = colour - m[10:13] / np.asarray(cfg.white_bgr) if known else None
                 if not colour_matches(colour, cfg.colour, change):
-                    if not colour_possible(change, cfg.colour):
+                    if not colour_possible(change, cfg.colour, colour):
                         self.colour_refused += 1
                         self.refused_colours.append(colour)
                         continue
