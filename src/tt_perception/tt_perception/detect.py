@@ -194,6 +194,12 @@ class BallImage:
 
 WHITE_BALANCE = 0.72
 """Least ratio of a white ball's weakest colour channel to its strongest."""
+LIT_MIN = 90.0
+"""Least value of a ball's strongest channel in its lit half (the red of an orange ball)."""
+ORANGE_RED_PER_BLUE = 1.6
+ORANGE_RED_OVER_BLUE = 20.0
+"""An orange ball's lit half has red above ORANGE_RED_PER_BLUE times its blue plus
+ORANGE_RED_OVER_BLUE (and above its green)."""
 WHITE_MIXED_BACKGROUND = 0.5
 """Largest share of the background in the mean colour of a white ball's lit half that
 :func:`colour_matches` takes out: a ball blurred along its path over the exposure, or a few
@@ -211,13 +217,13 @@ def colour_matches(bgr, colour, change=None):
     to :data:`WHITE_MIXED_BACKGROUND` of the background (:func:`_white_mixed`) is white."""
     b, g, r = (float(c) for c in bgr)
     if colour == 'white':
-        if max(b, g, r) <= 90.0:
+        if max(b, g, r) <= LIT_MIN:
             return False
         if min(b, g, r) > WHITE_BALANCE * max(b, g, r):
             return True
         return change is not None and _white_mixed(bgr, np.subtract(bgr, change))
     if colour == 'orange':
-        if r > 90.0 and r > 1.6 * b + 20.0 and r > g:
+        if r > LIT_MIN and r > ORANGE_RED_PER_BLUE * b + ORANGE_RED_OVER_BLUE and r > g:
             return True
         if change is None:
             return False
@@ -257,11 +263,12 @@ def _orange_mixed(bgr, background):
     """Whether some share s of ``background`` (B, G, R), 0 < s <= ORANGE_MIXED_BACKGROUND,
     taken out of the colour ``bgr`` (I = (1 - s) O + s G) leaves an orange O, one that
     :func:`colour_matches` takes without a background (each of its three conditions, times
-    1 - s, is linear in s), with no channel below 0. An orange ball in front of a white
+    1 - s, is linear in s), every channel above 0. An orange ball in front of a white
     line, its shaded half and outline mixed with the line: 112, 127, 146 against 190, 177,
     164 is 34, 77, 128 with half the line taken out."""
     (b, g, r), (gb, gg, gr) = ((float(c) for c in bgr), (float(c) for c in background))
-    return _mixed_share([(r - 90.0, gr - 90.0), (r - 1.6 * b - 20.0, gr - 1.6 * gb - 20.0),
+    k, c = ORANGE_RED_PER_BLUE, ORANGE_RED_OVER_BLUE
+    return _mixed_share([(r - LIT_MIN, gr - LIT_MIN), (r - k * b - c, gr - k * gb - c),
                          (r - g, gr - gg), (b, gb), (g, gg)], ORANGE_MIXED_BACKGROUND)
 
 
