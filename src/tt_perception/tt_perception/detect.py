@@ -272,20 +272,20 @@ def _orange_mixed(bgr, background):
                          (r - g, gr - gg), (b, gb), (g, gg)], ORANGE_MIXED_BACKGROUND)
 
 
-def colour_possible(change, colour, bgr=None):
+def colour_possible(bgr, colour, change):
     """True when a blob whose mean colour ``bgr`` is not the ``colour`` ball's
-    (:func:`colour_matches`) may still be that ball: for an orange ball, a ``change`` against
-    the background (B, G, R) that adds red at least as much as blue or green, less 10 grey
-    levels (a ball of 2-3 px radius behind JPEG 4:2:0 is grey, e.g. +43, +46, +54), or a
-    colour that is orange once up to half the background is taken out of it
-    (:func:`_orange_mixed`: a ball in front of something brighter, a white line, darkens
-    every channel). Never for a white ball."""
+    (:func:`colour_matches`, same arguments) may still be that ball: for an orange ball, a
+    ``change`` against the background (B, G, R; None where no background is known) that
+    adds red at least as much as blue or green, less 10 grey levels (a ball of 2-3 px radius
+    behind JPEG 4:2:0 is grey, e.g. +43, +46, +54), or a colour that is orange once up to
+    half the background is taken out of it (:func:`_orange_mixed`: a ball in front of
+    something brighter, a white line, darkens every channel). Never for a white ball."""
     if colour != 'orange' or change is None:
         return False
     db, dg, dr = (float(c) for c in change)
     if dr > 0.0 and dr >= max(db, dg) - 10.0:
         return True
-    return bgr is not None and _orange_mixed(bgr, np.subtract(bgr, change))
+    return _orange_mixed(bgr, np.subtract(bgr, change))
 
 
 def _width_from_moments(cxx, cyy, cxy, longest=False):
@@ -1431,7 +1431,7 @@ class BallDetector:
                 colour = m[7:10] / np.asarray(cfg.white_bgr)
                 change = colour - m[10:13] / np.asarray(cfg.white_bgr) if known else None
                 if not colour_matches(colour, cfg.colour, change):
-                    if not colour_possible(change, cfg.colour, colour):
+                    if not colour_possible(colour, cfg.colour, change):
                         self.colour_refused += 1
                         self.refused_colours.append(colour)
                         continue
