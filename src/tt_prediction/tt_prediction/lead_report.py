@@ -23,20 +23,24 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the non-interact
 from .ball import load_model  # noqa: E402
 from .cli import hit_plane_error  # noqa: E402
 from .predict import DEFAULT_HIT_PLANE_X  # noqa: E402
-from .replay import LEADS_MS, replay_tracks  # noqa: E402
+from .replay import LEADS_MS, Learning, replay_tracks  # noqa: E402
 from .staged import replace_file  # noqa: E402
 from .tracks_cli import load_filter_config, read_tracks  # noqa: E402
 
 
 def lead_time_errors_for(data_dir, model_file, hit_plane_x, filter_config=None):
     """Summaries (``replay_tracks``) of DIR with the nominal model and with ``model_file``:
-    ``{'baseline': summary, 'final': summary}`` (the textbook refit in the final one)."""
+    ``{'baseline': summary, 'final': summary}`` (the textbook refit in the final one). The
+    baseline holds the nominal model's gravity: learnt, it would be the effect that
+    tt-identify's ``gravity_or_scale`` brings to the final model, not the baseline's."""
     tracks = read_tracks(data_dir)
     config = load_filter_config(filter_config, tracks)
     out = {}
     for key, path in (('baseline', None), ('final', model_file)):
-        _, summary = replay_tracks(tracks, load_model(path), config, hit_plane_x,
-                                   textbook=key == 'final')
+        params = load_model(path)
+        _, summary = replay_tracks(tracks, params, config, hit_plane_x,
+                                   textbook=key == 'final',
+                                   learning=Learning(config, params, gravity=key == 'final'))
         summary['model'] = path or 'nominal'
         out[key] = summary
     return out
@@ -72,9 +76,11 @@ def table(result):
         lines.append('')
         lift = final.get('lift_learned', {})
         bounce = final.get('bounce_noise_learned', {})
+        gravity = final.get('gravity_learned', {})
         lines.append("Spin prior, accel_noise, the rebound's velocity noise, the table "
-                     'restitution and the Magnus coefficient learned causally from the tracks '
-                     'before each one (docs/prediction.md); at the end (final model): '
+                     'restitution, the Magnus coefficient and (final model only) gravity '
+                     'learned causally from the tracks before each one (docs/prediction.md); '
+                     'at the end (final model): '
                      'top/back, side, along v '
                      f"{', '.join(f'{v + 0.0:g}' for v in learned['final_mean'])} rad/s "
                      f"(mean), {', '.join(f'{v:g}' for v in learned['final'])} rad/s "
@@ -84,7 +90,7 @@ def table(result):
                      f"{bounce.get('tracks_informing', 0)} bounces), e_t "
                      f"{final['restitution_learned']['final']:g}, C_M "
                      f"{lift.get('final', math.nan):g} (from {lift.get('tracks_informing', 0)} "
-                     'gripping bounces).')
+                     f"gripping bounces), g {gravity.get('final', math.nan):g} m/s^2.")
     return '\n'.join(lines)
 
 

@@ -96,6 +96,8 @@ class TrackReplay:
     spin_outlier_t: float = None
     """Time (s) at which the filter first took its second filter's state (the track's spin
     outside the spin prior's population: FilterConfig ``spin_outlier_rate``), or None."""
+    gravity: float = None
+    """The gravity the track was replayed with, m/s^2."""
 
 
 def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, spin=None):
@@ -322,7 +324,8 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
     robot = [b for b in bounces if b.p[0] < 0.0]
     return TrackReplay(name, rows, crossing, first, tt, pp, [(b.t, b.p[0]) for b in bounces],
                        config.spin_prior_axes(), nis, tuple(config.spin_prior_mean),
-                       robot[0] if robot else None, params.e_t, params.c_m, outlier_t)
+                       robot[0] if robot else None, params.e_t, params.c_m, outlier_t,
+                       params.gravity)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -554,6 +557,13 @@ def restitution_observation(rp, params):
     return float(b.restitution - effects), b.restitution_sd
 
 
+def _weighted_median(values, weights):
+    """The weighted median of ``values`` (n,) with ``weights`` (n,) > 0."""
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return values[order][np.searchsorted(cum, 0.5 * cum[-1])]
+
+
 class PooledLearner:
     """A model coefficient (``field``) learned from finished tracks, one observation each.
 
@@ -600,9 +610,7 @@ class PooledLearner:
             return self.generic
         e = np.array(self._e + [self.generic])
         w = 1.0 / np.array(self._var + [self.prior_sd ** 2])
-        order = np.argsort(e)
-        cum = np.cumsum(w[order])
-        centre = e[order][np.searchsorted(cum, 0.5 * cum[-1])]      # weighted median
+        centre = _weighted_median(e, w)
         keep = np.abs(e - centre) <= self.reject / np.sqrt(w)
         keep[-1] = True                                            # the prior
         value = float(np.sum(w[keep] * e[keep]) / np.sum(w[keep]))
@@ -721,6 +729,100 @@ class LiftLearner(PooledLearner):
         super().__init__(generic, prior_sd, default_sd, spread, reject, bounds)
 
 
+# ----------------------------------------------------------------------------------------------
+# What a finished track's flight after its bounce says about gravity
+
+
+GRAVITY_SETTLE = 0.04
+"""Time after the located bounce on the robot's half at which the filter's state is flown on
+by the model (:func:`gravity_observation`), s: the rebound's velocity is measured by then."""
+GRAVITY_SPAN = 0.3
+"""Longest stretch of the flight after that state that :func:`gravity_observation` reads, s."""
+GRAVITY_MIN_SPAN = 0.1
+"""Shortest such stretch that says anything, s (the curvature grows as its square)."""
+GRAVITY_LEAST = 0.3
+"""Least change of g, m/s^2 (3 %), that the tracks' weighted median must show before
+:class:`GravityLearner` takes one: a smaller one is as likely the topspin a ball takes from
+its bounce, which the model may give too little of (mpi_launcher's balls launched without
+spin fall 0.11-0.25 m/s^2 faster after their bounce, its others 0.07), as the data's scale."""
+GRAVITY_MIN_TRACKS = 10
+"""Tracks that must show it first."""
+
+
+def gravity_observation(rp, params):
+    """The gravity g that a finished track's flight after its bounce on the robot's half
+    shows, and its standard error: ``(g, sd)``, or None.
+
+    The replayed filter's state :data:`GRAVITY_SETTLE` after the bounce (its rebound
+    measured) is flown on by ``params``' model (eq. 8, no further bounce) over the samples
+    up to :data:`GRAVITY_SPAN` later, before a second bounce and while the ball still comes
+    toward the robot. The measured height minus the flown one is fitted with a + b T + c T^2
+    (T the time flown): a and b take up the state's own error, and c = -dg / 2 is a steady
+    vertical acceleration the model lacks. Where the data's vertical scale or clock is off,
+    or the ball falls faster than the model's g for a reason the model does not name
+    (tt-identify's ``gravity_or_scale``: mpi_pam's flights after their bounce fall about
+    0.45 m/s^2 faster than the nominal model's), the flight to the hitting plane misses
+    its height by dg T^2 / 2: 5 mm at 150 ms. Returns ``params``' g + dg; its standard error
+    from the fit's residual.
+    """
+    b = rp.robot_bounce
+    if b is None:
+        return None
+    rows = rp.rows
+    after = np.flatnonzero((rows[:, 0] >= b.t + GRAVITY_SETTLE)
+                           & np.all(np.isfinite(rows[:, 1:10]), axis=1))
+    if not len(after):
+        return None
+    k = after[0]
+    t0 = rows[k, 0]
+    later = sorted(t for t, x in rp.bounce_times if x < 0.0 and t > b.t + 0.01)
+    end = min(t0 + GRAVITY_SPAN, later[0] - 0.01 if later else math.inf)
+    window = np.flatnonzero((rp.t > t0) & (rp.t <= end))
+    if len(window):                      # up to where the ball stops coming toward the robot
+        window = window[:int(np.argmin(rp.p[window, 0])) + 1]
+    if len(window) < 10 or rp.t[window[-1]] - t0 < GRAVITY_MIN_SPAN:
+        return None
+    _, flown = rollout(rows[k, 1:10], params, t0=t0, t_max=rp.t[window[-1]] + 0.01,
+                       stop_at_plane=False, stop_at_net=False, max_bounces=1,
+                       sample_times=rp.t[window])
+    dz = rp.p[window, 2] - flown[:, 2]
+    ok = np.isfinite(dz)
+    if ok.sum() < 10:
+        return None
+    T = rp.t[window][ok] - t0
+    A = np.stack([np.ones_like(T), T, T * T], axis=1)
+    coef, *_ = np.linalg.lstsq(A, dz[ok], rcond=None)
+    dof = len(T) - 3
+    sigma2 = float(np.sum((dz[ok] - A @ coef) ** 2)) / dof
+    var_c = sigma2 * float(np.linalg.inv(A.T @ A)[2, 2])
+    return params.gravity - 2.0 * float(coef[2]), 2.0 * math.sqrt(var_c)
+
+
+class GravityLearner(PooledLearner):
+    """The model's gravity learned from finished tracks' flights after their bounce
+    (:func:`gravity_observation`; :class:`PooledLearner`).
+
+    Gravity is known, but a recording's vertical scale or clock may not be, and a ball may
+    fall faster than the model says for a reason it does not name: what the predictor needs
+    is the ball's fall as the data show it. The model's g is the prior, of sd ``prior_sd``.
+    """
+
+    field = 'gravity'
+
+    def __init__(self, generic, prior_sd=0.3, default_sd=0.3, spread=0.05, reject=3.0,
+                 bounds=None):
+        super().__init__(generic, prior_sd, default_sd, spread, reject, bounds)
+
+    @property
+    def value(self):
+        """The learned g; the model's until :data:`GRAVITY_MIN_TRACKS` tracks show one
+        whose weighted median differs from it by :data:`GRAVITY_LEAST` or more."""
+        if self.count < GRAVITY_MIN_TRACKS:
+            return self.generic
+        centre = _weighted_median(np.array(self._e), 1.0 / np.array(self._var))
+        return super().value if abs(centre - self.generic) >= GRAVITY_LEAST else self.generic
+
+
 class BounceNoiseLearner:
     """The live filter's ``bounce_velocity_noise`` learned from finished tracks' rebounds
     (:func:`rebound_noise_observation`).
@@ -801,16 +903,20 @@ class Learning:
     (:class:`tt_prediction.ball_filter.SpinPriorLearner`, :func:`bounce_spin_observation`),
     ``accel_noise`` (:class:`tt_prediction.ball_filter.AccelNoiseLearner`),
     ``bounce_velocity_noise`` (:class:`BounceNoiseLearner`), the table's
-    restitution e_t (:class:`RestitutionLearner`, :func:`restitution_observation`) and the
-    Magnus coefficient C_M (:class:`LiftLearner`, :func:`lift_observation`), each starting
-    from ``config``'s (FilterConfig) and ``params``' (ModelParams) values."""
+    restitution e_t (:class:`RestitutionLearner`, :func:`restitution_observation`), the
+    Magnus coefficient C_M (:class:`LiftLearner`, :func:`lift_observation`) and, unless
+    ``gravity`` is false, the gravity the flights after their bounce show
+    (:class:`GravityLearner`, :func:`gravity_observation`), each starting from ``config``'s
+    (FilterConfig) and ``params``' (ModelParams) values."""
 
-    def __init__(self, config, params):
+    def __init__(self, config, params, gravity=True):
         self.noise = AccelNoiseLearner(config.accel_noise)
         self.spin = SpinPriorLearner(generic=config.spin_prior_axes(),
                                      generic_mean=config.spin_prior_mean)
         self.restitution = RestitutionLearner(params.e_t)
         self.lift = LiftLearner(params.c_m)
+        self.gravity = GravityLearner(params.gravity)
+        self.learns_gravity = gravity
         self.bounce = BounceNoiseLearner(config.bounce_velocity_noise)
 
     def config(self, base):
@@ -820,8 +926,8 @@ class Learning:
                                    bounce_velocity_noise=self.bounce.value)
 
     def model(self, base):
-        """``base`` (ModelParams) with the learned e_t and C_M."""
-        return self.lift.params(self.restitution.params(base))
+        """``base`` (ModelParams) with the learned e_t, C_M and gravity."""
+        return self.gravity.params(self.lift.params(self.restitution.params(base)))
 
     def observe(self, rp, model, base):
         """Learn from the finished replay ``rp``, run with ``model``; ``base``: the
@@ -831,6 +937,8 @@ class Learning:
         self.bounce.observe(rebound_noise_observation(rp, model, self.config(base)))
         self.noise.observe(rp.nis)
         self.restitution.observe(restitution_observation(rp, model))
+        if self.learns_gravity:
+            self.gravity.observe(gravity_observation(rp, model))
         reading = bounce_reading(rp, model, generic)       # once for the two below
         if reading is not None:
             self.lift.observe(lift_observation(rp, model, generic, reading))
@@ -964,9 +1072,9 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
     order a robot would have seen them. With ``learn`` each track is replayed with what the
     tracks before it taught (causal: never its own data; the config's and the model's values
     until enough was seen; :class:`Learning`): the spin prior, accel_noise, the table's
-    restitution and the Magnus coefficient. ``learning``: the :class:`Learning` to use, which
-    then holds what the whole set taught (None: a new one). The textbook reference keeps
-    ``params``. Returns ``(replays, summary)``: the :class:`TrackReplay` list and a
+    restitution, the Magnus coefficient and gravity. ``learning``: the :class:`Learning` to
+    use, which then holds what the whole set taught (None: a new one). The textbook
+    reference keeps ``params``. Returns ``(replays, summary)``: the :class:`TrackReplay` list and a
     JSON-ready dict.
     """
     config = config or FilterConfig()
@@ -1047,6 +1155,19 @@ def replay_tracks(tracks, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X,
             'final': round(lift.value, 4),
             'tracks_informing': lift.count,
             'per_track': {rp.name: round(rp.c_m, 4) for rp in replays},
+        }
+        gravity = learning.gravity
+        summary['gravity_learned'] = {
+            'rule': "causal: each track uses the g that the flights after the bounces before "
+                    "it show (the filter's state flown on by the model against the measured "
+                    "heights), weighed by their precision with the model's gravity = "
+                    f'{params.gravity} as a prior of sd {gravity.prior_sd}, taken once '
+                    f'{GRAVITY_MIN_TRACKS} tracks show one whose weighted median differs from '
+                    f'it by {GRAVITY_LEAST} or more (a scale or clock of the data off), m/s^2',
+            'final': round(gravity.value, 4),
+            'pooled': round(PooledLearner.value.fget(gravity), 4),
+            'tracks_informing': gravity.count,
+            'per_track': {rp.name: round(rp.gravity, 4) for rp in replays},
         }
     summary['spin_outlier_taken'] = {
         'rule': "tracks whose filter took its second filter's state (spin_outlier_prior "

@@ -283,7 +283,8 @@ def _main(argv=None):
     summary['model'] = args.model or 'nominal'
     summary['data'] = args.tracks
     learned = [name for name, learner in (('e_t', learning.restitution),
-                                          ('c_m', learning.lift)) if learner.count]
+                                          ('c_m', learning.lift),
+                                          ('gravity', learning.gravity)) if learner.count]
     meta = {'written_by': 'tt-predict --tracks', 'sources': [args.tracks],
             'model': args.model or 'nominal', 'learned': learned}
     command = shlex.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
