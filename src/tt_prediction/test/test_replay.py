@@ -773,7 +773,8 @@ def test_the_lift_of_the_balls_is_learned_from_their_flights_and_grip_bounces(c_
 
 
 @pytest.mark.parametrize('gravity, seed', [(10.3, 5), (9.8, 6)])
-def test_a_recording_whose_balls_fall_faster_teaches_its_gravity(gravity, seed, monkeypatch):
+def test_a_recording_whose_balls_fall_faster_teaches_its_gravity(gravity, seed, monkeypatch,
+                                                                 tmp_path):
     """Balls flown with g = 10.3 m/s^2 (a recording's vertical scale or clock 5 % off; the
     model says 9.8): each flight after its bounce, flown on by the model from the filter's
     state, falls 0.5 m/s^2 short of the measured heights, and the replay learns g from the
@@ -796,6 +797,13 @@ def test_a_recording_whose_balls_fall_faster_teaches_its_gravity(gravity, seed, 
     assert learnt['pooled'] == pytest.approx(gravity, abs=0.1)
     per_track = list(learnt['per_track'].values())
     assert per_track[:replay.GRAVITY_MIN_TRACKS] == [9.8] * replay.GRAVITY_MIN_TRACKS
+    # The command hands it to the nodes in OUT/model.yaml, and names it learned where it moved.
+    _write(tmp_path / 'set', [track[:3] for track in tracks])
+    assert main(['--tracks', str(tmp_path / 'set'), '--out', str(tmp_path / 'out'),
+                 '--hit-plane-x', str(PLANE), '--no-textbook']) == 0
+    written = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
+    assert written['ball']['gravity'] == pytest.approx(gravity, abs=0.1)
+    assert ('gravity' in written['meta']['learned']) == (gravity != 9.8)
 
     class Held(replay.GravityLearner):
         def observe(self, observation):

@@ -284,7 +284,8 @@ def _main(argv=None):
     summary['data'] = args.tracks
     learned = [name for name, learner in (('e_t', learning.restitution),
                                           ('c_m', learning.lift),
-                                          ('gravity', learning.gravity)) if learner.count]
+                                          ('gravity', learning.gravity))
+               if learner.value != learner.generic]      # moved from the model's
     meta = {'written_by': 'tt-predict --tracks', 'sources': [args.tracks],
             'model': args.model or 'nominal', 'learned': learned}
     command = shlex.join(['tt-predict', *(argv if argv is not None else sys.argv[1:])])
