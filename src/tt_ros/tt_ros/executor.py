@@ -47,9 +47,10 @@ READY = 'ready'
 STARTUP_EXIT = 2
 """Exit status of a node that cannot start (bad parameter, missing file)."""
 SHUTDOWN_LIMIT_S = 8.0
-"""Longest a node may take from the end of its spin to the end of its process, s: past it,
-every thread's stack goes to stderr and the process exits 1 (a hang in the middleware's
-teardown is then reported and ended, not left to the parent's SIGKILL)."""
+"""Longest a node may take from the end of its spin to the end of its process (and a ``ros2``
+verb's node to leave the graph: tt_tools.rosutil.leave_graph), s: past it, every thread's stack
+goes to stderr and the process exits 1 (a hang in the middleware's teardown is then reported
+and ended, not left to the parent's SIGKILL or to wait for ever)."""
 STACKS_SIGNAL = signal.SIGUSR1
 """The signal on which a node writes every thread's stack to stderr and goes on
 (faulthandler: it works while the main thread is stuck in C or numba code)."""

@@ -13,6 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tt_msgs.msg import BallPrediction, BallState, StrikeCommand
+from tt_tools.rosutil import leave_graph
 
 
 def stamp_s(stamp):
@@ -129,9 +130,7 @@ class Collector:
         return {topic: list(records) for topic, records in self.records.items()}
 
     def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        leave_graph(self.executor, self.node, self.context)
 
     def __enter__(self):
         return self

@@ -1,5 +1,6 @@
 """ROS glue shared by the ``ros2`` verbs: a short-lived node with clean SIGINT/SIGTERM, QoS."""
 
+import faulthandler
 import os
 import signal
 import time
@@ -25,6 +26,7 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
+from tt_ros.executor import SHUTDOWN_LIMIT_S
 from tt_ros.names import name_error
 from tt_ros.rosenv import domain_id_error
 
@@ -53,6 +55,22 @@ RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
 DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
               'transient_local': DurabilityPolicy.TRANSIENT_LOCAL,
               'system_default': DurabilityPolicy.SYSTEM_DEFAULT}
+
+
+def leave_graph(executor, node, context):
+    """Shut ``executor`` down, destroy ``node`` and shut its ``context`` down. Fast DDS can
+    deadlock in this teardown (a write of the graph's update meeting a remote participant's
+    lease running out, as in eProsima/Fast-DDS#6502: once in a fresh-clone make test, `ros2
+    service find` stayed in destroy_node for good). Past SHUTDOWN_LIMIT_S every thread's stack
+    goes to stderr and the process ends with 1, as a node's teardown does
+    (tt_ros.executor.run_node)."""
+    faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+    try:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 class CliNode:
@@ -213,9 +231,7 @@ class CliNode:
             idle, last = (idle + 1, last) if progress() == last else (0, progress())
 
     def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        leave_graph(self.executor, self.node, self.context)
         for sig, handler in self._old.items():
             signal.signal(sig, handler)
 
