@@ -13,7 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tt_msgs.msg import BallPrediction, BallState, StrikeCommand
-from tt_tools.rosutil import leave_graph
+from tt_tools.rosutil import leave_graph, run_waiting
 
 
 def stamp_s(stamp):
@@ -90,10 +90,7 @@ class Collector:
         """Take every message waiting (waiting up to ``timeout`` s for the first one), so a
         caller polling a condition never falls behind the graph. Returns False."""
         self.executor.spin_once(timeout_sec=timeout)
-        taken = -1
-        while taken != self._count:
-            taken = self._count
-            self.executor.spin_once(timeout_sec=0.0)
+        run_waiting(self.executor, lambda: self._count)
         return False
 
     def graph_ready(self, state_subscribers=3):

@@ -73,6 +73,18 @@ def leave_graph(executor, node, context):
         faulthandler.cancel_dump_traceback_later()
 
 
+def run_waiting(executor, progress, idle_rounds=3):
+    """Run the callbacks of messages already waiting, without blocking: spins of 0 s until
+    ``idle_rounds`` in a row leave ``progress()`` (a count of handled messages) where it was.
+    One idle spin is not enough: rclpy's spin_once(0) takes nothing every other call (it
+    ends the wait whose callbacks the previous calls ran), so stopping at the first would
+    take at most two messages a call, however many are waiting."""
+    idle, last = 0, progress()
+    while idle < idle_rounds:
+        executor.spin_once(timeout_sec=0.0)
+        idle, last = (idle + 1, last) if progress() == last else (0, progress())
+
+
 class CliNode:
     """A hidden node in its own context; SIGINT/SIGTERM set ``stopped`` instead of raising.
     ``use_sim_time``: its clock is the ROS time of /clock instead of this machine's.
@@ -221,14 +233,9 @@ class CliNode:
             lambda: 'waiting for /clock (--use-sim-time: no time until its first message)')
 
     def drain(self, progress, idle_rounds=3):
-        """Run callbacks already waiting (messages received before a stop) without blocking.
-
-        ``progress()`` counts handled messages; stops after ``idle_rounds`` spins without one.
-        """
-        idle, last = 0, progress()
-        while idle < idle_rounds:
-            self.executor.spin_once(timeout_sec=0.0)
-            idle, last = (idle + 1, last) if progress() == last else (0, progress())
+        """Run callbacks already waiting (messages received before a stop) without blocking
+        (:func:`run_waiting`; ``progress()`` counts handled messages)."""
+        run_waiting(self.executor, progress, idle_rounds)
 
     def close(self):
         leave_graph(self.executor, self.node, self.context)
