@@ -20,7 +20,7 @@ the pipeline at its defaults, told the renderer's gamma): position RMS, mean err
 axis, coverage, tracks, velocity and spin (reported), and the distractor scene's states.
 ``passed`` per rig: every ball within issue 15's limits on position RMS, mean error per
 axis, coverage and one track, and no state from the distractor, as bench_independent's
-``passed``. docs/perception.md, "Other rigs", says what they show.
+``passed``. docs/perception_measured.md, "Other rigs", says what they show.
 """
 
 import sys

@@ -252,7 +252,7 @@ def test_outline_fit_where_half_the_ball_is_as_dark_as_the_background(light):
     brightness's curvature, which such a sharp terminator needs, costs about half a pixel
     toward the light (measured 0.42-0.45 px; 0.46-0.50 px with the pixels inside the ball
     weighted by the fit's residuals, ``inside_huber``, which weights down the terminator the
-    penalised shading cannot follow; docs/perception.md)."""
+    penalised shading cannot follow; docs/perception_measured.md)."""
     fitted, plain = fitted_and_plain_errors(light)
     assert np.abs(fitted).max() < 0.1
     assert np.hypot(*plain.T).min() > 1.0

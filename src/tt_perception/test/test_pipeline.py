@@ -815,7 +815,7 @@ def test_a_narrow_blob_weakens_its_own_centre_and_not_the_one_fitted_to_the_outl
 def test_a_blob_longer_than_the_ball_beyond_its_blur_makes_no_point(length, height, kept):
     """A ball's blob is the ball stretched along its image velocity by its blur; a racket's
     disc seen at a slant is as wide as a ball two diameters across and longer still (the
-    independent renderer's distractor through other rigs: docs/perception.md, "Other
+    independent renderer's distractor through other rigs: docs/perception_measured.md, "Other
     rigs"). Blobs whose length beyond the tracked ball's predicted blur
     (``length_over_blur``, in diameters here) is more than ``width_ratio``'s upper bound make
     no point; NaN (no track to predict the blur) is not judged, nor a ball within a diameter

@@ -111,12 +111,12 @@ class DetectorConfig:
     kernels averaged over the mosaic's four sites and weighted as luma: sqrt(0.353)). JPEG
     q30 after a linear response counts as about 0.4 px; after a gamma response it leans the
     centre away from the lit side, which no value takes out ("A camera without a mosaic").
-    0: a sharp camera (synth's clean mode; the ramp of one sub-sample). docs/perception.md,
-    "The camera's blur and the lit side". It costs no time (a fit samples each pixel once
-    with it, four times without). :func:`estimate_image_blur` measures it from the fits
-    (tt-perceive does by default). With a response (``response_gamma`` not 1) it is the blur
-    of the light, before the response; the blur of the values after it is
-    ``encoded_blur``."""
+    0: a sharp camera (synth's clean mode; the ramp of one sub-sample).
+    docs/perception_measured.md, "The camera's blur and the lit side". It costs no time (a
+    fit samples each pixel once with it, four times without). :func:`estimate_image_blur`
+    measures it from the fits (tt-perceive does by default). With a response
+    (``response_gamma`` not 1) it is the blur of the light, before the response; the blur of
+    the values after it is ``encoded_blur``."""
     encoded_blur: float = 0.5
     """The part of the camera's blur that acts on its pixel values after its response, pixels
     (the standard deviation of a Gaussian): JPEG's, which drops an edge's fine detail from the
@@ -127,7 +127,7 @@ class DetectorConfig:
     640x480 through a camera without a mosaic, JPEG q30 after a 2.2 response). The fit
     models it (:class:`OutlineFit`, ``encoded``). 0.5 px: JPEG q30 on balls 2-7 px in radius
     (the independent renderer's, at which their heights are least biased: "JPEG's blur of
-    the encoded values, modelled", docs/perception.md); 0 for frames that were not
+    the encoded values, modelled", docs/perception_measured.md); 0 for frames that were not
     compressed."""
     inside_huber: float = 2.0
     """Threshold of the Huber weights of the pixels the ball covers whole, in units of the
@@ -135,7 +135,7 @@ class DetectorConfig:
     shading explains worst counting less. A specular highlight, a bright spot the quadratic
     shading cannot follow, otherwise bends the shading near the outline and moves the centre
     (synth's hall, orange ball at 1280x720: heights -0.39 mm, -0.24 with it; "A specular
-    highlight", docs/perception.md). 0: every pixel weighted alike (one fit less)."""
+    highlight", docs/perception_measured.md). 0: every pixel weighted alike (one fit less)."""
 
 
 @dataclasses.dataclass
@@ -1113,7 +1113,7 @@ def inside_weights(residuals, cover, threshold):
     deviation, at least :data:`SCALE_FLOOR`). A pixel inside the ball tells only its
     brightness, which the quadratic shading follows only roughly: a specular highlight, a
     spot too small and too bright for it, is fitted at the cost of the shading near the
-    outline, and moved the centre (docs/perception.md, "A specular highlight")."""
+    outline, and moved the centre (docs/perception_measured.md, "A specular highlight")."""
     scale = max(1.4826 * float(np.median(np.abs(residuals - np.median(residuals)))),
                 SCALE_FLOOR)
     huber = np.sqrt(np.minimum(1.0, threshold * scale / np.maximum(np.abs(residuals), 1e-12)))

@@ -101,7 +101,7 @@ class TrackerConfig:
     points no camera is sure of, but is confirmed (its states published) only once one is:
     a far orange ball of 2-3 px radius, whose colour JPEG's halved chroma resolution washes
     out, is sure in a camera only now and then, and its track started up to 0.09 s late
-    when its points had to be sure (docs/perception.md, "Other rigs"); a grey thing of the
+    when its points had to be sure (docs/perception_measured.md, "Other rigs"); a grey thing of the
     ball's size is never sure."""
     backfill: bool = True
     """Also give the states of a confirmed track's earlier frames (its seed, its start and
