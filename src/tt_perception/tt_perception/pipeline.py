@@ -55,7 +55,7 @@ bounce between them would change it."""
 PERCEPTION_FILTER = FilterConfig(accel_noise_speed=0.0)
 """The ball filter's settings perception runs unless told others: FilterConfig's, with the
 unmodelled acceleration the same at every speed. Its growth with speed was measured on
-recorded balls (docs/prediction.md) and is not yet measured on camera scenes; the
+recorded balls (docs/prediction_measured.md) and is not yet measured on camera scenes; the
 params.yaml of `tt-predict --tracks` sets it with the accel_noise learned at it."""
 
 # Columns of a detection's row (:func:`detection_row`; :meth:`Pipeline.detect`).

@@ -86,7 +86,7 @@ class FilterConfig:
     accel_noise_speed: float = 3.0
     """Speed (m/s) at which the unmodelled acceleration's aerodynamic part, which grows as
     the drag and Magnus forces (|v|^2), equals its part at rest (``accel_noise``); 0: the same
-    at every speed. Measured on the MPI sets (docs/prediction.md, "The unmodelled
+    at every speed. Measured on the MPI sets (docs/prediction_measured.md, "The unmodelled
     acceleration grows with speed")."""
     spin_noise: float = 2.0
     """Random walk of the spin, rad/s / sqrt(s)."""
@@ -1134,12 +1134,12 @@ class SpinPriorLearner:
     tau^2 = var(y_i) - mean(s_i^2), over the tracks whose s_i is below ``max_sigma`` (an axis
     the data did not see says nothing: 150 rad/s; at 60 an axis measured about that well, as
     mpi_pam's side spin, informed few tracks or none, by chance, and kept the generic prior
-    or took the floor: docs/prediction.md), each y_i clipped to +-``cap``; tau is then floored
-    at ``floor`` and capped at ``cap``. A population whose spin along v is consistent but
-    smaller than what one track can measure of it (a launcher's gyro spin) has tau at the
-    floor and the mean where the tracks put it. Until ``min_tracks`` tracks informed an axis
-    it keeps the generic prior. Only what was :meth:`observe`-d is used: the caller decides
-    which tracks (in the replay, those before the current one).
+    or took the floor: docs/prediction_measured.md), each y_i clipped to +-``cap``; tau is
+    then floored at ``floor`` and capped at ``cap``. A population whose spin along v is
+    consistent but smaller than what one track can measure of it (a launcher's gyro spin) has
+    tau at the floor and the mean where the tracks put it. Until ``min_tracks`` tracks informed
+    an axis it keeps the generic prior. Only what was :meth:`observe`-d is used: the caller
+    decides which tracks (in the replay, those before the current one).
 
     Parameters: ``generic`` (3,) rad/s, the standard deviations before anything is learned,
     ``generic_mean`` (3,) rad/s, the mean; ``min_tracks``; ``floor``, ``cap``,
