@@ -248,9 +248,9 @@ def _main(argv=None):
                         help='skip the textbook reference predictor in summary.json')
     parser.add_argument('--no-learn', action='store_true',
                         help='keep the configured spin prior, accel_noise, '
-                             "bounce_velocity_noise and the model's "
-                             'table restitution and Magnus coefficient (default: learn them '
-                             'from the tracks before each one, docs/prediction.md)')
+                             "bounce_velocity_noise and the model's table restitution, "
+                             'Magnus coefficient and gravity (default: learn them from the '
+                             'tracks before each one, docs/prediction.md)')
     args = parser.parse_args(argv)
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:
