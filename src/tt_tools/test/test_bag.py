@@ -228,16 +228,17 @@ class _FakeTime:
         self.now = end
 
 
-def _play_on_fake_time(monkeypatch, argv, stop=None):
+def _play_on_fake_time(monkeypatch, argv, stop=None, late=0.0):
     """Run ``bag play`` in this process on a fake clock (:class:`_FakeTime`); returns the
     start time and [(time, topic, message)] of everything published. ``stop(published)``:
-    the player is stopped (as by a signal) once it is true."""
+    the player is stopped (as by a signal) once it is true. ``late``: every wait lasts that
+    much longer than asked, s (a busy machine)."""
     fake = _FakeTime()
     published = []
 
     def spin_until(self, condition=lambda: False, timeout=None, step=0.1):
         if timeout is not None and timeout > 0:
-            fake.advance(timeout)
+            fake.advance(timeout + late)
         if stop is not None and stop(published):
             self.stopped = True
         return bool(condition())
@@ -289,6 +290,20 @@ def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypat
     for k, (t, ns) in enumerate(clocks):
         assert t - start == pytest.approx(k / clock_hz, abs=1e-9)
         assert ns - first == pytest.approx(k / clock_hz * rate * 1e9, abs=2)
+
+
+def test_play_clock_stops_at_the_bags_end_when_the_player_wakes_late(recorded, monkeypatch):
+    # Every wait 15 ms longer than asked, as on a busy machine: /clock's timer then runs
+    # while the last message is overdue. The bag time it publishes stays within the bag (it
+    # ran 15 ms past the end in a full test run, which a node on /clock takes for time that
+    # passed).
+    out, _, _ = recorded
+    _, published = _play_on_fake_time(monkeypatch, [str(out), '--clock', '100'], late=0.015)
+    with Reader(out) as reader:
+        start, end = reader.start_time, reader.end_time
+    clocks = [_clock_ns(m) for _, topic, m in published if topic == '/clock']
+    assert clocks == sorted(clocks) and len(clocks) > 2
+    assert start == clocks[0] and clocks[-1] <= end
 
 
 def test_play_loop_puts_the_clock_back_before_each_pass(recorded, monkeypatch):

@@ -278,13 +278,18 @@ def bag_play(args):
                 cli.spin_until(timeout=args.delay)          # the delay, or a signal
                 if cli.stopped:
                     return 0
-            # Bag time now = first + (monotonic time since t0) * rate.
+            # Bag time now = first + (monotonic time since t0) * rate, never past the window's
+            # end: a player woken late (a busy machine) ran its /clock tick 15 ms beyond it.
             state = {'t0': time.monotonic()}
             tick = None
             if clock_pub is not None:
-                tick = _publish_clock(cli, clock_pub, args.clock,
-                                      lambda: None if state.get('ended') else first + int(
-                                          (time.monotonic() - state['t0']) * args.rate * 1e9))
+                def bag_time_ns():
+                    if state.get('ended'):
+                        return None
+                    elapsed = time.monotonic() - state['t0']
+                    return min(last, first + int(elapsed * args.rate * 1e9))
+
+                tick = _publish_clock(cli, clock_pub, args.clock, bag_time_ns)
             while not cli.stopped:
                 state['t0'] = time.monotonic()
                 if tick is not None:
