@@ -21,7 +21,9 @@ failure to write; nothing is written then.
 
 Video files have no common clock: a camera (other than camera 0) whose ``time_offset`` the
 rig leaves out gets it estimated from the ball first (:mod:`tt_perception.sync`, one extra
-pass of detection over the files), reported on stderr.
+pass of detection over the files), then refined from the centres fitted to the ball's
+outline in the pass that estimates the cameras' blur (:func:`refine_offsets`), reported on
+stderr.
 """
 
 import argparse
@@ -236,6 +238,69 @@ def estimate_offsets(rig, colour, detector_config=None):
     return notes
 
 
+def record_fitted(pipeline, fitted):
+    """From now on, append to ``fitted[k]`` the (time, u, v) of each centre that
+    ``pipeline`` fits to the ball's outline in camera k's frames (the time the frame was
+    given with, on its camera's clock; pixels)."""
+    frame_time = [None]
+    pipeline_detect = pipeline.detect
+
+    def timed(t, k, frame, *args, **kwargs):
+        frame_time[0] = t
+        return pipeline_detect(t, k, frame, *args, **kwargs)
+
+    def recording(k, detect):
+        def detect_and_record(*args, **kwargs):
+            found = detect(*args, **kwargs)
+            fitted[k].extend((frame_time[0], d.u, d.v) for d in found if d.fitted)
+            return found
+        return detect_and_record
+
+    pipeline.detect = timed
+    for k, detector in enumerate(pipeline.detectors):
+        detector.detect = recording(k, detector.detect)
+
+
+REFINE_FITS_MIN = 20
+"""Outline fits each camera needs before its time offset is refined from them."""
+
+
+def refine_offsets(rig, fitted, cameras):
+    """Refine the estimated ``time_offset`` of ``cameras`` (indices above 0) from the centres
+    fitted to the ball's outline, ``fitted`` ([(t, u, v)] per camera, :func:`record_fitted`),
+    within half a frame of the estimate: the blobs' centres it rests on lean toward the lit
+    side, each camera's its own way, and took synth's hall orange ball (synchronised
+    cameras) to -1.0 ms, 5.7 mm RMS off (a new user's walk-through, 5 Dec 2026). Kept where
+    the fitted centres lie nearer their epipolar lines than :data:`UNRELIABLE_OFFSET_PX`;
+    returns one line per camera refined. Only the frames with one fitted centre count (a
+    ball's shadow or a highlight beside it can be fitted to its outline too)."""
+    def points(k):
+        t, u, v = np.array(fitted[k] or np.zeros((0, 3))).reshape(-1, 3).T
+        times, counts = np.unique(t, return_counts=True)
+        one = np.isin(t, times[counts == 1])
+        if one.sum() < REFINE_FITS_MIN:
+            return None
+        return t[one], rig.cameras[k].normalise(np.column_stack([u[one], v[one]]))
+
+    notes = []
+    base = rig.cameras[0].time_offset or 0.0
+    first = points(0)
+    for k in cameras:
+        cam, found = rig.cameras[k], points(k)
+        if first is None or found is None:
+            continue
+        estimate = cam.time_offset - base
+        offset, cost = estimate_offset(rig.cameras[0], cam, *first, *found, rig.fps,
+                                       max_offset=0.5 / rig.fps, centre=estimate)
+        if offset is None or cost * cam.focal > UNRELIABLE_OFFSET_PX:
+            continue
+        cam.time_offset = float(offset) + base
+        notes.append(f'{cam.name}: its time offset refined to {cam.time_offset * 1e3:+.3f} ms '
+                     f"from {len(found[0])} centres fitted to the ball's outline (median "
+                     f'epipolar distance {cost * cam.focal:.2f} px)')
+    return notes
+
+
 BLUR_FITS = 400
 """Outline fits per camera that :func:`estimate_blurs` reads at most (the latest ones: a
 camera that sees the ball less makes the pass longer, not the other's list)."""
@@ -244,7 +309,7 @@ BLUR_FITS_MIN = 30
 
 
 def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=False,
-                   image_blur=True):
+                   image_blur=True, fitted=None):
     """Each camera's exposure (s, with ``exposure``) and ``image_blur`` (px, with
     ``image_blur``) estimated from the outline fits of the ball in ``frames`` (both:
     :func:`tt_perception.detect.estimate_exposure_and_blur`; one: :func:`tt_perception.
@@ -252,10 +317,13 @@ def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=Fals
     by a pipeline with ``detector_config``'s until every camera has :data:`BLUR_FITS` fits;
     returns (one (exposure, image_blur) pair per camera, one line per estimate). What is not
     estimated, or where a camera has fewer than :data:`BLUR_FITS_MIN` fits (with a warning),
-    is ``detector_config``'s."""
+    is ``detector_config``'s. ``fitted``: a list per camera, filled with the (time, u, v)
+    of every centre fitted to the ball's outline in this pass (:func:`record_fitted`)."""
     pipeline = Pipeline(rig, params=params, detector_config=detector_config)
     for detector in pipeline.detectors:
         detector.fits = collections.deque(maxlen=BLUR_FITS)
+    if fitted is not None:
+        record_fitted(pipeline, fitted)
     run(frames, pipeline,
         until=lambda: all(len(d.fits) == BLUR_FITS for d in pipeline.detectors))
 
@@ -297,13 +365,19 @@ def estimate_blurs(rig, frames, params=None, detector_config=None, exposure=Fals
 
 
 def pipeline_with_estimated_blurs(rig, frames, params=None, detector_config=None,
-                                  tracker_config=None, exposure=False, image_blur=True):
+                                  tracker_config=None, exposure=False, image_blur=True,
+                                  refine=()):
     """A new :class:`Pipeline` whose detectors each have their camera's exposure (with
     ``exposure``) and ``image_blur`` (with ``image_blur``) estimated from ``frames``
     (:func:`estimate_blurs`, tracking with ``detector_config``'s), and the estimate's
-    lines."""
+    lines. The time offsets of the cameras ``refine`` (indices; estimated from the blobs by
+    :func:`estimate_offsets`) are refined first from the same pass's centres fitted to the
+    outline (:func:`refine_offsets`)."""
+    fitted = [[] for _ in rig.cameras] if refine else None
     settings, notes = estimate_blurs(rig, frames, params, detector_config, exposure,
-                                     image_blur)
+                                     image_blur, fitted)
+    if refine:
+        notes = refine_offsets(rig, fitted, refine) + notes
     pipeline = Pipeline(rig, params=params, detector_config=detector_config,
                         tracker_config=tracker_config)
     for detector, (seconds, blur) in zip(pipeline.detectors, settings, strict=True):
@@ -538,7 +612,9 @@ def _main(argv=None):
             detector.exposure = args.exposure
         if args.image_blur is not None:
             detector.image_blur = args.image_blur
-        if not args.bag:
+        estimated = [k for k, cam in enumerate(rig.cameras)
+                     if k > 0 and cam.time_offset is None and not args.bag]
+        if estimated:
             for note in estimate_offsets(rig, args.colour, detector):
                 print(f'tt-perceive: {note}', file=sys.stderr)
 
@@ -549,7 +625,7 @@ def _main(argv=None):
         if args.image_blur is None or args.exposure is None:
             pipeline, notes = pipeline_with_estimated_blurs(
                 rig, frames([]), params, detector, tracker, exposure=args.exposure is None,
-                image_blur=args.image_blur is None)
+                image_blur=args.image_blur is None, refine=estimated)
             for note in notes:
                 print(f'tt-perceive: {note}', file=sys.stderr)
         else:
