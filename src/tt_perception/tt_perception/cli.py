@@ -143,6 +143,13 @@ def bag_frames(rig, bag, notes=None):
         reader.close()
 
 
+def alone_in_frame(t):
+    """Mask of the entries of ``t`` (frame times) that no other entry shares: the frames
+    with a single detection, whose centre is not confused with another's."""
+    times, counts = np.unique(t, return_counts=True)
+    return np.isin(t, times[counts == 1])
+
+
 def detections_per_camera(rig, frames, colours, detector_config=None):
     """Detections sure of their colour per camera over all frames, for each ball colour of
     ``colours`` (each frame decoded once, looked at by one detector per colour; the other
@@ -165,8 +172,7 @@ def detections_per_camera(rig, frames, colours, detector_config=None):
     for c in colours:
         for t, x in found[c]:
             t, x = np.array(t), np.array(x).reshape(-1, 2)
-            times, counts = np.unique(t, return_counts=True)
-            single = np.isin(t, times[counts == 1])
+            single = alone_in_frame(t)
             out[c].append(((t[single], x[single]), image_tracks(t, x, 1.0 / rig.fps)))
     return out
 
@@ -276,8 +282,7 @@ def refine_offsets(rig, fitted, cameras):
     ball's shadow or a highlight beside it can be fitted to its outline too)."""
     def points(k):
         t, u, v = np.array(fitted[k] or np.zeros((0, 3))).reshape(-1, 3).T
-        times, counts = np.unique(t, return_counts=True)
-        one = np.isin(t, times[counts == 1])
+        one = alone_in_frame(t)
         if one.sum() < REFINE_FITS_MIN:
             return None
         return t[one], rig.cameras[k].normalise(np.column_stack([u[one], v[one]]))
