@@ -5,7 +5,14 @@ half as dark as the table."""
 import cv2
 import numpy as np
 import pytest
-from tt_perception.detect import BallDetector, BallImage, DetectorConfig, _outline_extent, _whiten
+from tt_perception.detect import (
+    BallDetector,
+    BallImage,
+    DetectorConfig,
+    _outline_extent,
+    _whiten,
+    exposure_level,
+)
 from tt_perception.pipeline import ball_image
 
 from tt_perception import synth
@@ -636,7 +643,8 @@ def test_the_silhouettes_compiled_kernel_is_its_definition():
 def test_background_follows_the_frame_except_around_the_ball(roi, later):
     """One update (background_every 1): the grey and the colour background move a
     background_rate of the way to the frame, except within 2 pixels (a 5 x 5 dilation) of the
-    pixels whose grey changed by more than diff_threshold (the ball), which keep their
+    pixels whose grey differs by more than diff_threshold from the background times the
+    light's gain (the ball; the frame is brighter by 6 levels), which keep their
     value; with a search window, as without. Left for later (as perception_node's camera
     threads do, once the detections are queued), the same update, when update_background
     is called: not before, not by a second search of the frame, and only once."""
@@ -652,12 +660,14 @@ def test_background_follows_the_frame_except_around_the_ball(roi, later):
     disc(frame, (300.0, 200.0), 5.0)                       # and a ball
     found = d.detect(frame, roi, later=later)
     assert len(found) == 1
+    gain = d.gain                    # the light's (light_gain): 101 / 95 on the table's median
+    assert 1.04 < gain < 1.09
     if later:
         assert len(d.detect(frame, None, update_background=False)) == 1
         assert np.array_equal(d.background, grey0) and np.array_equal(d._bg_colour, colour0)
         d.update_background()
     grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(np.float32)
-    ball = np.abs(grey - np.round(grey0)) > cfg.diff_threshold
+    ball = np.abs(grey - np.clip(np.round(grey0 * gain), 0, 255)) > cfg.diff_threshold
     assert 60 < ball.sum() < 120
     kept = binary_dilation(ball, np.ones((5, 5), bool))
     a = cfg.background_rate
@@ -870,3 +880,62 @@ def test_a_blur_of_the_encoded_values_is_fitted_without_a_lean(background_light)
     assert np.mean(errors['light'], axis=0)[1] > 0.05, np.mean(errors['light'], axis=0)
     assert np.all(np.abs(np.mean(errors['encoded'], axis=0)) < 0.025), \
         np.mean(errors['encoded'], axis=0)
+
+
+def spotted_table(seed=0):
+    """A dark table (BACKGROUND) with 40 light grey spots of 2 px radius (a patterned floor,
+    marks, a line's pieces): what a change of the light makes differ from the background."""
+    rng = np.random.default_rng(seed)
+    frame = np.full((120, 160, 3), BACKGROUND, np.uint8)
+    for centre in rng.uniform((5.0, 5.0), (155.0, 115.0), (40, 2)):
+        disc(frame, centre, 2.0, value=200)
+    return frame
+
+
+@pytest.mark.parametrize('gain', [0.85, 1.15])
+def test_a_flickering_light_is_taken_out_of_the_background(gain):
+    """Lamps on alternating current flicker at 100 or 120 Hz, and a 150 fps camera catches
+    each frame at another phase: the whole frame, ball and table, is brighter or darker
+    than the background learnt. The background times the light's gain is what the frame
+    shows where no ball is: the 200-level spots, 30 levels off (over the 22 of
+    ``diff_threshold``), are no candidates, and the ball's centre is found as under a
+    steady light, by its blob and by its outline fit (told the outline's size; OpenCV's
+    anti-aliased disc is not an exact one, so the fit is held to its own under the steady
+    light, itself within 0.2 px)."""
+    table = spotted_table()
+    d = BallDetector(DetectorConfig(colour='white', image_blur=0.0))
+    d.detect(table)
+    centre = (81.3, 58.6)
+    steady = disc(table.copy(), centre, 4.0)
+    expected = BallImage(centre[0] + 0.3, centre[1] - 0.3, np.eye(2) * 4.0, (0.0, 0.0))
+    fit_steady = d.detect(steady, roi_centre=centre, update_background=False, expected=expected)
+    assert d.gain == 1.0      # under the steady light the background is used as it is
+    assert len(fit_steady) == 1 and fit_steady[0].fitted
+    assert np.hypot(fit_steady[0].u - centre[0], fit_steady[0].v - centre[1]) < 0.2
+    lit = np.clip(steady.astype(float) * gain, 0, 255).round().astype(np.uint8)
+    found = d.detect(lit, update_background=False)
+    assert len(found) == 1 and abs(d.gain - gain) < 0.01
+    assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.1
+    fit = d.detect(lit, roi_centre=centre, update_background=False, expected=expected)
+    assert len(fit) == 1 and fit[0].fitted
+    assert np.hypot(fit[0].u - fit_steady[0].u, fit[0].v - fit_steady[0].v) < 0.05
+
+
+@pytest.mark.parametrize('white', [90, 150, 200])
+def test_the_exposure_level_is_the_brightness_of_the_whites_in_view(white):
+    """A blue table with white lines 4 px wide at ``white`` grey levels: the camera's level
+    is that over 180 (1 at most); the table alone, however dark, holds no white and says
+    nothing of the exposure (1); a camera balanced for a warm light (its white_bgr) sees its
+    warm white lines as white."""
+    table = np.tile(np.array([95, 60, 25], np.uint8), (120, 160, 1))
+    lined = table.copy()
+    lined[40:44, :] = white
+    lined[:, 70:74] = white
+    grey = cv2.cvtColor(lined, cv2.COLOR_BGR2GRAY)
+    assert exposure_level(grey, lined.astype(np.float32)) == pytest.approx(min(white / 180, 1))
+    assert exposure_level(cv2.cvtColor(table, cv2.COLOR_BGR2GRAY),
+                          table.astype(np.float32)) == 1.0
+    warm = lined.astype(np.float32)
+    warm[40:44, :] = warm[:, 70:74] = np.array([0.6, 0.85, 1.0]) * white
+    assert exposure_level(grey, warm) == 1.0      # warm lines, the camera not told: no white
+    assert exposure_level(grey, warm, (0.6, 0.85, 1.0)) == pytest.approx(min(white / 180, 1))

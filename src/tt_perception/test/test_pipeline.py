@@ -368,6 +368,54 @@ def test_hall_light_at_1280x720_meets_every_line_of_the_issue():
     assert_spin_across_within_20_percent_and_degrees(truth, estimates, pairs)
 
 
+@pytest.fixture(scope='module')
+def hall_scene():
+    """The white ball of :func:`hall_run` at 640 x 480, rendered once: (rig, frames, truth,
+    the frames where both cameras see it)."""
+    rig = synth.demo_rig()
+    state = synth.incoming_ball(speed=8.0, topspin_rps=TOPSPIN_RPS, sidespin_rps=10.0)
+    frames, truth = synth.render_balls(rig, [state], [0.0], colour='white', duration=1.0,
+                                       imaging='hall', exposure=HALL_EXPOSURE)
+    seen = synth.both_cameras_see(rig, truth[0], rendered_from=0.5 * HALL_EXPOSURE).sum()
+    return rig, list(frames), truth[0], seen
+
+
+def assert_one_track_in_97_percent_of_the_frames_within_1_5_mm(estimates, truth, seen):
+    pairs = matched(estimates, truth)
+    assert {e.track_id for e in estimates} == {1} and len(pairs) == len(estimates)
+    assert len({e.t for e in estimates}) == len(estimates) >= 0.97 * seen > 80
+    err = np.array([e.state[:3] - s[:3] for e, s in pairs])
+    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) <= 1.5e-3
+
+
+def test_a_hall_under_flickering_lamps_keeps_its_balls_track_frame_by_frame(hall_scene):
+    """Lamps on a 50 Hz mains flicker at 100 Hz: the hall's light varies 20 % either way, each
+    camera (and each frame: 150 fps) caught at its own phase, the light scaled after the
+    hall's imaging, as a camera with a linear response sees it. The ball keeps one track with
+    a state for >= 97 % of the frames where both cameras see it, within 1.5 mm RMS (issue
+    15's lines); with the background used as learnt, the table's bright parts darker or
+    lighter than it gave candidates beside the ball and 19 % of the frames were lost."""
+    rig, frames, truth, seen = hall_scene
+    flickering = []
+    for t, k, frame in frames:
+        gain = 1.0 + 0.2 * math.sin(2.0 * math.pi * 100.0 * t + 1.9 * k)
+        flickering.append((t, k, np.clip(frame * gain, 0, 255).round().astype(np.uint8)))
+    estimates, _ = run(rig, flickering, colour='white')
+    assert_one_track_in_97_percent_of_the_frames_within_1_5_mm(estimates, truth, seen)
+
+
+def test_a_camera_exposed_darker_still_sees_a_white_ball(hall_scene):
+    """The hall at 150 fps with a short exposure: every frame at 0.35 of the light, the
+    white ball's lit half at about 80 grey levels, as dark as the scene's white lines. The
+    ball is judged white against those lines (its colour scaled by the camera's exposure
+    level) and keeps one track in >= 97 % of the frames within 1.5 mm RMS; judged against a
+    fixed least brightness of the lit half (90), every blob was refused and no state came."""
+    rig, frames, truth, seen = hall_scene
+    dark = [(t, k, (frame * 0.35).round().astype(np.uint8)) for t, k, frame in frames]
+    estimates, _ = run(rig, dark, colour='white')
+    assert_one_track_in_97_percent_of_the_frames_within_1_5_mm(estimates, truth, seen)
+
+
 BALL_AT = np.array([0.5, 0.1, 0.3])
 
 

@@ -22,7 +22,10 @@ that are seen, whatever the lighting.
 
 The background follows slow changes of lighting (exponential average, ``background_rate`` per
 update, one update every ``background_every`` frames) except under the blobs found, so a ball
-that hovers does not fade into it.
+that hovers does not fade into it; a frame brighter or darker as a whole (lamps flickering
+with the mains, an automatic exposure) is compared with the background times its gain
+(:func:`light_gain`), and the colours are judged as if the camera were exposed to show its
+whites at :data:`WHITE_LEVEL` (:func:`exposure_level`).
 """
 
 import collections
@@ -200,6 +203,18 @@ ORANGE_RED_PER_BLUE = 1.6
 ORANGE_RED_OVER_BLUE = 20.0
 """An orange ball's lit half has red above ORANGE_RED_PER_BLUE times its blue plus
 ORANGE_RED_OVER_BLUE (and above its green)."""
+WHITE_LEVEL = 180.0
+"""Grey level of the brightest white in a camera's background (the table's white lines, the
+net's tape: :func:`exposure_level`) at and above which the colour thresholds above hold as
+they are (synth's scenes and the independent renderer's are brighter). A camera exposed
+darker has its blobs' colours judged as if scaled up to it (:attr:`BallDetector.level`)."""
+LEVEL_RANGE = (0.2, 1.0)
+"""The range of :attr:`BallDetector.level`."""
+LEVEL_COUNT = 20
+"""The white pixels :func:`exposure_level` reads brighter than the level it gives."""
+LEVEL_EVERY = 50
+"""Background updates between two measures of :attr:`BallDetector.level` (a second at 150
+fps: a camera's automatic exposure is followed)."""
 WHITE_MIXED_BACKGROUND = 0.5
 """Largest share of the background in the mean colour of a white ball's lit half that
 :func:`colour_matches` takes out: a ball blurred along its path over the exposure, or a few
@@ -286,6 +301,29 @@ def colour_possible(bgr, colour, change):
     if dr > 0.0 and dr >= max(db, dg) - 10.0:
         return True
     return _orange_mixed(bgr, np.subtract(bgr, change))
+
+
+def exposure_level(grey, colour=None, white_bgr=(1.0, 1.0, 1.0)):
+    """How brightly a camera is exposed, from its background: the grey level (``grey``,
+    uint8) of the brightest white in it over :data:`WHITE_LEVEL`, within
+    :data:`LEVEL_RANGE`; 1 when it holds too little white to tell. The white: pixels (every
+    second of both axes) whose ``colour`` (B, G, R, divided by the camera's ``white_bgr``;
+    None for a grey camera: every pixel) has its weakest channel :data:`WHITE_BALANCE` of its
+    strongest or more; its brightest: the :data:`LEVEL_COUNT`-th brightest of them.
+
+    A white ball's lit half is about as bright as the scene's white lines; at 150 fps a
+    hall's light can leave both at a third of the scale, under the colour thresholds'
+    :data:`LIT_MIN` (synth's hall, its frames times 0.35: no state). Only white counts: a
+    dark blue table is no sign of a dark exposure, and an orange ball streaked over it mixes
+    to a dim grey that LIT_MIN alone tells from a white ball."""
+    sample = grey[::2, ::2].ravel()
+    if colour is not None:
+        c = colour[::2, ::2].reshape(-1, 3) / np.asarray(white_bgr, np.float32)
+        sample = sample[c.min(axis=1) >= WHITE_BALANCE * c.max(axis=1)]
+    if sample.size < 2 * LEVEL_COUNT:
+        return 1.0
+    brightest = float(np.partition(sample, sample.size - LEVEL_COUNT)[sample.size - LEVEL_COUNT])
+    return min(max(brightest / WHITE_LEVEL, LEVEL_RANGE[0]), LEVEL_RANGE[1])
 
 
 def _width_from_moments(cxx, cyy, cxy, longest=False):
@@ -970,8 +1008,8 @@ def _least_cost(fits, values, refit):
 
 def warm_up():
     """Load the compiled kernels (numba) of :func:`ball_model`, :func:`fit_outline`, the
-    silhouette's centre, the blobs' measures and the fit's pixels before the first ball
-    needs them."""
+    silhouette's centre, the blobs' measures, the fit's pixels and :func:`light_gain` before
+    the first ball needs them."""
     ball = BallImage(0.0, 0.0, np.eye(2) * 3.0, np.array([1.0, 0.0]))
     ball_model(np.zeros(1), np.zeros(1), (0.0, 0.0), ball)
     patch = np.zeros((9, 9))
@@ -986,6 +1024,9 @@ def warm_up():
                    np.zeros((6, 6, 3), np.float32), 2, 2, 22.0, True, True)
     _usable_pixels(np.zeros((6, 6), np.uint8), _NO_PATCH, _NO_BACKGROUND,
                    np.zeros((6, 6), np.float32), 2.5, 2.5, 3.0, False)
+    grey = np.zeros((6, 6), np.uint8)
+    light_gain(np.zeros((6, 6, 3), np.uint8), grey)
+    light_gain(grey, grey)
 
 
 @njit(cache=True, nogil=True)
@@ -1150,6 +1191,67 @@ def _grey(image):
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
+GAIN_DEADBAND = 0.03
+"""A gain of the light (:func:`light_gain`) within this of 1 is taken as 1, the background
+used as it is: it moves no level by more than 7.5, a third of ``diff_threshold``, so it
+makes no blob. Applied, the 1.3 % ripple of the independent renderer's lamps (as its camera
+encodes it) put its orange 640x480 balls' heights 0.06-0.09 mm higher (to +0.31 and +0.32
+mm, over issue 15's 0.3), though the frame's gain is measured to 0.05 %: the background is
+learnt every third frame, at one phase of a 100 Hz ripple at 150 fps, and the camera's
+``encoded_blur`` (0.5 px) was chosen on those scenes as they were."""
+GAIN_STEP = 8
+"""Every how many pixels of both axes of a frame :func:`light_gain` reads."""
+GAIN_RANGE = (0.5, 2.0)
+"""The light's gain is held within this range."""
+
+
+def light_gain(frame, background, step=GAIN_STEP):
+    """The light's gain in a ``frame`` (BGR or grey, uint8) against its grey ``background``
+    (uint8, the frame's size): the median ratio of the two, the frame's grey level over the
+    background's, over every ``step``-th pixel of both axes whose levels are both within
+    16-250 (a ratio of dark pixels is noise, a clipped one is no ratio), within
+    :data:`GAIN_RANGE`; 1 within :data:`GAIN_DEADBAND` of it, or when fewer than 32 pixels
+    count. 0.03 ms a 640 x 480 frame.
+
+    Lamps on alternating current flicker at twice the mains frequency (100 or 120 Hz), and a
+    camera at 150 fps with a 2 ms exposure catches each frame at another phase: a hall's LED
+    or fluorescent light varying 10 % made a white table line differ from the background by
+    more than ``diff_threshold``, and such blobs beside the ball cost frames of a track
+    (synth's hall, white ball at 640x480: 93 % of the frames with a state, 81 % at 30 %).
+    The background times the gain is what the frame shows where no ball is. The whole frame
+    is read, not the window searched: around the ball its shadow and the table it darkens
+    moved the median 2-6 % on a steady light (synth's hall)."""
+    if frame.ndim == 2:
+        frame = frame[:, :, None]
+    gain = _median_ratio(frame, background, step)
+    if abs(gain - 1.0) <= GAIN_DEADBAND:
+        return 1.0
+    return min(max(gain, GAIN_RANGE[0]), GAIN_RANGE[1])
+
+
+@njit(cache=True, nogil=True)
+def _median_ratio(frame, background, step):
+    """Kernel of :func:`light_gain` (``frame`` H x W x 1 or 3; grey as OpenCV weighs B, G, R):
+    the median ratio, 1.0 when fewer than 32 pixels count."""
+    h, w = background.shape
+    ratios = np.empty((h // step + 1) * (w // step + 1), np.float64)
+    n = 0
+    for y in range(0, h, step):
+        for x in range(0, w, step):
+            if frame.shape[2] == 3:
+                level = (0.114 * frame[y, x, 0] + 0.587 * frame[y, x, 1]
+                         + 0.299 * frame[y, x, 2])
+            else:
+                level = float(frame[y, x, 0])
+            b = float(background[y, x])
+            if 16.0 <= b <= 250.0 and 16.0 <= level <= 250.0:
+                ratios[n] = level / b
+                n += 1
+    if n < 32:
+        return 1.0
+    return np.median(ratios[:n])
+
+
 HIDDEN_MARGIN = 2
 """Pixels around a blob's box that :func:`_blob_measures` reads (its 3 x 3 dilation's ring)."""
 _GROW_KERNEL = np.ones((5, 5), np.uint8)
@@ -1299,6 +1401,14 @@ class BallDetector:
         """Whether this camera's frames are grey given as BGR (its first frame's three
         channels equal: a monochrome camera's mono8, a grey video): they are then taken as
         grey, and the ball's ``colour`` cannot be checked (None before the first frame)."""
+        self.gain = 1.0
+        """The light's gain in the frame last searched against the background
+        (:func:`light_gain`)."""
+        self.level = 1.0
+        """How brightly the camera is exposed (:func:`exposure_level`, measured on its
+        background): a blob's colour and its change against the background are divided by
+        it, times the frame's :attr:`gain`, before they are judged (1 at most)."""
+        self._updates = 0
         self.colour_refused = 0
         """Blobs refused for their colour alone (:func:`colour_matches`)."""
         self.refused_colours = collections.deque(maxlen=100)
@@ -1337,6 +1447,7 @@ class BallDetector:
             self._bg8 = gray.copy()
             if frame.ndim == 3:
                 self._bg_colour = frame.astype(np.float32)
+            self.level = self._exposure_level()
             return []
         if (h, w) != self.background.shape:
             raise ValueError(f"frame size {w}x{h} differs from the camera's "
@@ -1354,9 +1465,15 @@ class BallDetector:
             x0, y0, x1, y1 = 0, 0, w, h
         found = []
         mask = window = None
+        self.gain = 1.0
         if x1 > x0 and y1 > y0:
             window = _grey(frame[y0:y1, x0:x1])
-            diff = cv2.absdiff(window, self._bg8[y0:y1, x0:x1])
+            background8 = self._bg8[y0:y1, x0:x1]
+            self.gain = light_gain(frame, self._bg8)
+            if self.gain != 1.0:
+                background8 = cv2.convertScaleAbs(self.background[y0:y1, x0:x1],
+                                                  alpha=self.gain)
+            diff = cv2.absdiff(window, background8)
             _, mask = cv2.threshold(diff, cfg.diff_threshold, 255, cv2.THRESH_BINARY)
             bx, by, bw, bh = cv2.boundingRect(mask)
             if bw > 0 and bh > 0:      # label only the part of the window that changed
@@ -1410,7 +1527,7 @@ class BallDetector:
             ax, ay = max(ux - HIDDEN_MARGIN, 0), max(uy - HIDDEN_MARGIN, 0)
             ex, ey = min(ux + bw + HIDDEN_MARGIN, fw), min(uy + bh + HIDDEN_MARGIN, fh)
             patch = np.ascontiguousarray(frame[ay:ey, ax:ex])
-            background = (np.ascontiguousarray(self._bg_colour[ay:ey, ax:ex]) if known
+            background = (self._background_patch(self._bg_colour, ay, ey, ax, ex) if known
                           else _NO_BACKGROUND)
             m = _blob_measures(sub, np.ascontiguousarray(diff[by:by + bh, bx:bx + bw]),
                                _grey(patch), patch if colour_frame else _NO_PATCH,
@@ -1428,12 +1545,15 @@ class BallDetector:
             if with_colour:
                 # The colour of the lit half of the blob: the shaded half and the outline
                 # take the background's colour (JPEG's halved chroma resolution spreads it).
-                colour = m[7:10] / np.asarray(cfg.white_bgr)
-                change = colour - m[10:13] / np.asarray(cfg.white_bgr) if known else None
+                # As the camera would show it exposed to WHITE_LEVEL (self.level).
+                seen = m[7:10] / np.asarray(cfg.white_bgr)
+                scale = 1.0 / min(self.level * self.gain, 1.0)
+                colour = seen * scale
+                change = colour - m[10:13] / np.asarray(cfg.white_bgr) * scale if known else None
                 if not colour_matches(colour, cfg.colour, change):
                     if not colour_possible(colour, cfg.colour, change):
                         self.colour_refused += 1
-                        self.refused_colours.append(colour)
+                        self.refused_colours.append(seen)
                         continue
                     sure = False
             if self._bg_colour is not None and colour_frame:
@@ -1451,6 +1571,19 @@ class BallDetector:
         out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
         return out[:cfg.max_candidates]
 
+    def _exposure_level(self):
+        """:func:`exposure_level` of the background."""
+        colour = None if self._bg_colour is None or self.colourless else self._bg_colour
+        return exposure_level(self._bg8, colour, self.config.white_bgr)
+
+    def _background_patch(self, background, y0, y1, x0, x1):
+        """``background`` (the grey or the colour one) on rows y0:y1 and columns x0:x1, times
+        the light's gain in the frame being searched (:func:`light_gain`), contiguous."""
+        patch = background[y0:y1, x0:x1]
+        if self.gain != 1.0:
+            return patch * np.float32(self.gain)
+        return np.ascontiguousarray(patch)
+
     def _silhouette_centre(self, frame, sub, x0, y0):
         """Centre (u, v) and width, pixels, of the silhouette of the ball whose bright blob is
         ``sub`` at (x0, y0): every pixel near it whose colour differs from the colour
@@ -1466,7 +1599,7 @@ class BallDetector:
         # Contiguous arrays and Python ints: the kernel's one compiled signature (warm_up).
         moments = _silhouette_moments(
             np.ascontiguousarray(frame[ay:by, ax:bx]),
-            np.ascontiguousarray(self._bg_colour[ay:by, ax:bx]), np.ascontiguousarray(sub),
+            self._background_patch(self._bg_colour, ay, by, ax, bx), np.ascontiguousarray(sub),
             int(x0 - ax), int(y0 - ay), float(self.config.silhouette_threshold))
         if moments is None:
             return None
@@ -1498,8 +1631,9 @@ class BallDetector:
         shadows = self._bg_colour is not None and patch.ndim == 3
         obs, background, xs, ys = _usable_pixels(
             _grey(patch), patch if shadows else _NO_PATCH,
-            np.ascontiguousarray(self._bg_colour[ay:by, ax:bx]) if shadows else _NO_BACKGROUND,
-            np.ascontiguousarray(self.background[ay:by, ax:bx]), float(u - ax), float(v - ay),
+            self._background_patch(self._bg_colour, ay, by, ax, bx) if shadows
+            else _NO_BACKGROUND,
+            self._background_patch(self.background, ay, by, ax, bx), float(u - ax), float(v - ay),
             float(reach + 1.5), shadows)
         gamma = self.config.response_gamma
         encoded = None
@@ -1507,7 +1641,7 @@ class BallDetector:
             obs = 255.0 * (obs * (1.0 / 255.0)) ** gamma
             background = 255.0 * (background * (1.0 / 255.0)) ** gamma
             if self.config.encoded_blur > 0.0:
-                whole = self.background[ay:by, ax:bx].astype(float)
+                whole = self._background_patch(self.background, ay, by, ax, bx).astype(float)
                 encoded = (255.0 * (whole * (1.0 / 255.0)) ** gamma, gamma,
                            self.config.encoded_blur)
         fitter = OutlineFit(None, None, None, ball, curvature_weight=self.config.curvature_weight,
@@ -1584,3 +1718,6 @@ class BallDetector:
                     if background[part].size:
                         cv2.accumulateWeighted(image[part], background[part], rate)
         self._bg8 = cv2.convertScaleAbs(self.background)
+        self._updates += 1
+        if self._updates % LEVEL_EVERY == 0:
+            self.level = self._exposure_level()
