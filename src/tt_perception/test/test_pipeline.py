@@ -2,6 +2,7 @@
 spin and robustness criteria, each checked against the model's truth of the scene."""
 
 import collections
+import dataclasses
 import math
 
 import cv2
@@ -409,6 +410,24 @@ def test_a_camera_exposed_darker_still_sees_a_white_ball(hall_scene):
     rig, frames, truth, seen = hall_scene
     dark = [(t, k, (frame * 0.35).round().astype(np.uint8)) for t, k, frame in frames]
     estimates, _ = run(rig, dark, colour='white')
+    assert_one_track_in_97_percent_of_the_frames_within_1_5_mm(estimates, truth, seen)
+
+
+def test_a_frame_a_camera_delivers_twice_after_the_bounce_is_not_taken_for_its_kink(
+        hall_scene):
+    """A camera that delivers its last frame again (a USB camera's driver under load) 30 ms
+    after the bounce: that frame's ball is a frame behind, its point 33 mm off along camera
+    1's line of sight, and it fails the gate. Within ``kink_window`` of the bounce a rebound
+    the model got wrong fails it too; the kink is taken only when the next point agrees, so
+    the duplicate is dropped: one track in >= 97 % of the frames within 1.5 mm RMS. Taken as
+    the kink on its own, its state was published 33 mm off (4.1 mm RMS)."""
+    rig, frames, truth, seen = hall_scene
+    bounce = [ev.t for ev in truth['events'] if ev.kind == 'bounce'][0]
+    twice = [n for n, (t, k, _) in enumerate(frames) if k == 1 and t > bounce + 0.03][0]
+    earlier = max(n for n, (t, k, _) in enumerate(frames[:twice]) if k == 1)
+    delivered = list(frames)
+    delivered[twice] = (*frames[twice][:2], frames[earlier][2])
+    estimates, _ = run(rig, delivered, colour='white')
     assert_one_track_in_97_percent_of_the_frames_within_1_5_mm(estimates, truth, seen)
 
 
@@ -1110,33 +1129,70 @@ def test_a_young_tracks_update_on_a_blobs_own_centre_counts_its_lean():
     assert 0.0 < tracker.filter.x[2] - predicted < 0.8 * 0.005
 
 
-def test_an_outlier_taken_as_the_rebounds_kink_is_taken_back_by_the_points_after_it():
-    """A ball bouncing on the table, seen exactly (1 mm variance) every frame but one, 40 ms
-    after the bounce, 15 mm off (a fit pulled by the table's white end line behind the
-    ball). That point fails the gate and, within ``kink_window`` of the bounce, is taken
-    as the rebound's kink (the velocity made uncertain): the track jumps to it. The next
-    points fail the gate against that state and pass against the one before the kink: the
-    kink is taken back, and every later point updates the track, which ends on the ball.
-    Before, no later point passed and the track ended (make demo --imaging hall, its
-    end-to-end test)."""
-    tracker = Tracker(150.0, config=TrackerConfig(backfill=False))
+def bounce_track(tracker, table=None, off=()):
+    """A ball bouncing on the table, seen exactly (1 mm variance) by ``tracker`` every frame
+    at 150 fps; its rebound by the model with ``table`` (ModelParams; None: the tracker's);
+    the frames ``off`` (indices: position offset, m) moved. Returns the rollout's events,
+    the truth (n, 9), the states ``add`` gave (time, state) and whether each frame
+    updated the track."""
     times = np.arange(45) / 150.0
     ball = np.array([0.3, 0.1, 0.25, -6.0, 0.2, -1.0, 0.0, -100.0, 0.0])
-    events, truth = rollout(ball, tracker.params, sample_times=times, stop_at_plane=False,
-                            stop_at_net=False, t_max=times[-1] + 1e-6)
-    bounce = events[0].t
-    assert events[0].kind == 'bounce' and bounce < times[25]
-    outlier = int(np.searchsorted(times, bounce + 0.04))
+    events, truth = rollout(ball, table or tracker.params, sample_times=times,
+                            stop_at_plane=False, stop_at_net=False, t_max=times[-1] + 1e-6)
     cov = np.eye(3) * 1e-6
-    updated = []
+    states, updated = [], []
     for n, (t, X) in enumerate(zip(times, truth[:, :3], strict=True)):
-        if n == outlier:
-            X = X + np.array([0.011, -0.0045, -0.0087])
+        X = X + np.asarray(off.get(n, 0.0)) if off else X
         before = tracker.updates
         tracker.advance(t)
-        tracker.add(t, [((X, cov), (X, cov))])
+        states += [(e.t, e.state) for e in tracker.add(t, [((X, cov), (X, cov))])]
         updated.append(tracker.updates > before)
-    assert tracker.track_id == 1 and all(updated[outlier:])
+    return events, truth, states, updated
+
+
+def test_an_outlier_just_after_a_bounce_is_not_taken_for_the_rebounds_kink():
+    """One point 40 ms after the bounce 15 mm off (a fit pulled by the table's white end
+    line behind the ball): it fails the gate, within ``kink_window`` of the bounce, where a
+    rebound the model got wrong would fail it too (the observed kink). A kink is taken only
+    when the next point agrees with it; this one's passes the gate as predicted, so the
+    outlier is dropped: it updates nothing, every other point does, and no state the track
+    gives is more than 1 mm off the ball. Before, the outlier was taken as the kink on its
+    own and its state was published 15 mm off (synth's hall: 37-45 mm off, a camera
+    delivering a frame twice or its light stepping 30 %)."""
+    tracker = Tracker(150.0, config=TrackerConfig(backfill=False))
+    times = np.arange(45) / 150.0
+    bounce = bounce_track(Tracker(150.0))[0][0]
+    assert bounce.kind == 'bounce' and bounce.t < times[25]
+    outlier = int(np.searchsorted(times, bounce.t + 0.04))
+    events, truth, states, updated = bounce_track(
+        tracker, off={outlier: [0.011, -0.0045, -0.0087]})
+    assert tracker.track_id == 1
+    assert not updated[outlier] and all(updated[outlier + 1:])
+    assert times[outlier] not in [t for t, _ in states]
+    assert max(np.linalg.norm(x[:3] - truth[np.searchsorted(times, t - 1e-9), :3])
+               for t, x in states) < 1e-3
+
+
+def test_a_rebound_the_model_gets_wrong_is_taken_as_the_kink_at_its_second_point():
+    """A ball whose flight curves five times as much as the tracker's model says (its Magnus
+    coefficient, as an independent renderer's): the filter reads the spin wrong from the
+    curvature, and the rebound it predicts from that spin misses the ball's. The first point
+    that fails the gate after the bounce is held; the next agrees with it under the kink's
+    extra noise (``kink_velocity_noise``) and both are fused: one track, one frame whose
+    update (and state) waits for the next, a state for every frame, each within 5 mm of the
+    ball and in time order, and the track ends on the ball."""
+    tracker = Tracker(150.0, config=TrackerConfig(backfill=False))
+    flight = dataclasses.replace(tracker.params, c_m=5 * tracker.params.c_m)
+    events, truth, states, updated = bounce_track(tracker, flight)
+    times = np.arange(45) / 150.0
+    missed = [n for n, u in enumerate(updated) if not u and times[n] > events[0].t]
+    assert tracker.track_id == 1 and tracker.kinked is not None
+    assert len(missed) == 1 and times[missed[0]] - events[0].t < TrackerConfig().kink_window
+    given = [t for t, _ in states]
+    assert given == sorted(given) and given == list(times[len(times) - len(given):])
+    assert given[0] < events[0].t
+    assert max(np.linalg.norm(x[:3] - truth[np.searchsorted(times, t - 1e-9), :3])
+               for t, x in states) < 5e-3
     assert np.linalg.norm(tracker.filter.x[:3] - truth[-1, :3]) < 1e-3
 
 

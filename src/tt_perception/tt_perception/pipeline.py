@@ -176,12 +176,14 @@ class TrackerConfig:
     kink_velocity_noise: float = 1.0
     kink_spin_noise: float = 200.0
     """A confirmed track's point that fails the gate within ``kink_window`` s after the
-    filter's bounce is tried again (once a bounce) with the rebound's velocity and spin that
-    much more uncertain (m/s, rad/s;
-    :meth:`tt_prediction.ball_filter.BallFilter.update_after_bounce`): the kink observed, so
-    that a rebound the model got wrong (a flight model that read the
-    spin wrong: an independent renderer's Magnus five times the model's put 550 rad/s for
-    120 on a ball, and its track ended at the bounce) does not end the track."""
+    filter's bounce is held; when the next point fails it too, both are tried again (once a
+    bounce) with the rebound's velocity and spin that much more uncertain (m/s, rad/s;
+    :meth:`tt_prediction.ball_filter.BallFilter.update_after_bounce`) and fused if both then
+    pass: the kink observed, so that a rebound the model got wrong (a flight model that read
+    the spin wrong: an independent renderer's Magnus five times the model's put 550 rad/s for
+    120 on a ball, and its track ended at the bounce) does not end the track, while a single
+    outlier there (a frame delivered twice) is not taken for it (``Tracker._kink``). The held
+    point's state then comes with the next one's, a frame late."""
     narrow_weight: float = 30.0
     """A blob narrower than the ball by a fraction f has its own centre's sigma times
     1 + narrow_weight f (not a centre fitted to the ball's outline)."""
@@ -373,8 +375,10 @@ class Tracker:
         self.fallback = {}         # early time -> state carried back from the confirming one
         self.ended = []            # the states held back of a track that ended, for add()
         self.runs = {}             # track id -> (seed time, filter steps), with ``smooth``
-        self.kink = None           # the last update's extra covariance (a rebound's kink)
         self.kinked = None         # the bounce (t, x, y) whose kink was taken
+        self.kink_point = None     # (filter, point) of a point the gate refused after a bounce,
+        #                            held until a second one says whether it is the kink
+        self.kink_state = None     # the held point's state, once a kink was taken
         self.doubtful = None       # the filter before its last update, when that was doubtful
         self.sure = False          # a camera sure of the ball's colour saw one of its points
 
@@ -428,7 +432,7 @@ class Tracker:
         next :meth:`add`."""
         self.ended += self._release()
         self.filter = None
-        self.doubtful = None
+        self.doubtful = self.kink_point = None
         self.sure = False
         self.updates = 0
         self.early = []
@@ -498,16 +502,18 @@ class Tracker:
                 self.end()                  # never seen by a camera sure of the colour
             return out
         f = self.filter
-        state = BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)
+        states = [BallEstimate(t, f.x.copy(), f.P.copy(), self.track_id)]
+        if self.kink_state is not None:     # the held point's, fused with this one (_kink)
+            states.insert(0, self.kink_state)
+            self.kink_state = None
         if cfg.backfill and self.early:
             if t - self.early[0] < cfg.backfill_after - 1e-9:
                 if not self.held:   # for a bounce between: no path back from a later one
                     self.fallback = {te: f.earlier_state(te) for te in self.early}
-                self.held.append(state)
+                self.held += states
                 return out
             out += self._release()
-        out.append(state)
-        return out
+        return out + states
 
     def _update(self, points, unsure=()):
         """Update the running track with the nearest of ``points`` and ``unsure`` (those no
@@ -539,31 +545,11 @@ class Tracker:
                 # A point that passed the gate but far out (beyond its robust bound) may be
                 # an outlier; the next may take it back (below).
                 self.doubtful = before if f.last_d2 > f.config.robust else None
+                self.kink_point = None
                 return True
             if self._take_back(point):
                 return True
-            cfg = self.config
-            if (f.last_bounce is None or f.t - f.last_bounce[0] > cfg.kink_window
-                    or self.kinked == f.last_bounce):      # once a bounce
-                return False
-            noise = (cfg.kink_velocity_noise, cfg.kink_spin_noise)
-            Q = f.rebound_noise(*noise)
-            if not f.update_after_bounce(*point, Q):
-                return False
-            self.kinked = f.last_bounce
-            self.doubtful = before          # a kink too may be an outlier's
-            if cfg.smooth:
-                # For the smoother the rebound's noise enters at the first step past the
-                # contact (the updates since it were made with the rebound as predicted).
-                steps = self.runs[self.track_id][1]
-                after = next((i for i, step in enumerate(steps)
-                              if step[0] > f.last_bounce[0]), None)
-                if after is None:
-                    self.kink = Q                   # the step this update makes
-                else:
-                    steps[after] = (*steps[after][:4],
-                                    f.rebound_noise(*noise, t=steps[after][0]))
-            return True
+            return self._kink(point, before)
         trial = copy.copy(f)                    # update() replaces arrays, never writes them
         if not trial.update(*blob, rebounce=True):
             return False
@@ -576,6 +562,49 @@ class Tracker:
         X, R = blob
         if not f.update(X, R + np.eye(3) * self.config.blob_sigma ** 2, rebounce=True):
             self.filter = trial
+        return True
+
+    def _kink(self, point, before):
+        """The rebound's kink observed: ``point``, refused by the gate within ``kink_window``
+        s after the filter's bounce (``before``: the filter at its time, a copy), is fused
+        with the rebound's velocity and spin more uncertain (``kink_velocity_noise``,
+        ``kink_spin_noise``) only when the point refused before it, held since, passes so too
+        and ``point`` then passes the gate as it is; else ``point`` is held in its place. True
+        when fused (the held point's state, :attr:`kink_state`, comes with ``point``'s from
+        :meth:`add`, a frame late). Once a bounce. A single point off the predicted rebound
+        is as often a detector's outlier: synth's hall ball in a frame a camera delivered
+        twice, or 40 ms after its bounce under a light that stepped up 30 %, was taken as the
+        kink on its own and its state published 32-45 mm off."""
+        cfg = self.config
+        f = self.filter
+        if (f.last_bounce is None or f.t - f.last_bounce[0] > cfg.kink_window
+                or self.kinked == f.last_bounce):      # once a bounce
+            self.kink_point = None
+            return False
+        held, self.kink_point = self.kink_point, (before, point)
+        if held is None or held[0].last_bounce != f.last_bounce:
+            return False
+        trial, first = copy.copy(held[0]), held[1]
+        noise = (cfg.kink_velocity_noise, cfg.kink_spin_noise)
+        Q = trial.rebound_noise(*noise)
+        if not trial.update_after_bounce(*first, Q):
+            return False
+        step = (trial.t, trial.x.copy(), trial.P.copy(), trial.contact_z)
+        trial.predict(f.t)
+        if not trial.update(*point, rebounce=True):
+            return False
+        self.kink_state = BallEstimate(*step[:3], self.track_id)
+        self.filter, self.kinked, self.kink_point = trial, f.last_bounce, None
+        self.doubtful = before          # two outliers in a row are taken back too
+        if cfg.smooth:
+            # For the smoother the rebound's noise enters at the first step past the contact
+            # (the updates since it were made with the rebound as predicted): the held
+            # point's, unless an earlier one is past it.
+            steps = self.runs[self.track_id][1]
+            after = next((i for i, s in enumerate(steps) if s[0] > f.last_bounce[0]), None)
+            if after is not None:
+                steps[after] = (*steps[after][:4], trial.rebound_noise(*noise, t=steps[after][0]))
+            steps.append((*step, Q if after is None else None))
         return True
 
     def _take_back(self, point):
@@ -610,11 +639,10 @@ class Tracker:
         return True
 
     def _step(self):
-        """The running filter's (t, x, P, contact_z, Q), as :func:`smooth` takes them (Q: the
-        kink's extra covariance of the update just made, or None)."""
+        """The running filter's (t, x, P, contact_z, Q), as :func:`smooth` takes them (Q, a
+        kink's extra covariance: None; :meth:`_kink` writes its own steps)."""
         f = self.filter
-        step, self.kink = (f.t, f.x.copy(), f.P.copy(), f.contact_z, self.kink), None
-        return step
+        return f.t, f.x.copy(), f.P.copy(), f.contact_z, None
 
     def _seed(self, t, points):
         """Start a track from a previous point and one of ``points`` ((X, cov, whether a
@@ -650,7 +678,7 @@ class Tracker:
         self.updates = 0
         self.last_update = t
         self.seeds = []
-        self.doubtful = None
+        self.doubtful = self.kink_point = None
         self.early, self.held, self.fallback = [t1, t], [], {}
         if cfg.smooth:
             self.runs[self.track_id] = (t1, [self._step()])
