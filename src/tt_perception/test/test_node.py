@@ -265,6 +265,42 @@ def test_rig_with_two_cameras_at_one_place_is_an_error_at_start(graph, tmp_path)
     assert '\n' not in str(err.value)
 
 
+def test_each_kind_of_unreadable_image_is_named_once_and_a_silent_camera_as_such(graph,
+                                                                                tmp_path):
+    # A camera's image problems were said once whatever they were (a second kind never, and
+    # each followed by a bare 'no frame'); a camera that had sent nothing was waited for 'to
+    # come back'.
+    ns, topics, state_topic = unique_topics()
+    rig_path = synth.make_rig(str(tmp_path), sources=topics)
+    cam = load_rig(rig_path).cameras[0]
+    now = [10.0]
+    node = graph.add(PerceptionNode(context=graph.context, monotonic=lambda: now[0],
+                                    parameter_overrides=[Parameter('rig_file', value=rig_path),
+                                                         Parameter('camera_timeout', value=0.2)]))
+    warnings = []
+    logger = node.get_logger()
+    node.get_logger = lambda: type('Log', (), {
+        'warning': lambda self, text: warnings.append(text), 'info': logger.info,
+        'error': logger.error})()
+    peer = graph.add(rclpy.create_node('image_player', context=graph.context))
+    pub = peer.create_publisher(Image, topics[0], QoSProfile(depth=5))
+    graph.spin_until(lambda: pub.get_subscription_count() > 0, 5.0, 'the node to subscribe')
+    frame = np.zeros((cam.height, cam.width, 3), np.uint8)
+    short, shorter, weird = (image_msg(0.01 * n, frame) for n in range(3))
+    short.data, shorter.data, weird.encoding = frame.tobytes()[:5], frame.tobytes()[:3], 'weird'
+    for n, msg in enumerate((short, shorter, weird)):
+        pub.publish(msg)
+        graph.spin_until(lambda n=n: node.frames_received > n, 5.0, f'image {n}')
+    now[0] = 10.3
+    node._watch_cameras()
+    assert len(warnings) == 4, warnings
+    assert warnings[0].startswith('camera cam0: image buffer of 5 bytes does not hold')
+    assert warnings[1].startswith('camera cam0: ') and 'weird' in warnings[1]
+    for k, text in enumerate(warnings[2:]):
+        assert text == (f'camera cam{k}: no frame for 0.20 s from {topics[k]}; no frame read '
+                        'from it yet, waiting for one')
+
+
 def test_vanishing_camera_is_reported_and_comes_back(graph, tmp_path):
     # The watchdog's clock is the test's: it moves only when the test moves it, so a camera is
     # lost after camera_timeout of that clock, whatever the test's pace.

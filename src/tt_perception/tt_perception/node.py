@@ -23,6 +23,7 @@ import dataclasses
 import gc
 import math
 import os
+import re
 import sys
 import threading
 import time
@@ -275,6 +276,7 @@ class PerceptionNode(Node):
         self._image_types = {}      # camera index -> the message type its image topic needs
         self._colour_known = set()  # cameras whose frames are known to be grey or not
         self._lost = set()
+        self._delivered = set()       # cameras that delivered a frame (read, or a read error)
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
         self._warned = set()
@@ -433,7 +435,9 @@ class PerceptionNode(Node):
         try:
             frame = message_to_bgr(msg)
         except ValueError as exc:
-            self._warn_once(('encoding', k), f'camera {self.rig.cameras[k].name}: {exc}')
+            # Once for each kind of problem (its sizes aside) of each camera.
+            self._warn_once(('image', k, re.sub(r'[0-9]+', 'N', str(exc))),
+                            f'camera {self.rig.cameras[k].name}: {exc}')
             frame = None
         self._process(k, stamp if stamp > 0 else time.time(), frame)
 
@@ -628,7 +632,10 @@ class PerceptionNode(Node):
     def _process_locked(self, k, stamp, frame, wall_base, detections):
         self.frames_received += 1
         self._last_frame[k] = self._monotonic()
-        if k in self._lost:
+        refused = frame is None and detections is None    # an image message not read (said)
+        if not refused:
+            self._delivered.add(k)
+        if k in self._lost and not refused:
             self._lost.discard(k)
             self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
         if k in self._disabled:
@@ -643,7 +650,7 @@ class PerceptionNode(Node):
             grey = self.pipeline.colour_warning()
             if grey:
                 self._warn_once(('grey', grey), grey)
-        if self.pipeline.last_error and k not in self._disabled:
+        if self.pipeline.last_error and k not in self._disabled and not refused:
             self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
         for est in estimates:
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
@@ -668,8 +675,10 @@ class PerceptionNode(Node):
                     and self.frames_received):
                 self._lost.add(k)
                 cam = self.rig.cameras[k]
-                self.get_logger().warning(f'camera {cam.name}: no frame for {timeout:.2f} s '
-                                          f'from {cam.source}; waiting for it to come back')
+                self.get_logger().warning(
+                    f'camera {cam.name}: no frame for {timeout:.2f} s from {cam.source}; '
+                    + ('waiting for it to come back' if k in self._delivered else
+                       'no frame read from it yet, waiting for one'))
             if now - last > timeout and k in self._image_types:
                 self._check_image_type(k)
 
