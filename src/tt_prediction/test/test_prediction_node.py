@@ -248,6 +248,19 @@ def test_states_received_late_are_counted_in_the_exit_line(graph):
         f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp')
 
 
+def test_the_exit_lines_stamps_are_the_earliest_and_latest_valid_ones(graph):
+    # Its stamps were the first and the last state received: a dropped state stamped 0 after
+    # the others made it read 'stamps <first> to 0.000000000 s'.
+    stamps = [T0 - 2_000_000, T0 - 5_000_000]           # received out of order
+    for k, stamp_ns in enumerate(stamps):
+        graph.pub.publish(graph.state(GOOD, stamp_ns=stamp_ns, track_id=6 + k))
+    graph.pub.publish(graph.state(GOOD, stamp_ns=0, track_id=8))
+    graph.spin_until(lambda: graph.node.n_received == 3, 10.0, 'the three states')
+    assert graph.node.n_dropped == 1
+    low, high = (f'{ns // 10**9}.{ns % 10**9:09d}' for ns in (min(stamps), max(stamps)))
+    assert f'; stamps {low} to {high} s;' in graph.node.work_summary()
+
+
 def test_diagnostics_report_the_counts_and_warn_of_a_dropped_state(graph):
     # /diagnostics once a second of the steady clock (this node's /clock stands still): the
     # totals, WARN for the report that first counts the dropped state, OK for the next.

@@ -230,17 +230,17 @@ class PredictionNode(Node):
 
     def work_summary(self):
         """Counts, the median and p99 of the time the callback took for the last states (ms),
-        and the stamps of the first and the last state received (s, to the nanosecond: which
-        part of a replay reached the node)."""
+        and the earliest and the latest stamp of the states whose header was valid (s, to the
+        nanosecond: which part of a replay reached the node)."""
         times = self.work.latest_ms()
         if not len(times):
             return 'no state received'
-        first, last = (f'{ns // 10**9}.{ns % 10**9:09d}' for ns in self.stamps_ns)
+        stamps = ('no valid stamp' if self.stamps_ns is None else 'stamps {} to {} s'.format(
+            *(f'{ns // 10**9}.{ns % 10**9:09d}' for ns in self.stamps_ns)))
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
-                f'{np.percentile(times, 99):.3f} ms (last {len(times)}); stamps {first} '
-                f'to {last} s; {self.n_late} received more than {LATE_S * 1e3:.0f} ms after '
-                'their stamp')
+                f'{np.percentile(times, 99):.3f} ms (last {len(times)}); {stamps}; '
+                f'{self.n_late} received more than {LATE_S * 1e3:.0f} ms after their stamp')
 
     def _status(self):
         """The status on /diagnostics: WARN when states were dropped or came late since the
@@ -256,13 +256,13 @@ class PredictionNode(Node):
 
     def _on_state(self, msg):
         stamp_ns = to_ns(msg.header.stamp)
-        if self.stamps_ns is None:
-            self.stamps_ns = [stamp_ns, stamp_ns]
-        self.stamps_ns[1] = stamp_ns
         why = header_problem(stamp_ns, msg.header.frame_id)
         if why:
             self._drop(why)
             return
+        if self.stamps_ns is None:
+            self.stamps_ns = [stamp_ns, stamp_ns]
+        self.stamps_ns = [min(self.stamps_ns[0], stamp_ns), max(self.stamps_ns[1], stamp_ns)]
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
