@@ -207,7 +207,7 @@ def test_a_parameter_given_without_ros_args_is_named_in_a_warning():
     lines = _tt_lines(proc.stderr)
     assert proc.returncode == 2, proc.stderr
     assert len(lines) == 2, proc.stderr
-    assert lines[0].startswith('strike_node: warning: ignoring -p target_zone:=3')
+    assert lines[0].startswith('strike_node: warning: -p target_zone:=3 before --ros-args')
     assert '--ros-args' in lines[0]
     assert lines[1].startswith('strike_node: ') and 'target_zone' in lines[1]
 

@@ -288,7 +288,7 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
 
     ``-h`` or ``--help``, before or after ``--ros-args``, prints :func:`node_help` of
     ``parameters`` and exits 0. Other arguments outside ``--ros-args`` (``-p x:=1`` without
-    it, say), which rclpy ignores, are named in a warning on stderr.
+    it, say), which rclpy does not take as parameters, are named in a warning on stderr.
     """
     name = name or os.path.basename(sys.argv[0] or 'node')
     argv = list(sys.argv if args is None else args)
@@ -309,8 +309,10 @@ def run_node(make_node, args=None, on_exit=None, name=None, parameters=()):
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         raise SystemExit(STARTUP_EXIT) from None
     if rest:
-        print(f'{name}: warning: ignoring {" ".join(rest)}: node parameters go after '
-              '--ros-args (--ros-args -p NAME:=VALUE)', file=sys.stderr, flush=True)
+        print(f'{name}: warning: {" ".join(rest)} before --ros-args: not taken as parameters '
+              '(rcl takes a NAME:=VALUE there as a remapping, deprecated, and ignores the rest); '
+              'give them after --ros-args: -p NAME:=VALUE, -r FROM:=TO',
+              file=sys.stderr, flush=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         executor = make_executor()

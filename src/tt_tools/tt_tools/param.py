@@ -18,6 +18,7 @@ from rcl_interfaces.srv import (
 )
 from rclpy.parameter import Parameter as PythonParameter
 from rclpy.parameter import get_parameter_value, parameter_value_to_python
+from tt_ros.errors import one_line_reason
 from tt_ros.executor import names_a_node, parameter_items, parameter_sections, section_matches
 import yaml
 
@@ -382,12 +383,14 @@ def node_parameters(path, node_name, use_wildcard=True):
     only those that name it), first those of no node name (``/**:``), then those that name
     it (``node:``, ``/**/node:``), each in the file's order, a later value of a name taking
     the place of an earlier one. ValueError (one line) for a file that is not YAML, not a
-    parameters file, or has no section for the node; OSError for one that cannot be read."""
-    with open(path, encoding='utf-8') as f:
-        try:
+    parameters file, has no section for the node, or cannot be read."""
+    try:
+        with open(path, encoding='utf-8') as f:
             data = yaml.safe_load(f)
-        except yaml.YAMLError as exc:
-            raise ValueError(f'{path}: not YAML ({str(exc).splitlines()[0]})') from None
+    except OSError as exc:
+        raise ValueError(f'{path}: {one_line_reason(exc)}') from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ValueError(f'{path}: not YAML ({one_line_reason(exc)})') from None
     sections = list(parameter_sections(data)) if isinstance(data, dict) else []
     if not sections:
         raise ValueError(f'{path}: no section with ros__parameters (not a ROS 2 parameters '
