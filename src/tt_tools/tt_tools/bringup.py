@@ -364,7 +364,7 @@ class Show:
         self.rclpy = rclpy
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('bringup_show', context=self.context)
+        self.node = rclpy.create_node(f'_bringup_show_{os.getpid()}', context=self.context)
         self.last_prediction = {}
         self.shown = set()
         self.subscriptions = {
