@@ -114,16 +114,30 @@ class BagWriter:
             self.writer.close()
 
 
+def bag_folder(path):
+    """The bag directory ``path`` names: itself, or the folder of a storage file (.mcap,
+    .db3) given in its place when that folder is a bag (has metadata.yaml), as rosbag2 takes
+    either."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if (os.path.isfile(path) and path.endswith(('.mcap', '.db3'))
+            and os.path.isfile(os.path.join(folder, 'metadata.yaml'))):
+        return os.path.dirname(path) or '.'
+    return path
+
+
 def open_bag(path):
-    """An open rosbags Reader for the bag directory ``path``; BagError with a one-line reason.
+    """An open rosbags Reader for the bag directory ``path`` (or a storage file in it:
+    :func:`bag_folder`); BagError with a one-line reason.
 
     Checks that the storage files are complete: every message the metadata counts is read
     back (a cut .mcap or .db3 fails here, not half-way through a replay).
     """
+    path = bag_folder(path)
     if not os.path.exists(path):
         raise BagError(f"bag '{path}' does not exist")
     if not os.path.isdir(path):
-        raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml)")
+        raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml, "
+                       'or a .mcap or .db3 file in one)')
     if not os.path.isfile(os.path.join(path, 'metadata.yaml')):
         storage = sorted(f for f in os.listdir(path) if f.endswith(('.mcap', '.db3')))
         if storage:

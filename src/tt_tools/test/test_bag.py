@@ -519,6 +519,41 @@ def test_foreign_paths_are_one_line_errors(tmp_path):
     assert rc == 1 and err.count('\n') == 1 and 'not a rosbag2 bag' in err
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_info_and_play_take_a_bags_storage_file_for_its_folder(tmp_path, monkeypatch, storage):
+    # As rosbag2 does; the storage file was refused as 'not a rosbag2 bag'.
+    bag = _small_bag(tmp_path / 'bag', storage)
+    (storage_file,) = [p for p in bag.iterdir() if p.name != 'metadata.yaml']
+    of_folder, of_file = ros2('bag', 'info', str(bag)), ros2('bag', 'info', str(storage_file))
+    assert of_folder[0] == 0 and of_file == of_folder
+    _, published = _play_on_fake_time(monkeypatch, [str(storage_file)])
+    assert len([p for p in published if p[1] == '/ball/state']) == 300
+
+
+def test_play_names_a_chosen_topic_the_bag_does_not_have(tmp_path, monkeypatch, capfd):
+    bag = _small_bag(tmp_path / 'bag', 'mcap')
+    _, published = _play_on_fake_time(monkeypatch, [str(bag), '--topics', '/ball/state',
+                                                    '/ball/stat'])
+    assert len([p for p in published if p[1] == '/ball/state']) == 300
+    assert capfd.readouterr().err.splitlines() == [
+        '[WARN] --topics: /ball/stat not in the bag (it has /ball/state)']
+
+
+def test_record_names_a_topic_that_never_appeared(graph, procs, tmp_path, topic):
+    # It recorded nothing of it without a word: a misspelt name among others.
+    out = tmp_path / 'typo'
+    rec = procs('bag', 'record', '-o', str(out), topic, topic + 'x')
+    pub = graph.node.create_publisher(BallState, topic, QoSProfile(depth=10))
+    graph.spin_until(lambda: pub.get_subscription_count() >= 1, 60, 'the recorder to subscribe')
+    pub.publish(_state(1))
+    assert pub.wait_for_all_acked(Duration(seconds=10))
+    rec.signal(signal.SIGINT)
+    assert rec.wait() == 0, rec.stderr
+    assert (f"[WARN] '{topic}x' not recorded: no publisher of it appeared; did you mean "
+            f"'{topic}'?") in rec.stderr.splitlines()
+    assert len(_bag_messages(out)[topic]) == 1
+
+
 def test_record_all_topics_picks_up_a_new_publisher(graph, procs, tmp_path, topic):
     out = tmp_path / 'all'
     rec = procs('bag', 'record', '-a', '-o', str(out))

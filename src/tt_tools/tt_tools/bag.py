@@ -1,5 +1,6 @@
 """``ros2 bag record | play | info`` on rclpy and rosbags (rosbag2's on-disk format)."""
 
+import difflib
 import os
 import re
 import sys
@@ -7,7 +8,15 @@ import time
 
 from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from tt_ros.bagfile import STORAGES, BagError, BagWriter, default_bag_name, format_info, open_bag
+from tt_ros.bagfile import (
+    STORAGES,
+    BagError,
+    BagWriter,
+    bag_folder,
+    default_bag_name,
+    format_info,
+    open_bag,
+)
 from tt_ros.names import name_error
 
 from tt_tools.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
@@ -28,7 +37,7 @@ def _say(text):
 def bag_info(args):
     reader = open_bag(args.bag)
     try:
-        print(format_info(reader, args.bag), flush=True)
+        print(format_info(reader, bag_folder(args.bag)), flush=True)
     finally:
         reader.close()
     return 0
@@ -151,6 +160,12 @@ def bag_record(args):
             for sub in subscribed.values():
                 cli.node.destroy_subscription(sub)
             writer.close()
+        if not args.all and args.regex is None:
+            known = [name for name, _ in cli.node.get_topic_names_and_types()]
+            for topic in sorted(set(named) - set(subscribed) - skipped):
+                close = difflib.get_close_matches(topic, known, n=1)
+                hint = f"; did you mean '{close[0]}'?" if close else ''
+                _say(f"[WARN] '{topic}' not recorded: no publisher of it appeared{hint}")
     _say(f"[INFO] Recorded {writer.count} messages to '{out}'")
     return 0
 
@@ -230,6 +245,11 @@ def bag_play(args):
             raise BagError(f"bag '{args.bag}' holds no message: nothing to play")
         first, last = play_window(args, reader.start_time, reader.end_time)
         conns, classes = _playable(reader, chosen, args)
+        recorded = {c.topic for c in reader.connections}
+        absent = sorted(_topic_names(args.topics or [], '--topics: ') - recorded)
+        if absent:
+            _say(f'[WARN] --topics: {" ".join(absent)} not in the bag (it has '
+                 f'{" ".join(sorted(recorded))})')
         unknown = sorted(set(remap) - {c.topic for c in conns})
         if unknown:
             raise BagError(f'--remap {" ".join(unknown)}: not among the topics played')
