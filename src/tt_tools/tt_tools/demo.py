@@ -202,6 +202,8 @@ def main(argv=None):
                                      hit_plane_x=args.hit_plane_x, imaging=args.imaging,
                                      colour=args.ball)
     session = out / 'session'
+    if session.exists():
+        say(f"replacing the previous run's session bag {session} and logs in {out / 'logs'}")
     shutil.rmtree(session, ignore_errors=True)
     log_dir = out / 'logs'
     log_dir.mkdir(exist_ok=True)
@@ -223,7 +225,8 @@ def main(argv=None):
     print(demo_report.format_table(results, args.target_zone))
     png = demo_report.plot(results, rec.params, out / 'demo.png')
     say(f'wrote {png}')
-    say(f'session bag {session} (ros2 bag play {session}):')
+    say(f'session bag {session} (ros2 bag play {session} --topics /strike/command '
+        '--wait-for-subscribers, beside a subscriber):')
     failed = demo_report.balls_missed(results)
     if show_bag_info(session) != 0:
         failed.append(f'ros2 bag info cannot read the session bag {session}')
