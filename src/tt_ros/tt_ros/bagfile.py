@@ -118,10 +118,10 @@ def bag_folder(path):
     """The bag directory ``path`` names: itself, or the folder of a storage file (.mcap,
     .db3) given in its place when that folder is a bag (has metadata.yaml), as rosbag2 takes
     either."""
-    folder = os.path.dirname(os.path.abspath(path))
+    folder = os.path.dirname(path) or '.'
     if (os.path.isfile(path) and path.endswith(('.mcap', '.db3'))
             and os.path.isfile(os.path.join(folder, 'metadata.yaml'))):
-        return os.path.dirname(path) or '.'
+        return folder
     return path
 
 

@@ -163,7 +163,7 @@ def bag_record(args):
         if not args.all and args.regex is None:
             known = [name for name, _ in cli.node.get_topic_names_and_types()]
             for topic in sorted(set(named) - set(subscribed) - skipped):
-                close = difflib.get_close_matches(topic, known, n=1)
+                close = difflib.get_close_matches(topic, [k for k in known if k != topic], n=1)
                 hint = f"; did you mean '{close[0]}'?" if close else ''
                 _say(f"[WARN] '{topic}' not recorded: no publisher of it appeared{hint}")
     _say(f"[INFO] Recorded {writer.count} messages to '{out}'")
