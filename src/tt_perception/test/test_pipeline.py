@@ -1129,25 +1129,34 @@ def test_a_young_tracks_update_on_a_blobs_own_centre_counts_its_lean():
     assert 0.0 < tracker.filter.x[2] - predicted < 0.8 * 0.005
 
 
-def bounce_track(tracker, table=None, off=()):
-    """A ball bouncing on the table, seen exactly (1 mm variance) by ``tracker`` every frame
-    at 150 fps; its rebound by the model with ``table`` (ModelParams; None: the tracker's);
-    the frames ``off`` (indices: position offset, m) moved. Returns the rollout's events,
-    the truth (n, 9), the states ``add`` gave (time, state) and whether each frame
-    updated the track."""
-    times = np.arange(45) / 150.0
+BOUNCE_TIMES = np.arange(45) / 150.0
+"""Frame times of :func:`bounce_flight`, s (150 fps)."""
+
+
+def bounce_flight(params):
+    """A ball bouncing on the table (its rebound by the model with ``params``): the rollout's
+    events and its states (n, 9) at :data:`BOUNCE_TIMES`."""
     ball = np.array([0.3, 0.1, 0.25, -6.0, 0.2, -1.0, 0.0, -100.0, 0.0])
-    events, truth = rollout(ball, table or tracker.params, sample_times=times,
-                            stop_at_plane=False, stop_at_net=False, t_max=times[-1] + 1e-6)
+    return rollout(ball, params, sample_times=BOUNCE_TIMES, stop_at_plane=False,
+                   stop_at_net=False, t_max=BOUNCE_TIMES[-1] + 1e-6)
+
+
+def track_flight(tracker, truth, off=None):
+    """``truth`` (:func:`bounce_flight`) seen exactly (1 mm variance) by ``tracker`` every
+    frame, the frames ``off`` (index: position offset, m) moved. Returns the states ``add``
+    gave, (time, state), whether each frame updated the track, and the largest distance of
+    a state from the ball, m."""
     cov = np.eye(3) * 1e-6
     states, updated = [], []
-    for n, (t, X) in enumerate(zip(times, truth[:, :3], strict=True)):
-        X = X + np.asarray(off.get(n, 0.0)) if off else X
+    for n, (t, X) in enumerate(zip(BOUNCE_TIMES, truth[:, :3], strict=True)):
+        X = X + np.asarray((off or {}).get(n, 0.0))
         before = tracker.updates
         tracker.advance(t)
         states += [(e.t, e.state) for e in tracker.add(t, [((X, cov), (X, cov))])]
         updated.append(tracker.updates > before)
-    return events, truth, states, updated
+    worst = max(np.linalg.norm(x[:3] - truth[np.searchsorted(BOUNCE_TIMES, t - 1e-9), :3])
+                for t, x in states)
+    return states, updated, worst
 
 
 def test_an_outlier_just_after_a_bounce_is_not_taken_for_the_rebounds_kink():
@@ -1160,17 +1169,15 @@ def test_an_outlier_just_after_a_bounce_is_not_taken_for_the_rebounds_kink():
     own and its state was published 15 mm off (synth's hall: 37-45 mm off, a camera
     delivering a frame twice or its light stepping 30 %)."""
     tracker = Tracker(150.0, config=TrackerConfig(backfill=False))
-    times = np.arange(45) / 150.0
-    bounce = bounce_track(Tracker(150.0))[0][0]
-    assert bounce.kind == 'bounce' and bounce.t < times[25]
-    outlier = int(np.searchsorted(times, bounce.t + 0.04))
-    events, truth, states, updated = bounce_track(
-        tracker, off={outlier: [0.011, -0.0045, -0.0087]})
+    events, truth = bounce_flight(tracker.params)
+    assert events[0].kind == 'bounce' and events[0].t < BOUNCE_TIMES[25]
+    outlier = int(np.searchsorted(BOUNCE_TIMES, events[0].t + 0.04))
+    states, updated, worst = track_flight(tracker, truth,
+                                          off={outlier: [0.011, -0.0045, -0.0087]})
     assert tracker.track_id == 1
     assert not updated[outlier] and all(updated[outlier + 1:])
-    assert times[outlier] not in [t for t, _ in states]
-    assert max(np.linalg.norm(x[:3] - truth[np.searchsorted(times, t - 1e-9), :3])
-               for t, x in states) < 1e-3
+    assert BOUNCE_TIMES[outlier] not in [t for t, _ in states]
+    assert worst < 1e-3
 
 
 def test_a_rebound_the_model_gets_wrong_is_taken_as_the_kink_at_its_second_point():
@@ -1182,17 +1189,17 @@ def test_a_rebound_the_model_gets_wrong_is_taken_as_the_kink_at_its_second_point
     update (and state) waits for the next, a state for every frame, each within 5 mm of the
     ball and in time order, and the track ends on the ball."""
     tracker = Tracker(150.0, config=TrackerConfig(backfill=False))
-    flight = dataclasses.replace(tracker.params, c_m=5 * tracker.params.c_m)
-    events, truth, states, updated = bounce_track(tracker, flight)
-    times = np.arange(45) / 150.0
+    events, truth = bounce_flight(dataclasses.replace(tracker.params,
+                                                      c_m=5 * tracker.params.c_m))
+    states, updated, worst = track_flight(tracker, truth)
+    times = BOUNCE_TIMES
     missed = [n for n, u in enumerate(updated) if not u and times[n] > events[0].t]
     assert tracker.track_id == 1 and tracker.kinked is not None
     assert len(missed) == 1 and times[missed[0]] - events[0].t < TrackerConfig().kink_window
     given = [t for t, _ in states]
     assert given == sorted(given) and given == list(times[len(times) - len(given):])
     assert given[0] < events[0].t
-    assert max(np.linalg.norm(x[:3] - truth[np.searchsorted(times, t - 1e-9), :3])
-               for t, x in states) < 5e-3
+    assert worst < 5e-3
     assert np.linalg.norm(tracker.filter.x[:3] - truth[-1, :3]) < 1e-3
 
 

@@ -589,11 +589,12 @@ class Tracker:
         Q = trial.rebound_noise(*noise)
         if not trial.update_after_bounce(*first, Q):
             return False
-        step = (trial.t, trial.x.copy(), trial.P.copy(), trial.contact_z)
+        at_first = copy.copy(trial)         # predict() replaces arrays, never writes them
         trial.predict(f.t)
         if not trial.update(*point, rebounce=True):
             return False
-        self.kink_state = BallEstimate(*step[:3], self.track_id)
+        self.kink_state = BallEstimate(at_first.t, at_first.x.copy(), at_first.P.copy(),
+                                       self.track_id)
         self.filter, self.kinked, self.kink_point = trial, f.last_bounce, None
         self.doubtful = before          # two outliers in a row are taken back too
         if cfg.smooth:
@@ -604,7 +605,7 @@ class Tracker:
             after = next((i for i, s in enumerate(steps) if s[0] > f.last_bounce[0]), None)
             if after is not None:
                 steps[after] = (*steps[after][:4], trial.rebound_noise(*noise, t=steps[after][0]))
-            steps.append((*step, Q if after is None else None))
+            steps.append(self._step(at_first, Q if after is None else None))
         return True
 
     def _take_back(self, point):
@@ -638,11 +639,12 @@ class Tracker:
         self.filter.update_spin(w, R)
         return True
 
-    def _step(self):
-        """The running filter's (t, x, P, contact_z, Q), as :func:`smooth` takes them (Q, a
-        kink's extra covariance: None; :meth:`_kink` writes its own steps)."""
-        f = self.filter
-        return f.t, f.x.copy(), f.P.copy(), f.contact_z, None
+    def _step(self, f=None, Q=None):
+        """The filter ``f``'s (None: the running one's) (t, x, P, contact_z, Q), as
+        :func:`smooth` takes them (``Q``: a kink's extra covariance of the update just made,
+        :meth:`_kink`)."""
+        f = self.filter if f is None else f
+        return f.t, f.x.copy(), f.P.copy(), f.contact_z, Q
 
     def _seed(self, t, points):
         """Start a track from a previous point and one of ``points`` ((X, cov, whether a

@@ -21,7 +21,7 @@ from tt_ros.connections import subscribe_input
 from tt_ros.diagnostics import CountsStatus, report_status
 from tt_ros.executor import StartupError, run_node
 from tt_ros.markers import add_marker
-from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
+from tt_ros.messages import header_problem, point_msg, seconds_text, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import ThrottledLog, due
@@ -193,7 +193,7 @@ class PredictionNode(Node):
         self.path_worker = _LatestWorker('path', self._publish_path)
         self.tracks = {}
         self.last_path_ns = None
-        self.stamps_ns = None             # [first, last] stamp of the states received, ns
+        self.stamps_ns = None             # (earliest, latest) valid stamp received, ns
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
@@ -235,8 +235,8 @@ class PredictionNode(Node):
         times = self.work.latest_ms()
         if not len(times):
             return 'no state received'
-        stamps = ('no valid stamp' if self.stamps_ns is None else 'stamps {} to {} s'.format(
-            *(f'{ns // 10**9}.{ns % 10**9:09d}' for ns in self.stamps_ns)))
+        stamps = ('no valid stamp' if self.stamps_ns is None else
+                  'stamps {} to {} s'.format(*map(seconds_text, self.stamps_ns)))
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
                 f'{np.percentile(times, 99):.3f} ms (last {len(times)}); {stamps}; '
@@ -260,9 +260,8 @@ class PredictionNode(Node):
         if why:
             self._drop(why)
             return
-        if self.stamps_ns is None:
-            self.stamps_ns = [stamp_ns, stamp_ns]
-        self.stamps_ns = [min(self.stamps_ns[0], stamp_ns), max(self.stamps_ns[1], stamp_ns)]
+        low, high = self.stamps_ns or (stamp_ns, stamp_ns)
+        self.stamps_ns = (min(low, stamp_ns), max(high, stamp_ns))
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare

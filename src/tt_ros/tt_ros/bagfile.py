@@ -16,6 +16,7 @@ import yaml
 
 from tt_ros.errors import one_line_reason
 from tt_ros.index import interface_file
+from tt_ros.messages import seconds_text
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
@@ -163,8 +164,7 @@ def open_bag(path):
 
 def _stamp(ns):
     t = datetime.datetime.fromtimestamp(ns / 1e9)
-    return f'{t:%b %d %Y %H:%M:%S}.{ns % 1_000_000_000:09d} ({ns // 1_000_000_000}.' \
-           f'{ns % 1_000_000_000:09d})'
+    return f'{t:%b %d %Y %H:%M:%S}.{ns % 1_000_000_000:09d} ({seconds_text(ns)})'
 
 
 def _size(nbytes):

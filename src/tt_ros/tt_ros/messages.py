@@ -42,3 +42,9 @@ def set_time(msg, ns):
 def stamp_ns(stamp):
     """Nanoseconds (int) of a builtin_interfaces/Time ``stamp``."""
     return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def seconds_text(ns):
+    """A time in ns (int) as seconds, every digit kept (a float keeps 0.1 us at today's
+    epoch): '1700000000.000000001'."""
+    return f'{ns // NS_PER_S}.{ns % NS_PER_S:09d}'

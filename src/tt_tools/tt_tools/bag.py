@@ -17,6 +17,7 @@ from tt_ros.bagfile import (
     format_info,
     open_bag,
 )
+from tt_ros.messages import seconds_text
 from tt_ros.names import name_error
 
 from tt_tools.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
@@ -191,11 +192,6 @@ def _playable(reader, chosen, args):
     return [c for c in conns if c.id in classes], classes
 
 
-def _seconds(ns):
-    """A time in ns as seconds, every digit kept (a float keeps 0.1 us at today's epoch)."""
-    return f'{ns // 10**9}.{ns % 10**9:09d}'
-
-
 def play_window(args, start_ns, end_ns):
     """(first, last) bag time to play, ns, both included: from ``--start-offset`` after the
     bag's start ``start_ns``, until ``--playback-duration`` after that or
@@ -216,8 +212,8 @@ def play_window(args, start_ns, end_ns):
         if until < first:
             option = ('--playback-until-nsec' if args.playback_until_nsec is not None
                       else '--playback-until-sec')
-            raise BagError(f'{option}: {_seconds(until)} s is before the play starts '
-                           f'({_seconds(first)} s): nothing to play')
+            raise BagError(f'{option}: {seconds_text(until)} s is before the play starts '
+                           f'({seconds_text(first)} s): nothing to play')
         last = min(last, until)
     return first, last
 
