@@ -143,6 +143,14 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: _edit(rig, lambda d: d.update(fps=True)), 'fps is not a number'),
     (lambda rig, info: _edit(info, lambda d: d.update(image_width=640.5)),
      'image_width/image_height missing or not integers'),
+    # A traceback (could not convert string to float: 'k1'); a walk-through, 6 Dec 2026.
+    (lambda rig, info: _edit(info, lambda d: d['distortion_coefficients'].update(
+        data=['k1', 'k2', 'p1', 'p2', 'k3'])), 'distortion_coefficients needs 4, 5 or 8'),
+    (lambda rig, info: _edit(info, lambda d: d['distortion_coefficients'].update(
+        data='-0.11 0.04 0 0 0')), 'distortion_coefficients needs 4, 5 or 8 numbers'),
+    # Read as 1 s: no ball found, exit 0.
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_offset=True)),
+     'cameras[1] (cam1): time_offset is not a number'),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
         'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'no distortion',
@@ -151,7 +159,8 @@ def test_rig_round_trip(tmp_path):
         'time offset in ms',
         'misspelt key', 'readout in ms', 'negative readout', 'readout not a number',
         'white with a zero', 'white not numbers',
-        'unknown rig key', 'frame not the table', 'fps true', 'width not whole'])
+        'unknown rig key', 'frame not the table', 'fps true', 'width not whole',
+        'distortion names', 'distortion one string', 'time offset true'])
 def test_bad_calibration_is_a_one_line_error(tmp_path, change, expect):
     path = tmp_path / 'rig.yaml'
     synth.make_rig(str(tmp_path))

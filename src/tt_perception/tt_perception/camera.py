@@ -229,7 +229,13 @@ def load_camera_info(path):
         raise CalibrationError(f'camera_info {path}: distortion_coefficients missing (a lens '
                                'without distortion: data: [0, 0, 0, 0, 0])')
     entry = data['distortion_coefficients']
-    dist = np.asarray(entry.get('data') if isinstance(entry, dict) else entry, dtype=float)
+    try:
+        values = entry.get('data') if isinstance(entry, dict) else entry
+        if isinstance(values, (str, bytes)) or any(isinstance(v, bool) for v in values):
+            raise TypeError
+        dist = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):     # 'k1', a ragged list, a string of numbers, None
+        dist = np.empty(0)
     if dist.size not in DISTORTION_SIZES or not np.all(np.isfinite(dist)):
         raise CalibrationError(f'camera_info {path}: distortion_coefficients needs 4, 5 or 8 '
                                'numbers (plumb_bob: k1, k2, p1, p2[, k3]; rational_polynomial: '
@@ -394,6 +400,8 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
         offset = entry.get('time_offset')
         if offset is not None:
             try:
+                if isinstance(offset, bool):    # YAML's true: 1 s
+                    raise TypeError
                 offset = float(offset)
             except (TypeError, ValueError):
                 raise CalibrationError(f'{where} ({name}): time_offset is not a number') \
