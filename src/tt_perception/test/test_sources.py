@@ -21,7 +21,7 @@ from tt_perception import synth
 
 @pytest.mark.parametrize('source, kind', [
     ('/dev/video0', 'v4l2'), ('2', 'v4l2'), ('cam0.avi', 'file'), ('cam0/%06d.png', 'file'),
-    ('cam0_frames/', 'file'),
+    ('cam0_frames/', 'file'), ('cam0.m4v', 'file'), ('cam0.mts', 'file'),
     ('/cam0/image_raw', 'topic'), ('left/image_rect', 'topic')])
 def test_source_kind(source, kind):
     assert source_kind(source) == kind
@@ -163,6 +163,33 @@ def test_a_folder_of_images_numbered_from_100_with_a_gap_keeps_each_frames_time(
     assert capfd.readouterr().err == ''
     (tmp_path / 'notes.txt').write_text('not an image')          # other files are ignored
     assert VideoFileSource(str(tmp_path), 100.0).open().read()[1] is not None
+
+
+def test_folders_of_images_numbered_from_different_starts_are_named(tmp_path):
+    """cam1's first three images lost: its image 3 was its frame 0, timed 3 frames early,
+    and with time_offset 0 the track was 98 mm RMS off, exit 0 (a new user's walk-through,
+    6 Dec 2026). Both readers name the two starts and the time_offset that makes up for
+    them; a camera whose time_offset already does is not named."""
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 8, 6, 100.0)
+    for k, numbers in ((0, range(6)), (1, range(3, 6))):
+        (tmp_path / f'cam{k}').mkdir()
+        for i in numbers:
+            cv2.imwrite(str(tmp_path / f'cam{k}' / f'img_{i:06d}.png'),
+                        np.full((6, 8), i, np.uint8))
+    rig = load_rig(rig_path)
+    for k, cam in enumerate(rig.cameras):
+        cam.source, cam.time_offset = str(tmp_path / f'cam{k}'), 0.0
+    expect = ['cameras cam0 and cam1: their folders of images start at numbers 0 and 3, and '
+              "each folder's first image is its camera's frame 0: if the numbers count the "
+              'same instants, cam1 is timed 3 frame(s) off cam0 (time_offset -0.03 s for cam1 '
+              'says so)']
+    notes = []
+    assert file_sources_error(rig, notes) == '' and notes == expect
+    notes = []
+    assert len(list(file_frames(rig, notes))) == 9 and notes == expect
+    rig.cameras[1].time_offset = -0.03
+    notes = []
+    assert file_sources_error(rig, notes) == '' and notes == []
 
 
 def test_a_pattern_matching_no_image_is_one_line_without_ffmpeg_log(tmp_path, capfd):
@@ -391,6 +418,32 @@ def test_a_video_without_a_frame_is_refused_naming_it(tmp_path):
     cam1 = str(tmp_path / 'video' / 'cam1.avi')
     cv2.VideoWriter(cam1, cv2.VideoWriter_fourcc(*'MJPG'), 100.0, (64, 48)).release()
     expect = f'camera cam1: {cam1}: no frame can be read (an empty or broken video)'
+    assert file_sources_error(rig) == expect
+    with pytest.raises(OSError) as refused:
+        list(file_frames(rig, []))
+    assert str(refused.value) == expect
+
+
+def test_a_video_of_any_name_is_read_and_a_single_image_refused(tmp_path):
+    """A video named .m4v (or any name that is a file) was taken for an image topic and
+    refused; one image given for a camera was read as a video of one frame at FFmpeg's
+    25 fps, refused as running at another rate than the other camera (a new user's
+    walk-through, 6 Dec 2026)."""
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    frames = [(None, k, np.full((48, 64, 3), 60, np.uint8)) for n in range(3) for k in range(2)]
+    rig = load_rig(synth.write_scene(str(tmp_path / 'video'), rig_path, frames, None))
+    video = tmp_path / 'video'
+    (video / 'cam1.avi').rename(video / 'cam1.m4v')
+    (video / 'cam0.avi').rename(video / 'cam0_recording')
+    rig.cameras[0].source, rig.cameras[1].source = 'cam0_recording', 'cam1.m4v'
+    assert [source_kind(c.source, str(video)) for c in rig.cameras] == ['file', 'file']
+    assert file_sources_error(rig) == ''
+    assert len(list(file_frames(rig, []))) == 6
+    cv2.imwrite(str(video / 'frame_000000.png'), frames[1][2])
+    rig.cameras[1].source = 'frame_000000.png'
+    expect = (f"camera cam1: {video / 'frame_000000.png'}: a single image, not a video (give "
+              "the folder of the camera's images, or a printf pattern such as "
+              'frame_%06d.jpg)')
     assert file_sources_error(rig) == expect
     with pytest.raises(OSError) as refused:
         list(file_frames(rig, []))

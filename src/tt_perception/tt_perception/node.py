@@ -308,9 +308,12 @@ class PerceptionNode(Node):
                              f'{cam.source!r} is no video file, image sequence or V4L2 device '
                              'and')
         # Video files missing, unreadable, of another frame size, at different rates.
-        error = file_sources_error(rig)
+        notes = []
+        error = file_sources_error(rig, notes)
         if error:
             raise StartupError(f'rig {rig_file}: {error}')
+        for note in notes:
+            self.get_logger().warning(f'rig {rig_file}: {note}')
         if self._p('measured_spin_topic'):
             _check_topic(self._p('measured_spin_topic'), 'measured_spin_topic')
         fourcc = self._p('device_fourcc')

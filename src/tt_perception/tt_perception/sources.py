@@ -5,8 +5,9 @@ A rig camera's ``source`` string is classified by :func:`source_kind`:
 
 - ``/dev/videoN`` or a bare integer: a V4L2 device, opened through OpenCV's ``cv2.CAP_V4L2``
   backend with pixel format (FOURCC, e.g. MJPG), resolution, frame rate and exposure set;
-- a path with a video or image extension, a printf pattern (``cam0/%06d.png``) or a folder
-  of images (written with a final ``/``): a file source (relative to the rig file);
+- a path with a video or image extension, a printf pattern (``cam0/%06d.png``), a folder
+  of images (written with a final ``/``) or a file that exists: a file source (relative to
+  the rig file);
 - anything else starting with ``/`` or a letter (``/cam0/image_raw``): an image topic.
 
 :meth:`FrameSource.read` returns ``(t, frame)``: ``t`` the frame's time in s (V4L2: the
@@ -36,7 +37,9 @@ os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
 SOURCE_KINDS = ('v4l2', 'file', 'topic')
 """What :func:`source_kind` tells apart (docs/DEVELOPING.md: adding a camera source)."""
 
-VIDEO_EXTENSIONS = ('.avi', '.mp4', '.mkv', '.mov', '.webm', '.png', '.jpg', '.jpeg', '.bmp')
+VIDEO_EXTENSIONS = ('.avi', '.mp4', '.m4v', '.mkv', '.mov', '.webm', '.mpg', '.mpeg', '.ts',
+                    '.mts', '.m2ts', '.wmv', '.flv', '.ogv', '.3gp',
+                    '.png', '.jpg', '.jpeg', '.bmp')
 
 AVI_BY_INDEX = 'fflags;+sortdts'
 """FFmpeg's option (in ``OPENCV_FFMPEG_CAPTURE_OPTIONS``) under which an AVI file is read
@@ -60,7 +63,7 @@ def source_kind(source, base=''):
     if s.startswith('/dev/') or s.isdigit():
         return 'v4l2'
     if ('%' in s or s.endswith('/') or os.path.splitext(s)[1].lower() in VIDEO_EXTENSIONS
-            or os.path.isdir(os.path.join(base, s))):
+            or os.path.exists(os.path.join(base, s))):   # a folder, or a video of any name
         return 'file'
     return 'topic'
 
@@ -175,6 +178,7 @@ class ImageFolderCapture:
 
     def __init__(self, folder, names):
         self.by_name = False
+        self.first_number = None      # the number of frame 0 (None: read in name order)
         numbers = [_name_number(n) for n in names]
         if (None in numbers or len(set(numbers)) < len(numbers)
                 or max(numbers) - min(numbers) + 1 > 2 * len(numbers)):
@@ -183,7 +187,7 @@ class ImageFolderCapture:
             files = [os.path.join(folder, n) for n in sorted(names, key=_natural)]
             self.by_name = True
         else:
-            first = min(numbers)
+            first = self.first_number = min(numbers)
             files = [None] * (max(numbers) - first + 1)
             for n, name in sorted(zip(numbers, names, strict=True)):
                 files[n - first] = os.path.join(folder, name)
@@ -272,6 +276,11 @@ class VideoFileSource(FrameSource):
             return self
         if '%' not in path and not os.path.isfile(path):
             raise OSError(f'{path}: no such video file')
+        if '%' not in path and os.path.splitext(path)[1].lower() in IMAGE_EXTENSIONS:
+            # FFmpeg reads one image as a video of one frame at 25 fps: a rate mismatch or
+            # no track, not the mistake.
+            raise OSError(f'{path}: a single image, not a video (give the folder of the '
+                          "camera's images, or a printf pattern such as frame_%06d.jpg)")
         elif '%' in path and not _sequence_starts(path):
             # Checked here: FFmpeg would log '[image2 @ 0x...] Could find no file ...' on
             # stderr before the one-line error below.
@@ -488,11 +497,42 @@ def rates_error(rig, sources):
     return ''
 
 
-def file_sources_error(rig):
+def folder_starts_notes(rig, sources):
+    """Lines for the list of notes when two of the opened sources ``sources`` ({camera
+    index: :class:`VideoFileSource`}) are folders of numbered images whose numbers start
+    apart: each folder's first image is its camera's frame 0, so a camera whose first images
+    were lost is timed that many frames early (a camera 3 images short: a track 98 mm RMS
+    off with time_offset 0, without a word; a new user's walk-through, 6 Dec 2026). Not
+    said where the camera's ``time_offset`` already makes up for it."""
+    starts = {k: src.capture.first_number for k, src in sorted(sources.items())
+              if isinstance(src.capture, ImageFolderCapture)
+              and src.capture.first_number is not None}
+    if len(starts) < 2:
+        return []
+    ref = min(starts)
+    notes = []
+    for k, first in starts.items():
+        offset = (starts[ref] - first) / rig.fps      # this camera's clock minus ref's
+        given = rig.cameras[k].time_offset
+        if k == ref or first == starts[ref] or (
+                given is not None and abs(given - offset) < 0.5 / rig.fps):
+            continue
+        a, b = rig.cameras[ref].name, rig.cameras[k].name
+        notes.append(f'cameras {a} and {b}: their folders of images start at numbers '
+                     f"{starts[ref]} and {first}, and each folder's first image is its "
+                     f"camera's frame 0: if the numbers count the same instants, {b} is "
+                     f'timed {abs(first - starts[ref])} frame(s) off {a} (time_offset '
+                     f'{offset:+.6g} s for {b} says so)')
+    return notes
+
+
+def file_sources_error(rig, notes=None):
     """Why the rig's video files cannot be used, in one line, or '': a camera's file missing,
     unreadable, without a frame or of another frame size than its calibration ('camera NAME:
     <path>: no such video file', :meth:`VideoFileSource.disagreement`), or two files at
-    different rates (:func:`rates_error`). Each file is opened once and closed again."""
+    different rates (:func:`rates_error`). Each file is opened once and closed again.
+    Folders of images numbered from different starts add a line to the list ``notes``
+    (:func:`folder_starts_notes`)."""
     base = os.path.dirname(rig.path)
     sources = {}
     try:
@@ -508,6 +548,8 @@ def file_sources_error(rig):
                 return f'camera {cam.name}: {error}'
             if not sources[k].capture.grab():       # a video of 0 frames ran without a word
                 return f'camera {cam.name}: {sources[k].path}: {NO_FRAME}'
+        if notes is not None:
+            notes.extend(folder_starts_notes(rig, sources))
         return rates_error(rig, sources)
     finally:
         for src in sources.values():
@@ -548,6 +590,8 @@ def file_frames(rig, notes=None):
         error = rates_error(rig, sources)
         if error:
             raise OSError(error)
+        if notes is not None:
+            notes.extend(folder_starts_notes(rig, sources))
         given = dict.fromkeys(sources, 0)
         while sources:
             for k in sorted(sources):
