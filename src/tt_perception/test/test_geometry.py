@@ -224,8 +224,10 @@ def test_two_cameras_at_one_place_are_a_one_line_error(tmp_path, cameras, expect
     assert len(load_rig(str(path)).cameras) == cameras
 
 
-def test_the_pose_command_takes_a_rig_whose_cameras_share_a_placeholder_pose(tmp_path):
-    """A new rig's cameras may all start at one pose until each is calibrated."""
+def test_the_pose_command_takes_a_rig_whose_cameras_share_a_placeholder_pose(tmp_path,
+                                                                            capsys):
+    """A new rig's cameras may all start at one pose until each is calibrated. From the
+    table's four corners the RMS is no check of the pose, and the command says so."""
     import cv2
     path = synth.make_rig(str(tmp_path))
     rig = load_rig(path)
@@ -236,6 +238,7 @@ def test_the_pose_command_takes_a_rig_whose_cameras_share_a_placeholder_pose(tmp
         load_rig(path)
     assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image)]) == 0
     assert np.linalg.norm(load_rig(path).cameras[0].centre - rig.cameras[0].centre) < 0.03
+    assert '(4 points: their RMS hardly checks the pose' in capsys.readouterr().out
 
 
 def test_coincident_cameras_triangulate_to_none():
@@ -411,6 +414,7 @@ def test_pose_from_named_points(tmp_path, capsys):
     assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
                            '--points', str(points)]) == 0
     assert np.allclose(load_rig(path).cameras[0].centre, cam.centre, atol=1e-4)
+    assert 'hardly checks' not in capsys.readouterr().out       # six points, two off the plane
     points.write_text(yaml.safe_dump({'corner_7': [1, 2]}))
     assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
                            '--points', str(points)]) == 2       # bad input

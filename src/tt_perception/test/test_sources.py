@@ -165,6 +165,17 @@ def test_a_folder_of_images_numbered_from_100_with_a_gap_keeps_each_frames_time(
     assert VideoFileSource(str(tmp_path), 100.0).open().read()[1] is not None
 
 
+def test_a_scene_written_from_no_frame_is_refused(tmp_path):
+    """render_balls' frames are an iterator: written a second time they were none, and the
+    scene's rig named videos that were never written (a walk-through, 6 Dec 2026)."""
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 8, 6, 100.0)
+    frames = iter([(0.0, k, np.full((6, 8, 3), 60, np.uint8)) for k in range(2)])
+    synth.write_scene(str(tmp_path / 'avi'), rig_path, frames, None)
+    with pytest.raises(ValueError, match='no frame given .* consumed once'):
+        synth.write_scene(str(tmp_path / 'png'), rig_path, frames, None, fmt='png')
+    assert not (tmp_path / 'png' / 'rig.yaml').exists()
+
+
 def test_folders_of_images_numbered_from_different_starts_are_named(tmp_path):
     """cam1's first three images lost: its image 3 was its frame 0, timed 3 frames early,
     and with time_offset 0 the track was 98 mm RMS off, exit 0 (a new user's walk-through,

@@ -478,10 +478,12 @@ def write_scene(directory, rig_path, frames, truth, fmt='avi', time_offset=None)
         rig.cameras[1].time_offset = float(time_offset)
     os.makedirs(directory, exist_ok=True)
     counters = {}
+    written = 0
     with CameraVideos(directory, rig) as videos:
         for _, k, frame in frames:
             if frame is None:
                 continue
+            written += 1
             cam = rig.cameras[k]
             if fmt == 'avi':
                 cam.source = videos.write(k, frame)
@@ -492,6 +494,11 @@ def write_scene(directory, rig_path, frames, truth, fmt='avi', time_offset=None)
                 cv2.imwrite(os.path.join(folder, f'{n:06d}.png'), frame)
                 counters[k] = n + 1
                 cam.source = f'{cam.name}/%06d.png'
+    if not written:
+        # The second write_scene of render_balls' frames (an iterator) wrote a rig naming
+        # videos that were never written.
+        raise ValueError('write_scene: no frame given (render_balls gives its frames as an '
+                         'iterator, consumed once: list() them to write them twice)')
     out_rig = os.path.join(directory, 'rig.yaml')
     for cam in rig.cameras:
         cam.info_file = f'{cam.name}.yaml'
