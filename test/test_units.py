@@ -9,7 +9,8 @@ import subprocess
 import numpy as np
 import pytest
 from tt_perception.camera import CalibrationError, load_rig
-from tt_prediction.units import position_error, translation_error
+from tt_prediction.identify.data import clean_samples, read_track_csv
+from tt_prediction.units import outside_room, position_error, translation_error
 from tt_tools.procs import ros_env
 
 TABLE_MM = [1600.0, 100.0, 300.0]       # a ball over the table, written in millimetres
@@ -38,6 +39,37 @@ def test_position_error_names_the_field_and_the_first_bad_row():
     assert 'millimetres' in text
     # A track in centimetres (a ball 1.5 m out: 150) was told only of millimetres.
     assert 'centimetres' in position_error([150.0, 10.0, 30.0])
+
+
+def test_a_track_is_judged_on_most_of_its_rows():
+    """One stereo mismatch 12 m away refused a whole data set as millimetres, naming 'row
+    49' for the file's line 50 (a researcher's walk-through, 6 Dec 2026): a track is in
+    millimetres when most of its rows are outside the room, and its line is named."""
+    track = np.array([[1.6 - 0.06 * k, 0.1, 0.3] for k in range(10)])
+    track[3] = [12.5, 0.1, 0.3]
+    assert position_error(track, 'x, y, z', most=True) == ''
+    assert outside_room(track).tolist() == [k == 3 for k in range(10)]
+    track[:6] *= 1000.0                    # six of ten rows in millimetres
+    text = position_error(track, 'x, y, z', most=True, first_line=2)
+    assert text.startswith('x, y, z = [1600, 100, 300] (line 2): outside the room')
+
+
+def test_a_wild_sample_is_dropped_and_counted_by_both_commands(tmp_path):
+    data = tmp_path / 'tracks'
+    data.mkdir()
+    t = np.arange(30) / 100.0
+    rows = ['t,x,y,z'] + [f'{ti},{1.6 - 6 * ti},{0.1},{0.3 + ti - 4.9 * ti * ti}' for ti in t]
+    rows[11] = f'{t[10]},12.5,0.1,0.3'
+    (data / 'track1.csv').write_text('\n'.join(rows) + '\n')
+    tt, p = read_track_csv(str(data / 'track1.csv'))
+    assert len(tt) == 30
+    tc, pc, notes = clean_samples('track1', tt, p)
+    assert notes == {'outside_room_rows': 1} and len(tc) == 29 and np.all(np.abs(pc) < 10.0)
+    code, out, err = _run(['tt-predict', '--tracks', str(data), '--out', str(tmp_path / 'out'),
+                           '--no-textbook'])
+    assert code == 0, err
+    written = np.genfromtxt(tmp_path / 'out' / 'track1.csv', delimiter=',', names=True)
+    assert len(written) == 30 and np.nanmax(np.abs(written['x'])) < 10.0
 
 
 def test_translation_error_is_a_camera_beyond_twenty_metres():

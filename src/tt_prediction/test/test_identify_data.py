@@ -240,6 +240,39 @@ def test_an_index_row_whose_file_is_missing_is_one_line_naming_it(tmp_path):
     assert str(err.value) == f"{tmp_path / 'set' / 'index.csv'}: names nope.csv, not in the folder"
 
 
+@pytest.mark.parametrize('name, header, row', [
+    ('index.csv', 'file,label,wx,wy,wz', 'a.csv,x,0,150,0'),
+    ('index.csv', ',file,wx,wy,wz,spin_source', '0,a.csv,0,150,0,measured'),   # pandas' index
+    ('Index.csv', 'file,wx,wy,wz', 'a.csv,0,150,0'),
+    ('INDEX.CSV', 'wz,wy,wx,file', '0,150,0,a.csv'),
+], ids=['label first', 'pandas row numbers', 'capital I', 'upper case, reversed'])
+def test_an_index_is_read_by_its_column_names_in_any_case(tmp_path, name, header, row):
+    """Index.csv was skipped without a word (its measured spin lost), and an index's header
+    had to start 'file,wx,wy,wz' while a track's columns may come in any order (a
+    researcher's walk-through, 6 Dec 2026)."""
+    folder = tmp_path / 'set'
+    _folder_with_index(folder, [header, row])
+    (folder / 'index.csv').rename(folder / name)
+    a, b, c = load([str(folder)])
+    np.testing.assert_allclose(a.spin, [0.0, 150.0, 0.0])
+    assert a.spin_source == 'measured' and b.spin is None and c.spin is None
+
+
+def test_an_index_without_spin_or_with_part_of_it(tmp_path):
+    a, _, _ = _folder_with_index(tmp_path / 'labels', ['file,label', 'a.csv,serve'])
+    assert a.spin is None and a.label == 'serve'
+    with pytest.raises(DataError) as err:
+        _folder_with_index(tmp_path / 'part', ['file,wx,wy', 'a.csv,0,1'])
+    assert "'wx,wy,wz' for measured spin (all three or none)" in str(err.value)
+    folder = tmp_path / 'two'
+    _folder_with_index(folder, ['file', 'a.csv'])
+    (folder / 'Index.csv').write_text('file\na.csv\n')
+    with pytest.raises(DataError) as err:
+        load([str(folder)])
+    assert str(err.value) == f'{folder}: Index.csv and index.csv: two index files, which one ' \
+        'is meant?'
+
+
 def test_a_file_named_by_two_index_rows_is_one_line_naming_it(tmp_path):
     # The last row won without a word (a measured spin replaced by another).
     with pytest.raises(DataError) as err:

@@ -29,11 +29,12 @@ import yaml
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
 from .cli import add_version, hit_plane_error
-from .identify.data import DataError, clean_samples, folder_tracks, read_track_csv
+from .identify.data import DataError, clean_samples, folder_tracks, index_path, read_track_csv
 from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
 from .replay import COLUMNS, Learning, given_spin_warning, replay_tracks
 from .staged import interruptible, output_folder_error, staged_folder
+from .units import outside_room
 
 _FORMATS = ('%.6f',) * 4 + ('%.5f',) * 3 + ('%.3f',) * 3 + ('%.6f',) * 7
 
@@ -47,6 +48,7 @@ def read_tracks(folder):
     for name in files:
         path = os.path.join(folder, name)
         t, p = read_track_csv(path)
+        p[outside_room(p)] = np.nan     # a wild sample: not fed to the filter (data.clean_samples)
         valid = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
         times = len(np.unique(t[valid]))
         if times < 2:
@@ -277,7 +279,7 @@ def _main(argv=None):
                                      textbook=not args.no_textbook,
                                      learn=not args.no_learn, learning=learning)
     spin_warning = given_spin_warning(replays, [spin for *_, spin in tracks], params, config,
-                                      os.path.join(args.tracks, 'index.csv'))
+                                      index_path(args.tracks))
     warnings += [spin_warning] if spin_warning else []
     summary['warnings'] = warnings
     summary['model'] = args.model or 'nominal'

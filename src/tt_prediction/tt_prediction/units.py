@@ -20,7 +20,14 @@ is tracked at tens to hundreds of Hz, so a median step of more is almost surely 
 milliseconds (or nonsense)."""
 
 
-def position_error(positions, field='p'):
+def outside_room(positions):
+    """Mask (n,) of the rows of ``positions`` ((3,) or (n, 3), m) with a finite coordinate
+    beyond :data:`ROOM_HALF_EXTENT_M`."""
+    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    return np.any(np.abs(np.where(np.isfinite(p), p, 0.0)) > ROOM_HALF_EXTENT_M, axis=1)
+
+
+def position_error(positions, field='p', most=False, first_line=None):
     """Why ``positions`` ((3,) or (n, 3), table frame) are not ball positions in metres, or ''.
 
     Parameters
@@ -29,6 +36,12 @@ def position_error(positions, field='p'):
         One position (x, y, z) or rows of them, m. Non-finite values are not judged here.
     field : str
         The field's name in the input, for the message (``"p"``, ``x, y, z``).
+    most : bool
+        Judge a track: only when most of its finite rows are outside the room. A few wild
+        samples (a stereo mismatch 12 m away) are outliers for the caller to drop
+        (:func:`outside_room`), not a file in millimetres.
+    first_line : int or None
+        The file line of the first row (a CSV with a header: 2): the row is named by its line.
 
     Returns
     -------
@@ -37,12 +50,15 @@ def position_error(positions, field='p'):
         metres, not millimetres or centimetres'`` or ''.
     """
     p = np.asarray(positions, dtype=float).reshape(-1, 3)
-    big = np.abs(np.where(np.isfinite(p), p, 0.0)) > ROOM_HALF_EXTENT_M
+    big = outside_room(p)
     if not big.any():
         return ''
-    row = p[int(np.flatnonzero(big.any(axis=1))[0])]
-    shown = '[' + ', '.join(f'{v:.6g}' for v in row) + ']'
-    where = '' if p.shape[0] == 1 else f' (row {int(np.flatnonzero(big.any(axis=1))[0]) + 1})'
+    if most and 2 * big.sum() <= np.all(np.isfinite(p), axis=1).sum():
+        return ''
+    first = int(np.flatnonzero(big)[0])
+    shown = '[' + ', '.join(f'{v:.6g}' for v in p[first]) + ']'
+    where = ('' if p.shape[0] == 1 else f' (row {first + 1})' if first_line is None
+             else f' (line {first + first_line})')
     return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
             f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres or '
             'centimetres')

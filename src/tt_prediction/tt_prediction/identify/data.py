@@ -19,7 +19,7 @@ import numpy as np
 from tt_ros.errors import one_line_reason
 
 from ..predict import MAX_SPIN
-from ..units import position_error, sample_time_error, time_error
+from ..units import outside_room, position_error, sample_time_error, time_error
 
 
 class DataError(ValueError):
@@ -47,14 +47,19 @@ class Track:
 
 
 def clean_samples(name, t, p):
-    """Sort by time, merge duplicate stamps (mean position) and drop non-finite rows.
+    """Drop rows outside the room (a few wild samples; most of them: DataError, a file in
+    millimetres) and non-finite rows, sort by time, merge duplicate stamps (mean position).
 
     Returns ``(t, p, notes)`` with the number of rows affected by each step.
     """
     notes = {}
-    reason = position_error(p, 'x, y, z')
+    reason = position_error(p, 'x, y, z', most=True)
     if reason:
         raise DataError(f'{name}: {reason}')
+    wild = outside_room(p)
+    if wild.any():              # a sample tens of metres off: a false match, not the ball
+        notes['outside_room_rows'] = int(wild.sum())
+        t, p = t[~wild], p[~wild]
     finite = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
     if not finite.all():
         notes['non_finite_rows'] = int((~finite).sum())
@@ -114,7 +119,7 @@ def read_track_csv(path):
             except ValueError:
                 raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
                                 f'{cell!r} is not a number') from None
-    reason = (position_error(values[:, 1:4], 'x, y, z')     # e.g. millimetres, not metres
+    reason = (position_error(values[:, 1:4], 'x, y, z', most=True, first_line=2)   # mm
               or time_error(values[:, 0]) or sample_time_error(values[:, 0]))
     if reason:
         raise DataError(f'{path}: {reason}')
@@ -125,23 +130,49 @@ SPIN_SOURCES = ('measured', 'estimated')
 """Values of index.csv's optional ``spin_source`` column ('' = measured where spin is given)."""
 
 
+def index_path(folder):
+    """The path of a trajectory folder's index file: index.csv in any case (an Index.csv was
+    skipped as a track and its measured spin lost without a word: a researcher's walk-through,
+    6 Dec 2026), the lower-case name where there is none. Raises DataError for two."""
+    try:
+        names = [n for n in os.listdir(folder) if n.lower() == 'index.csv']
+    except OSError:
+        names = []
+    if len(names) > 1:
+        raise DataError(f'{folder}: {" and ".join(sorted(names))}: two index files, which one '
+                        'is meant?')
+    return os.path.join(folder, names[0] if names else 'index.csv')
+
+
+INDEX_SPIN = ('wx', 'wy', 'wz')
+"""index.csv's spin columns (rad/s, table frame): all three or none."""
+
+
 def read_index(folder):
     """index.csv of a trajectory folder: {file: (spin or None, label, spin_source)}; {} when
-    absent. Spin given as ``estimated`` is not returned as spin (it is not a measurement)."""
-    path = os.path.join(folder, 'index.csv')
+    absent. Its columns are found by name, in any order: ``file`` (required), ``wx, wy, wz``,
+    ``label``, ``spin_source``; others (pandas' row numbers, a note) are left alone. Spin
+    given as ``estimated`` is not returned as spin (it is not a measurement)."""
+    path = index_path(folder)
     if not os.path.exists(path):
         return {}
     header, rows = _read_csv(path)
-    need = ['file', 'wx', 'wy', 'wz']
-    if header[:4] != need:
-        raise DataError(f"{path}: header must start with 'file,wx,wy,wz', "
-                        f"got '{','.join(header)}'")
+    spin_named = [c for c in INDEX_SPIN if c in header]
+    if 'file' not in header or 0 < len(spin_named) < 3:
+        raise DataError(f"{path}: header must name the column 'file', and 'wx,wy,wz' for "
+                        f"measured spin (all three or none), got '{','.join(header)}'")
+    twice = [c for c in ('file', *INDEX_SPIN, 'label', 'spin_source') if header.count(c) > 1]
+    if twice:
+        raise DataError(f"{path}: header names the column '{twice[0]}' "
+                        f'{header.count(twice[0])} times: which one is meant?')
+    file_col = header.index('file')
+    spin_cols = [header.index(c) for c in spin_named]
     label_col = header.index('label') if 'label' in header else None
     source_col = header.index('spin_source') if 'spin_source' in header else None
     index = {}
     for i, row in enumerate(rows):
         row = row + [''] * (len(header) - len(row))
-        cells = [c.strip() for c in row[1:4]]
+        cells = [row[c].strip() for c in spin_cols]
         spin = None
         if any(cells):
             try:
@@ -166,7 +197,7 @@ def read_index(folder):
         if source == 'estimated':
             spin = None
         label = row[label_col].strip() if label_col is not None else ''
-        name = row[0].strip()
+        name = row[file_col].strip()
         if name in index:           # the last row won, without a word
             raise DataError(f'{path}: line {i + 2}: {name} is named by an earlier row too')
         index[name] = (spin, label, source)
@@ -198,7 +229,7 @@ def folder_tracks(folder):
     try:
         # .csv in any case (a .CSV from another system is a track file too).
         files = sorted(f for f in os.listdir(folder)
-                       if f.lower().endswith('.csv') and f.lower() != 'index.csv')
+                       if f.lower().endswith('.csv') and f.lower() != 'index.csv')   # any case
     except OSError as exc:
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
@@ -207,7 +238,7 @@ def folder_tracks(folder):
     missing = sorted(set(index) - set(files))
     if missing:
         more = f' and {len(missing) - 1} more' if len(missing) > 1 else ''
-        raise DataError(f'{os.path.join(folder, "index.csv")}: names {missing[0]}{more}, '
+        raise DataError(f'{index_path(folder)}: names {missing[0]}{more}, '
                         'not in the folder')
     return files, index
 
