@@ -108,16 +108,21 @@ def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_pa
     assert sorted(os.listdir(tmp_path)) == ['data']
 
 
-@pytest.mark.parametrize('plane', ['1.0', '-3.5', 'nan'])
-def test_a_hit_plane_outside_the_node_range_is_refused_before_any_work(tmp_path, capsys,
-                                                                       plane):
+@pytest.mark.parametrize('option, value, expect', [
+    ('--hit-plane-x', '1.0', '--hit-plane-x must be'),
+    ('--hit-plane-x', '-3.5', '--hit-plane-x must be'),
+    ('--hit-plane-x', 'nan', '--hit-plane-x must be'),
+    ('--folds', '1', '--folds must be at least 2'),
+])
+def test_an_option_out_of_range_is_one_line_before_any_work(tmp_path, capsys, option, value,
+                                                            expect):
     # The prediction node takes hit_plane_x in [-3, 0] m; tt-identify scores the same planes.
-    folder = _folder(tmp_path, {})          # empty: refused for the plane before the data
+    # Each was argparse's usage block and its error (three lines; a walk-through).
+    folder = _folder(tmp_path, {})          # empty: refused for the option before the data
     out = tmp_path / 'out'
-    with pytest.raises(SystemExit) as stop:
-        main([str(folder), '--out', str(out), '--hit-plane-x', plane, '--no-progress'])
-    assert stop.value.code == 2
-    assert '--hit-plane-x must be' in capsys.readouterr().err
+    code, err = _run(capsys, [str(folder), '--out', str(out), option, value])
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f'tt-identify: {expect}')
     assert not out.exists()
 
 
@@ -518,6 +523,26 @@ def test_interrupted_report_leaves_nothing_as_if_complete(tmp_path, monkeypatch)
     with pytest.raises(RuntimeError):
         report_module.write_outputs(result, str(out), ['synthetic'])
     assert os.listdir(tmp_path) == []
+
+
+def test_more_folds_than_tracks_and_the_starting_model_are_said(tmp_path, monkeypatch):
+    """--folds 5 on 3 tracks ran 3 folds without a word, and a --model run was recorded
+    nowhere, its C_M note saying 'the nominal value' (a researcher's walk-through)."""
+    from tt_prediction.identify.pipeline import identify
+    from tt_prediction.identify.synthetic import make_tracks
+    import yaml
+    result = identify(make_tracks(3, ModelParams(), seed=5), folds=5)
+    assert result['data']['folds'] == 3
+    assert '--folds 5: only 3 usable tracks, so 3 folds (each track held out once)' \
+        in result['warnings']
+    monkeypatch.setattr(report_module, 'plot_all', lambda result, folder: None)
+    out = tmp_path / 'out'
+    report_module.write_outputs(result, str(out), ['synthetic'], 'runs/first/model.yaml')
+    assert '; starting model: runs/first/model.yaml' in (out / 'report.md').read_text()
+    meta = yaml.safe_load((out / 'model.yaml').read_text())['meta']
+    assert meta['model'] == 'runs/first/model.yaml'
+    report_module.write_outputs(result, str(out), ['synthetic'])
+    assert 'starting model' not in (out / 'report.md').read_text()
 
 
 def test_report_folder_replaces_the_old_one_with_the_mode_of_the_umask(tmp_path,

@@ -59,12 +59,10 @@ def main(argv=None):
                              '(default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     args = parser.parse_args(argv)
-    if args.folds < 2:
-        parser.error('--folds must be at least 2')
-    plane_error = hit_plane_error(args.hit_plane_x)
-    if plane_error:
-        parser.error(plane_error)
-    out_error = output_folder_error(args.out, REPORT_FILE, 'tt-identify')
+    # One line, as every other bad input (argparse's error printed its usage block first).
+    out_error = ('--folds must be at least 2' if args.folds < 2
+                 else hit_plane_error(args.hit_plane_x)
+                 or output_folder_error(args.out, REPORT_FILE, 'tt-identify'))
     if out_error:
         print(f'tt-identify: {out_error}', file=sys.stderr)
         return 2
@@ -78,7 +76,7 @@ def main(argv=None):
         if progress:
             progress.close()
         writing = True
-        write_outputs(result, args.out, args.data)
+        write_outputs(result, args.out, args.data, args.model)
     except (DataError, ValueError) as exc:
         print(f'tt-identify: {exc}', file=sys.stderr)
         return 2

@@ -105,7 +105,8 @@ def fit_baseline(prepared, base, notes, max_nfev=40):
         spins = np.array([np.linalg.norm(x[6:9]) for x in states])
         paper['c_m'] = {'fixed': base.c_m, 'note': (
             'spin not measured: C_M and spin are not separately identifiable from a flight '
-            '(the Magnus force is their product); C_M is fixed at the nominal value and each '
+            "(the Magnus force is their product); C_M is fixed at the starting model's value "
+            "(the nominal one, or --model's) and each "
             "track's spin is estimated jointly with its state; where the data bounce, the "
             'rebound separates them and C_M is tested as the effect lift_from_bounces')}
         paper['spin_abs_rad_s'] = _mean_std(spins)
@@ -128,10 +129,14 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     if len(prepared) < 2:
         first = next(iter(dropped.items()), None)
         why = f'; {first[0]}: {first[1]}' if first else ''
-        hint = f'; {warnings[0]}' if warnings else ''
+        # A frame's hint, not the plane's: too short a track crosses no plane either.
+        hint = next((f'; {w}' for w in warnings if not w.startswith('no track crosses')), '')
         raise DataError(f'{len(prepared)} usable trajectory(ies) after cleaning '
                         f'({len(tracks)} loaded{why}); identification needs at least 2{hint}')
-    folds = int(min(folds, len(prepared)))
+    if folds > len(prepared):       # cut without a word before (report.json's data.folds)
+        warnings.append(f'--folds {folds}: only {len(prepared)} usable tracks, so '
+                        f'{len(prepared)} folds (each track held out once)')
+        folds = len(prepared)
     g_base, states, paper = fit_baseline(prepared, base, notes, 2 * max_nfev)
     start = fitting.Globals(base, g_base.names)
     stuck_by = g_base.blocking if not g_base.accepted_steps else None

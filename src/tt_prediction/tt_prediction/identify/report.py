@@ -20,16 +20,19 @@ PLOTS = ('residual_vs_time.png', 'residual_acceleration.png', 'landing_errors.pn
          'rebound.png')
 
 
-def write_outputs(result, out_dir, sources):
-    """Write the report of ``result`` (pipeline.identify) atomically into ``out_dir``."""
+def write_outputs(result, out_dir, sources, model=None):
+    """Write the report of ``result`` (pipeline.identify) atomically into ``out_dir``;
+    ``model``: the model.yaml it started from (``--model``), None for the nominal one."""
     with staged_folder(out_dir, 'tt-identify') as tmp:
         public = {k: v for k, v in result.items() if not k.startswith('_')}
         public['sources'] = list(sources)
+        meta = {'written_by': 'tt-identify', 'sources': list(sources)}
+        if model:       # recorded nowhere before: its values read as the nominal ones
+            public['model'] = meta['model'] = str(model)
         with open(os.path.join(tmp, 'report.json'), 'w') as f:
             json.dump(public, f, indent=2)
         result['_model'].save(os.path.join(tmp, 'model.yaml'), meta={
-            'written_by': 'tt-identify', 'sources': list(sources),
-            'selected_effects': list(result['selected_effects'])})
+            **meta, 'selected_effects': list(result['selected_effects'])})
         plot_all(result, tmp)
         with open(os.path.join(tmp, 'report.md'), 'w') as f:
             f.write(markdown(public))
@@ -60,7 +63,8 @@ def markdown(r):
     """The human-readable report (tables of errors, parameters, effects, plots)."""
     d, b, f = r['data'], r['baseline'], r['final']
     lines = ['# tt-identify report', '',
-             f"Sources: {', '.join(r['sources'])}", '']
+             f"Sources: {', '.join(r['sources'])}"
+             + (f"; starting model: {r['model']}" if r.get('model') else ''), '']
     for warning in r.get('warnings', []):
         lines += [f'**Warning:** {warning}', '']
     lines += ['## Data', '',
@@ -83,7 +87,7 @@ def markdown(r):
         lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f} (n = "
                      f"{p['c_m']['n']}, the tracks with measured spin); paper 0.069 ± 0.029.")
     else:
-        lines.append(f"C_M fixed at {p['c_m']['fixed']}: {p['c_m']['note']}. Fitted |ω| = "
+        lines.append(f"C_M fixed at {p['c_m']['fixed']:.4g}: {p['c_m']['note']}. Fitted |ω| = "
                      f"{p['spin_abs_rad_s']['mean']:.0f} ± {p['spin_abs_rad_s']['std']:.0f}"
                      ' rad/s.')
     reb = b.get('rebound')
