@@ -102,6 +102,10 @@ def test_no_hit_point_and_infeasible_are_statuses(monkeypatch, capsys):
     (dict(BALL, target_point=[0.7, 0, 1]), '"target_point" must be 2 numbers [x, y], got'),
     (dict(BALL, target_point=[[0.7, 0.0]]), '"target_point" must be 2 numbers'),
     (dict(BALL, target_point=[0.7, True]), '"target_point" must be 2 numbers'),
+    # Left out without a word: the stroke went out without its in-zone probability.
+    (dict(BALL, target_zone=3, covarience=np.eye(9).ravel().tolist()),
+     'unknown field "covarience" (did you mean "covariance"?)'),
+    (dict(BALL, target_zone=3, label='serve'), 'unknown field "label" (the fields: t, p, v'),
 ])
 def test_bad_input_is_a_one_line_error(line, what, monkeypatch, capsys):
     code, out, err = run([dict(BALL, target_zone=1), line], monkeypatch, capsys)
@@ -146,6 +150,31 @@ def test_hit_plane_x_is_the_old_behaviour(monkeypatch, capsys):
                        ['--hit-plane-x', '-1.5'])
     assert code == 0 and out[0]['status'] == 'ok'
     assert out[0]['hit']['p'][0] == pytest.approx(-1.5, abs=1e-9)
+
+
+def test_the_workspace_holds_with_a_hitting_plane_and_a_faster_limit(monkeypatch, capsys,
+                                                                     tmp_path):
+    """An arm rated 1 m/s got strokes of 2.6 m/s when --max-racket-speed 5 was given (it
+    replaced the workspace's limit; strike_node takes the lower), and --hit-plane-x left the
+    workspace unread, a missing file included (a walk-through, 6 Dec 2026)."""
+    slow = tmp_path / 'slow.yaml'
+    slow.write_text('workspace: {shape: box, box: {x: [-2.1, -1.0], y: [-1, 1], z: [0.0, 1.0]},'
+                    ' max_racket_speed: 1.0, min_time_before_hit: 0.15}\n')
+    for extra in ([], ['--max-racket-speed', '5'], ['--hit-plane-x', '-1.5']):
+        code, out, _ = run([dict(BALL, target_zone=8)], monkeypatch, capsys,
+                           ['--workspace', str(slow), *extra])
+        assert code == 0 and out[0]['status'] == 'infeasible', (extra, out)
+        assert 'above limit 1.0 m/s' in out[0]['reason']
+    code, out, err = run([dict(BALL, target_zone=8)], monkeypatch, capsys,
+                         ['--workspace', str(tmp_path / 'absent.yaml'), '--hit-plane-x', '-1.5'])
+    assert code == 2 and out == [] and 'absent.yaml' in err and err.count('\n') == 1
+    late = tmp_path / 'late.yaml'
+    late.write_text(slow.read_text().replace('max_racket_speed: 1.0', 'max_racket_speed: 8.0')
+                    .replace('min_time_before_hit: 0.15', 'min_time_before_hit: 0.9'))
+    code, out, _ = run([dict(BALL, target_zone=8)], monkeypatch, capsys,
+                       ['--workspace', str(late), '--hit-plane-x', '-1.5'])
+    assert code == 0 and out[0]['status'] == 'too_late' and out[0]['racket'] is None
+    assert 'below min_time_before_hit 0.900 s' in out[0]['reason']
 
 
 def test_unreachable_is_a_status(monkeypatch, capsys, tmp_path):

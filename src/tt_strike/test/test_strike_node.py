@@ -385,6 +385,20 @@ def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
         assert g.commands == []
 
 
+def test_the_workspace_speed_limit_holds_at_the_hitting_plane(tmp_path):
+    """use_hit_plane took the max_racket_speed parameter's limit alone: an arm rated 1 m/s
+    was sent a 1.9 m/s stroke (a ROS user's walk-through, 6 Dec 2026)."""
+    slow = tmp_path / 'slow.yaml'
+    slow.write_text(CONFIG.parent.joinpath('workspace.yaml').read_text().replace(
+        'max_racket_speed: 8.0', 'max_racket_speed: 1.0'))
+    with Graph([Parameter('use_hit_plane', value=True),
+                Parameter('workspace_file', value=str(slow))]) as g:
+        g.pub.publish(prediction_msg(5))
+        g.spin_until(lambda: g.commands, 20.0, 'a command')
+        assert g.commands[0].status == 'infeasible'
+        assert 'above limit 1.0 m/s' in g.commands[0].reason
+
+
 def test_each_ball_keeps_the_hit_time_chosen_for_it():
     # The same prediction of one ball, decided as the (simulated) clock runs on at 150 Hz:
     # rows become too soon and drop out, and the winner used to move on 10 ms every few

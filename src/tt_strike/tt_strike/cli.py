@@ -7,7 +7,8 @@ Each ball is predicted through its bounce on the robot's half, and the hit point
 along its path inside the robot's reach (--workspace, default the template
 config/workspace.yaml) where the in-zone probability is best (tt_strike.hitpoint); the
 input's t is the time of the decision, for the workspace's min_time_before_hit. With
---hit-plane-x X the old behaviour: the hit point is the crossing of the plane x = X.
+--hit-plane-x X the old behaviour: the hit point is the crossing of the plane x = X (the
+workspace's racket speed limit and min_time_before_hit still apply, as in strike_node).
 Output (stdout), one line per input line:
     {"status": "ok" | "infeasible" | "no_hit_point" | "unreachable" | "too_late",
      "reason": ...,
@@ -15,7 +16,7 @@ Output (stdout), one line per input line:
      "racket": {normal, velocity, orientation_xyzw, position} | null,
      "ball_out": {v, w} | null, "landing": {t, p, zone} | null,
      "target": {zone, point}, "net_clearance", "margin", "residual", "in_zone_probability"}
-Every line is checked before anything is written: a bad line (not JSON, a missing or
+Every line is checked before anything is written: a bad line (not JSON, a missing, unknown or
 malformed field, NaN, a target zone outside 1..9, a target point that is not 2 numbers or
 is off the opponent's half, a covariance not symmetric or not positive semi-definite)
 stops the command with a one-line reason naming the line, exit status 2; so does a bad
@@ -24,6 +25,7 @@ workspace file (naming the key).
 
 import argparse
 import dataclasses
+import difflib
 import json
 import math
 import sys
@@ -39,7 +41,7 @@ from tt_prediction.cli import (
 )
 from tt_prediction.predict import DEFAULT_HIT_PLANE_X
 
-from .hitpoint import choose
+from .hitpoint import StrikePlan, choose
 from .incoming import hit_point
 from .robust import check_covariance
 from .solver import (
@@ -51,10 +53,20 @@ from .solver import (
 )
 from .workspace import load_workspace
 
+INPUT_FIELDS = ('t', 'p', 'v', 'w', 'target_zone', 'target_point', 'covariance')
+"""The fields of an input line; any other is refused (a misspelt "covarience" was left out
+without a word, and the stroke went out without its in-zone probability)."""
+
 
 def parse_strike_line(text, lineno, radius):
     """(t, state9, zone or None, point or None, covariance or None) of one input line."""
     data = parse_object(text, lineno)
+    unknown = [k for k in data if k not in INPUT_FIELDS]
+    if unknown:
+        near = difflib.get_close_matches(str(unknown[0]), INPUT_FIELDS, n=1)
+        raise InputError(f'line {lineno}: unknown field {json.dumps(unknown[0])}'
+                         + (f' (did you mean "{near[0]}"?)' if near else
+                            f" (the fields: {', '.join(INPUT_FIELDS)})"))
     t, state = parse_state(data, lineno, radius)
     zone, point = data.get('target_zone'), data.get('target_point')
     if point is not None and not (
@@ -145,8 +157,8 @@ def main(argv=None):
                         metavar='M', help='gap between ball and net top at x = 0, m '
                         '(the free direction; default: %(default)s)')
     parser.add_argument('--max-racket-speed', type=float, default=None, metavar='V',
-                        help="racket speed limit, m/s (default: the workspace's; "
-                        f'{defaults.max_racket_speed} with --hit-plane-x)')
+                        help="racket speed limit, m/s, where below the workspace's (default: "
+                        "the workspace's)")
     parser.add_argument('--aim-inside-zone', action='store_true',
                         help='aim where the in-zone probability is highest (needs covariance)')
     args = parser.parse_args(argv)
@@ -158,28 +170,35 @@ def main(argv=None):
         print(f'tt-strike: {error}', file=sys.stderr)
         return 2
     try:
-        workspace = None if args.hit_plane_x is not None else load_workspace(args.workspace)
+        # Read with --hit-plane-x too: its racket speed limit and least time before the hit
+        # apply there as in strike_node's use_hit_plane (a missing file was not even named).
+        workspace = load_workspace(args.workspace)
         params, balls = read_input(args.model, args.input, parse_strike_line)
     except ValueError as exc:                  # InputError, WorkspaceError are ValueErrors
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
-    if workspace is not None and args.max_racket_speed is not None:
+    if args.max_racket_speed is not None and args.max_racket_speed < workspace.max_racket_speed:
+        # The lower of the two, as strike_node: a faster limit than the arm's is not the arm's.
         workspace = dataclasses.replace(workspace, max_racket_speed=args.max_racket_speed)
     settings = StrikeSettings(net_clearance=args.net_clearance,
-                              max_racket_speed=args.max_racket_speed or defaults.max_racket_speed,
+                              max_racket_speed=workspace.max_racket_speed,
                               aim_inside_zone=args.aim_inside_zone)
     out = []
     for t, state, zone, point, cov in balls:
-        if workspace is not None:
+        if args.hit_plane_x is None:
             plan = choose(state, params, workspace, t0=t, target_zone=zone, target_point=point,
                           settings=settings, covariance=cov)
             out.append(json.dumps(strike_to_dict(plan.prediction, None, plan)))
             continue
         pred = hit_point(state, params, t0=t, hit_plane_x=args.hit_plane_x)
+        if pred.status == 'ok' and pred.hit.t - t < workspace.min_time_before_hit:
+            plan = StrikePlan('too_late', f'hit in {pred.hit.t - t:.3f} s, below '
+                              f'min_time_before_hit {workspace.min_time_before_hit:.3f} s')
+            out.append(json.dumps(strike_to_dict(pred, None, plan)))
+            continue
         sol = None
         if pred.status == 'ok':
-            hit = pred.hit.state
-            sol = solve(hit, params, target_zone=zone, target_point=point,
+            sol = solve(pred.hit.state, params, target_zone=zone, target_point=point,
                         settings=settings, covariance=cov)
         out.append(json.dumps(strike_to_dict(pred, sol)))
     if out:
