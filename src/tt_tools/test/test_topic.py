@@ -10,11 +10,13 @@ from builtin_interfaces.msg import Time
 from conftest import Graph, Ros2Process, error_lines, ros2
 import pytest
 from rclpy.duration import Duration
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from tt_ros.testing import unique_domain
 from tt_tools.introspect import dict_to_message
+from tt_tools.ros2 import build_parser
+from tt_tools.rosutil import chosen_qos
 import yaml
 
 from tt_msgs.msg import BallState, StrikeTarget
@@ -275,6 +277,21 @@ def test_qos_profile_presets_and_their_overrides(graph, procs, topic):
     for proc in echos + pubs:
         proc.signal(signal.SIGINT)
         assert proc.wait() == 0, proc.stderr
+
+
+@pytest.mark.parametrize('argv, history, depth', [
+    (['echo', '/x', '--qos-history', 'keep_all'], HistoryPolicy.KEEP_ALL, None),
+    (['echo', '/x', '--qos-profile', 'sensor_data', '--qos-history', 'keep_last'],
+     HistoryPolicy.KEEP_LAST, 5),
+    (['pub', '/x', 'tt_msgs/msg/BallState', '{}', '--qos-depth', '3', '--qos-history',
+      'keep_last'], HistoryPolicy.KEEP_LAST, 3),
+    (['pub', '/x', 'tt_msgs/msg/BallState', '{}'], HistoryPolicy.KEEP_LAST, 10),
+])
+def test_qos_history_is_an_option_as_in_ros2cli(argv, history, depth):
+    # ros2cli's echo and pub take --qos-history; tt's refused it ('unrecognized arguments',
+    # exit 2; a ROS user's walk-through, 6 Dec 2026).
+    qos = chosen_qos(build_parser().parse_args(['topic', *argv]))
+    assert qos.history == history and (depth is None or qos.depth == depth)
 
 
 def test_delay_and_pub_read_the_time_of_clock_with_use_sim_time(procs, topic):

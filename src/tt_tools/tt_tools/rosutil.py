@@ -55,6 +55,8 @@ RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
 DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
               'transient_local': DurabilityPolicy.TRANSIENT_LOCAL,
               'system_default': DurabilityPolicy.SYSTEM_DEFAULT}
+HISTORY = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP_ALL,
+           'system_default': HistoryPolicy.SYSTEM_DEFAULT}
 
 
 def leave_graph(executor, node, context):
@@ -355,7 +357,8 @@ def chosen_qos(args, publishers=None):
     """The QoS ``topic echo`` (``publishers`` given) or ``topic pub`` asks for:
     ``args.qos_profile``'s preset, else one matching the ``publishers``
     (:func:`qos_matching`), else reliable, volatile, depth 10; then ``args.qos_reliability``,
-    ``qos_durability`` and ``qos_depth`` in place of the preset's where given."""
+    ``qos_durability``, ``qos_depth`` and ``qos_history`` in place of the preset's where
+    given (keep_all: the depth is not used)."""
     if args.qos_profile:
         preset = QoSPresetProfiles.get_from_short_key(args.qos_profile)
         qos = QoSProfile(history=preset.history, depth=preset.depth,
@@ -371,6 +374,8 @@ def chosen_qos(args, publishers=None):
         qos.durability = DURABILITY[args.qos_durability]
     if args.qos_depth is not None:
         qos.history, qos.depth = HistoryPolicy.KEEP_LAST, args.qos_depth
+    if args.qos_history:
+        qos.history = HISTORY[args.qos_history]
     return qos
 
 

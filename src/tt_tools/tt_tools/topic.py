@@ -37,6 +37,7 @@ from tt_tools.rate import (
 )
 from tt_tools.rosutil import (
     DURABILITY,
+    HISTORY,
     LATE_NODE_S,
     QOS_PROFILES,
     RELIABILITY,
@@ -452,6 +453,8 @@ def add_arguments(topic_sub, node_sub):
                        help="QoS durability (default: the profile's)")
         p.add_argument('--qos-depth', type=positive_int,
                        help="QoS history depth (default: the profile's, else 10)")
+        p.add_argument('--qos-history', choices=sorted(HISTORY),
+                       help="QoS history (default: the profile's; keep_all ignores the depth)")
 
     p = topic_sub.add_parser('list', help='list the topics in the graph')
     p.add_argument('-t', '--show-types', action='store_true', help='also print each type')
