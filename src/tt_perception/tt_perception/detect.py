@@ -1044,7 +1044,8 @@ def warm_up():
     _usable_pixels(np.zeros((6, 6), np.uint8), _NO_PATCH, _NO_BACKGROUND,
                    np.zeros((6, 6), np.float32), 2.5, 2.5, 3.0, False)
     grey = np.zeros((6, 6), np.uint8)
-    light_gain(np.zeros((6, 6, 3), np.uint8), grey)
+    light_gains(np.zeros((6, 6, 3), np.uint8), grey)
+    light_gains(grey, grey)
     light_gain(grey, grey)
     exposure_level(grey, np.zeros((6, 6, 3), np.float32))
 
@@ -1225,6 +1226,19 @@ GAIN_RANGE = (0.5, 2.0)
 """The light's gain is held within this range."""
 
 
+GAIN_TILES = (4, 6)
+"""Rows and columns of the grid of parts of a frame whose light is measured apart
+(:func:`light_gains`)."""
+GAIN_TILE_DEADBAND = 0.06
+"""The parts' gains are used when one differs from the whole frame's by more than this (the
+scalar gain else): twice :data:`GAIN_DEADBAND`, so that a steady light's scenes, whose parts
+a ball, its shadow or a moving robot shift by a few percent, keep the one gain."""
+GAIN_TILE_AGREEMENT = (0.06, 0.6)
+"""A part's gain counts when this share (second) of its pixels' ratios lie within this
+(first) of their median: under a lamp the table, floor and walls of a part change alike; a
+part half covered by a person moving has no one ratio (its gain is then the frame's)."""
+
+
 def light_gain(frame, background, step=GAIN_STEP):
     """The light's gain in a ``frame`` (BGR or grey, uint8) against its grey ``background``
     (uint8, the frame's size): the median ratio of the two, the frame's grey level over the
@@ -1241,20 +1255,46 @@ def light_gain(frame, background, step=GAIN_STEP):
     The background times the gain is what the frame shows where no ball is. The whole frame
     is read, not the window searched: around the ball its shadow and the table it darkens
     moved the median 2-6 % on a steady light (synth's hall)."""
+    return light_gains(frame, background, (1, 1), step)[0]
+
+
+def light_gains(frame, background, tiles=GAIN_TILES, step=GAIN_STEP):
+    """``(gain, grid)``: :func:`light_gain` of the whole ``frame``, and the gains of the
+    ``tiles`` (rows, columns) parts of the frame where they differ, float32 (rows,
+    columns), else None. Lamps on the three phases of the mains, each lighting a part of
+    the hall, flicker out of step: the whole frame's light hardly changes (the three sum to
+    a steady one) while each part's changes by the flicker's depth (synth's hall, white,
+    640x480, 20 % flicker in three sectors: 84 % of the frames with a state with the one
+    gain). A part's gain is its pixels' median ratio, within :data:`GAIN_RANGE`, or the
+    frame's where fewer than 32 pixels count or they do not agree
+    (:data:`GAIN_TILE_AGREEMENT`); the grid is given only when one part is more than
+    :data:`GAIN_TILE_DEADBAND` off the frame's gain."""
     if frame.ndim == 2:
         frame = frame[:, :, None]
-    gain = _median_ratio(frame, background, step)
-    if abs(gain - 1.0) <= GAIN_DEADBAND:
-        return 1.0
-    return min(max(gain, GAIN_RANGE[0]), GAIN_RANGE[1])
+    rows, cols = tiles
+    near, share = GAIN_TILE_AGREEMENT
+    ratios = _median_ratios(frame, background, step, rows, cols, near, share)
+    whole = ratios[-1]
+    gain = 1.0 if abs(whole - 1.0) <= GAIN_DEADBAND else min(max(whole, GAIN_RANGE[0]),
+                                                               GAIN_RANGE[1])
+    if rows * cols == 1:
+        return gain, None
+    parts = np.clip(np.where(np.isfinite(ratios[:-1]), ratios[:-1], gain), *GAIN_RANGE)
+    if np.max(np.abs(parts - gain)) <= GAIN_TILE_DEADBAND:
+        return gain, None
+    return gain, parts.reshape(rows, cols).astype(np.float32)
 
 
 @njit(cache=True, nogil=True)
-def _median_ratio(frame, background, step):
-    """Kernel of :func:`light_gain` (``frame`` H x W x 1 or 3; grey as OpenCV weighs B, G, R):
-    the median ratio, 1.0 when fewer than 32 pixels count."""
+def _median_ratios(frame, background, step, rows, cols, near, share):
+    """Kernel of :func:`light_gains` (``frame`` H x W x 1 or 3; grey as OpenCV weighs B, G,
+    R): the median ratio of each of the rows x cols parts, row by row (NaN where fewer than
+    32 pixels count or fewer than ``share`` of them lie within ``near`` of the median), and
+    last the whole frame's (1.0 when fewer than 32 pixels count)."""
     h, w = background.shape
-    ratios = np.empty((h // step + 1) * (w // step + 1), np.float64)
+    size = (h // step + 1) * (w // step + 1)
+    ratios = np.empty(size, np.float64)
+    part = np.empty(size, np.int64)
     n = 0
     for y in range(0, h, step):
         for x in range(0, w, step):
@@ -1266,10 +1306,34 @@ def _median_ratio(frame, background, step):
             b = float(background[y, x])
             if 16.0 <= b <= 250.0 and 16.0 <= level <= 250.0:
                 ratios[n] = level / b
+                part[n] = (y * rows // h) * cols + x * cols // w
                 n += 1
-    if n < 32:
-        return 1.0
-    return np.median(ratios[:n])
+    parts = rows * cols
+    out = np.full(parts + 1, np.nan)
+    out[-1] = np.median(ratios[:n]) if n >= 32 else 1.0
+    if parts == 1:
+        return out
+    start = np.zeros(parts + 1, np.int64)      # each part's ratios together, in order
+    for i in range(n):
+        start[part[i] + 1] += 1
+    for k in range(parts):
+        start[k + 1] += start[k]
+    filled = start[:-1].copy()
+    grouped = np.empty(n, np.float64)
+    for i in range(n):
+        grouped[filled[part[i]]] = ratios[i]
+        filled[part[i]] += 1
+    for k in range(parts):
+        mine = grouped[start[k]:start[k + 1]]
+        if len(mine) < 32:
+            continue
+        median = np.median(mine)
+        agree = 0
+        for r in mine:
+            agree += abs(r - median) <= near * median
+        if agree >= share * len(mine):
+            out[k] = median
+    return out
 
 
 HIDDEN_MARGIN = 2
@@ -1424,6 +1488,9 @@ class BallDetector:
         self.gain = 1.0
         """The light's gain in the frame last searched against the background
         (:func:`light_gain`)."""
+        self.gain_grid = None
+        """Its parts' gains where they differ (:func:`light_gains`), else None."""
+        self._gain_map = None     # gain_grid over the frame's pixels, made when first needed
         self.level = 1.0
         """How brightly the camera is exposed (:func:`exposure_level`, measured on its
         background): a blob's colour and its change against the background are divided by
@@ -1485,12 +1552,15 @@ class BallDetector:
             x0, y0, x1, y1 = 0, 0, w, h
         found = []
         mask = window = None
-        self.gain = 1.0
+        self.gain, self.gain_grid, self._gain_map = 1.0, None, None
         if x1 > x0 and y1 > y0:
             window = _grey(frame[y0:y1, x0:x1])
             background8 = self._bg8[y0:y1, x0:x1]
-            self.gain = light_gain(frame, self._bg8)
-            if self.gain != 1.0:
+            self.gain, self.gain_grid = light_gains(frame, self._bg8)
+            if self.gain_grid is not None:
+                background8 = cv2.convertScaleAbs(self._background_patch(
+                    self.background, y0, y1, x0, x1))
+            elif self.gain != 1.0:
                 background8 = cv2.convertScaleAbs(self.background[y0:y1, x0:x1],
                                                   alpha=self.gain)
             diff = cv2.absdiff(window, background8)
@@ -1567,7 +1637,7 @@ class BallDetector:
                 # take the background's colour (JPEG's halved chroma resolution spreads it).
                 # As the camera would show it exposed to WHITE_LEVEL (self.level).
                 seen = m[7:10] / np.asarray(cfg.white_bgr)
-                scale = 1.0 / min(self.level * self.gain, 1.0)
+                scale = 1.0 / min(self.level * self._gain_at(x0 + cu, y0 + cv), 1.0)
                 colour = seen * scale
                 change = colour - m[10:13] / np.asarray(cfg.white_bgr) * scale if known else None
                 if not colour_matches(colour, cfg.colour, change):
@@ -1596,10 +1666,29 @@ class BallDetector:
         colour = None if self._bg_colour is None or self.colourless else self._bg_colour
         return exposure_level(self._bg8, colour, self.config.white_bgr)
 
+    def _gains(self):
+        """The light's gain at each pixel of the frame being searched (float32, H x W): its
+        parts' gains (:attr:`gain_grid`) interpolated between their centres."""
+        if self._gain_map is None:
+            h, w = self.background.shape
+            self._gain_map = cv2.resize(self.gain_grid, (w, h), interpolation=cv2.INTER_LINEAR)
+        return self._gain_map
+
+    def _gain_at(self, u, v):
+        """The light's gain at pixel (u, v) of the frame being searched."""
+        if self.gain_grid is None:
+            return self.gain
+        h, w = self.background.shape
+        return float(self._gains()[min(max(int(v), 0), h - 1), min(max(int(u), 0), w - 1)])
+
     def _background_patch(self, background, y0, y1, x0, x1):
         """``background`` (the grey or the colour one) on rows y0:y1 and columns x0:x1, times
-        the light's gain in the frame being searched (:func:`light_gain`), contiguous."""
+        the light's gain in the frame being searched (:func:`light_gains`: its parts' where
+        they differ), contiguous."""
         patch = background[y0:y1, x0:x1]
+        if self.gain_grid is not None:
+            gains = self._gains()[y0:y1, x0:x1]
+            return patch * (gains[:, :, None] if patch.ndim == 3 else gains)
         if self.gain != 1.0:
             return patch * np.float32(self.gain)
         return np.ascontiguousarray(patch)
