@@ -278,9 +278,15 @@ def test_a_node_that_cannot_start_stops_the_graph_with_exit_2(tmp_path):
     ('prediction_node: [1, 2\n', 'not valid YAML (line'),
     ('other_node:\n  ros__parameters: {}\n', 'names none of the tt nodes'),
     ('prediction_node:\n  use_sim_time: true\n', 'prediction_node: no ros__parameters'),
+    # A video given for it: a traceback (UnicodeDecodeError; a walk-through, 6 Dec 2026).
+    (b'RIFF\x9c\xff\x00AVI LIST', 'not valid YAML (not UTF-8 text)'),
 ])
 def test_bad_parameters_files_are_one_line_and_exit_2(tmp_path, text, words):
-    path = str(tmp_path / 'missing.yaml') if text is None else _params(tmp_path, text)
+    if isinstance(text, bytes):
+        path = str(tmp_path / 'cam0.avi')
+        pathlib.Path(path).write_bytes(text)
+    else:
+        path = str(tmp_path / 'missing.yaml') if text is None else _params(tmp_path, text)
     proc = subprocess.run(['ros2', 'run', 'tt_tools', 'bringup', '--params-file', path],
                           capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
     assert proc.returncode == 2

@@ -5,6 +5,7 @@ import pathlib
 import shutil
 import subprocess
 import sys
+import time
 
 from conftest import ROS2, ros2
 import pytest
@@ -175,3 +176,33 @@ def test_demo_refuses_an_out_that_is_a_file_before_writing(tmp_path, capsys):
     assert said.out == '' and 'Traceback' not in said.err
     assert len(errors) == 1 and '--out' in errors[0] and 'not a folder' in errors[0]
     assert out.read_text() == 'keep' and list(tmp_path.iterdir()) == [out]
+
+
+@pytest.mark.parametrize('ending', ['os._exit(0)', 'os.kill(os.getpid(), signal.SIGKILL)'])
+def test_a_process_group_does_not_outlive_its_parent(tmp_path, ending):
+    """The demo ended by `timeout` (SIGTERM) or a closed terminal left its four nodes
+    running for ever: what a ProcessGroup starts gets SIGTERM when its parent ends, however
+    it ends, with no cleanup of its own (a walk-through, 6 Dec 2026)."""
+    script = (
+        'import os, signal, sys\n'
+        'from tt_tools.procs import ProcessGroup\n'
+        f'group = ProcessGroup({str(tmp_path)!r})\n'
+        "child = group.start('sleeper', [sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+        'print(child.pid, flush=True)\n'
+        f'{ending}\n')
+    parent = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                            env=ros_env(), timeout=60)
+    pid = int(parent.stdout.split()[0])
+    # The child is no child of this process: poll /proc until it is gone or a zombie.
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            state = pathlib.Path(f'/proc/{pid}/stat').read_text().split()[2]
+        except FileNotFoundError:
+            break
+        if state == 'Z':
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, 9)
+        raise AssertionError(f'the child {pid} outlived its parent')

@@ -116,6 +116,8 @@ def read_params(params_file):
             data = yaml.safe_load(f)
     except OSError as exc:
         raise BringupError(f'{params_file}: {exc.strerror or exc}') from None
+    except UnicodeDecodeError:          # a video given for it: a traceback
+        raise BringupError(f'{params_file}: not valid YAML (not UTF-8 text)') from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         where = f' (line {mark.line + 1})' if mark is not None else ''

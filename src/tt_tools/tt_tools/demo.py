@@ -22,6 +22,7 @@ import argparse
 import os
 import pathlib
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -186,7 +187,23 @@ def show_bag_info(session):
     return result.returncode
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
+    """The demo; Ctrl-C, SIGTERM or SIGHUP stop its nodes (the session bag closed) and
+    exit 130 with one line."""
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print('tt-demo: interrupted', file=sys.stderr)
+        return 130
+
+
+def _main(argv):
     args = parse_args(argv)
     error = domain_id_error()
     if error:
@@ -206,7 +223,8 @@ def main(argv=None):
         say(f"replacing the previous run's session bag {session} and logs in {out / 'logs'}")
     shutil.rmtree(session, ignore_errors=True)
     log_dir = out / 'logs'
-    log_dir.mkdir(exist_ok=True)
+    shutil.rmtree(log_dir, ignore_errors=True)      # a --source topics run's play.log stayed
+    log_dir.mkdir()
     if args.source == 'video':
         with Collector() as collector:
             start, diags = run_graph_video(rec, session, log_dir, args, collector)

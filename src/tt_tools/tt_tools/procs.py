@@ -79,11 +79,13 @@ class ProcessGroup:
         self.procs = {}
 
     def start(self, name, argv, env=None):
-        """Start ``argv`` with stdout and stderr to ``log_dir/name.log``."""
+        """Start ``argv`` with stdout and stderr to ``log_dir/name.log``; it gets SIGTERM
+        when this process ends, however it ends (:func:`ends_with_parent`: the demo ended by
+        ``timeout`` or a closed terminal left its four nodes running for ever)."""
         log = open(os.path.join(self.log_dir, f'{name}.log'), 'w')
         proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, env=ros_env(env, self.large_messages),
-                                start_new_session=True)
+                                start_new_session=True, preexec_fn=ends_with_parent())
         proc.log = log
         self.procs[name] = proc
         return proc

@@ -143,7 +143,7 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None, imagi
     STAMP_BASE_S. Written to a temporary folder and renamed: a half-written recording never
     stays.
     """
-    from tt_perception.camera import load_rig, save_rig
+    from tt_perception.camera import load_rig
 
     params = params or ModelParams()
     path = pathlib.Path(path)
@@ -158,37 +158,48 @@ def ensure_recording(path, balls=4, hit_plane_x=-1.5, seed=7, params=None, imagi
         tmp = path.with_name(path.name + '.partial')
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
-        rig = load_rig(synth.make_rig(str(tmp), request['width'], request['height'],
-                                      request['fps']))
-        last = truths[-1]
-        frames, _ = synth.render_balls(
-            rig, [tr.ball.launch_state for tr in truths],
-            [tr.ball.launch_time for tr in truths],
-            duration=last.hit_time - last.ball.launch_time + 0.1, lead_in=LEAD_IN_S,
-            params=params, seed=seed, colour=colour, imaging=imaging,
-            exposure=request['exposure'])
-        print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
-              f'{path / "bag"} (once; cached)', flush=True)
-        with synth.CameraVideos(tmp, rig) as videos:      # the same frames as MJPG videos
-            images = write_bag(str(tmp / 'bag'), rig, videos.tee(frames))
-        video_t0 = truths[0].ball.launch_time - LEAD_IN_S
-        for cam in rig.cameras:
-            cam.source = f'{cam.name}.avi'
-            cam.time_offset = 0.0
-        save_rig(str(tmp / 'rig_video.yaml'), rig)
-        truth = [{'launch_time': tr.ball.launch_time,
-                  'launch_state': tr.ball.launch_state.tolist(),
-                  'bounce_time': tr.bounce_time, 'bounce_point': tr.bounce_point.tolist(),
-                  'bounce_zone': tr.bounce_zone, 'hit_time': tr.hit_time,
-                  'hit_state': tr.hit_state.tolist()} for tr in truths]
-        meta = {'request': request, 'images': images, 'stamp_base_s': STAMP_BASE_S,
-                'video_t0': video_t0, 'truth': truth}
-        (tmp / 'recording.json').write_text(json.dumps(meta, indent=1))
-        shutil.rmtree(path, ignore_errors=True)
-        tmp.rename(path)
+        try:
+            _render(path, tmp, truths, request, params, seed, colour, imaging, balls)
+        except BaseException:         # Ctrl-C while rendering left 164 MB behind
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     rig = load_rig(str(path / 'rig.yaml'))
     meta = json.loads(meta_file.read_text())
     truths = [fly(Ball(ball['launch_time'], np.array(ball['launch_state'])), params,
                   hit_plane_x) for ball in meta['truth']]
     return Recording(path, truths, params, tuple(cam.source for cam in rig.cameras),
                      path / 'rig_video.yaml', meta['video_t0'], colour)
+
+
+def _render(path, tmp, truths, request, params, seed, colour, imaging, balls):
+    """Render the recording into the folder ``tmp`` and rename it to ``path``."""
+    from tt_perception.camera import load_rig, save_rig
+
+    rig = load_rig(synth.make_rig(str(tmp), request['width'], request['height'],
+                                  request['fps']))
+    last = truths[-1]
+    frames, _ = synth.render_balls(
+        rig, [tr.ball.launch_state for tr in truths],
+        [tr.ball.launch_time for tr in truths],
+        duration=last.hit_time - last.ball.launch_time + 0.1, lead_in=LEAD_IN_S,
+        params=params, seed=seed, colour=colour, imaging=imaging,
+        exposure=request['exposure'])
+    print(f'tt-demo: rendering {balls} balls through {len(rig.cameras)} cameras into '
+          f'{path / "bag"} (once; cached)', flush=True)
+    with synth.CameraVideos(tmp, rig) as videos:      # the same frames as MJPG videos
+        images = write_bag(str(tmp / 'bag'), rig, videos.tee(frames))
+    video_t0 = truths[0].ball.launch_time - LEAD_IN_S
+    for cam in rig.cameras:
+        cam.source = f'{cam.name}.avi'
+        cam.time_offset = 0.0
+    save_rig(str(tmp / 'rig_video.yaml'), rig)
+    truth = [{'launch_time': tr.ball.launch_time,
+              'launch_state': tr.ball.launch_state.tolist(),
+              'bounce_time': tr.bounce_time, 'bounce_point': tr.bounce_point.tolist(),
+              'bounce_zone': tr.bounce_zone, 'hit_time': tr.hit_time,
+              'hit_state': tr.hit_state.tolist()} for tr in truths]
+    meta = {'request': request, 'images': images, 'stamp_base_s': STAMP_BASE_S,
+            'video_t0': video_t0, 'truth': truth}
+    (tmp / 'recording.json').write_text(json.dumps(meta, indent=1))
+    shutil.rmtree(path, ignore_errors=True)
+    tmp.rename(path)
