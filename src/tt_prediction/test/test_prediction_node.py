@@ -183,6 +183,24 @@ def test_a_prediction_carries_nothing_over_from_the_one_before(graph):
     assert not any(out.hit_covariance) and out.hit_time_std == 0.0
 
 
+def test_a_ball_past_the_plane_carries_no_hit_uncertainty(graph):
+    # The track's last propagated uncertainty, a hit's, went out with its first no_hit
+    # messages past the plane (hit_valid false, hit_time_std 0.4 ms; a walk-through).
+    publish_until(graph, lambda k: graph.state(GOOD, stamp_ns=T0 + k * 25_000_000, track_id=9),
+                  lambda: graph.predictions and any(graph.predictions[-1].hit_covariance),
+                  'a prediction with its uncertainty')
+    before = predict(GOOD)
+    t_past = before.hit.t + 0.02
+    _, samples = rollout(np.array(GOOD), ModelParams(), sample_times=[t_past],
+                         stop_at_plane=False)
+    n = len(graph.predictions)
+    graph.pub.publish(graph.state(samples[0], stamp_ns=T0 + round(t_past * 1e9), track_id=9))
+    graph.spin_until(lambda: len(graph.predictions) > n, 10.0, 'the ball past the plane')
+    out = graph.predictions[-1]
+    assert out.track_id == 9 and not out.hit_valid
+    assert not any(out.hit_covariance) and out.hit_time_std == 0.0
+
+
 def test_each_path_has_the_poses_of_its_own_flight():
     # A long flight, then a short one (the ball already near the plane), then the long one
     # again: every path has the poses of its prediction, none left over from the one before.
@@ -494,6 +512,23 @@ def test_a_late_state_is_dropped_and_its_track_keeps_its_bounce(graph):
     first, last = _past_its_bounce(graph, 3, (samples[0], -0.01))
     assert graph.node.n_dropped == 1 and len(graph.predictions) == 3
     assert list(graph.node.tracks) == [3]
+    assert last.status == 'ok' and last.bounce_time == first.bounce_time
+    assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
+
+
+@pytest.mark.parametrize('bad', ['nan', 'fast'])
+def test_an_invalid_state_past_the_bounce_is_dropped_and_its_track_keeps_its_bounce(graph,
+                                                                                      bad):
+    # One state of the ball with a NaN velocity (or 45 m/s) 5 ms after one past its bounce:
+    # it became the track's last before it was found invalid, the next state was no longer
+    # on its path, and the bounce was forgotten (no_bounce, then miss, for the rest of the
+    # flight: a walk-through, 6 Dec 2026).
+    _, samples = rollout(np.array(GOOD), ModelParams(),
+                         sample_times=[predict(GOOD).bounce.t + 0.065])
+    invalid = samples[0].copy()
+    invalid[3] = math.nan if bad == 'nan' else -45.0
+    first, last = _past_its_bounce(graph, 5, (invalid, 0.005))
+    assert graph.node.n_dropped == 1 and len(graph.predictions) == 3
     assert last.status == 'ok' and last.bounce_time == first.bounce_time
     assert ns(last.hit_time) == pytest.approx(ns(first.hit_time), abs=1000)
 

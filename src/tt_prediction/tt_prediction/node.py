@@ -32,7 +32,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tt_msgs.msg import BallPrediction, BallState
 
 from .ball import load_model
-from .predict import DEFAULT_HIT_PLANE_X, HIT_PLANE_X_RANGE, predict
+from .predict import DEFAULT_HIT_PLANE_X, HIT_PLANE_X_RANGE, check_state, predict
 from .uncertainty import predict_uncertainty
 from .units import ROOM_HALF_EXTENT_M, position_error
 
@@ -286,6 +286,13 @@ class PredictionNode(Node):
             self._drop(position_error((p.x, p.y, p.z), 'position'))
             return
         state = np.array([p.x, p.y, p.z, v.x, v.y, v.z, w.x, w.y, w.z])
+        reason = check_state(state, self.params.radius)
+        if reason:
+            # Before the track takes it: one state with a NaN or a 45 m/s velocity after the
+            # bounce became the track's last, the next state was no longer on its path, and
+            # the ball's bounce was forgotten (no hit for the rest of it; a walk-through).
+            self._drop(reason)
+            return
         track = self._track(msg.track_id, state, stamp_ns)
         if track is None:
             return
@@ -416,8 +423,9 @@ class PredictionNode(Node):
         if unc is not None:
             out.zone_probabilities[:] = unc.zone_probabilities
             out.zone_probabilities_half = int(unc.zone_half)
-            out.hit_covariance[:] = unc.hit_covariance.ravel()
-            out.hit_time_std = float(unc.hit_time_std)
+            if out.hit_valid:      # a no_hit message carried the last hit's (a walk-through)
+                out.hit_covariance[:] = unc.hit_covariance.ravel()
+                out.hit_time_std = float(unc.hit_time_std)
         elif out.bounce_valid:
             out.zone_probabilities[out.bounce_zone] = 1.0
             out.zone_probabilities_half = out.bounce_half

@@ -394,7 +394,9 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                 best = _crossing(s, s1, h, 2, floor_z, True, P, work)
                 if best <= h:
                     kind = CONTACT_FLOOR
-        if has_plane and ((s[0] > plane_x) != (s1[0] > plane_x) or s1[0] == plane_x):
+        # The hitting plane crossed towards the robot (-x) only: a ball struck back from
+        # behind it (its track going on) was taken to reach it, moving away, as its hit.
+        if has_plane and s[0] > plane_x >= s1[0]:
             tp = _crossing(s, s1, h, 0, plane_x, False, P, work)
             if tp < best:
                 best, kind = tp, CONTACT_PLANE

@@ -90,8 +90,8 @@ def reference_events(state9, params, t0=0.0, plane_x=math.nan, max_bounces=2):
             funcs.append(('table', _event(lambda _t, y: y[2] - r, -1.0)))
         if s[0] != 0.0:
             funcs.append(('net', _event(lambda _t, y: y[0])))
-        if math.isfinite(plane_x) and s[0] != plane_x:
-            funcs.append(('plane', _event(lambda _t, y: y[0] - plane_x)))
+        if math.isfinite(plane_x) and s[0] > plane_x:      # crossed towards the robot only
+            funcs.append(('plane', _event(lambda _t, y: y[0] - plane_x, -1.0)))
         sol = solve_ivp(rhs, (t, t_end), s, method='DOP853', rtol=RTOL, atol=ATOL,
                         events=[f for _, f in funcs])
         hits = [(te[0], ye[0], name) for (name, _), te, ye in
