@@ -254,6 +254,24 @@ def test_bad_and_stale_states_publish_nothing(graph):
     assert graph.node.n_dropped == len(bad) + 1 and len(graph.predictions) == len(good)
 
 
+def test_each_kind_of_dropped_state_is_said_at_most_once_a_second(graph, monkeypatch):
+    # One throttle for every reason: a stream of stale states hid the states of a camera
+    # frame dropped beside them (a ROS user's walk-through, 6 Dec 2026).
+    said = []
+    monkeypatch.setattr(graph.node.warn, '_log', said.append)
+    stale = graph.state(GOOD, stamp_ns=T0 - 3 * round(
+        graph.node.get_parameter('stale_after_s').value * 1e9))
+    camera = graph.state(GOOD)
+    camera.header.frame_id = 'camera'
+    sent = [stale, camera, stale, graph.state([math.nan, 0, 0.3, -6, 0, 1, 0, 0, 0]), camera]
+    for k, msg in enumerate(sent):
+        graph.pub.publish(msg)
+        graph.spin_until(lambda k=k: graph.node.n_received == k + 1, 10.0, f'state {k}')
+    assert graph.node.n_dropped == len(sent)
+    kinds = [line.split(': ')[1].split(' ')[0] for line in said]
+    assert kinds == ['stale', 'frame', 'position'], said
+
+
 def test_states_received_late_are_counted_in_the_exit_line(graph):
     # At 1 kHz from another process the node fell 94-133 ms behind (its queue full) and its
     # exit line read as if all were well. A state 0.2 s old (not stale: 0.5 s) is late.

@@ -217,8 +217,12 @@ class PredictionNode(Node):
             f'{self.p.model_file or "nominal"}')
 
     def _drop(self, why):
+        """Count a dropped state and warn, at most once a second for each kind of reason
+        (its first word: stale, frame, velocity, ...): with one throttle for all, a stream of
+        stale states hid the states of a camera frame dropped beside them."""
         self.n_dropped += 1
-        self.warn('drop', 1.0, f'ball state dropped: {why}')
+        self.warn('drop:' + why.replace(':', ' ').split(' ', 1)[0], 1.0,
+                  f'ball state dropped: {why}')
 
     def on_state(self, msg):
         self.work.call(self._on_state, msg)
