@@ -104,6 +104,13 @@ def test_implausible_model_file_is_refused_naming_file_and_field(capsys, tmp_pat
     # JSON integers have no size limit; a float has (OverflowError and a traceback).
     ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 1' + '0' * 330 + ', 0]}',
      '"w" holds an integer too large'),
+    # Left out without a word: the plane stayed --hit-plane-x's (a walk-through, 6 Dec 2026).
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0], "hit_plane_x": -1.2}',
+     'unknown field "hit_plane_x" (the fields: t, p, v, w)'),
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0], "spin": [0, 0, 0]}',
+     'unknown field "spin" (the fields: t, p, v, w)'),
+    ('{"t": true, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0]}',
+     '"t" must be a number, got true'),              # JSON's spelling, not Python's True
 ])
 def test_a_bad_line_is_a_one_line_error_naming_it_and_nothing_is_written(
         capsys, tmp_path, line, words):
@@ -112,6 +119,22 @@ def test_a_bad_line_is_a_one_line_error_naming_it_and_nothing_is_written(
     assert rc == 2
     assert out == ''
     assert err.count('\n') == 1 and 'line 2' in err and words in err
+
+
+def test_stdin_as_dash_a_byte_order_mark_and_empty_paths(capsys, tmp_path, monkeypatch):
+    # '--input -' was 'no such file', a file saved with a BOM 'not valid JSON', and an empty
+    # --model or --input (an unset shell variable) the nominal model or stdin without a word.
+    import io
+    monkeypatch.setattr(sys, 'stdin', io.StringIO('\ufeff' + json.dumps(GOOD) + '\n'))
+    assert cli.main(['--input', '-']) == 0
+    assert json.loads(capsys.readouterr().out)['status'] == 'ok'
+    rc, out, err = run_main(capsys, '\ufeff' + json.dumps(GOOD) + '\n', tmp_path=tmp_path)
+    assert rc == 0 and json.loads(out)['status'] == 'ok'
+    for option in ('--model', '--input'):
+        rc = cli.main(['--input', str(tmp_path / 'in.jsonl'), option, ''])
+        out, err = capsys.readouterr()
+        assert rc == 2 and out == ''
+        assert err == f"tt-predict: {option} '': an empty path (a variable not set?)\n"
 
 
 def test_bad_model_file_is_a_one_line_error(capsys, tmp_path):

@@ -7,11 +7,13 @@ Output (stdout), one line per input line:
      "hit": {t, p, v, w} | null, "landing": {t, p, zone, half} | null}
 ``hit`` is where the ball, after one bounce on the robot's half, crosses x = --hit-plane-x;
 ``landing`` is the first table contact. Blank lines are skipped. Every line is checked before
-anything is written: a bad line (not JSON, a missing or malformed field, a state that is not
-a ball in flight) stops the command with a one-line reason naming the line, exit status 2.
+anything is written: a bad line (not JSON, a missing, unknown or malformed field, a state
+that is not a ball in flight) stops the command with a one-line reason naming the line, exit
+status 2.
 """
 
 import argparse
+import difflib
 import json
 import math
 import sys
@@ -32,14 +34,22 @@ class InputError(ValueError):
     """A bad input line; the message names it."""
 
 
-def parse_object(text, lineno):
-    """The JSON object of one line (a dict); raises InputError naming the line."""
+def parse_object(text, lineno, fields=tuple(key for key, _ in FIELDS)):
+    """The JSON object of one line (a dict) whose keys are among ``fields``; raises
+    InputError naming the line, and an unknown field with the nearest name (a misspelt or
+    per-line "hit_plane_x" was left out without a word)."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f'line {lineno}: not valid JSON: {exc.msg}') from None
     if not isinstance(data, dict):
         raise InputError(f'line {lineno}: expected a JSON object with t, p, v, w')
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        near = difflib.get_close_matches(unknown[0], fields, n=1)
+        raise InputError(f'line {lineno}: unknown field {json.dumps(unknown[0])}'
+                         + (f' (did you mean "{near[0]}"?)' if near else
+                            f" (the fields: {', '.join(fields)})"))
     return data
 
 
@@ -83,7 +93,8 @@ def parse_state(data, lineno, radius):
                 or not all(isinstance(c, (int, float)) and not isinstance(c, bool)
                            for c in items)):
             what = 'a number' if size == 1 else f'an array of {size} numbers'
-            raise InputError(f'line {lineno}: "{key}" must be {what}, got {value!r}')
+            raise InputError(f'line {lineno}: "{key}" must be {what}, got '
+                             f'{json.dumps(value)}')
         try:
             values.extend(float(c) for c in items)
         except OverflowError:
@@ -117,16 +128,22 @@ def read_input(model_file, input_file, parse):
     ``parse(line, lineno, radius)``, from ``input_file`` or stdin. Everything is read and
     checked before any output, so a bad line leaves nothing half-written. Raises InputError
     or ValueError with a one-line reason, naming ``input_file`` once (then the line)."""
+    for option, path in (('--model', model_file), ('--input', input_file)):
+        if path == '':          # an unset shell variable: the nominal model, stdin, silently
+            raise InputError(f"{option} '': an empty path (a variable not set?)")
     params = load_model(model_file)
-    where = f'{input_file}: ' if input_file else ''
+    from_file = input_file is not None and input_file != '-'       # '-': stdin
+    where = f'{input_file}: ' if from_file else ''
     try:
-        if input_file:
-            with open(input_file) as f:
+        if from_file:
+            with open(input_file, encoding='utf-8-sig') as f:     # a BOM, as Notepad writes
                 lines = f.readlines()
         else:
             lines = sys.stdin.readlines()
+            if lines:
+                lines[0] = lines[0].removeprefix('\ufeff')
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f'{input_file or "stdin"}: {_read_error(exc)}') from None
+        raise InputError(f'{input_file if from_file else "stdin"}: {_read_error(exc)}') from None
     try:
         return params, [parse(line, i, params.radius)
                         for i, line in enumerate(lines, start=1) if line.strip()]
@@ -177,7 +194,8 @@ def main(argv=None):
         epilog='Input and output formats: see docs/prediction.md. Replay of measured tracks: '
                'tt-predict --tracks DIR --out OUT (tt-predict --tracks DIR -h).')
     add_version(parser)
-    parser.add_argument('--input', metavar='FILE', help='JSON Lines file (default: stdin)')
+    parser.add_argument('--input', metavar='FILE', help="JSON Lines file (default or '-': "
+                        'stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
     parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,

@@ -22,6 +22,7 @@ from .ball import (
     TABLE_HEIGHT,
     zone_of,
 )
+from .params import ModelParams
 from .predict import DEFAULT_HIT_PLANE_X, T_MAX, Contact, Hit, Prediction
 
 RTOL = 1e-9
@@ -65,12 +66,13 @@ def _event(fun, direction=0.0):
     return fun
 
 
-def reference_events(state9, params, t0=0.0, plane_x=math.nan, max_bounces=2):
+def reference_events(state9, params=None, t0=0.0, plane_x=math.nan, max_bounces=2):
     """Events [(kind, t, state)] of the flight from state9 at t0, as the integrator names them.
 
     Stops at the net, the floor, the hitting plane, a rolling ball, the max_bounces-th bounce
     or T_MAX. The state of a bounce is the one just before contact.
     """
+    params = ModelParams() if params is None else params        # None: nominal, as predict
     if params.active_effects():
         raise ValueError('the reference implements the nominal model only (no effects)')
     r = params.radius
@@ -131,7 +133,7 @@ def reference_events(state9, params, t0=0.0, plane_x=math.nan, max_bounces=2):
         s = after
 
 
-def reference_predict(state9, params, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X):
+def reference_predict(state9, params=None, t0=0.0, hit_plane_x=DEFAULT_HIT_PLANE_X):
     """:func:`tt_prediction.predict.predict` for a valid state, by the reference integrator.
 
     Classifies the events in plain Python: ok, net, no_bounce, miss, wrong_half,

@@ -25,7 +25,6 @@ workspace file (naming the key).
 
 import argparse
 import dataclasses
-import difflib
 import json
 import math
 import sys
@@ -60,13 +59,7 @@ without a word, and the stroke went out without its in-zone probability)."""
 
 def parse_strike_line(text, lineno, radius):
     """(t, state9, zone or None, point or None, covariance or None) of one input line."""
-    data = parse_object(text, lineno)
-    unknown = [k for k in data if k not in INPUT_FIELDS]
-    if unknown:
-        near = difflib.get_close_matches(str(unknown[0]), INPUT_FIELDS, n=1)
-        raise InputError(f'line {lineno}: unknown field {json.dumps(unknown[0])}'
-                         + (f' (did you mean "{near[0]}"?)' if near else
-                            f" (the fields: {', '.join(INPUT_FIELDS)})"))
+    data = parse_object(text, lineno, INPUT_FIELDS)
     t, state = parse_state(data, lineno, radius)
     zone, point = data.get('target_zone'), data.get('target_point')
     if point is not None and not (
