@@ -563,6 +563,10 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{rig}', '--bag', '{tmp}/nobag'], 1, 'not a readable rosbag2 bag'),
     (['--rig', '{rig}', '--bag', '{tmp}/badbag'], 1,
      '{tmp}/badbag: not a readable rosbag2 bag: Could not load YAML'),
+    # 'Expected metadata file ... does not exist' (rosbags'; ros2 bag info says killed?).
+    (['--rig', '{rig}', '--bag', '{tmp}/killed'], 1,
+     '{tmp}/killed: not a readable rosbag2 bag: incomplete: killed_0.mcap without '
+     'metadata.yaml (a recording that did not end: killed?)'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
     (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, '--out-bag {tmp}: already exists'),
     (['--rig', '{rig}', '--out-bag', '{tmp}/dangling'], 2,
@@ -574,7 +578,7 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{nosrc}'], 2, 'cameras[1] (cam1): no source'),
 ], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
         'bag metadata not YAML',
-        'missing model', 'existing output bag', 'dangling link as output bag',
+        'killed bag', 'missing model', 'existing output bag', 'dangling link as output bag',
         'output bag under a file', 'output bag inside --out', 'two cameras at one place',
         'camera without a source'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
@@ -583,6 +587,8 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     out = tmp_path / 'out'
     (tmp_path / 'empty.yaml').write_text('')
     (tmp_path / 'dangling').symlink_to(tmp_path / 'nowhere')
+    (tmp_path / 'killed').mkdir()
+    (tmp_path / 'killed' / 'killed_0.mcap').write_bytes(b'\x89MCAP0\r\n')
     (tmp_path / 'badbag').mkdir()          # the YAML parser's error spans five lines
     (tmp_path / 'badbag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [9\n')
     dup = tmp_path / 'calib'

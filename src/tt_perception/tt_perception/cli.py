@@ -88,9 +88,12 @@ def bag_frames(rig, bag, notes=None):
     refused); a camera without any adds a line to ``notes``."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
+    from tt_ros.bagfile import incomplete_reason
     topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
     if not os.path.exists(bag):
         raise InputError(f'{bag}: not a readable rosbag2 bag: no such file or folder')
+    if incomplete_reason(bag):     # rosbags: 'Expected metadata file ... does not exist'
+        raise InputError(f'{bag}: not a readable rosbag2 bag: {incomplete_reason(bag)}')
     try:
         reader = AnyReader([pathlib.Path(bag)],
                            default_typestore=get_typestore(Stores.ROS2_JAZZY))

@@ -126,13 +126,10 @@ def bag_folder(path):
     return path
 
 
-def open_bag(path):
-    """An open rosbags Reader for the bag directory ``path`` (or a storage file in it:
-    :func:`bag_folder`); BagError with a one-line reason.
-
-    Checks that the storage files are complete: every message the metadata counts is read
-    back (a cut .mcap or .db3 fails here, not half-way through a replay).
-    """
+def checked_bag_folder(path):
+    """The bag directory ``path`` names (:func:`bag_folder`), or BagError with a one-line
+    reason: missing, not a directory, or without metadata.yaml (a recording killed before it
+    ended, when a storage file is there)."""
     path = bag_folder(path)
     if not os.path.exists(path):
         raise BagError(f"bag '{path}' does not exist")
@@ -140,11 +137,31 @@ def open_bag(path):
         raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml, "
                        'or a .mcap or .db3 file in one)')
     if not os.path.isfile(os.path.join(path, 'metadata.yaml')):
-        storage = sorted(f for f in os.listdir(path) if f.endswith(('.mcap', '.db3')))
-        if storage:
-            raise BagError(f"bag '{path}' is incomplete: {storage[0]} without metadata.yaml "
-                           '(a recording that did not end: killed?)')
+        killed = incomplete_reason(path)
+        if killed:
+            raise BagError(f"bag '{path}' is {killed}")
         raise BagError(f"'{path}' is not a rosbag2 bag: no metadata.yaml in it")
+    return path
+
+
+def incomplete_reason(folder):
+    """'incomplete: NAME.mcap without metadata.yaml (...killed?)' for a bag directory whose
+    recording never ended (a storage file, no metadata.yaml), else ''."""
+    if not os.path.isdir(folder) or os.path.isfile(os.path.join(folder, 'metadata.yaml')):
+        return ''
+    storage = sorted(f for f in os.listdir(folder) if f.endswith(('.mcap', '.db3')))
+    return (f'incomplete: {storage[0]} without metadata.yaml (a recording that did not end: '
+            'killed?)' if storage else '')
+
+
+def open_bag(path):
+    """An open rosbags Reader for the bag directory ``path`` (or a storage file in it:
+    :func:`bag_folder`); BagError with a one-line reason.
+
+    Checks that the storage files are complete: every message the metadata counts is read
+    back (a cut .mcap or .db3 fails here, not half-way through a replay).
+    """
+    path = checked_bag_folder(path)
     reader = Reader(path)
     try:
         reader.open()
