@@ -30,8 +30,9 @@ def mismatch_warning(offset_s):
     """The one-line warning for stamps ``offset_s`` s from the node clock."""
     return (f'stamps are {offset_s:.0f} s from the node clock: another time base (a recording '
             'without /clock?), so time checks against the clock are off for them; run with '
-            'use_sim_time:=true and a /clock source (ros2 bag play --clock, perception_node '
-            'publish_clock:=true)')
+            "use_sim_time:=true and a /clock on the stamps' time base (ros2 bag play --clock "
+            "publishes the bag's record times: for stamps in video time play the /clock the "
+            'bag recorded, as a topic, without --clock; perception_node publish_clock:=true)')
 
 
 class TimeBaseCheck:
