@@ -20,9 +20,9 @@ from .ball import (
     NET_HEIGHT,
     ROLL_SPEED,
     TABLE_HEIGHT,
+    ModelParams,
     zone_of,
 )
-from .params import ModelParams
 from .predict import DEFAULT_HIT_PLANE_X, T_MAX, Contact, Hit, Prediction
 
 RTOL = 1e-9
