@@ -126,24 +126,6 @@ def bag_folder(path):
     return path
 
 
-def checked_bag_folder(path):
-    """The bag directory ``path`` names (:func:`bag_folder`), or BagError with a one-line
-    reason: missing, not a directory, or without metadata.yaml (a recording killed before it
-    ended, when a storage file is there)."""
-    path = bag_folder(path)
-    if not os.path.exists(path):
-        raise BagError(f"bag '{path}' does not exist")
-    if not os.path.isdir(path):
-        raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml, "
-                       'or a .mcap or .db3 file in one)')
-    if not os.path.isfile(os.path.join(path, 'metadata.yaml')):
-        killed = incomplete_reason(path)
-        if killed:
-            raise BagError(f"bag '{path}' is {killed}")
-        raise BagError(f"'{path}' is not a rosbag2 bag: no metadata.yaml in it")
-    return path
-
-
 def incomplete_reason(folder):
     """'incomplete: NAME.mcap without metadata.yaml (...killed?)' for a bag directory whose
     recording never ended (a storage file, no metadata.yaml), else ''."""
@@ -161,7 +143,16 @@ def open_bag(path):
     Checks that the storage files are complete: every message the metadata counts is read
     back (a cut .mcap or .db3 fails here, not half-way through a replay).
     """
-    path = checked_bag_folder(path)
+    path = bag_folder(path)
+    if not os.path.exists(path):
+        raise BagError(f"bag '{path}' does not exist")
+    if not os.path.isdir(path):
+        raise BagError(f"'{path}' is not a rosbag2 bag (expected a directory with metadata.yaml, "
+                       'or a .mcap or .db3 file in one)')
+    if not os.path.isfile(os.path.join(path, 'metadata.yaml')):
+        killed = incomplete_reason(path)
+        raise BagError(f"bag '{path}' is {killed}" if killed
+                       else f"'{path}' is not a rosbag2 bag: no metadata.yaml in it")
     reader = Reader(path)
     try:
         reader.open()

@@ -24,7 +24,6 @@ workspace file (naming the key).
 """
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
@@ -170,9 +169,7 @@ def main(argv=None):
     except ValueError as exc:                  # InputError, WorkspaceError are ValueErrors
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
-    if args.max_racket_speed is not None and args.max_racket_speed < workspace.max_racket_speed:
-        # The lower of the two, as strike_node: a faster limit than the arm's is not the arm's.
-        workspace = dataclasses.replace(workspace, max_racket_speed=args.max_racket_speed)
+    workspace = workspace.slowed_to(args.max_racket_speed)      # the lower, as strike_node
     settings = StrikeSettings(net_clearance=args.net_clearance,
                               max_racket_speed=workspace.max_racket_speed,
                               aim_inside_zone=args.aim_inside_zone)

@@ -232,10 +232,7 @@ class StrikeNode(Node):
     def _reach(self):
         """The workspace with the racket speed limit that applies: the lower of its own and
         the max_racket_speed parameter."""
-        ws, limit = self.workspace, self.settings.max_racket_speed
-        if limit < ws.max_racket_speed:
-            ws = dataclasses.replace(ws, max_racket_speed=limit)
-        return ws
+        return self.workspace.slowed_to(self.settings.max_racket_speed)
 
     def _reach_text(self):
         ws = self._reach()

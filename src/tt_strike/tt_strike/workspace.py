@@ -84,6 +84,13 @@ class Workspace:
         d = np.hypot(x - self.centre[0], y - self.centre[1])
         return inside_z & (d <= self.radius + margin)
 
+    def slowed_to(self, max_racket_speed):
+        """This workspace with the lower of its racket speed limit and ``max_racket_speed``
+        (m/s; None: its own): a faster limit than the arm's is not the arm's."""
+        if max_racket_speed is None or max_racket_speed >= self.max_racket_speed:
+            return self
+        return dataclasses.replace(self, max_racket_speed=max_racket_speed)
+
     def describe(self):
         """One line: the reach, for reasons."""
         if self.shape == 'box':

@@ -148,12 +148,12 @@ INDEX_SPIN = ('wx', 'wy', 'wz')
 """index.csv's spin columns (rad/s, table frame): all three or none."""
 
 
-def read_index(folder):
+def read_index(path):
     """index.csv of a trajectory folder: {file: (spin or None, label, spin_source)}; {} when
     absent. Its columns are found by name, in any order: ``file`` (required), ``wx, wy, wz``,
     ``label``, ``spin_source``; others (pandas' row numbers, a note) are left alone. Spin
-    given as ``estimated`` is not returned as spin (it is not a measurement)."""
-    path = index_path(folder)
+    given as ``estimated`` is not returned as spin (it is not a measurement). ``path``: the
+    folder's :func:`index_path`."""
     if not os.path.exists(path):
         return {}
     header, rows = _read_csv(path)
@@ -234,11 +234,12 @@ def folder_tracks(folder):
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
         raise DataError(f'{folder}: no trajectory CSV files in the folder')
-    index = read_index(folder)
+    index_file = index_path(folder)
+    index = read_index(index_file)
     missing = sorted(set(index) - set(files))
     if missing:
         more = f' and {len(missing) - 1} more' if len(missing) > 1 else ''
-        raise DataError(f'{index_path(folder)}: names {missing[0]}{more}, '
+        raise DataError(f'{index_file}: names {missing[0]}{more}, '
                         'not in the folder')
     return files, index
 
