@@ -203,6 +203,28 @@ def test_folders_of_images_numbered_from_different_starts_are_named(tmp_path):
     assert file_sources_error(rig, notes) == '' and notes == []
 
 
+def test_a_camera_whose_video_ends_early_is_named(tmp_path):
+    """cam1 stopped after 12 of cam0's 20 frames: past its end the ball has one camera and
+    no 3-D state, and 4 of 10 balls were lost without a word (a new user's walk-through,
+    6 Dec 2026). Both readers name it; files a few frames apart are not named."""
+    rig_path = synth.make_rig(str(tmp_path / 'calib'), 64, 48, 100.0)
+    for name, short in (('far', 12), ('near', 17)):
+        frames = [(None, k, np.full((48, 64, 3), 10 * n, np.uint8))
+                  for n in range(20) for k in range(2) if k == 0 or n < short]
+        rig = load_rig(synth.write_scene(str(tmp_path / name), rig_path, frames, None))
+        notes = []
+        assert file_sources_error(rig, notes) == ''
+        read = []
+        assert len(list(file_frames(rig, read))) == 20 + short
+        if short == 12:
+            assert notes == read == [
+                "camera cam1: its 12 frames (0.12 s) end before camera cam0's 20 (0.20 s): "
+                'after 0.12 s the ball is seen by one camera fewer (with two cameras, no 3-D '
+                'state; a camera stopped early?)']
+        else:
+            assert notes == read == []
+
+
 def test_a_pattern_matching_no_image_is_one_line_without_ffmpeg_log(tmp_path, capfd):
     # FFmpeg's image2 demuxer logs '[image2 @ 0x...] Could find no file ...' on the process's
     # stderr before OpenCV says the capture is not open; the user is told once, by the error.

@@ -526,13 +526,40 @@ def folder_starts_notes(rig, sources):
     return notes
 
 
+def lengths_notes(rig, sources):
+    """Lines for the list of notes when one of the opened sources ``sources`` ({camera
+    index: :class:`VideoFileSource`}) holds fewer frames than the longest (their headers'
+    counts, image folders' numbers of images) by more than :data:`LENGTH_SLACK_FRAMES` and
+    :data:`LENGTH_SLACK` of it: a camera stopped early, and past its end the ball has one
+    camera fewer (with two, no 3-D state; 4 of 10 balls lost without a word before, a new
+    user's walk-through, 6 Dec 2026)."""
+    counts = {k: src.declared for k, src in sorted(sources.items()) if src.declared > 0}
+    if len(counts) < 2:
+        return []
+    longest = max(counts, key=counts.get)
+    most = counts[longest]
+    return [f'camera {rig.cameras[k].name}: its {n} frames ({n / rig.fps:.2f} s) end before '
+            f"camera {rig.cameras[longest].name}'s {most} ({most / rig.fps:.2f} s): after "
+            f'{n / rig.fps:.2f} s the ball is seen by one camera fewer (with two cameras, no '
+            f'3-D state; a camera stopped early?)'
+            for k, n in counts.items()
+            if most - n > max(LENGTH_SLACK_FRAMES, LENGTH_SLACK * most)]
+
+
+LENGTH_SLACK_FRAMES = 3
+"""Frames by which cameras' files may differ in length without a note (:func:`lengths_notes`):
+cameras started and stopped by hand one after the other."""
+LENGTH_SLACK = 0.02
+"""The same as a fraction of the longest file's frames."""
+
+
 def file_sources_error(rig, notes=None):
     """Why the rig's video files cannot be used, in one line, or '': a camera's file missing,
     unreadable, without a frame or of another frame size than its calibration ('camera NAME:
     <path>: no such video file', :meth:`VideoFileSource.disagreement`), or two files at
     different rates (:func:`rates_error`). Each file is opened once and closed again.
-    Folders of images numbered from different starts add a line to the list ``notes``
-    (:func:`folder_starts_notes`)."""
+    Folders of images numbered from different starts and files of different lengths add a
+    line to the list ``notes`` (:func:`folder_starts_notes`, :func:`lengths_notes`)."""
     base = os.path.dirname(rig.path)
     sources = {}
     try:
@@ -549,7 +576,7 @@ def file_sources_error(rig, notes=None):
             if not sources[k].capture.grab():       # a video of 0 frames ran without a word
                 return f'camera {cam.name}: {sources[k].path}: {NO_FRAME}'
         if notes is not None:
-            notes.extend(folder_starts_notes(rig, sources))
+            notes.extend(folder_starts_notes(rig, sources) + lengths_notes(rig, sources))
         return rates_error(rig, sources)
     finally:
         for src in sources.values():
@@ -567,7 +594,8 @@ def file_frames(rig, notes=None):
     (:meth:`VideoFileSource.disagreement`), or naming two cameras whose files run at
     different rates (:func:`rates_error`), or when one gives no frame at all. A video whose
     own rate is not the rig's, that ends before its header's frame count or has frames that
-    cannot be decoded adds a line naming the camera to the list ``notes``.
+    cannot be decoded, or that is shorter than another camera's (:func:`lengths_notes`) adds
+    a line naming the camera to the list ``notes``.
     """
     base = os.path.dirname(rig.path)
     sources = {}
@@ -591,7 +619,7 @@ def file_frames(rig, notes=None):
         if error:
             raise OSError(error)
         if notes is not None:
-            notes.extend(folder_starts_notes(rig, sources))
+            notes.extend(folder_starts_notes(rig, sources) + lengths_notes(rig, sources))
         given = dict.fromkeys(sources, 0)
         while sources:
             for k in sorted(sources):
