@@ -257,6 +257,20 @@ def test_tracks_too_short_to_estimate_the_noise_take_the_default_noise(tmp_path,
     assert len(err) == 2 and 'no track crosses the hitting plane' in err[0], err
 
 
+def test_a_bag_given_as_tracks_is_named_a_bag(tmp_path, capsys):
+    """tt-identify reads a bag of /ball/state, tt-predict --tracks a folder of track CSVs
+    only: a bag (tt-perceive's --out-bag) was refused as 'no trajectory CSV files' (a new
+    user's walk-through, 6 Dec 2026)."""
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    (bag / 'bag_0.mcap').write_bytes(b'')
+    assert main(['--tracks', str(bag), '--out', str(tmp_path / 'out')]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f'{bag}: a rosbag2 bag, not a folder of track CSV' in err[0], err
+    assert not (tmp_path / 'out').exists()
+
+
 def test_an_output_that_would_overwrite_the_data_is_refused_before_any_work(data, tmp_path,
                                                                           capsys, monkeypatch):
     # The rows are named as the tracks: --out as the data set's own folder (or a copy of

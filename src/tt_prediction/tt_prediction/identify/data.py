@@ -233,7 +233,9 @@ def folder_tracks(folder):
     except OSError as exc:
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
-        raise DataError(f'{folder}: no trajectory CSV files in the folder')
+        raise DataError(f'{folder}: ' + ('a rosbag2 bag, not a folder of track CSV files '
+                                         '(tt-perceive --out writes one)' if is_bag(folder)
+                                         else 'no trajectory CSV files in the folder'))
     index_file = index_path(folder)
     index = read_index(index_file)
     missing = sorted(set(index) - set(files))
@@ -343,6 +345,13 @@ def _tracks_from_stream(path, rows):
     return tracks
 
 
+def is_bag(path):
+    """Whether ``path`` is read as a rosbag2 bag: a file, or a folder holding a bag's
+    metadata.yaml or storage files."""
+    return os.path.isfile(path) or any(
+        f == 'metadata.yaml' or f.endswith(('.mcap', '.db3')) for f in os.listdir(path))
+
+
 def load(paths, topic=None):
     """Tracks of every DATA argument (trajectory folder or bag); DataError on bad input."""
     tracks, seen = [], {}
@@ -357,9 +366,7 @@ def load(paths, topic=None):
         if os.path.isfile(path) and path.lower().endswith('.csv'):
             raise DataError(f'{path}: a track file; DATA is the folder of track CSV files '
                             '(with its index.csv) or a rosbag2 bag')
-        is_bag = os.path.isfile(path) or any(
-            f == 'metadata.yaml' or f.endswith(('.mcap', '.db3')) for f in os.listdir(path))
-        tracks.append(load_bag(path, topic) if is_bag else load_folder(path))
+        tracks.append(load_bag(path, topic) if is_bag(path) else load_folder(path))
     given = [os.path.abspath(path) for path in seen.values()]
     labels = source_labels(given)
     for path, group in zip(given, tracks, strict=True):      # unique names across sources
