@@ -59,3 +59,11 @@ def test_a_test_domain_avoids_domains_with_listeners(monkeypatch):
     assert {unique_domain() for _ in range(20)} == {230}
     monkeypatch.setattr('tt_ros.testing.domains_with_listeners', lambda: set(range(1, 300)))
     assert all(150 <= unique_domain() <= 230 for _ in range(20))     # none free: any
+
+
+def test_the_suite_runs_on_this_machine_alone():
+    """Whoever runs the tests (make test, colcon test, pytest on one folder), tt_ros.pytest_env
+    keeps ROS discovery on this machine and gives the suite a domain id."""
+    import os
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert 0 <= int(os.environ['ROS_DOMAIN_ID']) <= 232
