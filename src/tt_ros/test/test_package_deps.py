@@ -1,9 +1,12 @@
 """The tt packages declare what they import, in package.xml and setup.py, without a cycle.
 
-Every ``import tt_x`` (at module level or inside a function) in a package's modules, and every
-import of a ROS package (rclpy, the ``*_msgs``, ``*_srvs`` and ``*_interfaces`` packages), must
-be an ``exec_depend`` (or ``depend``) of its package.xml; its tests may also use
-``test_depend``.
+Every import (at module level or inside a function) in a package's modules of anything but
+the standard library, the package itself and its tests' own helper modules must be an
+``exec_depend`` (or ``depend``) of its package.xml, its tests' also a ``test_depend``: a tt or
+other ROS package by its name, a third-party Python package by its rosdep key
+(:data:`ROSDEP_KEYS`), or, for one without a key (:data:`PYPI_ONLY`), named in a comment of the
+package.xml that says it comes from PyPI (``ros2 pkg xml`` and rosdep are what a ROS user
+reads; numba, imported by the ball model, was named by none: a walk-through, 6 Dec 2026).
 The Python packages among them are in setup.py's ``install_requires``, and the declared
 graph has no cycle (colcon builds it in an order, and no package needs itself through
 another).
@@ -11,6 +14,8 @@ another).
 
 import ast
 import pathlib
+import re
+import sys
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -18,13 +23,32 @@ import pytest
 SRC = pathlib.Path(__file__).resolve().parents[2]
 
 
+ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'cv2': 'python3-opencv',
+               'yaml': 'python3-yaml', 'ruamel': 'python3-ruamel.yaml',
+               'numba': 'python3-numba', 'matplotlib': 'python3-matplotlib',
+               'tqdm': 'python3-tqdm', 'pytest': 'python3-pytest'}
+"""The rosdep keys of the third-party Python packages the tt packages import, by import name."""
+PYPI_ONLY = ('rosbags', 'mcap')
+"""Third-party Python packages without a rosdep key (requirements.txt installs them)."""
+
+
 def package_deps(package_xml):
-    """(run-time deps, test deps) named in a package.xml."""
+    """(run-time deps, test deps) named in a package.xml; a package of :data:`PYPI_ONLY`
+    named in a comment that says it comes from PyPI counts as a run-time dependency."""
     root = ET.parse(package_xml).getroot()
     run = {e.text.strip() for tag in ('depend', 'exec_depend', 'build_depend')
            for e in root.iter(tag)}
     test = {e.text.strip() for e in root.iter('test_depend')}
+    comments = ' '.join(c for c in re.findall(r'<!--(.*?)-->', package_xml.read_text(), re.S)
+                        if 'PyPI' in c)
+    run |= {name for name in PYPI_ONLY if re.search(rf'\b{name}\b', comments)}
     return run, test
+
+
+def dependency_key(name):
+    """What a package.xml names for the imported top-level ``name``: its rosdep key, or the
+    name itself (a ROS package, or one of :data:`PYPI_ONLY` in a comment)."""
+    return ROSDEP_KEYS.get(name, name)
 
 
 def setup_requires(setup_py):
@@ -71,16 +95,6 @@ def find_cycle(graph):
     return None
 
 
-ROS_SUFFIXES = ('_msgs', '_srvs', '_interfaces')
-"""The suffixes of ROS interface packages' names, which a package.xml must name too."""
-
-
-def is_ros_package(name, packages):
-    """Whether the imported top-level ``name`` is a ROS package: one of the workspace's
-    ``packages``, rclpy or an interface package."""
-    return name in packages or name == 'rclpy' or name.endswith(ROS_SUFFIXES)
-
-
 def check_workspace(src, prefix='tt_'):
     """Problems (one line each) of the packages under ``src`` whose names start with
     ``prefix``: undeclared imports, setup.py out of step with package.xml, a cycle."""
@@ -92,12 +106,14 @@ def check_workspace(src, prefix='tt_'):
         own = {d for d in run if d in packages}
         graph[name] = own
         modules = sorted((pkg / name).rglob('*.py')) if (pkg / name).is_dir() else []
-        for dep in sorted(imported_packages(modules) - {name}):
-            if is_ros_package(dep, packages) and dep not in run:
-                problems.append(f'{name} imports {dep} without declaring it in package.xml')
         tests = sorted((pkg / 'test').rglob('*.py')) if (pkg / 'test').is_dir() else []
-        for dep in sorted(imported_packages(tests) - {name}):
-            if is_ros_package(dep, packages) and dep not in run | test:
+        local = {name, *sys.stdlib_module_names, *(path.stem for path in tests)}
+        for dep in sorted(imported_packages(modules) - local):
+            if dependency_key(dep) not in run:
+                problems.append(f'{name} imports {dep} without declaring '
+                                f'{dependency_key(dep)} in package.xml')
+        for dep in sorted(imported_packages(tests) - local):
+            if dependency_key(dep) not in run | test:
                 problems.append(f'{name} tests import {dep}, not in package.xml')
         if (pkg / 'setup.py').exists():
             python_deps = {d for d in own if (packages[d] / 'setup.py').exists()}
@@ -130,7 +146,7 @@ def test_check_finds_an_undeclared_import_inside_a_function(tmp_path):
     _package(tmp_path, 'tt_a')
     _package(tmp_path, 'tt_b', imports=['tt_a'])
     assert check_workspace(tmp_path) == [
-        'tt_b imports tt_a without declaring it in package.xml']
+        'tt_b imports tt_a without declaring tt_a in package.xml']
 
 
 def test_check_finds_an_undeclared_message_package(tmp_path):
@@ -138,7 +154,20 @@ def test_check_finds_an_undeclared_message_package(tmp_path):
     # them declared for its tests only (a new user's walk-through, 6 Dec 2026).
     _package(tmp_path, 'tt_a', deps=['rclpy'], imports=['rclpy', 'sensor_msgs'])
     assert check_workspace(tmp_path) == [
-        'tt_a imports sensor_msgs without declaring it in package.xml']
+        'tt_a imports sensor_msgs without declaring sensor_msgs in package.xml']
+
+
+def test_check_finds_an_undeclared_python_package_by_its_rosdep_key(tmp_path):
+    # numba, imported by the ball model, was declared by no package; rosbags has no rosdep
+    # key and is named in a comment instead; the standard library needs nothing.
+    _package(tmp_path, 'tt_a', deps=['python3-numpy'],
+             imports=['numpy', 'numba', 'rosbags', 'mcap', 'json'])
+    xml = tmp_path / 'tt_a' / 'package.xml'
+    xml.write_text(xml.read_text().replace(
+        '</package>', '<!-- rosbags: no rosdep key, it comes from PyPI --></package>'))
+    assert check_workspace(tmp_path) == [
+        'tt_a imports mcap without declaring mcap in package.xml',
+        'tt_a imports numba without declaring python3-numba in package.xml']
 
 
 def test_check_finds_a_cycle_through_three_packages(tmp_path):
