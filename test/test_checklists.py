@@ -31,9 +31,10 @@ def test_every_node_parameter_is_in_its_config_file_and_docs(module, config, pag
     assert sorted(set(declared) - set(in_file)) == [], f'missing from {config}'
     assert sorted(set(in_file) - set(declared)) == [], f'{config} names undeclared parameters'
     assert [n for n in declared if f'`{n}`' not in docs] == [], f'missing from {page}'
+    from tt_ros.parameters import coerce
     for name, p in declared.items():     # the shipped file's value is one the node accepts
-        assert p.description and isinstance(in_file[name], type(p.default)) or (
-            isinstance(p.default, float) and isinstance(in_file[name], int)), name
+        assert p.description, name
+        coerce(p, in_file[name])         # its type, range or choices (ParameterError)
 
 
 def test_every_camera_source_kind_is_documented_tested_and_opened():
