@@ -30,7 +30,12 @@ def console_scripts():
     return found
 
 
-NODE_AND_CLI_SCRIPTS = [s for s in console_scripts() if s[0].name != 'tt_tools']
+NODE_AND_CLI_SCRIPTS = console_scripts()
+QUIET_COMMANDS = ('ros2', 'bringup')
+"""Commands that, as a node, stop quietly when interrupted while importing: ros2 (as
+ros2cli before a verb has started) and bringup (a graph that had not started). They had no
+guard at all: a Ctrl-C in their first 0.1-0.25 s gave a traceback (a walk-through, 6 Dec
+2026)."""
 
 
 def _sigint_as_from_a_terminal():
@@ -101,7 +106,8 @@ def test_console_script_runs_its_main_through_run(package_dir, exe, target):
     assert name == exe, 'the interrupted line must name the executable the user typed'
     real_module, _, real_function = real.partition(':')
     node = {k.arg: ast.literal_eval(k.value) for k in call.keywords}.get('quiet', False)
-    assert node == real_module.endswith('.node'), 'a node stops cleanly, a command says so'
+    assert node == (real_module.endswith('.node') or exe in QUIET_COMMANDS), (
+        'a node stops cleanly, a command says so')
 
     path = SRC / package_dir.name / (real_module.replace('.', '/') + '.py')
     defined = {f.name for f in ast.parse(path.read_text()).body
