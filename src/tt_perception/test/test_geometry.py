@@ -91,6 +91,10 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(rotation=[
         round(v, 3) for v in d['cameras'][0]['rotation']])),
      'off I, det R = 1.00038 (tolerance 0.0001; numbers rounded to 3 decimals'),
+    # A left-handed pose (one axis flipped) was told to give more decimals (a walk-through).
+    (lambda rig, info: _edit(rig, lambda d: d['cameras'][0].update(rotation=[
+        -v if i % 3 == 0 else v for i, v in enumerate(d['cameras'][0]['rotation'])])),
+     'det R = -1 (a reflection: one axis flipped'),
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(translation=['a', 0, 0])),
      'cameras[1] (cam1): rotation needs 9 numbers and translation 3'),
     (lambda rig, info: _edit(info, lambda d: d['camera_matrix'].update(data=[0] * 9)),
@@ -152,7 +156,7 @@ def test_rig_round_trip(tmp_path):
     (lambda rig, info: _edit(rig, lambda d: d['cameras'][1].update(time_offset=True)),
      'cameras[1] (cam1): time_offset is not a number'),
 ], ids=['missing rig', 'missing camera_info', 'bad rotation', 'rotation to 3 decimals',
-        'bad translation',
+        'left-handed rotation', 'bad translation',
         'bad camera matrix', 'no image size', 'no camera matrix', 'no distortion',
         'no translation', 'principal point off',
         'broken yaml', 'key given twice', 'bad fps', 'infinite fps', 'nan time offset',
@@ -370,6 +374,68 @@ def test_pose_from_the_table_outline(tmp_path):
     assert np.linalg.norm(found.centre - true.centre) < 0.03
     angle = np.degrees(np.arccos((np.trace(found.R @ true.R.T) - 1) / 2))
     assert angle < 0.5
+
+
+def test_pose_from_the_table_outline_with_the_net_s_white_tape(tmp_path):
+    """A standard net's white top tape reaches 15.25 cm past each side line: its ends made
+    the bright outline six-sided and the table was not found (a new user's walk-through,
+    6 Dec 2026). The tape is drawn here on synth's table, whose net has none."""
+    from tt_prediction.ball import NET_HALF_WIDTH, NET_HEIGHT
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    true = rig.cameras[0]
+    image = _background(rig, 0)
+    tape = np.array([[0.0, y, NET_HEIGHT] for y in np.linspace(-NET_HALF_WIDTH,
+                                                               NET_HALF_WIDTH, 50)])
+    cv2.polylines(image, [np.round(true.project(tape)).astype(np.int32)], False,
+                  (235, 235, 235), 3)
+    assert calibrate.find_table_corners(image) is not None
+    cv2.imwrite(str(tmp_path / 'table.png'), image)
+    data = yaml.safe_load(open(path))
+    data['cameras'][0]['translation'] = [0.0, 0.0, 3.0]
+    yaml.safe_dump(data, open(path, 'w'))
+    assert calibrate.main(['--rig', path, '--camera', true.name,
+                           '--image', str(tmp_path / 'table.png')]) == 0
+    found = load_rig(path).cameras[0]
+    assert np.linalg.norm(found.centre - true.centre) < 0.03
+
+
+def test_a_camera_beside_the_table_must_say_which_end_is_the_robot_s():
+    """Beside the table the corners fit the camera and its turn by 180 degrees about the
+    table's centre alike; 'near' by default wrote a side camera's pose 5.8 m off (a new user's
+    walk-through, 6 Dec 2026). Behind the robot's end the default stands."""
+    rig = synth.look_at_rig((((0.2, -2.9, 1.2), (0.0, 0.0, 0.0)),
+                             ((-3.0, 0.3, 1.5), (0.0, 0.0, 0.0))), 70.0, np.zeros(5), 150.0)
+    obj = np.array([calibrate.TABLE_POINTS[n] for n in calibrate.CORNERS])
+    side, behind = rig.cameras
+    corners = side.project(obj)
+    with pytest.raises(CalibrationError, match='beside the table.*--robot-end'):
+        calibrate.pose_from_corners(side, corners)
+    R, t, _ = calibrate.pose_from_corners(side, corners, 'far')
+    assert np.linalg.norm(-R.T @ t - side.centre) < 1e-3
+    R, t, _ = calibrate.pose_from_corners(behind, behind.project(obj))
+    assert np.linalg.norm(-R.T @ t - behind.centre) < 1e-3
+
+
+def test_points_named_as_in_a_mirror_are_refused(tmp_path, capsys):
+    """Left and right swapped: points on the table's plane then fit a camera mirrored below
+    it exactly, and the pose was written (exit 0, then no track)."""
+    path = synth.make_rig(str(tmp_path))
+    cam = load_rig(path).cameras[0]
+    swap = {'robot_left': 'robot_right', 'robot_right': 'robot_left',
+            'opponent_left': 'opponent_right', 'opponent_right': 'opponent_left'}
+    pixels = cam.project(np.array([calibrate.TABLE_POINTS[n] for n in swap]))
+    points = tmp_path / 'points.yaml'
+    points.write_text(yaml.safe_dump({swap[n]: p.tolist() for n, p in zip(swap, pixels,
+                                                                          strict=True)}))
+    image = tmp_path / 'table.png'
+    cv2.imwrite(str(image), _background(load_rig(path), 0))
+    before = open(path).read()
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
+                           '--points', str(points)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'below the table' in err[0] and 'swapped' in err[0], err
+    assert open(path).read() == before
 
 
 def test_the_pose_command_changes_only_the_camera_s_pose_in_the_rig_file(tmp_path):

@@ -19,6 +19,7 @@ fit.
 """
 
 import argparse
+import itertools
 import math
 import sys
 
@@ -73,7 +74,9 @@ def find_table_corners(image):
     if cv2.contourArea(hull) < 0.01 * grey.size:
         return None
     quad = cv2.approxPolyDP(hull, 0.02 * cv2.arcLength(hull, True), True)
-    if len(quad) != 4:
+    if len(quad) > 4:
+        quad = _quad_on_lines(quad.reshape(-1, 2), bright)
+    if quad is None or len(quad) != 4:
         return None
     # Sub-pixel: refine each corner on the grey image.
     refined = cv2.cornerSubPix(grey, quad.astype(np.float32).reshape(-1, 1, 2), (5, 5),
@@ -82,9 +85,41 @@ def find_table_corners(image):
     return refined.reshape(4, 2).astype(float)
 
 
-def pose_from_corners(camera, corners, robot_end='near'):
+def _quad_on_lines(vertices, bright):
+    """The four of a convex outline's ``vertices`` (n, 2, cyclic) whose quadrilateral runs
+    along the bright lines ``bright`` (a binary image) the most, in cyclic order, when at
+    least :data:`QUAD_ON_LINES` of its perimeter does; else None. The table's edges are its
+    white edge lines; the net's white top tape reaches 15 cm past each side line, and the
+    outline's edges to its ends cross the air: its six-sided outline found no table (a new
+    user's walk-through, 6 Dec 2026)."""
+    # Within 0.3 % of the image's width + height of a line: a lens's distortion bends the
+    # edge lines away from the straight sides between the corners by a few pixels.
+    k = 2 * round(0.003 * sum(bright.shape)) + 1
+    near = cv2.dilate(bright, np.ones((k, k), np.uint8)) > 0
+    best, best_share = None, 0.0
+    for idx in itertools.combinations(range(len(vertices)), 4):
+        quad = vertices[list(idx)].astype(float)
+        on = total = 0
+        for a, b in zip(quad, np.roll(quad, -1, axis=0), strict=True):
+            n = max(int(np.hypot(*(b - a))), 2)
+            u, v = np.round(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int).T
+            inside = (u >= 0) & (u < near.shape[1]) & (v >= 0) & (v < near.shape[0])
+            on += int(near[v[inside], u[inside]].sum())
+            total += n
+        if on / total > best_share:
+            best, best_share = vertices[list(idx)], on / total
+    return best.reshape(4, 1, 2) if best_share >= QUAD_ON_LINES else None
+
+
+QUAD_ON_LINES = 0.9
+"""Least part of the table's outline found that must run along the bright edge lines."""
+
+
+def pose_from_corners(camera, corners, robot_end=None):
     """Pose (R, t, rms) from the 4 corner pixels in cyclic order, trying every assignment to
-    the table's corners and keeping the best that places the robot end as asked."""
+    the table's corners and keeping the best that places the robot end as asked (``'near'``
+    or ``'far'``; None: near, unless the camera stands beside the table, where the corners
+    cannot tell the ends apart: CalibrationError)."""
     obj = np.array([TABLE_POINTS[name] for name in CORNERS])
     best = None
     for shift in range(4):
@@ -98,12 +133,20 @@ def pose_from_corners(camera, corners, robot_end='near'):
             if centre[2] <= 0:
                 continue
             robot_near = abs(centre[0] + L) < abs(centre[0] - L)
-            if robot_near != (robot_end == 'near'):
+            if robot_near != (robot_end in (None, 'near')):
                 continue
             if best is None or rms < best[2]:
                 best = (R, t, rms)
     if best is None:
         raise CalibrationError('no pose of the table fits the corners found')
+    x = float(-(best[0].T @ best[1])[0])
+    if robot_end is None and abs(x) < L:
+        # The other candidate is the same pose turned 180 degrees about the table's centre:
+        # beside the table both fit alike, and 'near' picked one without a word (a side
+        # camera written 5.8 m off; a new user's walk-through, 6 Dec 2026).
+        raise CalibrationError(f'the camera stands beside the table (x = {x:.2f} m or '
+                               f'{-x:.2f} m), where the corners cannot tell which end is the '
+                               "robot's: give --robot-end near|far, or --points by name")
     return best
 
 
@@ -136,8 +179,9 @@ def main(argv=None):
     parser.add_argument('--camera', required=True, help='camera name in the rig')
     parser.add_argument('--image', required=True, help='image of the table from that camera')
     parser.add_argument('--points', help='YAML of known point names -> [u, v] pixels')
-    parser.add_argument('--robot-end', choices=('near', 'far'), default='near',
-                        help='whether the robot end of the table is the nearer one')
+    parser.add_argument('--robot-end', choices=('near', 'far'),
+                        help='whether the robot end of the table is the nearer one (default: '
+                             'near; required for a camera beside the table)')
     parser.add_argument('--max-error', type=float, default=3.0,
                         help='largest accepted RMS reprojection error, pixels (default: '
                              '%(default)s)')
@@ -178,6 +222,13 @@ def main(argv=None):
         if rms > args.max_error:
             raise CalibrationError(f'reprojection error {rms:.2f} px exceeds {args.max_error} '
                                    'px: the points do not fit the table')
+        height = float((-R.T @ t)[2])
+        if height <= 0.0:
+            # Points on the table's plane named as in a mirror fit exactly a camera mirrored
+            # below it (a walk-through, 6 Dec 2026: exit 0, then no track).
+            raise CalibrationError(f'the camera comes out {-height:.2f} m below the table: '
+                                   'the points are named as in a mirror (left and right, or '
+                                   "robot's and opponent's end, swapped?)")
         set_camera_pose(args.rig, index, R, t)
     except (CalibrationError, OSError, ValueError, cv2.error) as exc:
         print(f'tt_perception.calibrate: {one_line_reason(exc)}', file=sys.stderr)

@@ -392,11 +392,13 @@ def load_rig(path, min_cameras=1, min_baseline=MIN_BASELINE, need_source=False):
             raise CalibrationError(f'{where} ({name}): {translation_error(t)}')
         off, det = np.abs(R @ R.T - np.eye(3)).max(), np.linalg.det(R)
         if off > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+            hint = ("a reflection: one axis flipped (a left-handed frame, or the image's y "
+                    'taken up instead of down)' if off <= ROTATION_TOLERANCE and det < 0 else
+                    f'tolerance {ROTATION_TOLERANCE:g}; numbers rounded to 3 decimals are '
+                    '1e-3 off: give at least 5')
             raise CalibrationError(
                 f'{where} ({name}): rotation is not a rotation matrix (R R^T = I, det R = 1): '
-                f'R R^T is up to {off:.1g} off I, det R = {det:.6g} (tolerance '
-                f'{ROTATION_TOLERANCE:g}; numbers rounded to 3 decimals are 1e-3 off: give '
-                'at least 5)')
+                f'R R^T is up to {off:.1g} off I, det R = {det:.6g} ({hint})')
         offset = entry.get('time_offset')
         if offset is not None:
             try:
