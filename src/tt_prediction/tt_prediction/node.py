@@ -311,9 +311,11 @@ class PredictionNode(Node):
         # Times relative to the stamp inside the integrator (float64 keeps sub-ns resolution
         # there), added to the integer stamp in nanoseconds on output.
         pred = predict(state, self.packed, 0.0, plane_x, bounced=bounced)
-        if near and not bounced and pred.status == 'no_bounce':
+        if near and not bounced and (pred.status == 'no_bounce' or state[5] > 0.0):
             # Within the margin of the bounce the track expects, a state already rising from
-            # the table: it has bounced (the estimator's bounce is not exactly the model's).
+            # the table: it has bounced (the estimator's bounce is not exactly the model's; a
+            # ball coming down to a bounce does not rise in the 20 ms before it, and another
+            # tracker's velocity smoothed over the kink can still see one ahead).
             bounced = True
             pred = predict(state, self.packed, 0.0, plane_x, bounced=True)
         if pred.status == 'invalid':
@@ -321,13 +323,23 @@ class PredictionNode(Node):
             return
         track.predicted_ns = stamp_ns
         if not bounced:
-            track.bounce = None
-            track.bounce_ns = None
-            track.second_ns = None
-            if pred.bounce is not None and pred.bounce.half < 0:
-                track.bounce = pred.bounce
-                track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
-        elif pred.status == 'double_bounce':
+            later = (pred.bounce is not None and near
+                     and stamp_ns + pred.bounce.t * 1e9 > track.bounce_ns + margin_ns)
+            if not later:
+                # A state within the margin before the bounce foreseeing one later still is
+                # no reason to forget it: smoothed over the kink by a tracker that does not
+                # model the bounce, it moved the bounce on, and the ball's next states, past
+                # no bounce it knew of, lost their hit for good (a walk-through, 6 Dec 2026).
+                track.bounce = None
+                track.bounce_ns = None
+                track.second_ns = None
+                if pred.bounce is not None and pred.bounce.half < 0:
+                    track.bounce = pred.bounce
+                    track.bounce_ns = stamp_ns + round(pred.bounce.t * 1e9)
+        elif pred.status == 'double_bounce' and stamp_ns > track.bounce_ns + margin_ns:
+            # Foreseen from a state past the margin after the bounce only: within it, a
+            # velocity smoothed over the kink rises too slowly and foresees a second bounce
+            # the ball never makes.
             track.second_ns = stamp_ns + round(pred.stop_t * 1e9)
         elif track.second_ns is not None and stamp_ns > track.second_ns + margin_ns:
             # Past the second bounce on the robot's half it foresaw: from there the ball flies
