@@ -356,6 +356,24 @@ def test_probability_is_reused_within_its_period():
             assert (p1 == p2) == same and p2 <= p1
 
 
+def test_no_probability_is_sent_once_it_is_no_longer_computed():
+    """in_zone_probability set false while a track's value was held for reuse: the track sent
+    that value on every command for ever (a walk-through, 6 Dec 2026); a command says NaN
+    when nothing computes it. aim_inside_zone, which needs it, is refused without it."""
+    with Graph([Parameter('probability_rate_hz', value=0.1)]) as g:
+        g.pub.publish(prediction_msg(4))
+        g.spin_until(lambda: len(g.commands) == 1, 30.0, 'the first command')
+        assert 0.0 < g.commands[0].in_zone_probability <= 1.0
+        result, = g.node.set_parameters([Parameter('in_zone_probability', value=False)])
+        assert result.successful
+        g.pub.publish(prediction_msg(4))
+        g.spin_until(lambda: len(g.commands) == 2, 30.0, 'the second command')
+        assert math.isnan(g.commands[1].in_zone_probability)
+        result, = g.node.set_parameters([Parameter('aim_inside_zone', value=True)])
+        assert not result.successful and 'needs in_zone_probability' in result.reason
+        assert g.node.get_parameter('aim_inside_zone').value is False
+
+
 def test_old_plane_behaviour_and_too_late_strikes_are_counted_not_sent():
     with Graph([Parameter('use_hit_plane', value=True)]) as g:
         msg = prediction_msg(5)

@@ -69,16 +69,16 @@ PARAMETERS = (
     Param('max_racket_speed', _D.max_racket_speed, 'racket speed limit at impact (along the '
           "path, the lower of this and workspace_file's max_racket_speed)", 'm/s',
           *MAX_RACKET_SPEED_RANGE),
-    Param('reach_z_min', _D.reach_z[0], 'lowest ball centre the racket reaches', 'm',
-          -0.76, 2.0),
-    Param('reach_z_max', _D.reach_z[1], 'highest ball centre the racket reaches', 'm',
-          -0.76, 3.0),
-    Param('reach_y', _D.reach_y, 'largest |y| of the hit point the racket reaches', 'm',
-          0.0, 3.0),
+    Param('reach_z_min', _D.reach_z[0], 'lowest ball centre the racket reaches (use_hit_plane '
+          "only; otherwise workspace_file's reach)", 'm', -0.76, 2.0),
+    Param('reach_z_max', _D.reach_z[1], 'highest ball centre the racket reaches (use_hit_plane '
+          "only; otherwise workspace_file's reach)", 'm', -0.76, 3.0),
+    Param('reach_y', _D.reach_y, 'largest |y| of the hit point the racket reaches '
+          "(use_hit_plane only; otherwise workspace_file's reach)", 'm', 0.0, 3.0),
     Param('max_normal_tilt_deg', _D.max_normal_tilt_deg, 'largest angle between the racket '
           'normal and +x', 'deg', 0.0, 90.0),
     Param('aim_inside_zone', _D.aim_inside_zone, 'aim at the point of the zone with the '
-          'highest in-zone probability instead of its centre'),
+          'highest in-zone probability instead of its centre (needs in_zone_probability)'),
     Param('in_zone_probability', True, 'compute the in-zone probability (1024 more flights, '
           'about 30 ms)'),
     Param('probability_rate_hz', 10.0, "rate of the in-zone probability per track and target, "
@@ -116,6 +116,10 @@ def check_parameters(values):
     if values['reach_z_min'] > values['reach_z_max']:
         return (f"reach_z_min ({values['reach_z_min']:g} m) must not exceed reach_z_max "
                 f"({values['reach_z_max']:g} m)")
+    if values['aim_inside_zone'] and not values['in_zone_probability']:
+        # Taken without a word before, and the stroke aimed at the centre (a walk-through).
+        return ('aim_inside_zone needs in_zone_probability: the point it aims at is the '
+                'one of the highest in-zone probability')
     try:
         # target_point is checked even while target_zone is set: a point off the opponent's
         # half is refused when it is set, not later when target_zone goes to 0.
@@ -420,7 +424,10 @@ class StrikeNode(Node):
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if cov is not None and sol.feasible:
             tally.probability = (aim, stamp_ns, sol.in_zone_probability)
-        elif sol.feasible and tally.probability and tally.probability[0] == aim:
+        elif (sol.feasible and self.p.in_zone_probability and tally.probability
+              and tally.probability[0] == aim):
+            # Reused between computations only while they go on: after in_zone_probability
+            # was set false, a track sent its last value for ever (a walk-through).
             sol.in_zone_probability = tally.probability[2]
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
@@ -455,8 +462,9 @@ class StrikeNode(Node):
             self.get_logger().warning(
                 f'track {track_id}: struck at {tally.hit_t:.3f} s, but its last prediction '
                 f'came {1e3 * early:.0f} ms before it reached the hitting plane: the ball was '
-                'lost on the way (no state from perception or no prediction since), the '
-                'stroke went on that prediction')
+                'lost on the way (no prediction with a hit point since: no state from '
+                'perception, or predictions without a hit, no_bounce say), the stroke went '
+                'on that prediction')
 
     def _too_late(self, tally, why):
         """A strike too close to its hit time: not sent. Counted and logged, unless a feasible
