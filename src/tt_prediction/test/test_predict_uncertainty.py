@@ -37,12 +37,23 @@ def test_bad_covariance_is_an_error():
         predict_uncertainty(GOOD, lower)
     # Wider than the table, a smash or the spin range: nothing to propagate (its sigma
     # points fly off the table; the hit covariance of those left came out narrower).
+    # The spin's limit is the model's 1500 rad/s at the sigma points (sqrt(10) standard
+    # deviations out): at 1000 rad/s they spun at 3162 and the hit's spread in y came out
+    # 42 mm where 400 gave 212 (a walk-through, 6 Dec 2026).
     for k, words in ((0, r'position standard deviation 1e\+75 m is beyond 1 m'),
                      (4, 'velocity standard deviation 40 m/s'),
-                     (8, r'spin standard deviation 2e\+03 rad/s')):
+                     (8, r'spin standard deviation 2e\+03 rad/s'),
+                     (7, r'spin standard deviation 1e\+03 rad/s is beyond 474 rad/s')):
         cov = np.eye(9) * 1e-6
-        cov[k, k] = (1e150, 1600.0, 4e6)[k // 3]
+        cov[k, k] = (1e150, 1600.0, (4e6 if k == 8 else 1e6))[k // 3]
         with pytest.raises(ValueError, match=words):
+            predict_uncertainty(GOOD, cov)
+    # Not positive semi-definite in one block, whatever the other blocks' units: a negative
+    # position variance beside a spin variance of 150^2, a correlation of x and y beyond 1.
+    for where, value in (((0, 0), -1e-6), ((0, 1), 1e-5)):
+        cov = np.diag([1e-6] * 3 + [1e-2] * 3 + [150.0 ** 2] * 3)
+        cov[where] = cov[where[::-1]] = value
+        with pytest.raises(ValueError, match='not positive semi-definite'):
             predict_uncertainty(GOOD, cov)
     cov = np.eye(9) * 1e-6
     cov[0, 0] = 0.99 ** 2                                   # within: propagated
