@@ -284,6 +284,19 @@ def test_states_received_late_are_counted_in_the_exit_line(graph):
         f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp')
 
 
+def test_a_state_stamped_ahead_of_the_node_clock_is_predicted_and_warned_of(graph,
+                                                                           monkeypatch):
+    # 0.9 s ahead (under the 1 s that drops it) was struck 'ok' without a word, its hit time
+    # 0.9 s late: an exposure cannot come after its state's arrival (a walk-through). A few
+    # ms ahead is the clocks' jitter and says nothing.
+    said = []
+    monkeypatch.setattr(graph.node.warn, '_log', said.append)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + 900_000_000, track_id=2))
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + 2_000_000, track_id=3))
+    graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'both predictions')
+    assert len(said) == 1 and 'stamped 900 ms ahead of the node clock' in said[0], said
+
+
 def test_the_exit_lines_stamps_are_the_earliest_and_latest_valid_ones(graph):
     # Its stamps were the first and the last state received: a dropped state stamped 0 after
     # the others made it read 'stamps <first> to 0.000000000 s'.

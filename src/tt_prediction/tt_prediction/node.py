@@ -52,6 +52,11 @@ walk-through, 29 Nov 2026)."""
 MAX_LEAD_S = 1.0
 """A state stamped further ahead of the node clock is dropped (with stale_after_s > 0), s:
 its clock and the node's disagree, and the hit time it gives would be as far off."""
+AHEAD_S = 0.01
+"""A state stamped further ahead of the node clock than this (s), but less than MAX_LEAD_S,
+is predicted and warned of (at most every 5 s): an exposure cannot be later than its state's
+arrival, so the clocks disagree by at least that much, and the hit time with them (0.9 s
+ahead was struck 'ok' without a word; a walk-through, 6 Dec 2026)."""
 TRACK_GAP_S = 1.0
 """A state of a remembered track id stamped this much after the track's last state (or
 more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ball
@@ -280,6 +285,10 @@ class PredictionNode(Node):
                     self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
                                f'{MAX_LEAD_S:g} s): the clocks disagree')
                     return
+                if -age > AHEAD_S:
+                    self.warn('ahead', 5.0,
+                              f'a state stamped {-age * 1e3:.0f} ms ahead of the node clock: '
+                              'the clocks disagree (its hit time is off by as much)')
                 if age > LATE_S:
                     self.n_late += 1
                     self.warn('late', 5.0,
