@@ -280,6 +280,21 @@ def test_an_integer_beyond_64_bits_is_a_one_line_error_not_a_traceback(text):
     assert parse_value(str(2 ** 63 - 1)).integer_value == 2 ** 63 - 1
 
 
+def test_a_list_of_integers_and_doubles_mixed_is_a_double_array_where_one_is_declared():
+    # '[0.5, 0]' is a string to rcl (YAML's list has no one type): a node's double array
+    # refused it as 'not a list of 2 numbers' (a walk-through, 6 Dec 2026).
+    value = parse_value('[0.5, 0]', ParameterType.PARAMETER_DOUBLE_ARRAY)
+    assert value.type == ParameterType.PARAMETER_DOUBLE_ARRAY
+    assert list(value.double_array_value) == [0.5, 0.0]
+    assert parse_value('[0.5, 0]').type == ParameterType.PARAMETER_STRING    # as ros2cli
+    from tt_tools.param import file_value
+    assert list(file_value('p', [0.5, 0], ParameterType.PARAMETER_DOUBLE_ARRAY)
+                .double_array_value) == [0.5, 0.0]
+    for text in ('[0.5, true]', 'a, b'):
+        assert parse_value(text, ParameterType.PARAMETER_DOUBLE_ARRAY).type == (
+            ParameterType.PARAMETER_STRING)
+
+
 def test_node_info_and_topic_type_of_an_absent_node_or_topic(topic):
     rc, out, err = ros2('node', 'info', '/tt_no_such_node_' + uuid.uuid4().hex[:6],
                         '--spin-time', '0.5')

@@ -243,7 +243,8 @@ TOO_BIG = 'an integer outside the 64-bit range'
 
 def _typed(value, declared_type):
     """``value`` (a ParameterValue) checked (ValueError: an integer beyond 64 bits) and, an
-    integer (array) for a ``declared_type`` double (array), made a double (array)."""
+    integer (array) for a ``declared_type`` double (array), made a double (array); so is a
+    list of integers and doubles mixed, which YAML gives rcl as a string."""
     if not all(-2 ** 63 <= v < 2 ** 63
                for v in [value.integer_value, *value.integer_array_value]):
         raise ValueError(TOO_BIG)
@@ -254,12 +255,29 @@ def _typed(value, declared_type):
           and value.type == ParameterType.PARAMETER_INTEGER_ARRAY):
         value.type = declared_type
         value.double_array_value = [float(v) for v in value.integer_array_value]
+    elif (declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY
+          and value.type == ParameterType.PARAMETER_STRING):
+        # '[0.5, 0]', integers and doubles mixed: YAML's list is no one array type, so rcl
+        # takes it for a string, which the node refused as 'not a list of 2 numbers' (a
+        # walk-through, 6 Dec 2026). For a double array it is one.
+        try:
+            items = yaml.safe_load(value.string_value)
+        except yaml.YAMLError:
+            items = None
+        if (isinstance(items, list) and items
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                        for v in items)):
+            value.type, value.string_value = declared_type, ''
+            value.double_array_value = [float(v) for v in items]
     return value
 
 
 def file_value(name, value, declared_type=None):
     """ParameterValue of a parameters file's ``value`` for the parameter ``name``, typed as
     rcl types it (and, as :func:`parse_value`, an integer for a declared double a double)."""
+    if (declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, list)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        value = [float(v) for v in value]     # [0.5, 0]: one array type, as on the command line
     try:
         parameter = PythonParameter(name, value=value)
         if parameter.type_ == PythonParameter.Type.NOT_SET:
