@@ -405,7 +405,7 @@ def test_time_offset_without_a_colour_is_estimated_from_the_ball_and_not_the_res
     assert cli.main(['--rig', video_rig, '--out', str(out)]) == 0
     err = capsys.readouterr().err.splitlines()
     note = [line for line in err if 'time_offset' in line]
-    assert len(note) == 1 and 'from the orange ball' in note[0]
+    assert len(note) == 1 and '(as the orange detector finds it)' in note[0]
     estimated = float(note[0].split('time_offset ')[1].split(' ms')[0]) * 1e-3
     # Within the half frame the outline fits refine it in, and refined to within 0.3 ms.
     assert abs(estimated - -lag) < 0.5 / 150.0

@@ -230,9 +230,11 @@ def estimate_offsets(rig, colour, detector_config=None):
         offset, cost, used = min(tried, key=lambda t: t[1])
         cam.time_offset = float(offset) + base
         px = cost * cam.focal
-        which = f'{used} ' if len(colours) > 1 else ''
+        # With --colour any: the detector whose detections agree best (a white ball was
+        # named 'the orange ball' when the orange test's did; a walk-through, 6 Dec 2026).
+        which = f' (as the {used} detector finds it)' if len(colours) > 1 else ''
         notes.append(f'{cam.name}: time_offset {cam.time_offset * 1e3:+.3f} ms estimated from '
-                     f'the {which}ball{included} (median epipolar distance {px:.2f} px)')
+                     f'the ball{which}{included} (median epipolar distance {px:.2f} px)')
         if px > UNRELIABLE_OFFSET_PX:
             # With a colour given, the detections are the ball's: the rays do not meet. Not
             # used: a wrong offset matched a few frames by chance into a short false track,
