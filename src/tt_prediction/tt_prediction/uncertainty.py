@@ -90,10 +90,12 @@ SYMMETRY_TOLERANCE = 1e-9
 
 
 def check_symmetric(cov, name='covariance'):
-    """Raises ValueError, naming ``name``, when the square covariance ``cov`` is not symmetric
-    beyond :data:`SYMMETRY_TOLERANCE` (one that is not finite is left to
-    :func:`covariance_eigen`)."""
+    """Raises ValueError, naming ``name``, when the square covariance ``cov`` is not finite or
+    not symmetric beyond :data:`SYMMETRY_TOLERANCE`."""
     cov = np.asarray(cov, dtype=float)
+    if not np.all(np.isfinite(cov)):
+        # Said here: inf - inf below gave numpy's RuntimeWarning on stderr before the line.
+        raise ValueError(f'{name} is not finite')
     asym = float(np.abs(cov - cov.T).max())
     if asym > SYMMETRY_TOLERANCE * float(np.abs(cov).max()) + 1e-300:
         raise ValueError(f'{name} is not symmetric (largest |C - C^T| {asym:.3g})')
