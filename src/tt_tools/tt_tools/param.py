@@ -264,19 +264,22 @@ def _typed(value, declared_type):
             items = yaml.safe_load(value.string_value)
         except yaml.YAMLError:
             items = None
-        if (isinstance(items, list) and items
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                        for v in items)):
+        if _numbers(items):
             value.type, value.string_value = declared_type, ''
             value.double_array_value = [float(v) for v in items]
     return value
 
 
+def _numbers(items):
+    """Whether ``items`` is a non-empty list of integers and doubles (no bools)."""
+    return (isinstance(items, list) and bool(items)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items))
+
+
 def file_value(name, value, declared_type=None):
     """ParameterValue of a parameters file's ``value`` for the parameter ``name``, typed as
     rcl types it (and, as :func:`parse_value`, an integer for a declared double a double)."""
-    if (declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, list)
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+    if declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY and _numbers(value):
         value = [float(v) for v in value]     # [0.5, 0]: one array type, as on the command line
     try:
         parameter = PythonParameter(name, value=value)
