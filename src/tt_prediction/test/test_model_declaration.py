@@ -115,6 +115,11 @@ def _complete_model(tmp_path, edit):
      "wind belongs under 'effects', not 'ball'"),
     (lambda d: d['effects'].update(c_m=d['ball'].pop('c_m')),
      "c_m belongs under 'ball', not 'effects'"),
+    # In its block and again at the top level: whichever came last ran (a walk-through).
+    (lambda d: d.update(c_d=0.7), 'c_d is given twice (again at the top level)'),
+    (lambda d: d.update(spin_decay=2.0), 'spin_decay is given twice (again at the top level)'),
+    # A key of another type beside an unknown one: a traceback (sorting str with int).
+    (lambda d: d.update({1: 2, 'foo': 3}), 'unknown parameter(s) 1, foo'),
 ])
 def test_a_model_file_with_a_field_left_out_or_of_the_wrong_kind_is_refused(tmp_path, edit,
                                                                             words):

@@ -416,12 +416,14 @@ class ModelParams:
                         raise ValueError(f"model file: {name} belongs under "
                                          f"'{'effects' if key == 'ball' else 'ball'}', not "
                                          f"'{key}'")
-                flat.update(value)
+                for name, v in value.items():
+                    flat[_once(flat, name, key)] = v
             elif key in ('meta', 'selected_effects'):
                 continue
             else:
-                flat[key] = value
-        unknown = sorted(set(flat) - set(FIELD))
+                flat[_once(flat, key, None)] = value
+        unknown = sorted(set(flat) - set(FIELD), key=str)   # keys of any YAML type
+        unknown = [str(k) for k in unknown]
         if unknown:
             raise ValueError(f'model file: unknown parameter(s) {", ".join(unknown)}')
         kwargs = {}
@@ -463,6 +465,16 @@ class ModelParams:
             return cls.from_dict(data)
         except ValueError as exc:
             raise ValueError(f'{path}: {exc}') from None
+
+
+def _once(flat, name, block):
+    """``name``, checked not to be in ``flat`` already: a model file's parameter given in its
+    block and again at the top level ran with whichever came last (a walk-through, 6 Dec
+    2026)."""
+    if name in flat:
+        where = f"under '{block}'" if block else 'at the top level'
+        raise ValueError(f'model file: {name} is given twice (again {where})')
+    return name
 
 
 def _model_number(key, value):

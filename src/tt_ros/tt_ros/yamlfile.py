@@ -1,8 +1,11 @@
 """YAML of tt's own files (model.yaml, rigs, workspaces, filter settings), no rclpy.
 
 PyYAML's ``safe_load`` keeps the last of two values given to one key, without a word: a
-model.yaml with ``c_d`` twice ran with the second. :func:`load_yaml` refuses it.
+model.yaml with ``c_d`` twice ran with the second. :func:`load_yaml` refuses it, and reads
+YAML 1.2's floats without a dot (``3e-3``) as numbers.
 """
+
+import re
 
 import yaml
 
@@ -29,6 +32,14 @@ def _unique_mapping(loader, node, deep=False):
 
 
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+# YAML 1.2's floats without a dot (3e-3, 1e+20, 2E0), which PyYAML (YAML 1.1) reads as
+# strings: a model.yaml's 'mass: 3e-3' was refused as not a number, and ruamel.yaml writes
+# such numbers (a walk-through, 6 Dec 2026). The loader's own copy of the resolvers.
+_UniqueKeyLoader.yaml_implicit_resolvers = {
+    first: list(resolvers) for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_UniqueKeyLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float', re.compile(r'^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$'),
+    list('-+0123456789.'))
 
 
 def load_yaml(stream):

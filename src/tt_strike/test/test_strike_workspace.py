@@ -63,6 +63,8 @@ def test_cylinder_contains_by_distance_to_its_axis(tmp_path):
      "unknown key 'workspace.max_racket_sped'"),
     (lambda d: d['workspace']['box'].update(w=[0, 1]), "unknown key 'workspace.box.w'"),
     (lambda d: d.update(extra=1), "unknown key 'extra' (known: workspace)"),
+    # Its lines commented out, the key left: a traceback (a walk-through, 6 Dec 2026).
+    (lambda d: d['workspace'].update(box=None), "key 'workspace.box' must be a mapping of x"),
 ])
 def test_bad_files_name_the_key_in_one_line(tmp_path, edit, key):
     data = yaml.safe_load(TEMPLATE.read_text())

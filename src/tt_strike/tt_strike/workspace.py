@@ -119,7 +119,10 @@ def _get(mapping, key, path):
 
 def _known(mapping, known, path):
     """WorkspaceError naming the first key of ``mapping`` not in ``known``: a misspelt key
-    would otherwise be ignored without a word."""
+    would otherwise be ignored without a word; or naming ``path`` when ``mapping`` is none
+    (an empty 'box:', its lines commented out, gave a traceback)."""
+    if not isinstance(mapping, dict):
+        raise WorkspaceError(f"key '{path}' must be a mapping of {', '.join(known)}")
     unknown = [str(k) for k in mapping if k not in known]
     if unknown:
         name = f'{path}.{unknown[0]}' if path else unknown[0]
