@@ -50,7 +50,7 @@ def test_a_track_is_judged_on_most_of_its_rows():
     assert position_error(track, 'x, y, z', most=True) == ''
     assert outside_room(track).tolist() == [k == 3 for k in range(10)]
     track[:6] *= 1000.0                    # six of ten rows in millimetres
-    text = position_error(track, 'x, y, z', most=True, first_line=2)
+    text = position_error(track, 'x, y, z', most=True, lines=range(2, 12))
     assert text.startswith('x, y, z = [1600, 100, 300] (line 2): outside the room')
 
 

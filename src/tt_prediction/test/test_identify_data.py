@@ -33,6 +33,10 @@ def _folder(tmp_path, files):
     ({}, 'no trajectory CSV'),
     ({'a.csv': 'time,x,y,z\n0,0,0,0.3\n0.01,0.1,0,0.3\n'}, 'a.csv: header must name the columns'),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n0.01,abc,0,0.3\n'}, "a.csv: line 3, column 'x'"),
+    # After a blank line: the line before was named (a walk-through, 6 Dec 2026).
+    ({'a.csv': 't,x,y,z\n0,0,0,0.3\n\n0.01,abc,0,0.3\n'}, "a.csv: line 4, column 'x'"),
+    ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20)),
+      'index.csv': 'file,label\n\n,serve\n'}, "index.csv: line 3: its 'file' is empty"),
     ({'a.csv': 't,x,y,z\n0,0,0,0.3\n'}, 'a.csv: 1 valid sample(s)'),
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,-0.1\n' for i in range(20)),
       'b.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},0,0,0.021\n' for i in range(20))},
@@ -45,7 +49,8 @@ def _folder(tmp_path, files):
     # A track file given for its folder was 'not a readable rosbag2 bag'.
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))},
      'data/a.csv: a track file; DATA is the folder of track CSV files'),
-], ids=['empty folder', 'wrong header', 'text in number', 'one sample', 'nothing usable',
+], ids=['empty folder', 'wrong header', 'text in number', 'after a blank line',
+        'index row without a file', 'one sample', 'nothing usable',
         'spin in rpm', 'a track file'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)

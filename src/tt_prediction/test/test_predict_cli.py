@@ -111,6 +111,9 @@ def test_implausible_model_file_is_refused_naming_file_and_field(capsys, tmp_pat
      'unknown field "spin" (the fields: t, p, v, w)'),
     ('{"t": true, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0]}',
      '"t" must be a number, got true'),              # JSON's spelling, not Python's True
+    # The last of the two was taken without a word (a walk-through, 6 Dec 2026).
+    ('{"t": 0, "p": [1, 0, 0.3], "v": [-5, 0, 0], "w": [0, 0, 0], "t": 5}',
+     'field "t" given twice'),
 ])
 def test_a_bad_line_is_a_one_line_error_naming_it_and_nothing_is_written(
         capsys, tmp_path, line, words):

@@ -34,14 +34,31 @@ class InputError(ValueError):
     """A bad input line; the message names it."""
 
 
+class _GivenTwiceError(Exception):
+    """A JSON object's key given twice (args: the key)."""
+
+
+def _each_once(pairs):
+    """A JSON object's dict, its keys given once each: json keeps the last of two without a
+    word (a line's "target_zone" twice aimed at the second; a walk-through, 6 Dec 2026)."""
+    data = {}
+    for key, value in pairs:
+        if key in data:
+            raise _GivenTwiceError(key)
+        data[key] = value
+    return data
+
+
 def parse_object(text, lineno, fields=tuple(key for key, _ in FIELDS)):
     """The JSON object of one line (a dict) whose keys are among ``fields``; raises
     InputError naming the line, and an unknown field with the nearest name (a misspelt or
     per-line "hit_plane_x" was left out without a word)."""
     try:
-        data = json.loads(text)
+        data = json.loads(text, object_pairs_hook=_each_once)
     except json.JSONDecodeError as exc:
         raise InputError(f'line {lineno}: not valid JSON: {exc.msg}') from None
+    except _GivenTwiceError as exc:
+        raise InputError(f'line {lineno}: field {json.dumps(exc.args[0])} given twice') from None
     if not isinstance(data, dict):
         raise InputError(f'line {lineno}: expected a JSON object with t, p, v, w')
     unknown = [k for k in data if k not in fields]

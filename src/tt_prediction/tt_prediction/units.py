@@ -27,7 +27,7 @@ def outside_room(positions):
     return np.any(np.abs(np.where(np.isfinite(p), p, 0.0)) > ROOM_HALF_EXTENT_M, axis=1)
 
 
-def position_error(positions, field='p', most=False, first_line=None):
+def position_error(positions, field='p', most=False, lines=None):
     """Why ``positions`` ((3,) or (n, 3), table frame) are not ball positions in metres, or ''.
 
     Parameters
@@ -40,8 +40,8 @@ def position_error(positions, field='p', most=False, first_line=None):
         Judge a track: only when most of its finite rows are outside the room. A few wild
         samples (a stereo mismatch 12 m away) are outliers for the caller to drop
         (:func:`outside_room`), not a file in millimetres.
-    first_line : int or None
-        The file line of the first row (a CSV with a header: 2): the row is named by its line.
+    lines : sequence of int or None
+        The file line of each row: the row is named by its line (else by its number).
 
     Returns
     -------
@@ -57,8 +57,8 @@ def position_error(positions, field='p', most=False, first_line=None):
         return ''
     first = int(np.flatnonzero(big)[0])
     shown = '[' + ', '.join(f'{v:.6g}' for v in p[first]) + ']'
-    where = ('' if p.shape[0] == 1 else f' (row {first + 1})' if first_line is None
-             else f' (line {first + first_line})')
+    where = ('' if p.shape[0] == 1 else f' (row {first + 1})' if lines is None
+             else f' (line {lines[first]})')
     return (f'{field} = {shown}{where}: outside the room (|coordinate| > '
             f'{ROOM_HALF_EXTENT_M:g} m): positions are in metres, not millimetres or '
             'centimetres')

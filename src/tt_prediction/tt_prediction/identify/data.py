@@ -79,25 +79,29 @@ def clean_samples(name, t, p):
 
 
 def _read_csv(path):
-    """Rows of a CSV file as (header, list of rows); DataError when unreadable."""
+    """Rows of a CSV file as (header, list of rows, the file line of each row), blank lines
+    left out; DataError when unreadable. (Lines were counted from the rows: after a blank
+    line, an error named the line before its own; a walk-through, 6 Dec 2026.)"""
     try:
         # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not a header's.
         with open(path, newline='', encoding='utf-8-sig') as f:
-            rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+            reader = csv.reader(f)
+            numbered = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
     except OSError as exc:
         raise DataError(f'{path}: cannot read: {exc.strerror}') from None
     except (UnicodeDecodeError, csv.Error) as exc:
         raise DataError(f'{path}: not a text CSV file: {exc}') from None
-    if not rows:
+    if not numbered:
         raise DataError(f'{path}: empty file')
-    return [c.strip() for c in rows[0]], rows[1:]
+    lines, rows = zip(*numbered, strict=True)
+    return [c.strip() for c in rows[0]], list(rows[1:]), list(lines[1:])
 
 
 def read_track_csv(path):
     """Read one trajectory CSV (header ``t,x,y,z``, then any other columns; the four may
     come in any order) into ``(t, p)``. An empty cell is a value not measured (NaN, as pandas
     writes it): its row is dropped later with the other non-finite ones."""
-    header, rows = _read_csv(path)
+    header, rows, lines = _read_csv(path)
     need = ('t', 'x', 'y', 'z')
     if not set(need) <= set(header):
         raise DataError(f"{path}: header must name the columns 't,x,y,z', "
@@ -110,16 +114,16 @@ def read_track_csv(path):
     values = np.empty((len(rows), 4))
     for i, row in enumerate(rows):
         if len(row) <= max(cols):
-            raise DataError(f'{path}: line {i + 2} has {len(row)} columns, expected '
+            raise DataError(f'{path}: line {lines[i]} has {len(row)} columns, expected '
                             f'{max(cols) + 1}')
         for j, col in enumerate(cols):
             cell = row[col].strip()
             try:
                 values[i, j] = float(cell) if cell else math.nan
             except ValueError:
-                raise DataError(f"{path}: line {i + 2}, column '{header[col]}': "
+                raise DataError(f"{path}: line {lines[i]}, column '{header[col]}': "
                                 f'{cell!r} is not a number') from None
-    reason = (position_error(values[:, 1:4], 'x, y, z', most=True, first_line=2)   # mm
+    reason = (position_error(values[:, 1:4], 'x, y, z', most=True, lines=lines)   # mm
               or time_error(values[:, 0]) or sample_time_error(values[:, 0]))
     if reason:
         raise DataError(f'{path}: {reason}')
@@ -156,7 +160,7 @@ def read_index(path):
     folder's :func:`index_path`."""
     if not os.path.exists(path):
         return {}
-    header, rows = _read_csv(path)
+    header, rows, lines = _read_csv(path)
     spin_named = [c for c in INDEX_SPIN if c in header]
     if 'file' not in header or 0 < len(spin_named) < 3:
         raise DataError(f"{path}: header must name the column 'file', and 'wx,wy,wz' for "
@@ -178,28 +182,30 @@ def read_index(path):
             try:
                 spin = np.array([float(c) for c in cells])
             except ValueError:
-                raise DataError(f'{path}: line {i + 2}: spin {cells} is not three numbers'
+                raise DataError(f'{path}: line {lines[i]}: spin {cells} is not three numbers'
                                 ) from None
             if not np.all(np.isfinite(spin)):
-                raise DataError(f'{path}: line {i + 2}: spin {cells} is not finite')
+                raise DataError(f'{path}: line {lines[i]}: spin {cells} is not finite')
             if np.linalg.norm(spin) > MAX_SPIN:         # rpm or rps for rad/s: c_m fitted off
-                raise DataError(f'{path}: line {i + 2}: spin {np.linalg.norm(spin):.0f} rad/s '
+                raise DataError(f'{path}: line {lines[i]}: spin {np.linalg.norm(spin):.0f} rad/s '
                                 f'is above {MAX_SPIN:g} rad/s: not a table-tennis ball '
                                 '(wx, wy, wz are in rad/s)')
         source = row[source_col].strip().lower() if source_col is not None else ''
         if source and source not in SPIN_SOURCES:
-            raise DataError(f"{path}: line {i + 2}: spin_source '{source}' is not one of "
+            raise DataError(f"{path}: line {lines[i]}: spin_source '{source}' is not one of "
                             f"{', '.join(SPIN_SOURCES)}")
         if source == 'measured' and spin is None:
-            raise DataError(f"{path}: line {i + 2}: spin_source 'measured' but no spin given")
+            raise DataError(f"{path}: line {lines[i]}: spin_source 'measured' but no spin given")
         if spin is not None and not source:
             source = 'measured'
         if source == 'estimated':
             spin = None
         label = row[label_col].strip() if label_col is not None else ''
         name = row[file_col].strip()
+        if not name:                # 'names , not in the folder', no line
+            raise DataError(f"{path}: line {lines[i]}: its 'file' is empty")
         if name in index:           # the last row won, without a word
-            raise DataError(f'{path}: line {i + 2}: {name} is named by an earlier row too')
+            raise DataError(f'{path}: line {lines[i]}: {name} is named by an earlier row too')
         index[name] = (spin, label, source)
     return index
 
