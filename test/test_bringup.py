@@ -30,7 +30,8 @@ class Bringup:
     """A bringup process whose output lines are collected by a thread."""
 
     def __init__(self, *args):
-        env = ros_env({'ROS_DOMAIN_ID': str(unique_domain())})
+        self.domain = unique_domain()
+        env = ros_env({'ROS_DOMAIN_ID': str(self.domain)})
         self.proc = subprocess.Popen(['ros2', 'run', 'tt_tools', 'bringup', *args], env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, text=True,
@@ -497,3 +498,63 @@ def test_env_sh_sets_the_large_image_profile_unless_one_is_set(preset):
                                     'fastdds_large_messages.xml')
     else:
         assert profile == ''
+
+
+@pytest.mark.parametrize('namespace, sections, nodes', [
+    # The sections the docs give for a node in any namespace: 'none of the tt nodes', and a
+    # file with one plain and one such section started the plain one only (a walk-through).
+    ('', ('/**/prediction_node', '/**/strike_node'), ['prediction_node', 'strike_node']),
+    ('', ('prediction_node', '/**/strike_node'), ['prediction_node', 'strike_node']),
+    ('/robot1', ('/robot1/prediction_node', 'strike_node'), ['prediction_node']),
+    ('/robot1', ('/**',), ['perception_node', 'prediction_node', 'strike_node']),
+    ('/robot1', ('/robot1/*',), ['perception_node', 'prediction_node', 'strike_node']),
+    ('', ('/robot1/prediction_node',), None),
+])
+def test_a_files_sections_name_the_nodes_as_rcl_applies_them(namespace, sections, nodes):
+    from tt_tools import bringup
+    given = {key: {'rig_file': 'r.yaml'} for key in sections}
+    if nodes is None:
+        with pytest.raises(bringup.BringupError, match=r'names none of the tt nodes .*\(its '
+                                                       r'sections: /robot1/prediction_node\)'):
+            bringup.nodes_in(given, 'f.yaml', namespace)
+        return
+    assert bringup.nodes_in(given, 'f.yaml', namespace) == nodes
+    assert bringup.configured_rig(given, namespace) == (
+        'r.yaml' if 'perception_node' in nodes else '')
+
+
+def test_a_graph_in_a_namespace_takes_the_states_of_its_own(tmp_path):
+    """--namespace /robot1: every node in /robot1, --show on its topics; a state published on
+    /robot1/ball/state is predicted and struck (bringup had no namespace: one robot a
+    domain; a walk-through, 6 Dec 2026)."""
+    from rclpy.qos import qos_profile_sensor_data
+    from tt_ros.testing import Graph
+
+    from tt_msgs.msg import BallState
+    path = _params(tmp_path, GRAPH.replace('\nprediction_node:', '\n/**/prediction_node:')
+                   .replace('\nstrike_node:', '\n/robot1/strike_node:'))
+    b = Bringup('--params-file', path, '--nodes', 'prediction_node,strike_node',
+                '--namespace', '/robot1', '--show')
+    try:
+        b.wait_for(r'^\[prediction_node\] .*\]: ready$')
+        assert '-r __ns:=/robot1' not in b.text          # (said as the node names below)
+        with Graph(domain_id=b.domain) as graph:
+            node = graph.create_node('robot1_states')
+            pub = node.create_publisher(BallState, '/robot1/ball/state', qos_profile_sensor_data)
+
+            def shown():
+                msg = BallState()
+                now = node.get_clock().now().nanoseconds
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(now, 1_000_000_000)
+                msg.header.frame_id = 'table'
+                msg.track_id = 1
+                (msg.position.x, msg.position.y, msg.position.z) = (1.6, 0.1, 0.3)
+                (msg.velocity.x, msg.velocity.y, msg.velocity.z) = (-6.0, 0.0, 1.5)
+                msg.spin.y = 100.0
+                pub.publish(msg)
+                return any(line.startswith('bringup: ball 1: ') for line in b.lines)
+            graph.spin_until(shown, TIMEOUT_S, "--show's line of the ball")
+        assert re.search(r'\[strike_node\] .*/robot1/ball/prediction: connected', b.text)
+        assert b.stop() == 0
+    finally:
+        b.kill()

@@ -715,3 +715,14 @@ def test_play_window_and_choice_that_leave_nothing_are_one_line(tmp_path):
     rc, out, err = ros2('bag', 'play', str(bag), '--playback-until-sec', '1e9',
                         '--playback-until-nsec', '1')
     assert (rc, out) == (2, '') and 'not allowed with argument' in err
+
+
+def test_play_clock_follows_a_remap_of_clock(recorded, monkeypatch):
+    # A robot's graph in a namespace on its own clock (bringup --namespace /robot1): the
+    # player's /clock remapped with the topics, as rosbag2 remaps it (refused before, 'not
+    # among the topics played'; a walk-through, 6 Dec 2026).
+    out, topics, _ = recorded
+    _, published = _play_on_fake_time(
+        monkeypatch, [str(out), '--clock', '50', '--remap', '/clock:=/robot1/clock'])
+    played = {topic for _, topic, _ in published}
+    assert '/robot1/clock' in played and '/clock' not in played

@@ -246,7 +246,11 @@ def bag_play(args):
         if absent:
             _say(f'[WARN] --topics: {" ".join(absent)} not in the bag (it has '
                  f'{" ".join(sorted(recorded))})')
-        unknown = sorted(set(remap) - {c.topic for c in conns})
+        # --clock's /clock may be remapped too (rosbag2 applies remaps to it: a robot's graph
+        # in a namespace, on its own clock; refused before, a walk-through, 6 Dec 2026).
+        clock_topic = remap.get('/clock', '/clock') if args.clock is not None else None
+        unknown = sorted(set(remap) - {c.topic for c in conns}
+                         - ({'/clock'} if clock_topic else set()))
         if unknown:
             raise BagError(f'--remap {" ".join(unknown)}: not among the topics played')
         with CliNode('bag_play') as cli:
@@ -260,15 +264,15 @@ def bag_play(args):
             # them against the clock a previous player had left (stale, too late). Every
             # /clock subscription the graph shows, none when there is none (no consumer on
             # sim time: ros2 topic echo, a recorder).
-            clock_pub = _clock_publisher(cli) if args.clock is not None else None
+            clock_pub = _clock_publisher(cli, clock_topic) if clock_topic else None
 
             def waiting():
                 out = []
                 if args.wait_for_subscribers:
                     out = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
                     if clock_pub is not None and (clock_pub.get_subscription_count()
-                                                  < cli.node.count_subscribers('/clock')):
-                        out.append('/clock')
+                                                  < cli.node.count_subscribers(clock_topic)):
+                        out.append(clock_topic)
                 # Links further down the chain (prediction -> strike), which the player does
                 # not publish: the graph shows a publisher and a subscription of each.
                 out += [t for t in chain if not (cli.node.count_publishers(t)
@@ -336,13 +340,13 @@ def bag_play(args):
     return 0
 
 
-def _clock_publisher(cli):
-    """The player's rosgraph_msgs/Clock publisher on /clock (rclcpp's ClockQoS: best effort,
-    depth 1)."""
+def _clock_publisher(cli, topic='/clock'):
+    """The player's rosgraph_msgs/Clock publisher on ``topic`` (/clock, or where --remap puts
+    it; rclcpp's ClockQoS: best effort, depth 1)."""
     from rosgraph_msgs.msg import Clock
 
     return cli.node.create_publisher(
-        Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        Clock, topic, QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
 
 
 def _publish_clock(cli, pub, rate_hz, bag_time_ns):

@@ -21,6 +21,10 @@ prefixed with its name.
   one node also stop the graph (exit 1). The shared memory that a node killed by a signal
   leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then (:mod:`tt_ros.shm`),
   with one line.
+- ``--namespace NS`` starts every node in NS (``-r __ns:=NS``): one robot's graph of several
+  on a ROS domain, its clock on NS/clock (``-r /clock:=NS/clock``): two replays on one
+  /clock stepped each other's time back (a walk-through, 6 Dec 2026); a bag played into it
+  gives ``--remap /clock:=NS/clock`` with ``--clock``.
 - ``--show`` prints one line per ball (track): the prediction and the strike command. Its
   subscriptions count as inputs too: the next node starts once they are connected to the
   running nodes that publish them (a video's first ball would not be shown).
@@ -41,7 +45,8 @@ import sys
 import threading
 import time
 
-from tt_ros.executor import NOT_PARAMS
+from tt_ros.executor import NOT_PARAMS, names_a_node, section_matches
+from tt_ros.names import name_error
 from tt_ros.rosenv import domain_id_error
 from tt_ros.shm import remove_dead_segments
 import yaml
@@ -130,25 +135,32 @@ def read_params(params_file):
     return {str(key): value['ros__parameters'] for key, value in data.items()}
 
 
-def nodes_in(sections, params_file):
+def nodes_in(sections, params_file, namespace=''):
     """The tt nodes that the parameters file ``params_file`` (its :func:`read_params`
-    ``sections``) names, in the order of ``NODES``; all of them when it only has a ``/**``
-    section. BringupError with one line when it names none."""
-    names = [key.lstrip('/') for key in sections]
-    found = [n for n in NODES if n in names]
-    if not found and '**' in names:
+    ``sections``) names, in the order of ``NODES``, each started in ``namespace`` ('' the
+    root): a section names a node as rcl applies it (``prediction_node:``,
+    ``/**/prediction_node:``, ``/robot1/prediction_node:`` in /robot1); all of them when the
+    file only has shared sections (``/**:``). BringupError with one line when it names none.
+    (Only the plain names were looked for: the ``/**/NAME:`` sections the docs give were
+    'none of the tt nodes'; a walk-through, 6 Dec 2026.)"""
+    found = [n for n in NODES if any(names_a_node(key) and section_matches(key, f'{namespace}/{n}')
+                                     for key in sections)]
+    if not found and any(section_matches(key, f'{namespace}/{n}')
+                         for key in sections for n in NODES):
         found = list(NODES)
     if not found:
-        raise BringupError(f'{params_file}: names none of the tt nodes ({", ".join(NODES)})')
+        where = f' in {namespace}' if namespace else ''
+        raise BringupError(f'{params_file}: names none of the tt nodes ({", ".join(NODES)})'
+                           f'{where} (its sections: {", ".join(sections)})')
     return found
 
 
-def configured_rig(sections):
+def configured_rig(sections, namespace=''):
     """The rig_file that a parameters file's ``sections`` (:func:`read_params`) give
-    perception_node, in its own section or a ``/**`` one, or ''."""
+    perception_node in ``namespace``, in any section that applies to it, or ''."""
     rig = ''
     for key, params in sections.items():
-        if key.lstrip('/') in ('**', 'perception_node', '**/perception_node') \
+        if section_matches(key, f'{namespace}/perception_node') \
                 and isinstance(params, dict) and 'rig_file' in params:
             rig = params['rig_file'] or ''          # a later section wins, as in rcl
     return str(rig)
@@ -216,8 +228,9 @@ class Bringup:
     """The supervisor: start, restart, stop (see the module docstring)."""
 
     def __init__(self, params_file, nodes, extra_args=None, restart_delay=1.0,
-                 max_restarts=5, stop_timeout=10.0, env=None):
+                 max_restarts=5, stop_timeout=10.0, env=None, namespace=''):
         self.events = queue.Queue()
+        self.namespace = namespace
         self.show = None            # --show's Show: its subscriptions are waited for as inputs
         self.restart_delay = restart_delay
         self.max_restarts = max_restarts
@@ -228,7 +241,9 @@ class Bringup:
         for name in sorted(nodes, key=START_ORDER.index):
             exe = find_executable(NODES[name], name)
             extra = (extra_args or {}).get(name, [])
-            self.children.append(Child(name, [exe, '--ros-args', '--params-file',
+            ns = ['-r', f'__ns:={namespace}', '-r', f'/clock:={namespace}/clock'] \
+                if namespace else []
+            self.children.append(Child(name, [exe, '--ros-args', *ns, '--params-file',
                                               os.path.abspath(params_file), *extra],
                                        env, self.events))
         self.profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
@@ -283,8 +298,8 @@ class Bringup:
         late = []
         for child in running.values():
             topic, producer = INPUTS.get(child.name, (None, None))
-            if producer in running and topic not in child.connected:
-                late.append(f"{child.name}'s {topic}")
+            if producer in running and f'{self.namespace}{topic}' not in child.connected:
+                late.append(f"{child.name}'s {self.namespace}{topic}")
         if self.show is not None:
             late += [f"--show's {topic}" for topic in self.show.unconnected(running)]
         return late
@@ -353,9 +368,10 @@ class Bringup:
 
 
 class Show:
-    """``--show``: one line per ball (track) from /ball/prediction and /strike/command."""
+    """``--show``: one line per ball (track) from /ball/prediction and /strike/command (in
+    ``namespace``)."""
 
-    def __init__(self):
+    def __init__(self, namespace=''):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile
@@ -369,11 +385,14 @@ class Show:
         self.node = rclpy.create_node(f'_bringup_show_{os.getpid()}', context=self.context)
         self.last_prediction = {}
         self.shown = set()
+        self.namespace = namespace
         self.subscriptions = {
             '/ball/prediction': self.node.create_subscription(
-                BallPrediction, '/ball/prediction', self._prediction, QoSProfile(depth=100)),
+                BallPrediction, f'{namespace}/ball/prediction', self._prediction,
+                QoSProfile(depth=100)),
             '/strike/command': self.node.create_subscription(
-                StrikeCommand, '/strike/command', self._command, QoSProfile(depth=100)),
+                StrikeCommand, f'{namespace}/strike/command', self._command,
+                QoSProfile(depth=100)),
         }
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -396,7 +415,7 @@ class Show:
     def unconnected(self, running):
         """The topics (:data:`SHOWN`) whose publishing node is among ``running`` but which
         have no publisher matched yet."""
-        return [topic for topic, producer in SHOWN.items()
+        return [f'{self.namespace}{topic}' for topic, producer in SHOWN.items()
                 if producer in running and self.subscriptions[topic].get_publisher_count() == 0]
 
     def _prediction(self, msg):
@@ -430,6 +449,11 @@ def parse_args(argv):
     p.add_argument('--nodes', help='comma-separated subset of the nodes the file names '
                    '(e.g. prediction_node,strike_node)')
     p.add_argument('--rig', help='rig file for perception_node (overrides rig_file)')
+    p.add_argument('--namespace', default='', metavar='NS',
+                   help="ROS namespace of every node (-r __ns:=NS): one robot's graph of "
+                        "several on a domain, its topics NS/ball/state, ... and its clock "
+                        "NS/clock; the file's sections apply as rcl applies them "
+                        '(/NS/prediction_node:, /**/prediction_node:, /**:)')
     p.add_argument('--show', action='store_true',
                    help='print one line per ball: prediction and strike command')
     p.add_argument('--restart-delay', type=non_negative_float, default=1.0,
@@ -448,8 +472,12 @@ def main(argv=None):
         error = domain_id_error()
         if error:  # each node would refuse it; --show's node would not start
             raise BringupError(error)
+        namespace = args.namespace.rstrip('/')
+        if namespace and (not namespace.startswith('/') or name_error(namespace)):
+            raise BringupError(f'--namespace {args.namespace}: '
+                               + (name_error(namespace) or 'must start with /'))
         sections = read_params(args.params_file)
-        nodes = nodes_in(sections, args.params_file)
+        nodes = nodes_in(sections, args.params_file, namespace)
         if args.nodes is not None:                    # '' names no node: refused too
             wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
             unknown = [n for n in wanted if n not in nodes]
@@ -465,19 +493,19 @@ def main(argv=None):
                 why = 'not a file' if os.path.exists(args.rig) else 'no such file'
                 raise BringupError(f'--rig {args.rig}: {why}')
             extra['perception_node'] = ['-p', f'rig_file:={os.path.abspath(args.rig)}']
-        elif 'perception_node' in nodes and not configured_rig(sections):
+        elif 'perception_node' in nodes and not configured_rig(sections, namespace):
             # Checked before any node starts: prediction and strike came up, then the graph
             # stopped with perception_node's 'rig_file is empty'.
             raise BringupError(f'perception_node has no rig: give --rig RIG (or rig_file in '
                                f'the perception_node section of {args.params_file})')
         bringup = Bringup(args.params_file, nodes, extra, args.restart_delay,
-                          args.max_restarts, args.stop_timeout)
+                          args.max_restarts, args.stop_timeout, namespace=namespace)
     except (BringupError, RunError) as exc:
         print(f'bringup: {exc}', file=sys.stderr)
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, bringup.request_stop)
-    show = bringup.show = Show() if args.show else None
+    show = bringup.show = Show(namespace) if args.show else None
     try:
         return bringup.run()
     finally:
