@@ -77,7 +77,8 @@ STATE_TOPIC = 'ball/state'
 the name of tt-perceive's bags)."""
 CAMERAS_DIAGNOSTIC = 'perception_node: cameras'
 """Name of the status on /diagnostics with the counts of the in-process cameras (frames read,
-dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``)."""
+dropped and processed, latency, ``cameras_ended``, ``video_start_wall_s``), of the node in
+the root namespace under its own name (``robot1/perception_node: cameras`` in /robot1)."""
 CAMERA_BUFFERS = 8
 """Driver buffers of a camera (V4L2 CAP_PROP_BUFFERSIZE, 53 ms at 150 fps; a paced video file
 emulates them): how long a camera thread may stall before frames are lost."""
@@ -389,7 +390,7 @@ class PerceptionNode(Node):
         if devices or files:
             self._worker = threading.Thread(target=self._work, daemon=True, name='perception')
             self._worker.start()
-            report_status(self, CAMERAS_DIAGNOSTIC, self.rig.path, self._cameras_status)
+            report_status(self, 'cameras', self.rig.path, self._cameras_status)
         for reader in self._readers:
             reader.start()
         if files:

@@ -215,7 +215,7 @@ class PredictionNode(Node):
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos)
         self.counts_status = CountsStatus(('states_dropped', 'states_late'), self.work)
-        report_status(self, f'{self.get_name()}: predictions', '', self._status)
+        report_status(self, 'predictions', '', self._status)
         self.get_logger().info(
             f'predicting {self.sub.topic_name} -> {self.pub.topic_name}, hitting plane x = '
             f'{self.p.hit_plane_x:.3f} m, model '

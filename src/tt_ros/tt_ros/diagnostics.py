@@ -25,9 +25,12 @@ def diagnostic_array(stamp, name, hardware_id, level, message, values):
     return msg
 
 
-def report_status(node, name, hardware_id, status):
+def report_status(node, what, hardware_id, status):
     """Publish ``status()`` (level, message, values) on /diagnostics every PERIOD_S of the
-    steady clock, under ``name`` (diagnostic_updater's ``'<node>: <what>'``); the timer."""
+    steady clock, named ``'<node>: <what>'`` as diagnostic_updater names a status, the node by
+    its full name (``robot1/prediction_node`` in /robot1: two robots' statuses had one name on
+    the absolute /diagnostics; a walk-through, 6 Dec 2026); the timer."""
+    name = f"{node.get_fully_qualified_name().lstrip('/')}: {what}"
     pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
 
     def tick():

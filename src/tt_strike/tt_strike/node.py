@@ -217,7 +217,7 @@ class StrikeNode(Node):
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
         self.counts_status = CountsStatus(
             ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost'), self.work)
-        report_status(self, f'{self.get_name()}: strokes', '', self._status)
+        report_status(self, 'strokes', '', self._status)
         self.get_logger().info(self._start_up_text())
 
     # --- target and parameters ---------------------------------------------------------
