@@ -410,7 +410,11 @@ class PerceptionNode(Node):
             sys.setswitchinterval(GIL_SWITCH_S)
             self._exit.enter_context(blas_threads(1))
         self.create_timer(0.25, self._watch_cameras)
-        names = ', '.join(f'{c.name} ({c.source})' for c in rig.cameras)
+        # An image topic as resolved (cam0/image_raw is /robot1/cam0/image_raw in /robot1).
+        shown = [self.resolve_topic_name(c.source) if kind == 'topic' else c.source
+                 for c, kind in zip(rig.cameras, kinds, strict=True)]
+        names = ', '.join(f'{c.name} ({source})' for c, source in zip(rig.cameras, shown,
+                                                                        strict=True))
         model = self._p('model_file') or 'nominal'
         self.get_logger().info(f'rig {rig.path}: {names}; publishing '
                                f'{self.publisher.topic_name}; model {model}')

@@ -104,7 +104,7 @@ PARAMETERS = (
           'state (built in a worker thread: a busy worker skips states)', 'Hz', 0.0, 2000.0),
     Param('path_step_s', 0.02, 'time between the poses of the predicted path', 's',
           0.001, 0.2),
-    Param('publish_markers', False, 'publish visualization markers on /tt/markers'),
+    Param('publish_markers', False, 'publish visualization markers on tt/markers'),
 )
 
 

@@ -91,7 +91,7 @@ PARAMETERS = (
           'fraction of the spin magnitude', lo=0.0, hi=2.0),
     Param('model_file', '', 'model.yaml written by tt-identify; empty: the nominal model',
           read_only=True),
-    Param('publish_markers', False, 'publish the racket and landing on /tt/markers'),
+    Param('publish_markers', False, 'publish the racket and landing on tt/markers'),
     Param('workspace_file', '', 'workspace YAML (reach of the racket centre, racket-speed '
           'limit, min time before the hit); empty: the template config/workspace.yaml',
           read_only=True),
