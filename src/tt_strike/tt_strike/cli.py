@@ -99,9 +99,12 @@ def _vec(a):
 
 def strike_to_dict(pred, sol, plan=None):
     """The output line of one ball: its prediction and (when there is a hit point) solution;
-    or, with ``plan`` (tt_strike.hitpoint.StrikePlan), the chosen hit point's."""
+    or, with ``plan`` (tt_strike.hitpoint.StrikePlan), the chosen hit point's. Every key is
+    in every line, null where there is no value (a line without a stroke left out the
+    solver's keys: a script reading them failed on it; a walk-through, 6 Dec 2026)."""
     out = {'status': 'no_hit_point', 'reason': f'{pred.status}: {pred.reason}', 'hit': None,
-           'racket': None, 'ball_out': None, 'landing': None}
+           'racket': None, 'ball_out': None, 'landing': None, 'target': None,
+           'net_clearance': None, 'margin': None, 'residual': None, 'in_zone_probability': None}
     if plan is not None:
         out['status'], out['reason'] = plan.status, plan.reason
         if plan.solution is None:
