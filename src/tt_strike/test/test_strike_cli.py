@@ -183,6 +183,11 @@ def test_unreachable_is_a_status(monkeypatch, capsys, tmp_path):
                   ' max_racket_speed: 8.0, min_time_before_hit: 0.15}\n')
     code, out, _ = run([dict(BALL, target_zone=5)], monkeypatch, capsys, ['--workspace', str(ws)])
     assert code == 0 and out[0]['status'] == 'unreachable' and out[0]['racket'] is None
+    # Every line has every key, null where there is none (a script reading 'margin' failed
+    # on a line without a stroke; a walk-through, 6 Dec 2026).
+    _, struck, _ = run([dict(BALL, target_zone=5)], monkeypatch, capsys)
+    assert struck[0]['status'] == 'ok' and set(out[0]) == set(struck[0])
+    assert out[0]['margin'] is None and out[0]['in_zone_probability'] is None
 
 
 def test_bad_workspace_is_a_one_line_error_naming_the_key(monkeypatch, capsys, tmp_path):
