@@ -365,7 +365,7 @@ def test_perception_without_a_rig_is_one_line_before_any_node_starts():
                           capture_output=True, text=True, env=ros_env(), timeout=TIMEOUT_S)
     assert proc.returncode == 2
     assert proc.stderr == ('bringup: perception_node has no rig: give --rig RIG (or rig_file '
-                           f'in the perception_node section of {CONFIG / "robot.yaml"})\n')
+                           f'in a section of {CONFIG / "robot.yaml"} that applies to it)\n')
     assert proc.stdout == ''                                    # no node was started
 
 
@@ -558,3 +558,26 @@ def test_a_graph_in_a_namespace_takes_the_states_of_its_own(tmp_path):
         assert b.stop() == 0
     finally:
         b.kill()
+
+
+def test_show_says_each_ball_once_and_a_ball_again_under_its_id(monkeypatch):
+    # One line per ball: a bag played a second time, or a restarted perception_node numbering
+    # from 1 again, showed nothing for an id already shown (a walk-through, 6 Dec 2026).
+    from tt_msgs.msg import StrikeCommand
+    from tt_tools import bringup
+    said = []
+    monkeypatch.setattr(bringup, 'say', said.append)
+    show = bringup.Show.__new__(bringup.Show)
+    show.shown, show.last_prediction = {}, {}
+
+    def command(track_id, t):
+        msg = StrikeCommand()
+        msg.track_id = track_id
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+        show._command(msg)
+        return [line.split(':')[0] for line in said]
+    assert command(3, 100.0) == ['ball 3']
+    assert command(3, 100.3) == ['ball 3']              # the same ball's next command
+    assert command(4, 100.4) == ['ball 3', 'ball 4']
+    assert command(3, 102.0) == ['ball 3', 'ball 4', 'ball 3']       # another ball, 1.7 s on
+    assert command(3, 50.0) == ['ball 3', 'ball 4', 'ball 3', 'ball 3']   # the bag again

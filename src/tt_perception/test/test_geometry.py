@@ -436,6 +436,31 @@ def test_points_named_as_in_a_mirror_are_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'below the table' in err[0] and 'swapped' in err[0], err
     assert open(path).read() == before
+    # With the net posts' tops too the mirrored points do not fit at all: said, with the swap
+    # that makes them fit (only 'do not fit' before).
+    names = list(calibrate.TABLE_POINTS)
+    pixels = cam.project(np.array([calibrate.TABLE_POINTS[n] for n in names]))
+    mirror = {n: n.replace('left', '@').replace('right', 'left').replace('@', 'right')
+              for n in names}
+    points.write_text(yaml.safe_dump({mirror[n]: p.tolist() for n, p in zip(names, pixels,
+                                                                           strict=True)}))
+    assert calibrate.main(['--rig', path, '--camera', 'cam0', '--image', str(image),
+                           '--points', str(points)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'they do with left and right swapped' in err[0], err
+
+
+def test_a_table_that_runs_off_the_image_is_said_to_be_out_of_view(tmp_path, capsys):
+    """synth's side camera sees the table's near part only: its outline's corner on the
+    image's edge gave a pose 7 px off and 'the points do not fit' (a walk-through)."""
+    path = synth.make_rig(str(tmp_path))
+    rig = load_rig(path)
+    image = tmp_path / 'side.png'
+    cv2.imwrite(str(image), _background(rig, 1))
+    assert calibrate.main(['--rig', path, '--camera', 'cam1', '--image', str(image),
+                           '--robot-end', 'near']) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'the table is not wholly in view' in err[0], err
 
 
 def test_the_pose_command_changes_only_the_camera_s_pose_in_the_rig_file(tmp_path):

@@ -150,6 +150,28 @@ def pose_from_corners(camera, corners, robot_end=None):
     return best
 
 
+EDGE_PX = 2.0
+"""A table corner found this close to the image's border (px) is where the view ends."""
+SWAPS = {'left and right': ('left', 'right'),
+         "the robot's and the opponent's ends": ('robot', 'opponent')}
+"""Names a user may swap in ``--points``: the two words each pair exchanges."""
+
+
+def _swap_that_fits(camera, names, pixels, max_error):
+    """Which of :data:`SWAPS` makes the points ``names`` at ``pixels`` fit the table within
+    ``max_error`` px with the camera above it, or ''. With the net posts' tops among them,
+    points named as in a mirror were only 'do not fit' (a walk-through, 6 Dec 2026)."""
+    for what, (a, b) in SWAPS.items():
+        renamed = [n.replace(a, '\0').replace(b, a).replace('\0', b) for n in names]
+        try:
+            R, t, rms = solve_pose(camera, [TABLE_POINTS[n] for n in renamed], pixels)
+        except (CalibrationError, cv2.error):
+            continue
+        if rms <= max_error and (-R.T @ t)[2] > 0.0:
+            return what
+    return ''
+
+
 def read_points(path):
     """The pixels of known table points in the YAML file ``path`` given as ``--points``:
     (names, pixels (n, 2)); raises CalibrationError naming the file."""
@@ -218,10 +240,18 @@ def main(argv=None):
             if corners is None:
                 raise CalibrationError(f'{args.image}: the table outline was not found; '
                                        'give the points with --points')
+            h, w = image.shape[:2]
+            if np.any((corners < EDGE_PX) | (corners > np.array([w, h]) - 1 - EDGE_PX)):
+                # A corner on the image's edge is where the view ends, not the table's.
+                raise CalibrationError(f"{args.image}: the table's outline reaches the "
+                                       "image's edge: the table is not wholly in view; give "
+                                       'the points you see with --points')
             R, t, rms = pose_from_corners(cam, corners, args.robot_end)
         if rms > args.max_error:
+            swapped = _swap_that_fits(cam, *marks, args.max_error) if marks else ''
             raise CalibrationError(f'reprojection error {rms:.2f} px exceeds {args.max_error} '
-                                   'px: the points do not fit the table')
+                                   'px: the points do not fit the table'
+                                   + (f'; they do with {swapped} swapped' if swapped else ''))
         height = float((-R.T @ t)[2])
         if height <= 0.0:
             # Points on the table's plane named as in a mirror fit exactly a camera mirrored

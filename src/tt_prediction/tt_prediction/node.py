@@ -52,11 +52,12 @@ walk-through, 29 Nov 2026)."""
 MAX_LEAD_S = 1.0
 """A state stamped further ahead of the node clock is dropped (with stale_after_s > 0), s:
 its clock and the node's disagree, and the hit time it gives would be as far off."""
-AHEAD_S = 0.01
+AHEAD_S = 0.05
 """A state stamped further ahead of the node clock than this (s), but less than MAX_LEAD_S,
 is predicted and warned of (at most every 5 s): an exposure cannot be later than its state's
 arrival, so the clocks disagree by at least that much, and the hit time with them (0.9 s
-ahead was struck 'ok' without a word; a walk-through, 6 Dec 2026)."""
+ahead was struck 'ok' without a word; a walk-through, 6 Dec 2026). Not less: a bag's /clock
+at ros2 bag play's 40 Hz runs up to 25 ms behind the states played with it."""
 TRACK_GAP_S = 1.0
 """A state of a remembered track id stamped this much after the track's last state (or
 more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ball

@@ -79,6 +79,9 @@ SHOWN = {
 INPUT_LINE = re.compile(r'\]: (/\S+): (connected|no publisher left)')
 """A node's log line when its input gets its first publisher or loses its last
 (tt_ros.connections)."""
+NEW_BALL_GAP_S = 1.0
+"""``--show``: a command of a shown track id stamped this long after its last one (s), or
+before it, is another ball's (prediction_node's TRACK_GAP_S)."""
 CONNECT_WAIT_S = 10.0
 """Longest wait for a running node's input to be connected before the next node starts, s
 (DDS discovery between two processes can take a second or two)."""
@@ -384,7 +387,7 @@ class Show:
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f'_bringup_show_{os.getpid()}', context=self.context)
         self.last_prediction = {}
-        self.shown = set()
+        self.shown = {}             # track id -> the stamp of its last command, ns
         self.namespace = namespace
         self.subscriptions = {
             '/ball/prediction': self.node.create_subscription(
@@ -422,9 +425,14 @@ class Show:
         self.last_prediction[msg.track_id] = msg
 
     def _command(self, msg):
-        if msg.track_id in self.shown:
+        # One line per ball: a track id's first command, or one stamped before its last or
+        # more than NEW_BALL_GAP_S after it (another ball under the id: a bag played again, a
+        # restarted perception_node numbering from 1; each id was shown once for good).
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        last = self.shown.get(msg.track_id)
+        self.shown[msg.track_id] = stamp
+        if last is not None and last <= stamp <= last + NEW_BALL_GAP_S * 1e9:
             return
-        self.shown.add(msg.track_id)
         p = self.last_prediction.get(msg.track_id)
         bounce = (f'bounce zone {p.bounce_zone} at ({p.bounce_point.x:.2f}, '
                   f'{p.bounce_point.y:.2f}) m, ' if p is not None and p.bounce_valid else '')
@@ -497,7 +505,7 @@ def main(argv=None):
             # Checked before any node starts: prediction and strike came up, then the graph
             # stopped with perception_node's 'rig_file is empty'.
             raise BringupError(f'perception_node has no rig: give --rig RIG (or rig_file in '
-                               f'the perception_node section of {args.params_file})')
+                               f'a section of {args.params_file} that applies to it)')
         bringup = Bringup(args.params_file, nodes, extra, args.restart_delay,
                           args.max_restarts, args.stop_timeout, namespace=namespace)
     except (BringupError, RunError) as exc:
