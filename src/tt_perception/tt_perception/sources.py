@@ -553,6 +553,13 @@ LENGTH_SLACK = 0.02
 """The same as a fraction of the longest file's frames."""
 
 
+def opened_notes(rig, sources):
+    """The notes on the rig's opened file sources taken together (``sources``: {camera index:
+    :class:`VideoFileSource`}): :func:`folder_starts_notes` and :func:`lengths_notes`, as
+    both readers (:func:`file_sources_error`, :func:`file_frames`) give them."""
+    return folder_starts_notes(rig, sources) + lengths_notes(rig, sources)
+
+
 def file_sources_error(rig, notes=None):
     """Why the rig's video files cannot be used, in one line, or '': a camera's file missing,
     unreadable, without a frame or of another frame size than its calibration ('camera NAME:
@@ -576,7 +583,7 @@ def file_sources_error(rig, notes=None):
             if not sources[k].capture.grab():       # a video of 0 frames ran without a word
                 return f'camera {cam.name}: {sources[k].path}: {NO_FRAME}'
         if notes is not None:
-            notes.extend(folder_starts_notes(rig, sources) + lengths_notes(rig, sources))
+            notes.extend(opened_notes(rig, sources))
         return rates_error(rig, sources)
     finally:
         for src in sources.values():
@@ -619,7 +626,7 @@ def file_frames(rig, notes=None):
         if error:
             raise OSError(error)
         if notes is not None:
-            notes.extend(folder_starts_notes(rig, sources) + lengths_notes(rig, sources))
+            notes.extend(opened_notes(rig, sources))
         given = dict.fromkeys(sources, 0)
         while sources:
             for k in sorted(sources):
