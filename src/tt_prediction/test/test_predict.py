@@ -234,3 +234,47 @@ def test_a_ball_moving_away_from_behind_the_plane_does_not_reach_it():
     coming = away * [1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
     coming[0] = -1.45
     assert predict(coming, bounced=True).status == 'ok'
+
+
+def _flown_back(contact, duration):
+    """The state ``duration`` s before ``contact`` (9,): the reference's numpy eq. 8 integrated
+    backwards by scipy (DOP853, tight), a flight independent of the compiled kernels."""
+    from scipy.integrate import solve_ivp
+    from tt_prediction.reference import flight_rhs
+    sol = solve_ivp(flight_rhs(NOMINAL), (0.0, -duration), np.asarray(contact, float),
+                    method='DOP853', rtol=1e-12, atol=1e-14)
+    return sol.y[:, -1]
+
+
+# Forty starts spread over one 10 ms integration step: wherever the contact falls in a step.
+PHASES = [0.05 + k * 0.01 / 40 for k in range(40)]
+
+
+@pytest.mark.parametrize('speed', [12.0, 20.0])
+def test_a_ball_dipping_half_a_millimetre_into_the_nets_top_is_stopped_by_it(speed):
+    # Level at the net (the apex there), its centre 0.5 mm less than a radius above the net's
+    # top edge: the sphere meets the edge (MODEL.md, the net a solid NET_HEIGHT high), at any
+    # phase of the integration's steps; a returned ball the same, mirrored.
+    dip = 0.5e-3
+    incoming = [0.0, 0.35, NET_HEIGHT + R - dip, -speed, 1.0, 0.0, 0.0, 0.0, 0.0]
+    outgoing = [0.0, 0.35, NET_HEIGHT + R - dip, speed, 1.0, 0.0, 0.0, 0.0, 0.0]
+    assert [predict(_flown_back(incoming, d), NOMINAL).status for d in PHASES] == ['net'] * 40
+    landings = [predict_landing(_flown_back(outgoing, d), NOMINAL) for d in PHASES]
+    assert [p.status for p in landings] == ['net'] * 40
+
+
+def test_a_ball_landing_a_millimetre_inside_the_end_line_bounces_there():
+    # Its centre comes down to z = r 1 mm inside the robot's end line (the top's contact,
+    # eqs. 1-6, not the edge: the corner is more than r away): the bounce is there, at any
+    # phase of the integration's steps, and for a returned ball at the opponent's end line.
+    x = HALF_LENGTH - 1e-3
+    incoming = np.array([-x, 0.12, R, -16.3, -0.24, -1.54, 0.0, 0.0, 0.0])
+    outgoing = incoming * [-1, 1, 1, -1, 1, 1, 1, 1, 1]
+    for d in PHASES:
+        pred = predict(_flown_back(incoming, d), NOMINAL, t0=0.0)
+        assert pred.status == 'ok', (d, pred.reason)
+        assert pred.bounce.t == pytest.approx(d, abs=1e-8)
+        np.testing.assert_allclose(pred.bounce.p, incoming[:3], atol=1e-6)
+        land = predict_landing(_flown_back(outgoing, d), NOMINAL, t0=0.0)
+        assert land.status == 'ok', (d, land.reason)
+        np.testing.assert_allclose(land.landing.p, outgoing[:3], atol=1e-6)

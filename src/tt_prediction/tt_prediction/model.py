@@ -312,6 +312,11 @@ def table_rebound(velocity, spin, params):
 def racket_rebound(velocity, spin, normal, racket_velocity, params):
     """Ball velocity and spin just after the racket hit (eq. 7), table frame.
 
+    Eq. 7 is applied as it stands: the caller checks that the ball meets the face (its
+    velocity relative to the racket, along ``normal``, negative). For a ball moving away from
+    the face, or a racket outrunning it, the numbers returned are eq. 7's, not a hit's (the
+    strike solver refuses such strokes, tt_strike.solver's SHOT_BEHIND).
+
     Parameters
     ----------
     velocity, spin : array_like (3,)

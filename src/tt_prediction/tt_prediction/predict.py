@@ -282,6 +282,58 @@ def _crossing(s, s1, h, axis, level, down, P, work):
                    work[2])
 
 
+_EVENT_TOLERANCE = 1e-9   # m: a gap this small at a located crossing is a contact there
+
+
+@njit(cache=True, nogil=True)
+def _contact_candidates(s, s1, h, r, P, work, at_u, at_g, at_k):
+    """The points of the step s -> s1 (length h) at which flight_kernel checks the gap to the
+    solids, in time order: u (fraction of h) into at_u, the gap (m) and CONTACT_* kind of the
+    nearest solid into at_g and at_k; returns their number.
+
+    _SUBSTEPS points on the cubic Hermite path, and the located crossings of the net's plane
+    x = 0, the top's outline (x = +-HALF_LENGTH, y = +-HALF_WIDTH) and, downwards, the
+    contact height z = r, where a gap within _EVENT_TOLERANCE counts as touching (the
+    crossing is located to 1e-12 m).
+    """
+    n = 0
+    for j in range(1, _SUBSTEPS + 1):
+        u = j / _SUBSTEPS
+        if j == _SUBSTEPS:
+            g, kg = solid_gap(s1[0], s1[1], s1[2], r)
+        else:
+            g, kg = solid_gap(hermite_position(s, s1, h, u, 0),
+                              hermite_position(s, s1, h, u, 1),
+                              hermite_position(s, s1, h, u, 2), r)
+        at_u[n], at_g[n], at_k[n] = u, g, kg
+        n += 1
+    se = work[1]
+    for e in range(6):
+        if e == 0:
+            axis, level, down = 2, r, True
+        elif e == 1:
+            axis, level, down = 0, 0.0, False
+        elif e < 4:
+            axis, level, down = 0, HALF_LENGTH if e == 2 else -HALF_LENGTH, False
+        else:
+            axis, level, down = 1, HALF_WIDTH if e == 4 else -HALF_WIDTH, False
+        tau = _crossing(s, s1, h, axis, level, down, P, work)
+        if tau > h:
+            continue
+        g, kg = solid_gap(se[0], se[1], se[2], r)
+        if g <= _EVENT_TOLERANCE:
+            g = 0.0
+        # insertion in time order
+        u = tau / h
+        i = n
+        while i > 0 and at_u[i - 1] > u:
+            at_u[i], at_g[i], at_k[i] = at_u[i - 1], at_g[i - 1], at_k[i - 1]
+            i -= 1
+        at_u[i], at_g[i], at_k[i] = u, g, kg
+        n += 1
+    return n
+
+
 @njit(cache=True, nogil=True)
 def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
     """Fly a ball from (t0, s0) to its first contact; the one flight leg of tt (compiled).
@@ -310,6 +362,9 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
     work = np.empty((7, 9))       # one allocation: step end, event state, RK4 stages
     s1, se, tmp = work[0], work[1], work[2]
     k1, k2, k3, k4 = work[3], work[4], work[5], work[6]
+    at_u = np.empty(_SUBSTEPS + 6)    # the points of a step where the gap is checked
+    at_g = np.empty(_SUBSTEPS + 6)
+    at_k = np.empty(_SUBSTEPS + 6)
     for i in range(FLIGHT_N):
         res[i] = math.nan
     res[FL_SAMPLES] = 0.0
@@ -356,16 +411,16 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                 if best <= h:
                     kind = CONTACT_TOP
             elif near:
+                # The gap at _SUBSTEPS points of the step, and exactly where the centre
+                # crosses the net's plane, the top's outline or comes down to z = r: the gap
+                # to a thin solid is least there, and a ball dipping a millimetre into the
+                # net's top edge, or landing a millimetre inside the end line, passes it
+                # between two points.
+                n_at = _contact_candidates(s, s1, h, r, P, work, at_u, at_g, at_k)
                 u_prev = 0.0
-                for j in range(1, _SUBSTEPS + 1):
-                    u = j / _SUBSTEPS
-                    if j == _SUBSTEPS:
-                        g, kg = solid_gap(s1[0], s1[1], s1[2], r)
-                    else:
-                        g, kg = solid_gap(hermite_position(s, s1, h, u, 0),
-                                          hermite_position(s, s1, h, u, 1),
-                                          hermite_position(s, s1, h, u, 2), r)
-                    if g <= 0.0 and (g_prev > 0.0 or j > 1):
+                for j in range(n_at):
+                    u = at_u[j]
+                    if at_g[j] <= 0.0 and (g_prev > 0.0 or u > 1.0 / _SUBSTEPS):
                         lo, hi = u_prev * h, u * h
                         for _ in range(_BISECT):
                             mid = 0.5 * (lo + hi)
@@ -378,7 +433,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                         rk4_step(s, hi, P, se, k1, k2, k3, k4, tmp)
                         gm, km = solid_gap(se[0], se[1], se[2], r)
                         best = hi
-                        kind = km if gm <= 0.0 else kg
+                        kind = km if gm <= 0.0 else int(at_k[j])
                         break
                     u_prev = u
             if s1[2] < floor_z:

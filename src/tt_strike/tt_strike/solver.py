@@ -547,7 +547,8 @@ def forward(hit_state, normal, racket_velocity, params):
 
     ``params``: a ModelParams. Returns a dict: v_out, w_out (after the hit), landing (x, y, z)
     of the first table contact or None, flight_time (s), net_clearance (gap under the ball at
-    x = 0, m; NaN if it never crosses) and end (predict_landing's status).
+    x = 0, m; NaN if it never crosses) and end (predict_landing's status). Like
+    ``racket_rebound`` it does not check that the racket meets the ball.
     """
     s = np.asarray(hit_state, dtype=float).copy()
     v_out, w_out = racket_rebound(s[3:6], s[6:9], normal, racket_velocity, params)
