@@ -196,16 +196,20 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
     floor_z = r - TABLE_HEIGHT
     has_plane = not math.isnan(plane_x)
     while True:
-        if j < n_samples and sample_t[j] == t:
+        # (<=: an event located at a step's end may put t an ulp past the sample it ends at)
+        if j < n_samples and sample_t[j] <= t:
             for i in range(9):
                 samples[j, i] = s[i]
             j += 1
             continue
         h = dt
+        to_sample = False
         if j < n_samples and sample_t[j] - t < h:
             h = sample_t[j] - t
+            to_sample = True
         if t_max - t < h:
             h = t_max - t
+            to_sample = False
         if h <= 0.0:
             kind = EVENT_TIMEOUT
             if n_ev < max_ev:
@@ -251,7 +255,8 @@ def rollout_kernel(s0, t0, P, t_max, dt, plane_x, stop_mask, max_bounces, sample
         if kind == 0:
             for i in range(9):
                 s[i] = s1[i]
-            t += h
+            # at a sample, its time exactly: t + (sample - t) can land an ulp past it
+            t = sample_t[j] if to_sample else t + h
             continue
         # An event at t + best_tau: the state there, recorded before any rebound.
         rk4_step(s, best_tau, P, se, k1, k2, k3, k4, tmp)
