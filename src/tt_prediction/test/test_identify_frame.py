@@ -13,7 +13,11 @@ from tt_prediction.ball import HALF_LENGTH, rollout
 from tt_prediction.identify import fitting
 from tt_prediction.identify import segment as segment_module
 from tt_prediction.identify.data import Track
-from tt_prediction.identify.frame import frame_warnings, median_flight_acceleration
+from tt_prediction.identify.frame import (
+    frame_warnings,
+    median_flight_acceleration,
+    tilt_warning,
+)
 from tt_prediction.identify.pipeline import bound_warnings, identify, prepare
 from tt_prediction.identify.segment import segment
 from tt_prediction.identify.synthetic import launch_states, make_tracks
@@ -92,6 +96,26 @@ def test_tracks_in_the_table_frame_raise_no_frame_warning():
     tracks = make_tracks(6, TRUE, seed=3)
     assert frame_warnings(_named(tracks), TRUE, -1.5) == []
 
+
+
+@pytest.mark.parametrize('axis', ['x', 'y'])
+def test_a_frame_tilted_by_a_degree_against_the_table_is_named_with_its_angle(axis):
+    # A frame levelled 1 deg off (rotated about y, or x): the table's surface rises 17.5 mm
+    # per m along x (or y) in it, and gravity pulls 0.17 m/s^2 along it. The bounces located
+    # in the data show the slope; the same tracks unrotated show none.
+    tracks = make_tracks(16, TRUE, seed=11)
+    c, s = np.cos(np.radians(1.0)), np.sin(np.radians(1.0))
+    i = 0 if axis == 'x' else 1
+    rotation = np.eye(3)
+    rotation[i, i], rotation[i, 2], rotation[2, i], rotation[2, 2] = c, -s, s, c
+    tilted = [Track(tr.name, tr.t, tr.p @ rotation.T, tr.spin) for tr in tracks]
+    level, _, _ = prepare(tracks, TRUE.radius)
+    assert tilt_warning([b.p for tr in level for b in tr.bounces]) is None
+    prepared, _, _ = prepare(tilted, TRUE.radius)
+    warning = tilt_warning([b.p for tr in prepared for b in tr.bounces])
+    assert warning is not None and f'mm per m along {axis}' in warning
+    angle = float(warning.split('tilted by ')[1].split(' deg')[0])
+    assert angle == pytest.approx(1.0, abs=0.25)
 
 def test_a_long_track_of_a_ball_rolling_on_the_table_raises_no_frame_warning():
     # A tracker's dump may hold 20 s of a ball rolling on the table: its 0.1 s pieces (no

@@ -13,7 +13,9 @@ tt-identify and tt-predict --tracks check what physics fixes in that frame:
 - the table's outline: a table bounce has the ball's centre over the table (|x| <= 1.37 m,
   |y| <= 0.7625 m), give or take a ball radius for an edge ball;
 - the hitting plane: some track should cross x = hit_plane_x, on the robot's side, and an
-  incoming ball crosses it moving along -x (towards the robot).
+  incoming ball crosses it moving along -x (towards the robot);
+- the surface is level (after segmentation, :func:`tilt_warning`): the located bounces'
+  contact heights do not rise along x or y.
 """
 
 import numpy as np
@@ -28,6 +30,14 @@ AWAY_SHARE = 2.0 / 3.0
 """More than this share of the tracks crossing the hitting plane moving along +x there (away
 from the robot) is warned of: a set with x turned (mpi_pam with x flipped: 48 of 50, two
 tracks starting past the plane) besides one where a few tracks are returns."""
+TILT_SLOPE = 5e-3
+"""A slope of the bounces' contact heights over the table (m per m, 0.29 deg) warned of when
+it is also TILT_SIGMAS standard errors from 0: the table is tilted in the data's frame (a
+frame levelled 1 deg off puts gravity 0.17 m/s^2 along the table, which tt-identify's effects
+then fit as something else). Contact heights scatter by about 1 mm (mpi_launcher 0.93 mm,
+mpi_pam 0.80 mm over 71 and 50 bounces; slopes 1.3 +- 0.9 and 12.7 +- 6.0 mm/m, the latter's
+bounces spread over 0.1 m of x)."""
+TILT_SIGMAS = 4.0
 TURN_WINDOW = 0.1
 """An upward turn: the lowest sample within this time either side, the ball at least two
 radii higher on both sides within it, s."""
@@ -144,3 +154,31 @@ def crossing_direction(p, plane_x, span=3):
     last = len(p) - 1
     moves = p[np.minimum(change + 1 + span, last), 0] - p[np.maximum(change - span, 0), 0]
     return -1 if np.any(moves < 0.0) else 1
+
+
+def tilt_warning(points):
+    """One line when the bounces' contact points ``points`` (k, 3), m, table frame, lie on a
+    plane tilted against z = const by more than TILT_SLOPE and TILT_SIGMAS standard errors
+    (the heights fitted as a + b x + c y by least squares); None when not, or with fewer than
+    6 bounces."""
+    q = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(q) < 6:
+        return None
+    A = np.column_stack([np.ones(len(q)), q[:, 0], q[:, 1]])
+    coef, _, rank, _ = np.linalg.lstsq(A, q[:, 2], rcond=None)
+    if rank < 3:
+        return None
+    resid = q[:, 2] - A @ coef
+    cov = (resid @ resid) / (len(q) - 3) * np.linalg.inv(A.T @ A)
+    se = np.sqrt(np.diag(cov))
+    tilted = [(coef[i], se[i], axis) for i, axis in ((1, 'x'), (2, 'y'))
+              if abs(coef[i]) > TILT_SLOPE and abs(coef[i]) > TILT_SIGMAS * se[i]]
+    if not tilted:
+        return None
+    rises = ' and '.join(f'{1e3 * b:+.1f} +- {1e3 * e:.1f} mm per m along {axis}'
+                         for b, e, axis in tilted)
+    angle = np.degrees(np.arctan(np.hypot(coef[1], coef[2])))
+    return (f'the contact heights of the {len(q)} located bounces rise by {rises}: the '
+            f'table is tilted by {angle:.2f} deg in the data frame, where gravity is taken '
+            f'along -z; level the frame with the table ({FRAME}), or the effects fit '
+            f'g sin(tilt) along the table as something else')
