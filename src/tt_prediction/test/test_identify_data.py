@@ -471,6 +471,31 @@ def test_no_bounce_is_located_across_a_gap_at_the_contact():
         assert seg is None or seg.t[-1] < events[0].t, k
 
 
+def test_a_second_flight_written_into_the_same_file_ends_the_track_before_it():
+    # Two launches in one file, the second 6 ms after the first's last sample: its first
+    # sample is 1.5 m from the last one (250 m/s), another ball. A helper's 15 such files of
+    # mpi_launcher kept up to 5 samples of the second flight: 65 mm fit RMS, no warning.
+    from tt_prediction.identify.data import Track
+    params = ModelParams()
+    first = np.array([1.3, 0.0, 0.33, -5.0, 0.0, 0.5, 0.0, -100.0, 0.0])
+    second = np.array([1.25, 0.05, 0.36, -5.5, 0.0, 0.3, 0.0, 50.0, 0.0])
+    t1, p1 = _measured(np.arange(0.0, 0.35, 1 / 150), first, params)
+    t2, p2 = _measured(np.arange(0.0, 0.35, 1 / 150), second, params)
+    assert np.linalg.norm(p2[0] - p1[-1]) > 1.0
+    track = Track('two', np.concatenate([t1, t1[-1] + 0.006 + t2]), np.vstack([p1, p2]))
+    seg, _ = segment(track)
+    # The first flight, but for the samples beside the jump that are outliers to it.
+    assert len(t1) - 2 <= len(seg.t) <= len(t1)
+    np.testing.assert_array_equal(seg.t, t1[:len(seg.t)])
+    assert (seg.notes['samples_after_jump'] + seg.notes.get('outlier_samples', 0)
+            == len(t1) + len(t2) - len(seg.t))
+    assert seg.notes['samples_after_jump'] >= len(t2) - 2
+    # A fast ball's longest steps are not jumps: 30 m/s at 60 Hz, 0.5 m a sample.
+    fast = np.array([1.3, 0.0, 0.3, -30.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    t3, p3 = _measured(np.arange(0.0, 0.15, 1 / 60), fast, params)
+    seg, _ = segment(Track('fast', t3, p3), min_duration=0.05)
+    assert seg is not None and 'samples_after_jump' not in seg.notes
+
 @pytest.mark.parametrize('rate_hz', [150.0, 45.0])
 def test_racket_contact_ends_the_track_and_rolling_is_cut(rate_hz):
     # At 45 Hz the turn was looked for with lines over six samples a side (133 ms), and the
@@ -497,7 +522,10 @@ def test_racket_contact_ends_the_track_and_rolling_is_cut(rate_hz):
     assert len(bounces) == 1
     if rate_hz != 150.0:
         return
-    rolling = np.column_stack([np.linspace(0.5, 0.8, 30), np.zeros(30), np.full(30, 0.0205)])
+    # (rolling on from below the ball's last sample: not a jump to another ball)
+    x_end = p1[-1, 0]
+    rolling = np.column_stack([np.linspace(x_end, x_end + 0.3, 30), np.zeros(30),
+                               np.full(30, 0.0205)])
     t_roll = np.concatenate([t1, t1[-1] + np.arange(1, 31) / 150.0])
     seg, _ = segment(Track('roll', t_roll, np.vstack([p1, rolling])))
     assert seg.notes['samples_rolling'] >= 25

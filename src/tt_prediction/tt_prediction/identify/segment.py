@@ -41,6 +41,11 @@ no contact is taken across it (a 40 ms gap at a 180 Hz bounce gave e_t 1.65)."""
 MAX_RESTITUTION = 1.0
 """A located bounce that gives back more than this of its normal speed, by over three of its
 own standard errors, is no bounce (a spike or a gap at the contact): unresolved."""
+JUMP_SPEED = 40.0
+JUMP_MIN = 0.1
+"""A step between two samples longer than JUMP_SPEED (m/s; predict's MAX_SPEED, faster than
+any ball) times its interval and than JUMP_MIN (m) is another ball (two flights written into
+one file, a tracker that switched balls): the track ends before it."""
 MAX_GAP = 0.15
 """A gap in the samples longer than this ends the track, s."""
 BOUNCE_HEIGHT = 0.05
@@ -317,11 +322,12 @@ def _too_little(t, notes, notes_out):
 def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
-    Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track;
-    a ball below the table surface ends it; a contact away from the table (racket, net: the
-    velocity turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it;
-    so does a bounce located off the table's outline (the model's ball bounces only with its
-    centre over the table: such a bounce is data in another frame, or an edge ball).
+    Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track,
+    and so does the first jump (JUMP_SPEED) to another ball; a ball below the table surface
+    ends it; a contact away from the table (racket, net: the velocity turns, cosine below
+    HIT_TURN) ends it; an unresolved bounce or rolling ends it; so does a bounce located off
+    the table's outline (the model's ball bounces only with its centre over the table: such
+    a bounce is data in another frame, or an edge ball).
     Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left (under eight
     samples, or a span under ``min_duration``, s); then the samples each step removed are
     added to the dict ``notes_out`` when given.
@@ -332,6 +338,11 @@ def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
     if len(gaps):
         _count(notes, 'samples_after_gap', len(t) - gaps[0] - 1)
         t, p = t[:gaps[0] + 1], p[:gaps[0] + 1]
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    jumps = np.flatnonzero(steps > np.maximum(JUMP_SPEED * np.diff(t), JUMP_MIN))
+    if len(jumps):
+        _count(notes, 'samples_after_jump', len(t) - jumps[0] - 1)
+        t, p = t[:jumps[0] + 1], p[:jumps[0] + 1]
     below = np.flatnonzero(p[:, 2] < 0.0)
     if len(below):
         _count(notes, 'samples_below_table', len(t) - below[0])
