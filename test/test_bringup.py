@@ -333,6 +333,33 @@ def test_each_output_line_is_written_in_one_piece(monkeypatch):
                for w in out.writes)
 
 
+def test_restarts_are_counted_in_a_row_and_a_node_that_ran_a_while_starts_again(monkeypatch):
+    # A robot's graph up for days: a node crashing once every few hours was restarted five
+    # times and its sixth crash stopped the whole graph. The count is of quick deaths in a
+    # row (each within STABLE_RUN_S of its start), as systemd's start limit is per window.
+    from tt_tools import bringup
+    lines = []
+    monkeypatch.setattr(bringup, 'say', lines.append)
+    monkeypatch.setattr(bringup, 'remove_dead_segments', lambda: [])
+    graph = bringup.Bringup.__new__(bringup.Bringup)
+    graph.max_restarts, graph.restart_delay, graph.stopping, graph.status = 2, 1.0, False, 0
+    graph.pending = {}
+    child = bringup.Child('prediction_node', [], {}, None)
+
+    def dies_after(seconds):
+        proc = subprocess.CompletedProcess([], -9)
+        child.proc, child.started = proc, time.monotonic() - seconds
+        graph._exited(child, proc)
+
+    for _ in range(10):             # hours apart: never more than one in a row
+        dies_after(bringup.STABLE_RUN_S + 1.0)
+        assert not graph.stopping and lines[-1].endswith('restart 1')
+    dies_after(1.0)                 # the second death in a row, within the window
+    assert not graph.stopping and lines[-1].endswith('restart 2')
+    dies_after(1.0)                 # the third: more than 2
+    assert graph.stopping and graph.status == 1
+    assert 'more than 2 restarts in a row' in lines[-1]
+
 @pytest.mark.parametrize('option, value, meaning', [
     ('--restart-delay', 'nan', 'a number >= 0'), ('--restart-delay', '-5', 'a number >= 0'),
     ('--stop-timeout', 'nan', 'a number > 0'), ('--stop-timeout', '0', 'a number > 0'),

@@ -18,9 +18,11 @@ prefixed with its name.
   ``bringup: prediction_node died (signal SIGKILL) after 12.3 s; restart 1``. A node that
   exits 2 (it cannot start: a bad parameter or file, its one line printed above) is not
   restarted: bringup stops the others and exits 2. More than ``--max-restarts`` restarts of
-  one node also stop the graph (exit 1). The shared memory that a node killed by a signal
-  leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then (:mod:`tt_ros.shm`),
-  with one line.
+  one node in a row, each dying within STABLE_RUN_S (60 s) of its start, also stop the graph
+  (exit 1); a node that ran longer before it died starts its count again (a count over a
+  node's whole life stopped a graph up for days at its sixth crash). The shared memory that
+  a node killed by a signal leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then
+  (:mod:`tt_ros.shm`), with one line.
 - ``--namespace NS`` starts every node in NS (``-r __ns:=NS``): one robot's graph of several
   on a ROS domain, its clock on NS/clock (``-r /clock:=NS/clock``): two replays on one
   /clock stepped each other's time back (a walk-through, 6 Dec 2026); a bag played into it
@@ -227,6 +229,10 @@ class Child:
                 pass
 
 
+STABLE_RUN_S = 60.0
+"""A node that ran this long (s) before it died starts its count of restarts again."""
+
+
 class Bringup:
     """The supervisor: start, restart, stop (see the module docstring)."""
 
@@ -318,10 +324,11 @@ class Bringup:
             say(f'{child.name} cannot start ({how}): {child.last_line}; stopping the graph')
             self.status, self.stopping = STARTUP_EXIT, True
             return
-        child.restarts += 1
+        child.restarts = 1 if lived >= STABLE_RUN_S else child.restarts + 1
         if child.restarts > self.max_restarts:
             say(f'{child.name} died ({how}) after {lived:.1f} s; more than '
-                f'{self.max_restarts} restarts: stopping the graph')
+                f'{self.max_restarts} restarts in a row, each within {STABLE_RUN_S:g} s: '
+                'stopping the graph')
             self.status, self.stopping = 1, True
             return
         say(f'{child.name} died ({how}) after {lived:.1f} s; restart {child.restarts}')
@@ -467,7 +474,8 @@ def parse_args(argv):
     p.add_argument('--restart-delay', type=non_negative_float, default=1.0,
                    help='seconds before a node that died is started again (default 1)')
     p.add_argument('--max-restarts', type=non_negative_int, default=5,
-                   help='restarts of one node before the graph stops (default 5)')
+                   help='restarts of one node in a row, each dying within 60 s of its '
+                   'start, before the graph stops (default 5)')
     p.add_argument('--stop-timeout', type=positive_float, default=10.0,
                    help='seconds a node has to exit after SIGINT (default 10)')
     args = p.parse_args(argv)
