@@ -387,6 +387,27 @@ def test_device_frames_lost_by_the_driver_are_counted_and_a_reopening_is_not():
     assert src.read() == (None, None) and 'stopped delivering' in src.status
 
 
+def test_device_frames_are_numbered_at_the_rate_the_driver_gives():
+    # Asked for the rig's 150 fps, the driver gives 30 (it says so after opening): its frames,
+    # 33.3 ms apart, are one after the other, none lost. Numbered at 150 fps, 4 frames that
+    # never existed counted lost for each (476 frame pairs dropped for 120 frames read).
+    from tt_perception.camstream import V4L2Camera
+    from tt_perception.sources import V4L2Source
+
+    stamps = [1000.0 + n * 1000.0 / 30.0 for n in range(6)]
+
+    class SlowDevice(V4L2Source):
+        def open(self):
+            self.capture = FakeCapture(stamps)
+            self.driver_fps = 30.0
+            self.status = f'{self.device}: opened'
+            return self
+
+    cam = V4L2Camera(SlowDevice('/dev/video_tt_fake', fps=150.0, reopen_interval=0.0))
+    assert [cam.grab() for _ in range(6)] == list(range(6))
+    assert cam.dropped == 0 and cam.take_dropped() == []
+
+
 def test_latency_window_gives_the_percentiles_of_the_last_values():
     # Its percentiles are numpy's of the last `size` values added, in ms, before and after
     # the ring wraps; none added: nan.

@@ -1,6 +1,9 @@
 """Frame sources: classification of rig sources, image messages to BGR, files, and a V4L2
 device that is absent or vanishes (reported and retried, never raised from read)."""
 
+import errno
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -16,7 +19,7 @@ from tt_perception.sources import (
     source_kind,
 )
 
-from tt_perception import synth
+from tt_perception import sources, synth
 
 
 @pytest.mark.parametrize('source, kind', [
@@ -439,6 +442,90 @@ def test_absent_v4l2_device_is_reported_and_retried(capfd):
     assert 'no such V4L2 device' in src.status
     # Only the node's line: OpenCV's own warning came at every try, twice a second.
     assert 'WARN' not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize('path, words', [
+    ('/dev/null', r'/dev/null is no V4L2 device \(a character device of major 1, video devices '
+                  r'are 81'),
+    ('REGULAR', r'is no V4L2 device \(a regular file; a camera is a character device')])
+def test_a_path_that_is_no_video_device_is_refused_in_one_line(tmp_path, capfd, path, words):
+    # /dev/null or a regular file: OpenCV tried to open it every second, with its own warning
+    # and 'V4L2 device cannot be opened' (a new user's walk-through, 6 Dec 2026).
+    if path == 'REGULAR':
+        path = str(tmp_path / 'video0')
+        open(path, 'w').close()
+    src = V4L2Source(path, reopen_interval=0.0)
+    with pytest.raises(OSError, match=words):
+        src.open()
+    assert 'WARN' not in capfd.readouterr().err
+    assert sources.device_error('/dev/video_tt_absent') == ''   # may be plugged in later
+
+
+def test_a_device_that_cannot_be_opened_says_why(monkeypatch):
+    # Taken for a video device, /dev/null: without the permission to open it, that is said
+    # (OpenCV is not asked); a device that opens but not for OpenCV, the errno of opening it,
+    # else the likely causes.
+    monkeypatch.setattr(sources, 'device_error', lambda path: '', raising=False)
+    monkeypatch.setattr(sources.os, 'access', lambda path, mode: False)
+    with pytest.raises(OSError, match='/dev/null: permission denied .*group of the device'):
+        V4L2Source('/dev/null').open()
+    monkeypatch.setattr(sources.os, 'access', lambda path, mode: True)
+    with pytest.raises(OSError, match=r'/dev/null: V4L2 device cannot be opened: busy \('
+                                      r'another program streams from it\? fuser /dev/null'):
+        V4L2Source('/dev/null').open()
+
+    def busy(path, flags):
+        raise OSError(errno.EBUSY, os.strerror(errno.EBUSY))
+
+    monkeypatch.setattr(sources.os, 'open', busy)
+    with pytest.raises(OSError, match='/dev/null: V4L2 device cannot be opened: Device or '
+                                      'resource busy'):
+        V4L2Source('/dev/null').open()
+
+
+class DriverCapture:
+    """An OpenCV V4L2 capture whose driver gives ``gives`` ({property: value}) whatever it is
+    asked (``asked`` records the settings)."""
+
+    def __init__(self, gives):
+        self.gives = gives
+        self.asked = {}
+
+    def isOpened(self):   # noqa: N802 (cv2.VideoCapture's name)
+        return True
+
+    def set(self, prop, value):
+        self.asked[prop] = value
+        return False
+
+    def get(self, prop):
+        return float(self.gives.get(prop, 0.0))
+
+    def release(self):
+        pass
+
+
+@pytest.mark.parametrize('asked, gives, mismatch', [
+    ((640, 480, 150.0, 'MJPG'), (1280, 720, 30.0, 'YUYV'),
+     "/dev/null: the driver gives 1280x720 (asked 640x480), YUYV (asked MJPG), 30 fps (asked "
+     "the rig's 150: set the rig's fps to the cameras' rate)"),
+    ((640, 480, 150.0, 'MJPG'), (640, 480, 150.0, 'MJPG'), ''),
+    ((0, 0, 30.0, ''), (1280, 720, 30.0, 'YUYV'), ''),    # size and format not asked
+    ((640, 480, 60.0, 'MJPG'), (0, 0, 0.0, ''), '')])      # a driver that says nothing
+def test_what_the_driver_gives_is_read_back_after_opening(monkeypatch, asked, gives, mismatch):
+    # The node asked the device for the rig's fps and never read back what the driver took:
+    # a 30 fps camera in a rig of 150 gave no state and no word.
+    width, height, fps, fourcc = gives
+    capture = DriverCapture({cv2.CAP_PROP_FRAME_WIDTH: width,
+                             cv2.CAP_PROP_FRAME_HEIGHT: height, cv2.CAP_PROP_FPS: fps,
+                             cv2.CAP_PROP_FOURCC: int.from_bytes(fourcc.encode(), 'little')})
+    monkeypatch.setattr(sources, 'device_error', lambda path: '', raising=False)
+    monkeypatch.setattr(sources.cv2, 'VideoCapture', lambda device, api: capture)
+    w, h, f, c = asked
+    src = V4L2Source('/dev/null', width=w, height=h, fps=f, fourcc=c).open()
+    assert src.status == '/dev/null: opened' and src.mismatch == mismatch
+    assert src.driver_fps == fps and src.driver_size == (width, height)
+    assert (cv2.CAP_PROP_FRAME_WIDTH in capture.asked) == (w > 0)
 
 
 def test_a_video_without_a_frame_is_refused_naming_it(tmp_path):

@@ -318,8 +318,11 @@ class V4L2Camera:
 
     ``grab()`` returns the frame's index (frames since the first, from the buffer
     timestamps) or None while the device is away; the frames the driver lost show as gaps of
-    the timestamps and are counted in ``dropped``. ``t`` is the grabbed frame's wall-clock
-    time (the driver's buffer timestamp)."""
+    the timestamps and are counted in ``dropped``. The frames are numbered at the rate the
+    driver says it runs at (``source.driver_fps``), else at the one asked (``source.fps``, the
+    rig's): a 30 fps camera numbered at 150 fps had 4 frames that never existed counted lost
+    for each it gave. ``t`` is the grabbed frame's wall-clock time (the driver's buffer
+    timestamp)."""
 
     def __init__(self, source, stop=None):
         self.source = source
@@ -344,6 +347,7 @@ class V4L2Camera:
             return -1
         if self._t0 is None or self.source.reopened:
             # Frames while the device was away are not drops of this node: count on.
+            self.fps = getattr(self.source, 'driver_fps', 0.0) or self.source.fps
             self._t0 = t - (self.index + 1) / self.fps
         index = max(int(round((t - self._t0) * self.fps)), self.index + 1)
         for lost in range(self.index + 1, index):

@@ -15,7 +15,9 @@ stamp), 9x9 covariance row-major (position, velocity, spin).
 Bad input never produces a state: a missing or invalid rig file is logged and the node stays
 idle; a CameraInfo that disagrees with the calibration disables that camera with an error; a
 frame of the wrong size or encoding is dropped with a warning; a camera that stops delivering
-is reported (and a device reopened) while the node keeps running.
+is reported (and a device reopened) while the node keeps running, an image topic that never
+delivers too; a live camera whose stamps show another rate than the rig's ``fps`` (which
+tracking uses) is named once.
 """
 
 import contextlib
@@ -65,6 +67,7 @@ from .detect import EXPOSURE_RANGE, IMAGE_BLUR_RANGE, RESPONSE_GAMMA_RANGE, Dete
 from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
     camera_info_topic,
+    device_error,
     file_source_path,
     file_sources_error,
     is_compressed_topic,
@@ -90,6 +93,13 @@ frame detected before its track started has only its blob's centre, which leans 
 lit side: a start that took such frames was 25 mm and 3 m/s off, an orange ball in synth's
 hall at 640x480). A confirmed track's window and outline are predicted along its flight to the
 frame's time (Tracker.predicted_motion), bounce included, and need no wait."""
+RATE_FRAMES = 20
+"""Frame intervals of a live camera (image topic, V4L2 device) whose median is compared with
+the rig's frame period (:data:`RATE_TOLERANCE`): the tracker keeps a track's seeds and
+interpolates only within a few periods of the rig's ``fps``, and a 30 fps camera in a rig
+of 150 gave no state and no word."""
+RATE_TOLERANCE = 0.2
+"""Relative difference of the measured frame rate from the rig's ``fps`` that is named."""
 GIL_SWITCH_S = 5e-4
 """The interpreter's thread switch interval while cameras are read in-process, s (Python's
 default 5 ms)."""
@@ -188,8 +198,10 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      0.05, 60),
     ('reopen_interval', 1.0, 'Time between attempts to reopen a lost V4L2 device', 's',
      0.05, 60),
-    ('device_width', 640, 'V4L2 frame width', 'pixels', 16, 8192),
-    ('device_height', 480, 'V4L2 frame height', 'pixels', 16, 8192),
+    ('device_width', 0, "V4L2 frame width (0: each camera's calibration's)", 'pixels', 0,
+     8192),
+    ('device_height', 0, "V4L2 frame height (0: each camera's calibration's)", 'pixels', 0,
+     8192),
     ('device_fourcc', 'MJPG', "V4L2 pixel format (FOURCC: 4 characters, e.g. MJPG or YUYV; "
      "empty: the driver's)"),
     ('device_exposure', -1.0, 'V4L2 exposure (driver units; negative: automatic)', '',
@@ -278,6 +290,8 @@ class PerceptionNode(Node):
         self._colour_known = set()  # cameras whose frames are known to be grey or not
         self._lost = set()
         self._delivered = set()       # cameras that delivered a frame (read, or a read error)
+        self._rate_stamps = {}        # live camera -> its first stamps, s (RATE_FRAMES)
+        self._devices = set()         # cameras that are V4L2 devices
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
         self._warned = set()
@@ -308,6 +322,9 @@ class PerceptionNode(Node):
                 _check_topic(cam.source, f'rig {rig_file}: camera {cam.name}: source '
                              f'{cam.source!r} is no video file, image sequence or V4L2 device '
                              'and')
+            error = device_error(cam.source) if kind == 'v4l2' else ''
+            if error:
+                raise StartupError(f'rig {rig_file}: camera {cam.name}: {error}')
         # Video files missing, unreadable, of another frame size, at different rates.
         notes = []
         error = file_sources_error(rig, notes)
@@ -369,6 +386,8 @@ class PerceptionNode(Node):
                 devices.append(k)
             else:
                 files.append(k)
+            if kind != 'file':          # stamped by the camera, not by the rig's fps
+                self._rate_stamps[k] = []
             self._last_frame[k] = self._monotonic()
         self.drops = DropCounter(len(rig.cameras))
         lossless = self._p('video_rate') == 0.0 and not devices
@@ -378,6 +397,7 @@ class PerceptionNode(Node):
             max_lag=None if lossless else 3.0 / rig.fps, cameras=devices + files,
             min_gap=0.5 / rig.fps)
         self._wall_stamps = self._p('video_clock') == 'wall'
+        self._devices = set(devices)
         if devices:
             self._t_ref = math.floor(time.time())     # V4L2 stamps are wall-clock times
         for k in devices:
@@ -447,7 +467,13 @@ class PerceptionNode(Node):
             self._warn_once(('image', k, re.sub(r'[0-9]+', 'N', str(exc))),
                             f'camera {self.rig.cameras[k].name}: {exc}')
             frame = None
-        self._process(k, stamp if stamp > 0 else time.time(), frame)
+        if stamp <= 0:
+            self._warn_once(('zero stamp', k),
+                            f'camera {self.rig.cameras[k].name}: its images are stamped 0 (the '
+                            'driver left header.stamp unset): their arrival times are taken, '
+                            'late by the transport and uneven; have the driver stamp them')
+            stamp = time.time()
+        self._process(k, stamp, frame)
 
     def _on_spin(self, msg):
         """A measured spin: fused into the running track (if its time is near it)."""
@@ -468,17 +494,33 @@ class PerceptionNode(Node):
         """The reader thread of V4L2 camera ``k`` (opened, and reopened, by the thread)."""
         cam = self.rig.cameras[k]
         exposure = self._p('device_exposure')
-        source = open_v4l2(cam.source, width=self._p('device_width'),
-                           height=self._p('device_height'), fps=self.rig.fps,
-                           fourcc=self._p('device_fourcc'),
+        # The size asked: the parameters', else the camera's calibration's (its frames' size).
+        width, height = self._p('device_width'), self._p('device_height')
+        source = open_v4l2(cam.source, width=width or cam.width, height=height or cam.height,
+                           fps=self.rig.fps, fourcc=self._p('device_fourcc'),
                            exposure=exposure if exposure >= 0 else None,
                            reopen_interval=self._p('reopen_interval'), buffers=CAMERA_BUFFERS)
         source.stop = self._stop
         return CameraReader(k, source, self.frames_queue, self.drops,
-                            on_status=lambda k, text: self.get_logger().warning(
-                                f'camera {self.rig.cameras[k].name}: {text}'),
+                            on_status=lambda k, text: self._device_status(k, source.source,
+                                                                          text),
                             on_error=self._reader_error, detect=self._detect,
                             ready=self._wait_for_track, after=self._after_detect)
+
+    def _device_status(self, k, source, text):
+        """V4L2 camera ``k``'s new status ``text`` (from its thread): opened at INFO, with
+        what its driver gives where it is not what was asked (once each), else a warning."""
+        name = self.rig.cameras[k].name
+        if text.endswith(('opened', 'reopened')):
+            self.get_logger().info(f'camera {name}: {text}')
+            if source.mismatch:
+                self._warn_once(('driver', k, source.mismatch),
+                                f'camera {name}: {source.mismatch}')
+            if source.driver_fps and abs(source.driver_fps - source.fps) > 0.01 * source.fps:
+                with self._lock:            # its rate said: not again from its stamps
+                    self._rate_stamps.pop(k, None)
+        else:
+            self.get_logger().warning(f'camera {name}: {text}')
 
     def _start_files(self):
         """Start the video files together (frame n of each at the same instant), once
@@ -641,11 +683,13 @@ class PerceptionNode(Node):
         self.frames_received += 1
         self._last_frame[k] = self._monotonic()
         refused = frame is None and detections is None    # an image message not read (said)
+        again = k in self._delivered
         if not refused:
             self._delivered.add(k)
         if k in self._lost and not refused:
             self._lost.discard(k)
-            self.get_logger().info(f'camera {self.rig.cameras[k].name}: frames again')
+            self.get_logger().info(f'camera {self.rig.cameras[k].name}: '
+                                   + ('frames again' if again else 'first frame'))
         if k in self._disabled:
             frame, detections = None, None
         if self._t_ref is None:
@@ -659,12 +703,40 @@ class PerceptionNode(Node):
             if grey:
                 self._warn_once(('grey', grey), grey)
         if self.pipeline.last_error and k not in self._disabled and not refused:
-            self._warn_once(('frame', self.pipeline.last_error), self.pipeline.last_error)
+            error = self.pipeline.last_error
+            if k in self._devices and 'frames of another size' in error:
+                error += ("; device_width and device_height set the size asked of the V4L2 "
+                          "driver (0: the calibration's), or calibrate the camera at the "
+                          'size it gives')
+            self._warn_once(('frame', error), error)
+        if k in self._rate_stamps:
+            self._check_rate(k, stamp)
         for est in estimates:
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
             if wall_base is not None:
                 self.latency.add(time.time() - (wall_base + self._t_ref + est.t))
+
+    def _check_rate(self, k, stamp):
+        """Live camera ``k``'s frame stamped ``stamp`` (s): once it has given
+        :data:`RATE_FRAMES` intervals, one warning if their median is not the rig's frame
+        period (within :data:`RATE_TOLERANCE`), naming the rate its stamps show."""
+        stamps = self._rate_stamps[k]
+        stamps.append(stamp)
+        if len(stamps) <= RATE_FRAMES:
+            return
+        del self._rate_stamps[k]
+        intervals = np.diff(np.sort(stamps))
+        intervals = intervals[intervals > 0]
+        if not intervals.size:
+            return
+        rate = 1.0 / float(np.median(intervals))
+        fps = self.rig.fps
+        if abs(rate - fps) > RATE_TOLERANCE * fps:
+            self.get_logger().warning(
+                f'camera {self.rig.cameras[k].name}: its frames come at {rate:.3g} fps (their '
+                f"stamps), the rig's fps is {fps:g}: set the rig's fps to the cameras' frame "
+                'rate (tracking times the frames by it; no state may come otherwise)')
 
     def _publish_clock(self, stamp):
         """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""
@@ -679,16 +751,35 @@ class PerceptionNode(Node):
         now = self._monotonic()
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
+            # An image topic is waited for from the start (misspelt, in another namespace, or
+            # only its compressed transport published, the node said nothing); the other
+            # cameras once a frame has come (a device says why it gives none, video files
+            # may wait for subscribers).
             if (now - last > timeout and k not in self._lost and k not in self._ended
-                    and self.frames_received):
+                    and (self.frames_received or k in self._image_types)):
                 self._lost.add(k)
                 cam = self.rig.cameras[k]
+                source = (self.resolve_topic_name(cam.source) if k in self._image_types
+                          else cam.source)
                 self.get_logger().warning(
-                    f'camera {cam.name}: no frame for {timeout:.2f} s from {cam.source}; '
+                    f'camera {cam.name}: no frame for {timeout:.2f} s from {source}; '
                     + ('waiting for it to come back' if k in self._delivered else
-                       'no frame read from it yet, waiting for one'))
+                       'no frame read from it yet, waiting for one' + self._topic_hint(k)))
             if now - last > timeout and k in self._image_types:
                 self._check_image_type(k)
+
+    def _topic_hint(self, k):
+        """For image-topic camera ``k`` that never delivered: '' or the topic of the other
+        transport (``.../compressed`` beside a raw name, or the reverse) that has publishers,
+        as the source to give."""
+        if k not in self._image_types:
+            return ''
+        name = self.resolve_topic_name(self.rig.cameras[k].source)
+        other = (name.rstrip('/').rsplit('/', 1)[0] if is_compressed_topic(name)
+                 else f'{name}/compressed')
+        if not self.get_publishers_info_by_topic(other):
+            return ''
+        return f" ({other} has publishers: give it as the camera's source in the rig to read it)"
 
     def _check_image_type(self, k):
         """Warn (once for each set of types) when the publishers of camera ``k``'s silent image

@@ -4,7 +4,9 @@ sensor_msgs/Image messages (from a topic or a bag).
 A rig camera's ``source`` string is classified by :func:`source_kind`:
 
 - ``/dev/videoN`` or a bare integer: a V4L2 device, opened through OpenCV's ``cv2.CAP_V4L2``
-  backend with pixel format (FOURCC, e.g. MJPG), resolution, frame rate and exposure set;
+  backend with pixel format (FOURCC, e.g. MJPG), resolution, frame rate and exposure set, and
+  what the driver accepted read back (:class:`V4L2Source`); a path that exists but is no
+  video device is refused (:func:`device_error`);
 - a path with a video or image extension, a printf pattern (``cam0/%06d.png``), a folder
   of images (written with a final ``/``) or a file that exists: a file source (relative to
   the rig file);
@@ -19,9 +21,12 @@ happened last, for the caller to report. A :class:`V4L2Source` also reads in two
 (decode it), for a reader that decodes only the frames it keeps.
 """
 
+import errno
 import itertools
+import math
 import os
 import re
+import stat
 import struct
 import threading
 import time
@@ -377,8 +382,52 @@ class VideoFileSource(FrameSource):
             self.capture = None
 
 
+V4L2_MAJOR = 81
+"""The device major number of Linux's video4linux devices (/dev/videoN)."""
+
+
+def device_path(device):
+    """The path of a rig camera's V4L2 ``source``: ``/dev/videoN`` for a bare integer N."""
+    s = str(device).strip()
+    return f'/dev/video{s}' if s.isdigit() else s
+
+
+def device_error(device):
+    """One line when the V4L2 ``device`` (path, or index N of /dev/videoN) exists but is no
+    video device: not a character device (a regular file, a folder) or a character device of
+    another driver than video4linux (/dev/null); else '' (a video device, or none there yet:
+    a camera may be plugged in later). OpenCV tried such a path every second with its own
+    warning."""
+    path = device_path(device)
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ''
+    if not stat.S_ISCHR(st.st_mode):
+        what = ('a folder' if stat.S_ISDIR(st.st_mode) else
+                'a regular file' if stat.S_ISREG(st.st_mode) else 'not a character device')
+        return (f'{path} is no V4L2 device ({what}; a camera is a character device, '
+                '/dev/videoN: v4l2-ctl --list-devices lists them)')
+    if os.major(st.st_rdev) != V4L2_MAJOR:
+        return (f'{path} is no V4L2 device (a character device of major {os.major(st.st_rdev)}'
+                f', video devices are {V4L2_MAJOR}: v4l2-ctl --list-devices lists them)')
+    return ''
+
+
+def fourcc_text(code):
+    """A FOURCC read back from OpenCV (a float of 4 packed characters) as text, '' for 0."""
+    code = int(code)
+    text = code.to_bytes(4, 'little').decode('ascii', 'replace') if code > 0 else ''
+    return text.rstrip('\x00 ')
+
+
 class V4L2Source(FrameSource):
-    """A V4L2 camera through OpenCV, reopened when it vanishes."""
+    """A V4L2 camera through OpenCV, reopened when it vanishes.
+
+    After opening, what the driver accepted is read back (``driver_fps``, ``driver_size``,
+    ``driver_fourcc``; 0 or '' where the driver does not say), and ``mismatch`` is one line
+    when it differs from what was asked, else ''. ``width`` or ``height`` 0: the size is not
+    asked, the driver's is kept."""
 
     def __init__(self, device, width=640, height=480, fps=150.0, fourcc='MJPG',
                  exposure=None, reopen_interval=1.0, buffers=4):
@@ -390,33 +439,66 @@ class V4L2Source(FrameSource):
         self.buffers = int(buffers)
         self.capture = None
         self.reopened = False
+        self.driver_fps = 0.0
+        self.driver_size = (0, 0)
+        self.driver_fourcc = ''
+        self.mismatch = ''
         self._next_try = 0.0
         self._delivered = False        # a frame came since the source was made
         # V4L2 buffer timestamps are CLOCK_MONOTONIC; this moves them to the wall clock.
         self._clock_offset = time.time() - time.monotonic()
 
     def open(self):
-        path = f'/dev/video{self.device}' if isinstance(self.device, int) else self.device
+        path = device_path(self.device)
         if not os.path.exists(path):
             # Checked first: OpenCV logs its own warning for an absent device at every try
             # (twice a second while the device is away).
-            raise OSError(f'{self.device}: no such V4L2 device')
+            raise OSError(f'{path}: no such V4L2 device')
+        error = device_error(path)
+        if error:                   # else OpenCV's own warning too, at every try
+            raise OSError(error)
+        if not os.access(path, os.R_OK | os.W_OK):
+            raise OSError(f'{path}: permission denied (add the user to the group of the device,'
+                          ' usually video, and log in again)')
         cap = cv2.VideoCapture(self.device, cv2.CAP_V4L2)
         if not cap.isOpened():
             cap.release()
-            raise OSError(f'{self.device}: V4L2 device cannot be opened')
+            raise OSError(f'{path}: V4L2 device cannot be opened: {_open_failure(path)}')
         if self.fourcc:
             cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*self.fourcc))
-        cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
-        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
+        if self.width > 0 and self.height > 0:
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
         cap.set(cv2.CAP_PROP_FPS, self.fps)
         cap.set(cv2.CAP_PROP_BUFFERSIZE, self.buffers)
         if self.exposure is not None:
             cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)            # V4L2 manual mode
             cap.set(cv2.CAP_PROP_EXPOSURE, float(self.exposure))
         self.capture = cap
-        self.status = f'{self.device}: opened'
+        self._read_back()
+        self.status = f'{path}: opened'
         return self
+
+    def _read_back(self):
+        """What the driver accepted of the settings asked, and ``mismatch``."""
+        cap = self.capture
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        self.driver_fps = fps if math.isfinite(fps) and fps > 0.0 else 0.0
+        self.driver_size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH) or 0),
+                            int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0))
+        self.driver_fourcc = fourcc_text(cap.get(cv2.CAP_PROP_FOURCC) or 0)
+        gives = []
+        w, h = self.driver_size
+        if self.width > 0 and self.height > 0 and w > 0 and h > 0 and (w, h) != (
+                self.width, self.height):
+            gives.append(f'{w}x{h} (asked {self.width}x{self.height})')
+        if self.fourcc and self.driver_fourcc and self.driver_fourcc != self.fourcc:
+            gives.append(f'{self.driver_fourcc} (asked {self.fourcc})')
+        if self.driver_fps and abs(self.driver_fps - self.fps) > 0.01 * self.fps:
+            gives.append(f"{self.driver_fps:g} fps (asked the rig's {self.fps:g}: set the "
+                         "rig's fps to the cameras' rate)")
+        self.mismatch = (f'{device_path(self.device)}: the driver gives ' + ', '.join(gives)
+                         if gives else '')
 
     def grab(self):
         """Take the next frame from the driver; its time ``t`` (s, wall clock: the driver's
@@ -435,7 +517,7 @@ class V4L2Source(FrameSource):
                 self.status = str(exc)
                 return None
             if self._delivered:
-                self.status = f'{self.device}: reopened'
+                self.status = f'{device_path(self.device)}: reopened'
                 self.reopened = True
         if not self.capture.grab():
             self._lost()
@@ -464,7 +546,8 @@ class V4L2Source(FrameSource):
 
     def _lost(self):
         """The device stopped delivering: released, reopened after ``reopen_interval`` s."""
-        self.status = f'{self.device}: camera stopped delivering frames, reopening'
+        self.status = (f'{device_path(self.device)}: camera stopped delivering frames, '
+                       'reopening')
         self.close()
         self._next_try = time.monotonic() + self.reopen_interval
 
@@ -472,6 +555,20 @@ class V4L2Source(FrameSource):
         if self.capture is not None:
             self.capture.release()
             self.capture = None
+
+
+def _open_failure(path):
+    """Why the V4L2 device ``path``, which OpenCV could not open, cannot be: the error of
+    opening it (errno), else the likely causes."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NONBLOCK)
+    except OSError as exc:
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        return why + (' (another program streams from it? fuser names it)'
+                      if exc.errno == errno.EBUSY else '')
+    os.close(fd)
+    return (f'busy (another program streams from it? fuser {path} names it) or no capture '
+            f'node (v4l2-ctl -d {path} --all says which)')
 
 
 def rates_error(rig, sources):
