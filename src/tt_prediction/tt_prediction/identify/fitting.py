@@ -341,10 +341,15 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
                 trial[i] = (x, r, _robust_cost(r))
             worse = np.array([trial[i][2] >= costs[i] for i in pending], dtype=bool)
             lam[pending[worse]] *= 4.0
-            lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
+            if not n_g:
+                lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
             if n_g:         # coupled: the step is taken by all tracks or none
                 new_total = sum(trial[i][2] for i in pending)
                 if new_total < costs[pending].sum():
+                    # Damping eased only with the step taken: eased on a refused one, the
+                    # better tracks' next steps grew as the others' shrank, and a fit could
+                    # refuse all its trials with the cost's gradient far from zero.
+                    lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
                     drop = (costs.sum() - new_total) / max(costs.sum(), 1e-300)
                     gv, P, k, lam_g = g_new, P_new, k_new, max(lam_g / 3.0, 1e-9)
                     for i in pending:
