@@ -42,7 +42,7 @@ from tt_prediction.ball import load_model
 from tt_prediction.identify.blas import blas_threads
 from tt_ros.diagnostics import OK, WARN, percentile_values, report_status
 from tt_ros.errors import one_line_reason
-from tt_ros.executor import StartupError, run_node
+from tt_ros.executor import KERNELS_LOADING, StartupError, run_node, said_if_slow
 from tt_ros.messages import set_time, set_xyz
 from tt_ros.names import name_error
 from tt_ros.parameters import Param, Parameters
@@ -370,7 +370,8 @@ class PerceptionNode(Node):
                                 backfill=self._p('backfill'), backfill_after=0.0)
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
-        warm_up(params, filt, rig.fps)      # compiled kernels loaded before the first frame
+        with said_if_slow(self.get_logger(), KERNELS_LOADING):
+            warm_up(params, filt, rig.fps)  # compiled kernels loaded before the first frame
         files, devices = [], []
         for k, (cam, kind) in enumerate(zip(rig.cameras, kinds, strict=True)):
             if kind == 'topic':
@@ -810,11 +811,17 @@ class PerceptionNode(Node):
             self._warned.add(key)
             self.get_logger().warning(text)
 
-    def destroy_node(self):
+    def stop_work(self):
+        """Stop the camera readers and the processing thread and wait for them (2 s each):
+        the states they still publish are counted before the exit line (5260 said of 5262
+        received, a walk-through's)."""
         self._stop.set()
         for thread in [*self._readers, self._worker]:
             if thread is not None and thread.is_alive():
                 thread.join(timeout=2.0)
+
+    def destroy_node(self):
+        self.stop_work()
         self._exit.close()
         return super().destroy_node()
 
@@ -839,9 +846,14 @@ def _check_topic(name, what):
         raise StartupError(f'{what} is not a valid topic name: {error}')
 
 
+def _on_exit(node):
+    node.stop_work()
+    node.get_logger().info(node.work_summary())
+
+
 def main(args=None):
     run_node(PerceptionNode, args, name='perception_node', parameters=PARAMETERS,
-             on_exit=lambda node: node.get_logger().info(node.work_summary()))
+             on_exit=_on_exit)
 
 
 if __name__ == '__main__':

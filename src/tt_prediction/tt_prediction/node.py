@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_ros.connections import subscribe_input
 from tt_ros.diagnostics import CountsStatus, report_status
-from tt_ros.executor import StartupError, run_node
+from tt_ros.executor import KERNELS_LOADING, StartupError, run_node, said_if_slow
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, seconds_text, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
@@ -189,8 +189,9 @@ class PredictionNode(Node):
             raise StartupError(f'model_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([1.6, 0.0, 0.3, -6.0, 0.0, 1.5, 0.0, 0.0, 0.0])
-        predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
-        predict(warm, self.params, path_dt=0.02)
+        with said_if_slow(self.get_logger(), KERNELS_LOADING):
+            predict_uncertainty(warm, np.eye(9) * 1e-4, self.params)
+            predict(warm, self.params, path_dt=0.02)
         self.packed = self.params.packed()
         self.out = BallPrediction()
         self.path = Path()

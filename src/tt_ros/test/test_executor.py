@@ -181,3 +181,23 @@ def test_a_signal_that_comes_while_its_handler_runs_leaves_the_node_told_to_stop
     worker, where = _handled_with_a_second_signal_inside(signals, at)
     assert not worker.is_alive(), f'the handler, entered again at {where}, never returned'
     assert signals.stopped
+
+
+def test_a_slow_start_up_step_is_said_while_it_runs_and_a_quick_one_not():
+    # perception_node compiling its kernels on its first start sat silent for a minute.
+    from tt_ros.executor import said_if_slow
+    said = threading.Event()
+
+    class Logger:
+        lines = []
+
+        def info(self, text):
+            self.lines.append(text)
+            said.set()
+
+    logger = Logger()
+    with said_if_slow(logger, 'loading', after_s=0.0):
+        assert said.wait(10.0)          # the block goes on until the line is said
+    with said_if_slow(logger, 'quick', after_s=60.0):
+        pass
+    assert logger.lines == ['loading']

@@ -22,6 +22,7 @@ node that does not answer is stuck, even inside compiled code. A node that canno
 stderr, without a traceback.
 """
 
+import contextlib
 import faulthandler
 import os
 import re
@@ -241,6 +242,29 @@ def make_executor(kind=None, context=None):
         except ImportError:
             pass
     return SingleThreadedExecutor(context=context)
+
+
+KERNELS_LOADING = ('loading the compiled kernels (compiled on the first start after an install '
+                   'or a change of the code: up to a minute)')
+"""What a node says while its start-up loads its compiled kernels slowly (said_if_slow)."""
+SLOW_START_S = 2.0
+"""A node's start-up step longer than this (s) is said while it runs (:func:`said_if_slow`)."""
+
+
+@contextlib.contextmanager
+def said_if_slow(logger, text, after_s=SLOW_START_S):
+    """Context manager: ``logger.info(text)`` once if the block is still running after
+    ``after_s`` seconds (from a timer thread), nothing if it ends sooner. A node that loads its
+    compiled kernels at start compiles them on its first start after an install or a change
+    of the model's code: perception_node sat silent for about a minute, as if hung (a
+    walk-through's three starts: 55, 67 and 2 s)."""
+    timer = threading.Timer(after_s, logger.info, args=(text,))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
 
 
 class _StopOnSignal:

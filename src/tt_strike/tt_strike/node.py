@@ -34,7 +34,7 @@ from tt_prediction.ball import load_model
 from tt_prediction.predict import T_MAX, Hit
 from tt_ros.connections import subscribe_input
 from tt_ros.diagnostics import CountsStatus, report_status
-from tt_ros.executor import StartupError, run_node
+from tt_ros.executor import KERNELS_LOADING, StartupError, run_node, said_if_slow
 from tt_ros.markers import add_marker
 from tt_ros.messages import header_problem, point_msg, set_time, set_xyz
 from tt_ros.messages import stamp_ns as to_ns
@@ -195,11 +195,12 @@ class StrikeNode(Node):
             raise StartupError(f'workspace_file: {exc}') from None
         # Compile (or load from numba's cache) the kernels now, not on the first ball.
         warm = np.array([-1.5, 0.0, 0.3, -4.0, 0.0, -1.0, 0.0, 0.0, 0.0])
-        solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
-        plan = choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
-        if plan.hit is not None:        # a ball's next prediction keeps its hit time
-            choose(warm, self.params, self.workspace, target_zone=5, bounced=True,
-                   keep_t=plan.hit.t)
+        with said_if_slow(self.get_logger(), KERNELS_LOADING):
+            solve(warm, self.params, target_zone=5, covariance=np.eye(9) * 1e-6)
+            plan = choose(warm, self.params, self.workspace, target_zone=5, bounced=True)
+            if plan.hit is not None:        # a ball's next prediction keeps its hit time
+                choose(warm, self.params, self.workspace, target_zone=5, bounced=True,
+                       keep_t=plan.hit.t)
         self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
         self.n_lost = 0                   # struck balls lost before the plane
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
