@@ -473,6 +473,21 @@ def test_images_without_header_stamps_are_timed_by_the_bag_and_named(scene, tmp_
                 'stamp, timed by when the bag recorded them') in err
 
 
+def test_a_bag_of_cameras_slower_than_the_rigs_fps_is_named(scene, tmp_path, capsys):
+    # Cameras at 30 fps in a rig of 150: tracking, which times the frames by the rig's fps,
+    # gave no state and no word (a lab's walk-through); the stamps show the rate.
+    base, rig_path, frames, truth = scene
+    few = [f for f in frames if f[0] < 0.3]
+    slow = [f for f in few if round(f[0] * 150) % 5 == 0]
+    for name, kept in (('full', few), ('slow', slow)):
+        _image_bag(tmp_path / name, kept, 500.0)
+        cli.main(['--rig', rig_path, '--out', str(tmp_path / f'out_{name}'), '--bag',
+                  str(tmp_path / name)])
+        err = capsys.readouterr().err
+        named = [f'camera cam{k}: its frames come at 30 fps (their stamps), the rig' in err
+                 for k in range(2)]
+        assert named == ([True, True] if name == 'slow' else [False, False]), err
+
 def test_bag_of_compressed_images_gives_the_states_of_the_images(scene, tmp_path):
     # image_transport's compressed topics, as a ROS user records cameras: PNG is lossless,
     # so the states are those of the raw images; the rig names the compressed topics.

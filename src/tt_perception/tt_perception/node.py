@@ -66,12 +66,14 @@ from .camstream import (
 from .detect import EXPOSURE_RANGE, IMAGE_BLUR_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
 from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
+    RATE_FRAMES,
     camera_info_topic,
     device_error,
     file_source_path,
     file_sources_error,
     is_compressed_topic,
     message_to_bgr,
+    rate_disagreement,
     source_kind,
 )
 
@@ -93,13 +95,6 @@ frame detected before its track started has only its blob's centre, which leans 
 lit side: a start that took such frames was 25 mm and 3 m/s off, an orange ball in synth's
 hall at 640x480). A confirmed track's window and outline are predicted along its flight to the
 frame's time (Tracker.predicted_motion), bounce included, and need no wait."""
-RATE_FRAMES = 20
-"""Frame intervals of a live camera (image topic, V4L2 device) whose median is compared with
-the rig's frame period (:data:`RATE_TOLERANCE`): the tracker keeps a track's seeds and
-interpolates only within a few periods of the rig's ``fps``, and a 30 fps camera in a rig
-of 150 gave no state and no word."""
-RATE_TOLERANCE = 0.2
-"""Relative difference of the measured frame rate from the rig's ``fps`` that is named."""
 GIL_SWITCH_S = 5e-4
 """The interpreter's thread switch interval while cameras are read in-process, s (Python's
 default 5 ms)."""
@@ -720,24 +715,16 @@ class PerceptionNode(Node):
 
     def _check_rate(self, k, stamp):
         """Live camera ``k``'s frame stamped ``stamp`` (s): once it has given
-        :data:`RATE_FRAMES` intervals, one warning if their median is not the rig's frame
-        period (within :data:`RATE_TOLERANCE`), naming the rate its stamps show."""
+        RATE_FRAMES intervals, one warning if their median is not the rig's frame period
+        (:func:`tt_perception.sources.rate_disagreement`)."""
         stamps = self._rate_stamps[k]
         stamps.append(stamp)
         if len(stamps) <= RATE_FRAMES:
             return
         del self._rate_stamps[k]
-        intervals = np.diff(np.sort(stamps))
-        intervals = intervals[intervals > 0]
-        if not intervals.size:
-            return
-        rate = 1.0 / float(np.median(intervals))
-        fps = self.rig.fps
-        if abs(rate - fps) > RATE_TOLERANCE * fps:
-            self.get_logger().warning(
-                f'camera {self.rig.cameras[k].name}: its frames come at {rate:.3g} fps (their '
-                f"stamps), the rig's fps is {fps:g}: set the rig's fps to the cameras' frame "
-                'rate (tracking times the frames by it; no state may come otherwise)')
+        text = rate_disagreement(self.rig.cameras[k].name, stamps, self.rig.fps)
+        if text:
+            self.get_logger().warning(text)
 
     def _publish_clock(self, stamp):
         """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""

@@ -382,6 +382,30 @@ class VideoFileSource(FrameSource):
             self.capture = None
 
 
+RATE_FRAMES = 20
+"""Frame intervals of a camera whose median is compared with the rig's frame period
+(:func:`rate_disagreement`): the tracker keeps a track's seeds and interpolates only within
+a few periods of the rig's ``fps``, and a 30 fps camera in a rig of 150 gave no state and no
+word."""
+RATE_TOLERANCE = 0.2
+"""Relative difference of the measured frame rate from the rig's ``fps`` that is named."""
+
+
+def rate_disagreement(name, stamps, fps):
+    """'' or one line naming camera ``name`` when the median interval of its frame
+    ``stamps`` (s; the first RATE_FRAMES + 1 are enough) is not the period of the rig's
+    ``fps`` within RATE_TOLERANCE."""
+    intervals = np.diff(np.sort(np.asarray(stamps, dtype=float)))
+    intervals = intervals[intervals > 0]
+    if not intervals.size:
+        return ''
+    rate = 1.0 / float(np.median(intervals))
+    if abs(rate - fps) <= RATE_TOLERANCE * fps:
+        return ''
+    return (f"camera {name}: its frames come at {rate:.3g} fps (their stamps), the rig's fps "
+            f"is {fps:g}: set the rig's fps to the cameras' frame rate (tracking times the "
+            'frames by it; no state may come otherwise)')
+
 V4L2_MAJOR = 81
 """The device major number of Linux's video4linux devices (/dev/videoN)."""
 
