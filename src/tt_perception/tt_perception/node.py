@@ -95,6 +95,10 @@ frame detected before its track started has only its blob's centre, which leans 
 lit side: a start that took such frames was 25 mm and 3 m/s off, an orange ball in synth's
 hall at 640x480). A confirmed track's window and outline are predicted along its flight to the
 frame's time (Tracker.predicted_motion), bounce included, and need no wait."""
+QUIET_START_S = 10.0
+"""While no camera has given a frame, an image topic is named as silent only after this
+long (s; camera_timeout once frames come): its driver or a player may start after the
+node."""
 GIL_SWITCH_S = 5e-4
 """The interpreter's thread switch interval while cameras are read in-process, s (Python's
 default 5 ms)."""
@@ -512,8 +516,10 @@ class PerceptionNode(Node):
             if source.mismatch:
                 self._warn_once(('driver', k, source.mismatch),
                                 f'camera {name}: {source.mismatch}')
-            if source.driver_fps and abs(source.driver_fps - source.fps) > 0.01 * source.fps:
-                with self._lock:            # its rate said: not again from its stamps
+            if source.driver_fps:
+                # Its rate known (and said if not the rig's): not judged again from the
+                # stamps of the frames processed, of which the queue may drop some under load.
+                with self._lock:
                     self._rate_stamps.pop(k, None)
         else:
             self.get_logger().warning(f'camera {name}: {text}')
@@ -740,17 +746,20 @@ class PerceptionNode(Node):
         timeout = self._p('camera_timeout')
         for k, last in list(self._last_frame.items()):
             # An image topic is waited for from the start (misspelt, in another namespace, or
-            # only its compressed transport published, the node said nothing); the other
-            # cameras once a frame has come (a device says why it gives none, video files
-            # may wait for subscribers).
-            if (now - last > timeout and k not in self._lost and k not in self._ended
+            # only its compressed transport published, the node said nothing), for
+            # QUIET_START_S while no camera has given a frame (a driver or player started
+            # after the node: the demo's was named every time); the other cameras once a
+            # frame has come (a device says why it gives none, video files may wait for
+            # subscribers).
+            limit = timeout if self.frames_received else max(timeout, QUIET_START_S)
+            if (now - last > limit and k not in self._lost and k not in self._ended
                     and (self.frames_received or k in self._image_types)):
                 self._lost.add(k)
                 cam = self.rig.cameras[k]
                 source = (self.resolve_topic_name(cam.source) if k in self._image_types
                           else cam.source)
                 self.get_logger().warning(
-                    f'camera {cam.name}: no frame for {timeout:.2f} s from {source}; '
+                    f'camera {cam.name}: no frame for {limit:.2f} s from {source}; '
                     + ('waiting for it to come back' if k in self._delivered else
                        'no frame read from it yet, waiting for one' + self._topic_hint(k)))
             if now - last > timeout and k in self._image_types:
