@@ -351,14 +351,21 @@ def test_restarts_are_counted_in_a_row_and_a_node_that_ran_a_while_starts_again(
         child.proc, child.started = proc, time.monotonic() - seconds
         graph._exited(child, proc)
 
-    for _ in range(10):             # hours apart: never more than one in a row
+    for _ in range(10):             # hours apart: none counted
         dies_after(bringup.STABLE_RUN_S + 1.0)
-        assert not graph.stopping and lines[-1].endswith('restart 1')
-    dies_after(1.0)                 # the second death in a row, within the window
-    assert not graph.stopping and lines[-1].endswith('restart 2')
+        assert not graph.stopping and lines[-1].endswith('not counted)')
+    for n in (1, 2):                # quick deaths in a row, up to --max-restarts
+        dies_after(1.0)
+        assert not graph.stopping and lines[-1].endswith(f'restart {n}')
     dies_after(1.0)                 # the third: more than 2
     assert graph.stopping and graph.status == 1
     assert 'more than 2 restarts in a row' in lines[-1]
+    # --max-restarts 0: a node that ran an hour is restarted; a quick death stops the graph.
+    graph.max_restarts, graph.stopping, graph.status, child.restarts = 0, False, 0, 0
+    dies_after(3600.0)
+    assert not graph.stopping and lines[-1].endswith('not counted)')
+    dies_after(1.0)
+    assert graph.stopping and 'more than 0 restarts in a row' in lines[-1]
 
 @pytest.mark.parametrize('option, value, meaning', [
     ('--restart-delay', 'nan', 'a number >= 0'), ('--restart-delay', '-5', 'a number >= 0'),

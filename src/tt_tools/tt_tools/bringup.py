@@ -19,7 +19,8 @@ prefixed with its name.
   exits 2 (it cannot start: a bad parameter or file, its one line printed above) is not
   restarted: bringup stops the others and exits 2. More than ``--max-restarts`` restarts of
   one node in a row, each dying within STABLE_RUN_S (60 s) of its start, also stop the graph
-  (exit 1); a node that ran longer before it died starts its count again (a count over a
+  (exit 1); a node that ran longer before it died is restarted, not counted, and starts its
+  count again (a count over a
   node's whole life stopped a graph up for days at its sixth crash). The shared memory that
   a node killed by a signal leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then
   (:mod:`tt_ros.shm`), with one line.
@@ -324,14 +325,19 @@ class Bringup:
             say(f'{child.name} cannot start ({how}): {child.last_line}; stopping the graph')
             self.status, self.stopping = STARTUP_EXIT, True
             return
-        child.restarts = 1 if lived >= STABLE_RUN_S else child.restarts + 1
-        if child.restarts > self.max_restarts:
-            say(f'{child.name} died ({how}) after {lived:.1f} s; more than '
-                f'{self.max_restarts} restarts in a row, each within {STABLE_RUN_S:g} s: '
-                'stopping the graph')
-            self.status, self.stopping = 1, True
-            return
-        say(f'{child.name} died ({how}) after {lived:.1f} s; restart {child.restarts}')
+        if lived >= STABLE_RUN_S:       # ran a while: restarted, its count starts again
+            child.restarts = 0
+            say(f'{child.name} died ({how}) after {lived:.1f} s; restart (after '
+                f'{STABLE_RUN_S:g} s or more of running: not counted)')
+        else:
+            child.restarts += 1
+            if child.restarts > self.max_restarts:
+                say(f'{child.name} died ({how}) after {lived:.1f} s; more than '
+                    f'{self.max_restarts} restarts in a row, each within {STABLE_RUN_S:g} s: '
+                    'stopping the graph')
+                self.status, self.stopping = 1, True
+                return
+            say(f'{child.name} died ({how}) after {lived:.1f} s; restart {child.restarts}')
         self.pending[child] = time.monotonic() + self.restart_delay
 
     @staticmethod
