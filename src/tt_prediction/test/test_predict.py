@@ -278,3 +278,34 @@ def test_a_ball_landing_a_millimetre_inside_the_end_line_bounces_there():
         land = predict_landing(_flown_back(outgoing, d), NOMINAL, t0=0.0)
         assert land.status == 'ok', (d, land.reason)
         np.testing.assert_allclose(land.landing.p, outgoing[:3], atol=1e-6)
+
+
+def _grazing(edge_x, edge_z, speed, descent_deg, dip, y=0.35):
+    """The state (9,) of a ball descending at ``descent_deg`` whose centre passes nearest the
+    edge line (x = edge_x, z = edge_z, along y) there, ``dip`` m less than a radius from it:
+    the sphere meets that edge (its nearest point moving along the path)."""
+    th = math.radians(descent_deg)
+    v = np.array([-speed * math.cos(th), -speed * math.sin(th)])     # (x, z)
+    n = np.array([v[1], -v[0]]) / speed         # normal to the path, upwards
+    n = n if n[1] > 0 else -n
+    x, z = np.array([edge_x, edge_z]) + (R - dip) * n
+    return np.array([x, y, z, v[0], 1.0, v[1], 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize('speed, descent', [(12.0, 20.0), (12.0, 30.0), (20.0, 20.0),
+                                            (20.0, 30.0)])
+def test_a_ball_descending_across_the_nets_top_edge_is_stopped_by_it(speed, descent):
+    # Descending, the ball is nearest the net's top edge away from x = 0: 0.5 mm into it for
+    # about 10 mm of its path, between two of the step's sub-samples (16 of 40 phases at
+    # 12 m/s and 20 deg, 32 at 20 m/s, crossed the net).
+    contact = _grazing(0.0, NET_HEIGHT, speed, descent, 0.5e-3)
+    assert [predict(_flown_back(contact, d), NOMINAL).status for d in PHASES] == ['net'] * 40
+
+
+@pytest.mark.parametrize('descent', [20.0, 30.0, 45.0])
+def test_a_smash_clipping_the_end_lines_edge_is_an_edge_ball(descent):
+    # A 20 m/s ball 1 mm into the robot's end edge (x = -HALF_LENGTH, z = 0): 16 of 40 phases
+    # were 'no_bounce'. The edge is out of play (MODEL.md).
+    contact = _grazing(-HALF_LENGTH, 0.0, 20.0, descent, 1e-3)
+    statuses = [predict(_flown_back(contact, d), NOMINAL).status for d in PHASES]
+    assert statuses == ['table_edge'] * 40
