@@ -145,33 +145,3 @@ def test_a_pooled_fit_does_not_stop_where_its_cost_still_falls():
         values[j] += step
         assert fitting.pooled_cost(prepared, fitted.with_values(values), fitted_states) \
             > cost - 1e-3 * step * cost
-
-
-@pytest.mark.slow
-def test_a_pooled_fit_started_off_the_minimum_reaches_it_across_a_kink():
-    # The same 15 mpi_launcher tracks, their stamps offset by seconds per track (a lab's own
-    # clock), gave a baseline 5 % above the cost of the fit of the tracks as shipped (C_D 0.490
-    # for 0.458): one sample at the gate's threshold went the other way, and from there on the
-    # tracks as shipped no coupled step lowered the cost (a bounce at the switch between
-    # sliding and rolling: a kink), though C_D alone did. Started there, the fit must reach the
-    # cost of the fit from scratch.
-    import pathlib
-
-    from tt_prediction.identify.data import Track, load
-    from tt_prediction.identify.pipeline import fit_baseline
-    data = pathlib.Path(__file__).resolve().parents[3] / 'data' / 'mpi_launcher'
-    names = {p.name for p in sorted(data.glob('*.csv')) if p.name != 'index.csv'}
-    names = set(sorted(names)[::6])
-    tracks = [tr for tr in load([str(data)], None) if tr.name.split('/')[-1] in names]
-    shifted = [Track(tr.name, tr.t + 3.7 + 0.31 * i, tr.p, tr.spin)
-               for i, tr in enumerate(tracks)]
-    base = ModelParams()
-    fits = []
-    for group in (tracks, shifted):
-        prepared, _, notes = prepare(group, base.radius)
-        fits.append((prepared, *fit_baseline(prepared, base, notes, 40)[:2]))
-    (prepared, g, states), (_, g_shifted, states_shifted) = fits
-    best = fitting.pooled_cost(prepared, g, states)
-    refit, refit_states = fitting.fit_pooled(prepared, g_shifted, states_shifted,
-                                             max_nfev=200, ftol=1e-12)
-    assert fitting.pooled_cost(prepared, refit, refit_states) < 1.005 * best

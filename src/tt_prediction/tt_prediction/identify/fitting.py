@@ -371,50 +371,14 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
                 break
         else:
             if n_g:
-                # No coupled step lowers the cost. Where a bounce sits at the switch between
-                # sliding and rolling (eqs. 1-6), the cost has a kink and the Gauss-Newton
-                # model is wrong on one side of it: each global alone along its gradient, the
-                # states held, may still go down (15 of mpi_launcher's tracks: a fit stuck 5 %
-                # above the cost another start reached, its C_D 0.490 for 0.456).
-                moved = _global_alone_step(tracks, xs, gv, f, lo, hi, packs, costs)
-                if moved is None:
-                    break                   # no step lowers the cost: converged
-                gv, (P, k), res, costs = moved
-                drop = math.inf             # off the kink: the coupled steps again
-                accepted, blocking = accepted + 1, []
-            else:
-                active[pending] = False
+                break                       # no step lowers the cost: converged
+            active[pending] = False
         if n_g and drop < ftol:
             break
     out = globals_.with_values(gv)
     if n_g:
         out.accepted_steps, out.blocking = accepted, blocking
     return out, xs
-
-
-def _global_alone_step(tracks, xs, gv, f, lo, hi, packs, costs, first=1e-3, halvings=10):
-    """A step of one global alone, along its descent ``f`` (-B'Wr of fit_pooled), the track
-    states ``xs`` held: the globals in order of their descent's size (scaled), each from
-    ``first`` times its size (at least 1) halved until the summed robust cost falls below
-    ``costs``' sum, within the bounds. Returns (values, packs(values), residuals, costs) of
-    the first that does, or None."""
-    scale = np.maximum(1.0, np.abs(gv))
-    for j in np.argsort(-np.abs(f) * scale):
-        if f[j] == 0.0:
-            continue
-        step = first * scale[j] * np.sign(f[j])
-        for _ in range(halvings):
-            values = gv.copy()
-            values[j] = np.clip(gv[j] + step, lo[j], hi[j])
-            step *= 0.5
-            if values[j] == gv[j]:
-                continue
-            P, k = packs(values)
-            res = [track_residual(x, tr, P, k) for tr, x in zip(tracks, xs, strict=True)]
-            new = np.array([_robust_cost(r) for r in res])
-            if new.sum() < costs.sum():
-                return values, (P, k), res, new
-    return None
 
 
 def fit_pooled_restarted(tracks, globals_, states, max_nfev=40):
