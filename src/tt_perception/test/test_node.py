@@ -21,6 +21,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from test_sources import DriverCapture
 from tt_perception.camera import load_rig
 from tt_perception.node import QUIET_START_S, PerceptionNode
 from tt_prediction.ball import load_model
@@ -403,40 +404,26 @@ def test_an_image_topic_that_never_delivers_is_named(graph, tmp_path):
         'from it yet, waiting for one']
 
 
-class DriverCapture:
+class StreamingDriver(DriverCapture):
     """OpenCV's capture of a V4L2 driver that gives YUYV frames of ``size`` at 30 fps whatever
     it is asked (``asked``: the settings), ``n`` frames stamped 1/30 s apart, then none; its
     rate read back is ``says`` fps (0: the driver does not say)."""
 
     def __init__(self, n, size, says):
-        self.asked = {}
+        super().__init__({cv2.CAP_PROP_FRAME_WIDTH: size[0], cv2.CAP_PROP_FRAME_HEIGHT: size[1],
+                          cv2.CAP_PROP_FPS: says,
+                          cv2.CAP_PROP_FOURCC: int.from_bytes(b'YUYV', 'little')})
         self.left = n
         self.size = size
-        self.stamp = time.monotonic() * 1e3 - 1e3
-        self.gives = {cv2.CAP_PROP_FRAME_WIDTH: size[0], cv2.CAP_PROP_FRAME_HEIGHT: size[1],
-                      cv2.CAP_PROP_FPS: says,
-                      cv2.CAP_PROP_FOURCC: int.from_bytes(b'YUYV', 'little')}
-
-    def isOpened(self):   # noqa: N802 (cv2.VideoCapture's name)
-        return True
-
-    def set(self, prop, value):
-        self.asked[prop] = value
-        return False
-
-    def get(self, prop):
-        return self.stamp if prop == cv2.CAP_PROP_POS_MSEC else float(self.gives.get(prop, 0))
+        self.gives[cv2.CAP_PROP_POS_MSEC] = time.monotonic() * 1e3 - 1e3
 
     def grab(self):
         self.left -= 1
-        self.stamp += 1e3 / 30.0
+        self.gives[cv2.CAP_PROP_POS_MSEC] += 1e3 / 30.0
         return self.left >= 0
 
     def retrieve(self):
         return True, np.zeros((self.size[1], self.size[0], 3), np.uint8)
-
-    def release(self):
-        pass
 
 
 @pytest.mark.parametrize('params, gives, says', [
@@ -453,7 +440,7 @@ def test_a_v4l2_camera_says_what_its_driver_gives(graph, tmp_path, monkeypatch, 
     captures = []
 
     def capture(device, api):
-        captures.append(DriverCapture(25, gives, says))
+        captures.append(StreamingDriver(25, gives, says))
         return captures[-1]
 
     from tt_perception import sources
