@@ -62,7 +62,7 @@ from .detect import (
     estimate_image_blur,
 )
 from .pipeline import Pipeline, TrackerConfig
-from .sources import RATE_FRAMES, file_frames, message_to_bgr, rate_disagreement
+from .sources import FrameRateCheck, file_frames, message_to_bgr
 from .sync import estimate_offset, estimate_offset_tracks, image_tracks
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
@@ -115,7 +115,7 @@ def bag_frames(rig, bag, notes=None):
                              f'{names}: the others triangulate alone')
         sized = set()               # cameras whose first image had its calibration's size
         unstamped = set()           # cameras whose images have no header stamp
-        first = {k: [] for k in topics.values()}    # each camera's first stamps (its rate)
+        rates = FrameRateCheck([c.name for c in rig.cameras], rig.fps, topics.values())
         for conn, recorded, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             k = topics[conn.topic]
@@ -142,18 +142,12 @@ def bag_frames(rig, bag, notes=None):
                                  "(later than the exposure by the transport's delay, which "
                                  'varies: stamp the images at exposure)')
                 unstamped.add(k)
-            if k in first:
-                first[k].append(t)
-                if len(first[k]) > RATE_FRAMES:
-                    text = rate_disagreement(rig.cameras[k].name, first.pop(k), rig.fps)
-                    if text and notes is not None:
-                        notes.append(f'{bag}: {text}')
-            yield t, k, frame
-        for k, stamps in first.items():         # a bag shorter than RATE_FRAMES frames
-            text = rate_disagreement(rig.cameras[k].name, stamps, rig.fps) \
-                if len(stamps) > 5 else ''
+            text = rates.add(k, t)
             if text and notes is not None:
                 notes.append(f'{bag}: {text}')
+            yield t, k, frame
+        if notes is not None:                   # a bag shorter than RATE_FRAMES frames
+            notes.extend(f'{bag}: {text}' for text in rates.rest())
     finally:
         reader.close()
 

@@ -66,14 +66,13 @@ from .camstream import (
 from .detect import EXPOSURE_RANGE, IMAGE_BLUR_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
 from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
-    RATE_FRAMES,
+    FrameRateCheck,
     camera_info_topic,
     device_error,
     file_source_path,
     file_sources_error,
     is_compressed_topic,
     message_to_bgr,
-    rate_disagreement,
     source_kind,
 )
 
@@ -289,7 +288,7 @@ class PerceptionNode(Node):
         self._colour_known = set()  # cameras whose frames are known to be grey or not
         self._lost = set()
         self._delivered = set()       # cameras that delivered a frame (read, or a read error)
-        self._rate_stamps = {}        # live camera -> its first stamps, s (RATE_FRAMES)
+        self._rates = FrameRateCheck([], 0.0, ())     # the live cameras' rates (the rig's)
         self._devices = set()         # cameras that are V4L2 devices
         self._ended = set()           # cameras whose video files have ended
         self._disabled = set()
@@ -386,9 +385,10 @@ class PerceptionNode(Node):
                 devices.append(k)
             else:
                 files.append(k)
-            if kind != 'file':          # stamped by the camera, not by the rig's fps
-                self._rate_stamps[k] = []
             self._last_frame[k] = self._monotonic()
+        # The live cameras are stamped by themselves, not by the rig's fps.
+        self._rates = FrameRateCheck([c.name for c in rig.cameras], rig.fps,
+                                     [k for k, kind in enumerate(kinds) if kind != 'file'])
         self.drops = DropCounter(len(rig.cameras))
         lossless = self._p('video_rate') == 0.0 and not devices
         self.frames_queue = FrameQueue(
@@ -520,7 +520,7 @@ class PerceptionNode(Node):
                 # Its rate known (and said if not the rig's): not judged again from the
                 # stamps of the frames processed, of which the queue may drop some under load.
                 with self._lock:
-                    self._rate_stamps.pop(k, None)
+                    self._rates.drop(k)
         else:
             self.get_logger().warning(f'camera {name}: {text}')
 
@@ -711,26 +711,14 @@ class PerceptionNode(Node):
                           "driver (0: the calibration's), or calibrate the camera at the "
                           'size it gives')
             self._warn_once(('frame', error), error)
-        if k in self._rate_stamps:
-            self._check_rate(k, stamp)
+        text = self._rates.add(k, stamp)
+        if text:
+            self.get_logger().warning(text)
         for est in estimates:
             self.publisher.publish(ball_state_message(est, self._t_ref, self.rig.frame_id))
             self.states_published += 1
             if wall_base is not None:
                 self.latency.add(time.time() - (wall_base + self._t_ref + est.t))
-
-    def _check_rate(self, k, stamp):
-        """Live camera ``k``'s frame stamped ``stamp`` (s): once it has given
-        RATE_FRAMES intervals, one warning if their median is not the rig's frame period
-        (:func:`tt_perception.sources.rate_disagreement`)."""
-        stamps = self._rate_stamps[k]
-        stamps.append(stamp)
-        if len(stamps) <= RATE_FRAMES:
-            return
-        del self._rate_stamps[k]
-        text = rate_disagreement(self.rig.cameras[k].name, stamps, self.rig.fps)
-        if text:
-            self.get_logger().warning(text)
 
     def _publish_clock(self, stamp):
         """/clock at the frame time ``stamp`` (s), before the states of the frame; never back."""

@@ -406,6 +406,38 @@ def rate_disagreement(name, stamps, fps):
             f"is {fps:g}: set the rig's fps to the cameras' frame rate (tracking times the "
             'frames by it; no state may come otherwise)')
 
+
+class FrameRateCheck:
+    """Each camera's first RATE_FRAMES + 1 stamps, judged once against the rig's ``fps``
+    (:func:`rate_disagreement`); ``names`` the cameras' names, ``cameras`` the indices
+    judged."""
+
+    def __init__(self, names, fps, cameras):
+        self.names, self.fps = names, fps
+        self.stamps = {k: [] for k in cameras}
+
+    def add(self, k, stamp):
+        """Camera ``k``'s frame stamped ``stamp`` (s): its one line once it has given
+        RATE_FRAMES intervals at another rate, else ''."""
+        if k not in self.stamps:
+            return ''
+        self.stamps[k].append(stamp)
+        if len(self.stamps[k]) <= RATE_FRAMES:
+            return ''
+        return rate_disagreement(self.names[k], self.stamps.pop(k), self.fps)
+
+    def drop(self, k):
+        """Camera ``k`` no longer judged (its rate known otherwise)."""
+        self.stamps.pop(k, None)
+
+    def rest(self, least=6):
+        """The lines of the cameras that gave fewer frames, judged from ``least`` on."""
+        texts = [rate_disagreement(self.names[k], s, self.fps)
+                 for k, s in self.stamps.items() if len(s) >= least]
+        self.stamps = {}
+        return [t for t in texts if t]
+
+
 V4L2_MAJOR = 81
 """The device major number of Linux's video4linux devices (/dev/videoN)."""
 

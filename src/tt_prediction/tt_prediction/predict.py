@@ -438,11 +438,7 @@ def flight_kernel(s0, t0, P, t_end, plane_x, body, samples, res):
                 if best <= h:
                     kind = CONTACT_TOP
             elif near:
-                # The gap at _SUBSTEPS points of the step, and exactly where the centre
-                # crosses the net's plane, the top's outline or comes down to z = r: the gap
-                # to a thin solid is least there, and a ball dipping a millimetre into the
-                # net's top edge, or landing a millimetre inside the end line, passes it
-                # between two points.
+                # The gap at the step's points where it can be least (_contact_candidates).
                 n_at = _contact_candidates(s, s1, h, r, P, work, at_u, at_g, at_k)
                 u_prev = 0.0
                 for j in range(n_at):

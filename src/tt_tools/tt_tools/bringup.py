@@ -20,10 +20,9 @@ prefixed with its name.
   restarted: bringup stops the others and exits 2. More than ``--max-restarts`` restarts of
   one node in a row, each dying within STABLE_RUN_S (60 s) of its start, also stop the graph
   (exit 1); a node that ran longer before it died is restarted, not counted, and starts its
-  count again (a count over a
-  node's whole life stopped a graph up for days at its sixth crash). The shared memory that
-  a node killed by a signal leaves in /dev/shm (Fast DDS's, 32 MB a process) is removed then
-  (:mod:`tt_ros.shm`), with one line.
+  count again (a count over a node's whole life stopped a graph up for days at its sixth
+  crash). The shared memory that a node killed by a signal leaves in /dev/shm (Fast DDS's,
+  32 MB a process) is removed then (:mod:`tt_ros.shm`), with one line.
 - ``--namespace NS`` starts every node in NS (``-r __ns:=NS``): one robot's graph of several
   on a ROS domain, its clock on NS/clock (``-r /clock:=NS/clock``): two replays on one
   /clock stepped each other's time back (a walk-through, 6 Dec 2026); a bag played into it
@@ -480,8 +479,8 @@ def parse_args(argv):
     p.add_argument('--restart-delay', type=non_negative_float, default=1.0,
                    help='seconds before a node that died is started again (default 1)')
     p.add_argument('--max-restarts', type=non_negative_int, default=5,
-                   help='restarts of one node in a row, each dying within 60 s of its '
-                   'start, before the graph stops (default 5)')
+                   help=f'restarts of one node in a row, each dying within {STABLE_RUN_S:g} s '
+                   'of its start, before the graph stops (default 5)')
     p.add_argument('--stop-timeout', type=positive_float, default=10.0,
                    help='seconds a node has to exit after SIGINT (default 10)')
     args = p.parse_args(argv)

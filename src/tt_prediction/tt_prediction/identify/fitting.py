@@ -341,8 +341,6 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
                 trial[i] = (x, r, _robust_cost(r))
             worse = np.array([trial[i][2] >= costs[i] for i in pending], dtype=bool)
             lam[pending[worse]] *= 4.0
-            if not n_g:
-                lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
             if n_g:         # coupled: the step is taken by all tracks or none
                 new_total = sum(trial[i][2] for i in pending)
                 if new_total < costs[pending].sum():
@@ -361,6 +359,7 @@ def fit_pooled(tracks, globals_, states, max_nfev=40, ftol=1e-7, fit_globals=Tru
                 blocking = [tracks[i].name for _, i in rise]
                 lam_g *= 4.0
                 continue
+            lam[pending[~worse]] = np.maximum(lam[pending[~worse]] / 3.0, 1e-9)
             for i in pending[~worse]:           # independent tracks: each on its own
                 old = costs[i]
                 xs[i], res[i], costs[i] = trial[i]

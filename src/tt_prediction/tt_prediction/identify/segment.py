@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from ..ball import HALF_LENGTH, HALF_WIDTH
+from ..predict import MAX_SPEED
 from .data import Track
 
 OUTLIER_DISTANCE = 0.02
@@ -41,11 +42,11 @@ no contact is taken across it (a 40 ms gap at a 180 Hz bounce gave e_t 1.65)."""
 MAX_RESTITUTION = 1.0
 """A located bounce that gives back more than this of its normal speed, by over three of its
 own standard errors, is no bounce (a spike or a gap at the contact): unresolved."""
-JUMP_SPEED = 40.0
+JUMP_SPEED = MAX_SPEED
 JUMP_MIN = 0.1
-"""A step between two samples longer than JUMP_SPEED (m/s; predict's MAX_SPEED, faster than
-any ball) times its interval and than JUMP_MIN (m) is another ball (two flights written into
-one file, a tracker that switched balls): the track ends before it."""
+"""A step between two samples longer than JUMP_SPEED (m/s; a state's largest speed, 40 m/s,
+faster than any ball) times its interval and than JUMP_MIN (m) is another ball (two flights
+written into one file, a tracker that switched balls): the track ends before it."""
 MAX_GAP = 0.15
 """A gap in the samples longer than this ends the track, s."""
 BOUNCE_HEIGHT = 0.05
