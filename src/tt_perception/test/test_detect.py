@@ -200,6 +200,52 @@ def test_shading_and_a_contact_shadow_do_not_move_the_centre():
     assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.3
 
 
+def grey_disc_on(floor, value, centre, radius, ss=8):
+    """A disc of grey ``value`` on a plain ``floor`` (B, G, R), 120 x 160, anti-aliased with
+    ``ss`` x ``ss`` samples a pixel."""
+    ys, xs = np.mgrid[0:120 * ss, 0:160 * ss]
+    inside = np.hypot((xs + 0.5) / ss - 0.5 - centre[0],
+                      (ys + 0.5) / ss - 0.5 - centre[1]) < radius
+    image = np.where(inside[..., None], float(value), np.array(floor, float))
+    return image.reshape(120, ss, 160, ss, 3).mean(axis=(1, 3)).round().astype(np.uint8)
+
+
+def test_a_ball_as_grey_as_the_floor_behind_it_is_found_by_its_colour():
+    """A white ball in the shade (86 in every channel) before a brown floor of the same grey
+    level: no pixel changes its grey by the threshold, two channels change by 54-56. Its
+    centre and width are those of the disc (anti-aliased, 8 x 8 samples a pixel)."""
+    floor, centre, radius = (30, 70, 140), np.array([70.4, 55.7]), 5.0
+    cfg = DetectorConfig(colour='any')
+    d = BallDetector(cfg)
+    d.detect(np.full((120, 160, 3), floor, np.uint8))
+    frame = grey_disc_on(floor, 86, centre, radius)
+    grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(int)
+    assert np.abs(grey - grey[0, 0]).max() < cfg.diff_threshold
+    found = d.detect(frame)
+    assert len(found) == 1
+    assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.3
+    assert abs(found[0].width - 2 * radius) < 0.5      # the silhouette's: the diameter
+
+
+def test_a_ball_seen_in_grey_by_a_sliver_is_completed_by_its_colour():
+    """A white ball lit weakly from above before a red-brown floor as grey as its shaded
+    side (69): three pixels of its lit top (130) change in grey, fewer than a blob's least
+    area, the rest only in colour. It is found whole, and white by its lit top (its mean over
+    the whole ball, about 72, is too dark for a white ball)."""
+    floor, centre, radius = (10, 50, 130), np.array([90.6, 60.2]), 6.0
+    cfg = DetectorConfig(colour='white')
+    d = BallDetector(cfg)
+    d.detect(np.full((120, 160, 3), floor, np.uint8))
+    frame = grey_disc_on(floor, 69, centre, radius)
+    top = int(np.ceil(centre[1] - radius))                     # the disc's top full row
+    frame[top + 1, 90:93] = 130
+    grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(int)
+    assert np.count_nonzero(np.abs(grey - grey[0, 0]) > cfg.diff_threshold) < cfg.min_area
+    found = d.detect(frame)
+    assert len(found) == 1 and found[0].colour_sure
+    assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.3
+
+
 TABLE = np.array([95.0, 60.0, 25.0])
 WHITE = np.array([235.0, 238.0, 240.0])
 
@@ -530,7 +576,7 @@ def _silhouette_by_opencv(patch, background, seed, sx, sy, threshold):
 def _blob_by_opencv(sub, diff, patch, background, px, py, threshold):
     """What ``_blob_measures`` returns, written with OpenCV's operations on the patch."""
     bh, bw = sub.shape
-    weighted = cv2.moments(cv2.multiply(diff, sub))
+    weighted = cv2.moments(cv2.multiply(np.maximum(diff, 1), sub))
     total = weighted['m00']
     shape = cv2.moments(sub, binaryImage=True)
     area = shape['m00']
@@ -542,7 +588,9 @@ def _blob_by_opencv(sub, diff, patch, background, px, py, threshold):
     alike = cv2.absdiff(grey, np.full_like(grey, level)) < threshold
     hidden = np.count_nonzero(alike & (ring > 0)) / max(cv2.countNonZero(ring), 1)
     box = grey[py:py + bh, px:px + bw]
-    lit = ((sub > 0) & (box >= np.median(box[sub > 0]))).astype(np.uint8)
+    changed = (sub > 0) & (diff > threshold)
+    chosen = changed if changed.any() else sub > 0
+    lit = (chosen & (box >= np.median(box[chosen]))).astype(np.uint8)
     colour = cv2.mean(patch[py:py + bh, px:px + bw], mask=lit)[:3]
     under = cv2.mean(background[py:py + bh, px:px + bw], mask=lit)[:3]
     return [total, weighted['m10'] / total, weighted['m01'] / total, shape['mu20'] / area,

@@ -2,7 +2,9 @@
 size, with a sub-pixel centre.
 
 A pixel is a candidate when its grey level differs from the running background by more than
-``diff_threshold``; 8-connected candidate pixels form blobs. A blob is kept when its area lies
+``diff_threshold``, or its colour by more than ``colour_change_threshold`` in some channel
+where hardly any grey change touches it (:func:`colour_only_blobs`: a ball as grey as what is
+behind it); 8-connected candidate pixels form blobs. A blob is kept when its area lies
 within [min_area, max_area] pixels, its mean colour matches the ball's (white: the three
 channels close and bright; orange: red well above blue), and its width (twice the square root
 of the smaller eigenvalue of its second moments, the diameter of a disc whatever the motion
@@ -56,6 +58,11 @@ class DetectorConfig:
 
     diff_threshold: float = 22.0
     """Minimum grey-level change against the background for a ball pixel."""
+    colour_change_threshold: float = 44.0
+    """Minimum change of one colour channel against the colour background, some channel not
+    darker (a shadow darkens all three), for the pixels of a ball that fewer than ``min_area``
+    pixels changed in grey by ``diff_threshold`` touch (:func:`colour_only_blobs`): a ball as
+    grey as what is behind it."""
     min_area: int = 4
     """Smallest blob area, pixels."""
     max_area: int = 900
@@ -1212,6 +1219,29 @@ def _grey(image):
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
+def colour_only_blobs(window, background, grey_mask, threshold, fewest):
+    """The blobs (255, else 0; uint8, H x W) of the pixels of the BGR ``window`` that differ
+    from the BGR ``background`` (uint8, same shape) by more than ``threshold`` in some
+    channel and are not darker in all three (a shadow), whose 8-connected region (with the
+    pixels of ``grey_mask``, those changed in grey) holds fewer than ``fewest`` pixels of
+    ``grey_mask``: a ball only its colour tells from what is behind it, but for a sliver of
+    its lit side. A region that more grey change reaches is left to the grey blobs as it
+    was: the colour would join a ball's shaded side to its contact shadow beside it, or take
+    in the shaded half of a ball that the grey shows in full."""
+    _, changed = cv2.threshold(cv2.absdiff(window, background), threshold, 255,
+                               cv2.THRESH_BINARY)
+    lit = cv2.compare(window, background, cv2.CMP_GE)
+    # Any channel at 255 weighs at least 0.114 * 255 in the grey of the 0/255 image.
+    colour = (cv2.compare(cv2.cvtColor(changed, cv2.COLOR_BGR2GRAY), 0, cv2.CMP_GT)
+              & cv2.compare(cv2.cvtColor(lit, cv2.COLOR_BGR2GRAY), 0, cv2.CMP_GT))
+    if not cv2.countNonZero(colour & ~grey_mask):
+        return np.zeros_like(grey_mask)
+    n, labels = cv2.connectedComponents(colour | grey_mask, connectivity=8)
+    reached = np.bincount(labels[grey_mask > 0], minlength=n) >= fewest
+    reached[0] = True
+    return np.where(reached[labels], 0, 255).astype(np.uint8)
+
+
 GAIN_DEADBAND = 0.03
 """A gain of the light (:func:`light_gain`) within this of 1 is taken as 1, the background
 used as it is: it moves no level by more than 7.5, a third of ``diff_threshold``, so it
@@ -1356,14 +1386,16 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
 
     Returns (total, cu, cv, cxx, cyy, cxy, hidden, B, G, R, bg B, bg G, bg R):
     - total, (cu, cv): the sum of the blob's change and its change-weighted centroid in the
-      box (cv2.moments of diff * sub);
+      box (cv2.moments of max(diff, 1) * sub: a pixel changed in colour alone weighs 1);
     - cxx, cyy, cxy: the blob's central second moments over its area (cv2.moments of sub,
       the same sums and formulas);
     - hidden: the fraction of the pixels around the blob (its 3 x 3 dilation's ring) whose
       grey level is within ``threshold`` of the blob's mean (rounded): background as bright
       as the ball, where the blob may have lost part of it;
     - with ``colour``: the mean colour of the blob's lit half (its pixels at least as bright
-      as their median grey level) and, ``with_background``, the background's mean there."""
+      as their median grey level; of its pixels whose grey level changed by more than
+      ``threshold`` where it has some) and, ``with_background``, the background's mean
+      there."""
     bh, bw = sub.shape
     out = np.zeros(13)
     # Sums of integers: exact in float64, as OpenCV's moments are.
@@ -1372,10 +1404,11 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
     grey_sum = 0.0
     values = np.empty(bh * bw, np.uint8)     # the blob's grey levels
     n = 0
+    changed = 0                              # its pixels whose grey level changed
     for y in range(bh):
         for x in range(bw):
             if sub[y, x]:
-                v = float(diff[y, x])
+                v = max(float(diff[y, x]), 1.0)
                 m00 += v
                 m10 += x * v
                 m01 += y * v
@@ -1389,6 +1422,7 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
                 values[n] = g
                 n += 1
                 grey_sum += g
+                changed += v > threshold
     if m00 <= 0.0 or n == 0:
         return out
     out[0] = m00
@@ -1419,6 +1453,16 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
                     alike += 1
     out[6] = alike / ring if ring else 0.0
     if colour:
+        # Of the pixels whose grey level changed, where there are some: the rest of a blob
+        # that its colour completed (colour_only_blobs) is the ball's shaded side.
+        if changed:
+            k = 0
+            for y in range(bh):
+                for x in range(bw):
+                    if sub[y, x] and diff[y, x] > threshold:
+                        values[k] = grey[py + y, px + x]
+                        k += 1
+            n = k
         ordered = np.sort(values[:n])
         median = (float(ordered[n // 2]) if n % 2 else
                   0.5 * (float(ordered[n // 2 - 1]) + float(ordered[n // 2])))
@@ -1426,7 +1470,8 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
         sums = np.zeros(6)
         for y in range(bh):
             for x in range(bw):
-                if sub[y, x] and grey[py + y, px + x] >= median:
+                if (sub[y, x] and grey[py + y, px + x] >= median
+                        and (not changed or diff[y, x] > threshold)):
                     lit += 1.0
                     for c in range(3):
                         sums[c] += patch[py + y, px + x, c]
@@ -1476,6 +1521,7 @@ class BallDetector:
         self.background = None
         self._bg8 = None
         self._bg_colour = None
+        self._bg_colour8 = None   # _bg_colour rounded to uint8, for colour_only_blobs
         self._count = 0
         self._pending = None
         self.fits = None
@@ -1535,6 +1581,7 @@ class BallDetector:
             self._bg8 = gray.copy()
             if frame.ndim == 3:
                 self._bg_colour = frame.astype(np.float32)
+                self._bg_colour8 = frame.copy()
             self.level = self._exposure_level()
             return []
         if (h, w) != self.background.shape:
@@ -1558,14 +1605,25 @@ class BallDetector:
             window = _grey(frame[y0:y1, x0:x1])
             background8 = self._bg8[y0:y1, x0:x1]
             self.gain, self.gain_grid = light_gains(frame, self._bg8)
+            colour_background8 = (None if self._bg_colour8 is None or frame.ndim != 3
+                                  else self._bg_colour8[y0:y1, x0:x1])
             if self.gain_grid is not None:
                 background8 = cv2.convertScaleAbs(self._background_patch(
                     self.background, y0, y1, x0, x1))
+                if colour_background8 is not None:
+                    colour_background8 = cv2.convertScaleAbs(self._background_patch(
+                        self._bg_colour, y0, y1, x0, x1))
             elif self.gain != 1.0:
                 background8 = cv2.convertScaleAbs(self.background[y0:y1, x0:x1],
                                                   alpha=self.gain)
+                if colour_background8 is not None:
+                    colour_background8 = cv2.convertScaleAbs(self._bg_colour[y0:y1, x0:x1],
+                                                             alpha=self.gain)
             diff = cv2.absdiff(window, background8)
             _, mask = cv2.threshold(diff, cfg.diff_threshold, 255, cv2.THRESH_BINARY)
+            if colour_background8 is not None:
+                mask |= colour_only_blobs(frame[y0:y1, x0:x1], colour_background8, mask,
+                                          cfg.colour_change_threshold, cfg.min_area)
             bx, by, bw, bh = cv2.boundingRect(mask)
             if bw > 0 and bh > 0:      # label only the part of the window that changed
                 # A blob cut by the window's edge (not the image's) is not measured whole.
@@ -1828,6 +1886,8 @@ class BallDetector:
                     if background[part].size:
                         cv2.accumulateWeighted(image[part], background[part], rate)
         self._bg8 = cv2.convertScaleAbs(self.background)
+        if len(backgrounds) > 1:
+            self._bg_colour8 = cv2.convertScaleAbs(self._bg_colour)
         self._updates += 1
         if self._updates % LEVEL_EVERY == 0:
             self.level = self._exposure_level()

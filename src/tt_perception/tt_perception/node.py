@@ -111,6 +111,9 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      ('white', 'orange', 'any')),
     ('diff_threshold', DetectorConfig.diff_threshold,
      'Grey-level change against the background of a ball pixel', '', 2, 200),
+    ('colour_change_threshold', DetectorConfig.colour_change_threshold,
+     'Change of one colour channel against the background (some channel not darker) of '
+     'the pixels of a ball that no change of grey touches', '', 2, 255),
     ('min_area', DetectorConfig.min_area, 'Smallest ball blob', 'pixels', 1, 10000),
     ('max_area', DetectorConfig.max_area, 'Largest ball blob (near, motion-blurred)',
      'pixels', 4, 1000000),
@@ -343,7 +346,9 @@ class PerceptionNode(Node):
                                "ball's flight (video_clock 'video' keeps the video's time)")
         colour = self._p('ball_colour')
         detector = DetectorConfig(
-            diff_threshold=self._p('diff_threshold'), min_area=self._p('min_area'),
+            diff_threshold=self._p('diff_threshold'),
+            colour_change_threshold=self._p('colour_change_threshold'),
+            min_area=self._p('min_area'),
             max_area=self._p('max_area'), max_width=self._p('max_width'), colour=colour,
             roi_half_size=self._p('roi_half_size'), exposure=self._p('exposure'),
             response_gamma=self._p('response_gamma'),
