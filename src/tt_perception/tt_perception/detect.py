@@ -1219,6 +1219,12 @@ def _grey(image):
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
+def _any_channel(per_channel):
+    """255 where any of B, G, R of a 0/255 image is 255, else 0 (uint8, H x W)."""
+    # A channel at 255 weighs at least 0.114 * 255 in the grey of the 0/255 image.
+    return cv2.compare(cv2.cvtColor(per_channel, cv2.COLOR_BGR2GRAY), 0, cv2.CMP_GT)
+
+
 def colour_only_blobs(window, background, grey_mask, threshold, fewest):
     """The blobs (255, else 0; uint8, H x W) of the pixels of the BGR ``window`` that differ
     from the BGR ``background`` (uint8, same shape) by more than ``threshold`` in some
@@ -1230,12 +1236,10 @@ def colour_only_blobs(window, background, grey_mask, threshold, fewest):
     in the shaded half of a ball that the grey shows in full."""
     _, changed = cv2.threshold(cv2.absdiff(window, background), threshold, 255,
                                cv2.THRESH_BINARY)
-    lit = cv2.compare(window, background, cv2.CMP_GE)
-    # Any channel at 255 weighs at least 0.114 * 255 in the grey of the 0/255 image.
-    colour = (cv2.compare(cv2.cvtColor(changed, cv2.COLOR_BGR2GRAY), 0, cv2.CMP_GT)
-              & cv2.compare(cv2.cvtColor(lit, cv2.COLOR_BGR2GRAY), 0, cv2.CMP_GT))
-    if not cv2.countNonZero(colour & ~grey_mask):
+    colour = _any_channel(changed)
+    if not cv2.countNonZero(colour & ~grey_mask):        # the common case: nothing more
         return np.zeros_like(grey_mask)
+    colour &= _any_channel(cv2.compare(window, background, cv2.CMP_GE))
     n, labels = cv2.connectedComponents(colour | grey_mask, connectivity=8)
     reached = np.bincount(labels[grey_mask > 0], minlength=n) >= fewest
     reached[0] = True
@@ -1404,7 +1408,8 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
     grey_sum = 0.0
     values = np.empty(bh * bw, np.uint8)     # the blob's grey levels
     n = 0
-    changed = 0                              # its pixels whose grey level changed
+    changed_values = np.empty(bh * bw, np.uint8)    # those of its pixels changed in grey
+    changed = 0
     for y in range(bh):
         for x in range(bw):
             if sub[y, x]:
@@ -1422,7 +1427,9 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
                 values[n] = g
                 n += 1
                 grey_sum += g
-                changed += v > threshold
+                if v > threshold:
+                    changed_values[changed] = g
+                    changed += 1
     if m00 <= 0.0 or n == 0:
         return out
     out[0] = m00
@@ -1456,13 +1463,7 @@ def _blob_measures(sub, diff, grey, patch, background, px, py, threshold, colour
         # Of the pixels whose grey level changed, where there are some: the rest of a blob
         # that its colour completed (colour_only_blobs) is the ball's shaded side.
         if changed:
-            k = 0
-            for y in range(bh):
-                for x in range(bw):
-                    if sub[y, x] and diff[y, x] > threshold:
-                        values[k] = grey[py + y, px + x]
-                        k += 1
-            n = k
+            values, n = changed_values, changed
         ordered = np.sort(values[:n])
         median = (float(ordered[n // 2]) if n % 2 else
                   0.5 * (float(ordered[n // 2 - 1]) + float(ordered[n // 2])))
@@ -1603,27 +1604,15 @@ class BallDetector:
         self.gain, self.gain_grid, self._gain_map = 1.0, None, None
         if x1 > x0 and y1 > y0:
             window = _grey(frame[y0:y1, x0:x1])
-            background8 = self._bg8[y0:y1, x0:x1]
             self.gain, self.gain_grid = light_gains(frame, self._bg8)
-            colour_background8 = (None if self._bg_colour8 is None or frame.ndim != 3
-                                  else self._bg_colour8[y0:y1, x0:x1])
-            if self.gain_grid is not None:
-                background8 = cv2.convertScaleAbs(self._background_patch(
-                    self.background, y0, y1, x0, x1))
-                if colour_background8 is not None:
-                    colour_background8 = cv2.convertScaleAbs(self._background_patch(
-                        self._bg_colour, y0, y1, x0, x1))
-            elif self.gain != 1.0:
-                background8 = cv2.convertScaleAbs(self.background[y0:y1, x0:x1],
-                                                  alpha=self.gain)
-                if colour_background8 is not None:
-                    colour_background8 = cv2.convertScaleAbs(self._bg_colour[y0:y1, x0:x1],
-                                                             alpha=self.gain)
-            diff = cv2.absdiff(window, background8)
+            diff = cv2.absdiff(window, self._background8_patch(
+                self.background, self._bg8, y0, y1, x0, x1))
             _, mask = cv2.threshold(diff, cfg.diff_threshold, 255, cv2.THRESH_BINARY)
-            if colour_background8 is not None:
-                mask |= colour_only_blobs(frame[y0:y1, x0:x1], colour_background8, mask,
-                                          cfg.colour_change_threshold, cfg.min_area)
+            if self._bg_colour8 is not None and frame.ndim == 3:
+                mask |= colour_only_blobs(
+                    frame[y0:y1, x0:x1],
+                    self._background8_patch(self._bg_colour, self._bg_colour8, y0, y1, x0, x1),
+                    mask, cfg.colour_change_threshold, cfg.min_area)
             bx, by, bw, bh = cv2.boundingRect(mask)
             if bw > 0 and bh > 0:      # label only the part of the window that changed
                 # A blob cut by the window's edge (not the image's) is not measured whole.
@@ -1751,6 +1740,15 @@ class BallDetector:
         if self.gain != 1.0:
             return patch * np.float32(self.gain)
         return np.ascontiguousarray(patch)
+
+    def _background8_patch(self, background, rounded, y0, y1, x0, x1):
+        """:meth:`_background_patch` rounded to uint8 (saturated); ``rounded``: the background
+        so rounded, its patch as it is where the frame's gain is 1."""
+        if self.gain_grid is not None:
+            return cv2.convertScaleAbs(self._background_patch(background, y0, y1, x0, x1))
+        if self.gain != 1.0:
+            return cv2.convertScaleAbs(background[y0:y1, x0:x1], alpha=self.gain)
+        return rounded[y0:y1, x0:x1]
 
     def _silhouette_centre(self, frame, sub, x0, y0):
         """Centre (u, v) and width, pixels, of the silhouette of the ball whose bright blob is

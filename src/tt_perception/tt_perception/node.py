@@ -113,7 +113,8 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'Grey-level change against the background of a ball pixel', '', 2, 200),
     ('colour_change_threshold', DetectorConfig.colour_change_threshold,
      'Change of one colour channel against the background (some channel not darker) of '
-     'the pixels of a ball that no change of grey touches', '', 2, 255),
+     'the pixels of a ball that fewer than min_area pixels changed in grey touch', '', 2,
+     255),
     ('min_area', DetectorConfig.min_area, 'Smallest ball blob', 'pixels', 1, 10000),
     ('max_area', DetectorConfig.max_area, 'Largest ball blob (near, motion-blurred)',
      'pixels', 4, 1000000),
