@@ -281,7 +281,8 @@ def test_states_received_late_are_counted_in_the_exit_line(graph):
     graph.spin_until(lambda: len(graph.predictions) == 2, 10.0, 'both predictions')
     assert graph.node.n_late == 1
     assert graph.node.work_summary().endswith(
-        f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp')
+        f'; 1 received more than {LATE_S * 1e3:.0f} ms after their stamp; 0 lost in the input '
+        'queue')
 
 
 def test_a_state_stamped_ahead_of_the_node_clock_is_predicted_and_warned_of(graph,
@@ -329,9 +330,9 @@ def test_diagnostics_report_the_counts_and_warn_of_a_dropped_state(graph):
     assert status.name == 'prediction_node: predictions'
     got = values(status)
     assert {k: got[k] for k in ('states_received', 'predictions_published', 'states_dropped',
-                                'states_late')} == {'states_received': '2',
-                                                    'predictions_published': '1',
-                                                    'states_dropped': '1', 'states_late': '0'}
+                                'states_late', 'states_lost')} == {
+        'states_received': '2', 'predictions_published': '1', 'states_dropped': '1',
+        'states_late': '0', 'states_lost': '0'}
     assert 0 < float(got['callback_p50_ms']) <= float(got['callback_p99_ms'])
     assert status.level == DiagnosticStatus.WARN and ', 1 dropped, ' in status.message
     graph.spin_until(lambda: len(reports) > first + 1, 10.0, 'the next report')

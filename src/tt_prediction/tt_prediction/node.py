@@ -17,7 +17,7 @@ from nav_msgs.msg import Path
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from tt_ros.connections import subscribe_input
+from tt_ros.connections import LostMessages, subscribe_input
 from tt_ros.diagnostics import CountsStatus, report_status
 from tt_ros.executor import KERNELS_LOADING, StartupError, run_node, said_if_slow
 from tt_ros.markers import add_marker
@@ -215,8 +215,11 @@ class PredictionNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos)
-        self.counts_status = CountsStatus(('states_dropped', 'states_late'), self.work)
+        self.lost = LostMessages()        # states lost before the callback
+        self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos,
+                                   lost=self.lost)
+        self.counts_status = CountsStatus(('states_dropped', 'states_late', 'states_lost'),
+                                          self.work)
         report_status(self, 'predictions', '', self._status)
         self.get_logger().info(
             f'predicting {self.sub.topic_name} -> {self.pub.topic_name}, hitting plane x = '
@@ -251,18 +254,21 @@ class PredictionNode(Node):
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
                 f'{np.percentile(times, 99):.3f} ms (last {len(times)}); {stamps}; '
-                f'{self.n_late} received more than {LATE_S * 1e3:.0f} ms after their stamp')
+                f'{self.n_late} received more than {LATE_S * 1e3:.0f} ms after their stamp; '
+                f'{self.lost.count} lost in the input queue')
 
     def _status(self):
-        """The status on /diagnostics: WARN when states were dropped or came late since the
-        last report; the totals, and the callback's time over the latest states."""
+        """The status on /diagnostics: WARN when states were dropped, came late or were lost in
+        the input queue since the last report; the totals, and the callback's time over the
+        latest states."""
         level, new, values = self.counts_status.report(
             {'states_received': self.n_received, 'predictions_published': self.n_predicted,
-             'states_dropped': self.n_dropped, 'states_late': self.n_late})
+             'states_dropped': self.n_dropped, 'states_late': self.n_late,
+             'states_lost': self.lost.count})
         message = (f"{new['states_received']} states, {new['predictions_published']} "
                    f"predictions, {new['states_dropped']} dropped, {new['states_late']} "
-                   f'received more than {LATE_S * 1e3:.0f} ms after their stamp, since the '
-                   'last report')
+                   f'received more than {LATE_S * 1e3:.0f} ms after their stamp, '
+                   f"{new['states_lost']} lost in the input queue, since the last report")
         return level, message, values
 
     def _on_state(self, msg):

@@ -214,7 +214,8 @@ def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
         # The exit summary says which balls came and what was sent for each.
         counts, times, tracks = g.node.work_summary().split('; ', 2)
         assert counts == ('3 predictions, 1 commands, 2 dropped, 0 too late, 0 after their '
-                          'stroke was sent, 0 struck balls lost before the plane')
+                          'stroke was sent, 0 struck balls lost before the plane, 0 '
+                          'predictions lost in the input queue')
         assert re.fullmatch(r'callback median [\d.]+ ms, p99 [\d.]+ ms, max [\d.]+ ms '
                             r'\(last 3\)', times), times
         assert tracks == ("tracks (predictions/commands, first command's status; 0 with an ok "
@@ -244,12 +245,39 @@ def test_diagnostics_report_the_counts_and_warn_of_dropped_predictions():
         got = values(status)
         assert {k: v for k, v in got.items() if not k.startswith('callback_')} == {
             'predictions_received': '3', 'commands_published': '1', 'predictions_dropped': '2',
-            'strokes_too_late': '0', 'after_stroke_sent': '0', 'struck_balls_lost': '0'}
+            'strokes_too_late': '0', 'after_stroke_sent': '0', 'struck_balls_lost': '0',
+            'predictions_lost': '0'}
         assert 0 < float(got['callback_p50_ms']) <= float(got['callback_p99_ms'])
         assert status.level == DiagnosticStatus.WARN
         g.spin_until(lambda: len(reports) > first + 1, 10.0, 'the next report')
         assert reports[first + 1].level == DiagnosticStatus.OK
         assert reports[first + 1].message.startswith('0 predictions, 0 commands, 0 dropped')
+
+
+def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
+    # Published faster than the callback takes them, all but the subscription's latest 5
+    # were lost without a word (185 published, 104 received in a replay; docs/strike.md).
+    with Graph() as g:
+        reports = []
+        g.test.create_subscription(DiagnosticArray, f'{g.prefix}/diagnostics',
+                                   lambda m: reports.extend(m.status), 10)
+        g.pub.publish(prediction_msg(1))
+        g.spin_until(lambda: g.node.n_received == 1, 20.0, 'the first prediction')
+        for track in range(2, 42):                 # 40 at once, nothing taken meanwhile
+            g.pub.publish(prediction_msg(track))
+        g.spin_until(lambda: g.node.n_received + g.node.lost.count == 41, 20.0,
+                     'every prediction received or counted lost')
+        assert g.node.lost.count >= 40 - 5        # the queue holds 5
+        assert (f', {g.node.lost.count} predictions lost in the input queue; '
+                in g.node.work_summary())
+
+        def lost(status):
+            return int(next(kv.value for kv in status.values if kv.key == 'predictions_lost'))
+
+        g.spin_until(lambda: any(lost(r) for r in reports), 10.0, 'a report counting them')
+        status = next(r for r in reports if lost(r))
+        assert lost(status) == g.node.lost.count and status.level == DiagnosticStatus.WARN
+        assert f', {lost(status)} predictions lost in the input queue, ' in status.message
 
 
 def test_a_ball_without_a_hit_point_after_its_stroke_is_not_warned_of():

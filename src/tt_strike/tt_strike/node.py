@@ -32,7 +32,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tt_prediction.ball import load_model
 from tt_prediction.predict import T_MAX, Hit
-from tt_ros.connections import subscribe_input
+from tt_ros.connections import LostMessages, subscribe_input
 from tt_ros.diagnostics import CountsStatus, report_status
 from tt_ros.executor import KERNELS_LOADING, StartupError, run_node, said_if_slow
 from tt_ros.markers import add_marker
@@ -211,13 +211,15 @@ class StrikeNode(Node):
         # Names relative to the node's namespace (/strike/command in the root one).
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
+        self.lost = LostMessages()        # predictions lost before the callback
         self.sub = subscribe_input(self, BallPrediction, 'ball/prediction',
-                                   self.on_prediction, reliable)
+                                   self.on_prediction, reliable, lost=self.lost)
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
         self.counts_status = CountsStatus(
-            ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost'), self.work)
+            ('predictions_dropped', 'strokes_too_late', 'struck_balls_lost', 'predictions_lost'),
+            self.work)
         report_status(self, 'strokes', '', self._status)
         self.get_logger().info(self._start_up_text())
 
@@ -309,23 +311,26 @@ class StrikeNode(Node):
         return (f'{self.n_received} predictions, {self.n_commands} commands, '
                 f'{self.n_dropped} dropped, {self.n_too_late} too late, {self.n_committed} '
                 f'after their stroke was sent, {self.n_lost} struck balls lost before the '
-                f'plane; callback median '
+                f'plane, {self.lost.count} predictions lost in the input queue; callback median '
                 f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
                 f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
                 f"first command's status; {ok} with an ok stroke): {tracks}")
 
     def _status(self):
         """The status on /diagnostics: WARN when, since the last report, predictions were
-        dropped, strokes came too late to send or struck balls were lost before the plane;
+        dropped, strokes came too late to send, struck balls were lost before the plane or
+        predictions were lost in the input queue;
         the totals, and the callback's time over the latest predictions."""
         level, new, values = self.counts_status.report(
             {'predictions_received': self.n_received, 'commands_published': self.n_commands,
              'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
-             'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost})
+             'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost,
+             'predictions_lost': self.lost.count})
         message = (f"{new['predictions_received']} predictions, {new['commands_published']} "
                    f"commands, {new['predictions_dropped']} dropped, {new['strokes_too_late']} "
-                   f"too late, {new['struck_balls_lost']} struck balls lost, since the last "
-                   'report')
+                   f"too late, {new['struck_balls_lost']} struck balls lost, "
+                   f"{new['predictions_lost']} predictions lost in the input queue, since the "
+                   'last report')
         return level, message, values
 
     def on_prediction(self, msg):
