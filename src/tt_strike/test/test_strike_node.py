@@ -59,6 +59,13 @@ class Graph(testing.Graph):
                         and self.test.count_publishers(f'{self.prefix}/strike/command') > 0,
                         10.0, 'discovery')
 
+    def diagnostics(self):
+        """A list that the node's /diagnostics statuses are appended to as they come."""
+        reports = []
+        self.test.create_subscription(DiagnosticArray, f'{self.prefix}/diagnostics',
+                                      lambda m: reports.extend(m.status), 10)
+        return reports
+
     def set_clock(self, t):
         """The node's simulated clock set to ``t`` (s)."""
         self.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(t * 1e9)))
@@ -226,9 +233,7 @@ def test_diagnostics_report_the_counts_and_warn_of_dropped_predictions():
     # /diagnostics once a second of the steady clock: the totals, WARN for the report that
     # counts the last dropped prediction, OK for the next one.
     with Graph() as g:
-        reports = []
-        g.test.create_subscription(DiagnosticArray, f'{g.prefix}/diagnostics',
-                                   lambda m: reports.extend(m.status), 10)
+        reports = g.diagnostics()
         g.pub.publish(prediction_msg(1))
         g.pub.publish(prediction_msg(2, hit_valid=False))
         g.pub.publish(prediction_msg(3, hit_valid=False))
@@ -258,9 +263,7 @@ def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
     # Published faster than the callback takes them, all but the subscription's latest 5
     # were lost without a word (185 published, 104 received in a replay; docs/strike.md).
     with Graph() as g:
-        reports = []
-        g.test.create_subscription(DiagnosticArray, f'{g.prefix}/diagnostics',
-                                   lambda m: reports.extend(m.status), 10)
+        reports = g.diagnostics()
         g.pub.publish(prediction_msg(1))
         g.spin_until(lambda: g.node.n_received == 1, 20.0, 'the first prediction')
         for track in range(2, 42):                 # 40 at once, nothing taken meanwhile
