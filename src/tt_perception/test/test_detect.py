@@ -729,57 +729,6 @@ def test_background_follows_the_frame_except_around_the_ball(roi, later):
         d.update_background()
 
 
-@pytest.mark.parametrize('every', [1, 3])
-def test_a_moved_object_larger_than_a_ball_is_taken_into_the_background(every):
-    """A box larger than any ball (max_area) moves and stays. Held out of the background, its
-    old place would stay changed for good, and a ball passing there would merge with it into
-    a blob too large to be a ball. Taken at the next background update, its old place and its
-    new one are the frame's (not a rate of the way), and a ball over either is found at its
-    drawn centre."""
-    cfg = DetectorConfig(colour='white', background_every=every)
-    floor = np.full((120, 160, 3), (50, 60, 75), np.uint8)   # a colour camera's
-    old, new = floor.copy(), floor.copy()
-    old[30:70, 10:60] = (110, 120, 130)                    # 2000 pixels
-    new[60:100, 95:145] = (110, 120, 130)
-    d = BallDetector(cfg)
-    d.detect(old)
-    for _ in range(every):
-        assert d.detect(new.copy()) == []                  # two blobs too large
-    assert np.array_equal(d._bg8, cv2.cvtColor(new, cv2.COLOR_BGR2GRAY))
-    assert np.array_equal(d._bg_colour, new.astype(np.float32))
-    centres = [(35.3, 50.6), (120.7, 80.2)]                # over its old place, over it
-    frame = new.copy()
-    for centre in centres:
-        disc(frame, centre, 5.0)
-    found = sorted(d.detect(frame), key=lambda f: f.u)
-    assert len(found) == 2
-    for f, centre in zip(found, centres, strict=True):
-        assert np.hypot(f.u - centre[0], f.v - centre[1]) < 0.3
-
-
-def test_a_ball_comes_before_what_a_large_moving_object_left_since_it_was_taken():
-    """A box larger than any ball slides 6 pixels a frame, a ball flies elsewhere. Once the
-    box is taken into the background, what it moved since is two slivers (6 x 40 pixels,
-    each larger and stronger than the ball's blob): the one candidate kept
-    (max_candidates 1) is still the ball, at its drawn centre, every frame."""
-    cfg = DetectorConfig(colour='white', background_every=1, max_candidates=1)
-    floor = np.full((120, 160, 3), (50, 60, 75), np.uint8)
-
-    def frame(n, ball=None):
-        image = floor.copy()
-        image[20:60, 10 + 6 * n:50 + 6 * n] = (110, 120, 130)         # 1600 pixels
-        return image if ball is None else disc(image, ball, 4.0)
-
-    d = BallDetector(cfg)
-    d.detect(floor)
-    assert d.detect(frame(0)) == []                        # the box: too large, taken
-    for n in range(1, 6):
-        centre = (60.3 + 9.0 * n, 95.6 - 2.0 * n)
-        found = d.detect(frame(n, centre))
-        assert len(found) == 1
-        assert np.hypot(found[0].u - centre[0], found[0].v - centre[1]) < 0.3
-
-
 def test_a_background_update_left_for_later_comes_before_the_next_frames_detection():
     """A caller that never calls update_background loses no update: the next frame's
     detection makes it first, so its detections and the backgrounds are those of a detector

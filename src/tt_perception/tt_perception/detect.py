@@ -82,9 +82,7 @@ class DetectorConfig:
     roi_half_size: int = 40
     """Half size of the search window around a predicted position, pixels."""
     max_candidates: int = 4
-    """Most blobs returned per frame: those sure of their colour first, then those off the
-    pixels last taken into the background at once (a large change), the largest
-    differences first."""
+    """Most blobs returned per frame (the largest differences first)."""
     silhouette_threshold: float = 14.0
     """Smallest colour change (largest over B, G, R against the colour background) of a pixel
     of the ball's silhouette, grey levels: low enough to keep its shaded underside."""
@@ -1523,8 +1521,6 @@ class BallDetector:
         self.config = config or DetectorConfig()
         self.background = None
         self._bg8 = None
-        self._taken = None          # the pixels last taken at once: (bool, x, y), or None
-        self._large = None          # the frame's blobs larger than any ball: (uint8, x, y)
         self._bg_colour = None
         self._bg_colour8 = None   # _bg_colour rounded to uint8, for colour_only_blobs
         self._count = 0
@@ -1605,7 +1601,6 @@ class BallDetector:
             x0, y0, x1, y1 = 0, 0, w, h
         found = []
         mask = window = None
-        self._large = None
         self.gain, self.gain_grid, self._gain_map = 1.0, None, None
         if x1 > x0 and y1 > y0:
             window = _grey(frame[y0:y1, x0:x1])
@@ -1627,7 +1622,7 @@ class BallDetector:
                                     mask[by:by + bh, bx:bx + bw], x0 + bx, y0 + by, cut,
                                     expected, search)
         if update:
-            self._pending = (frame, window, mask, x0, y0, self._large)
+            self._pending = (frame, window, mask, x0, y0)
             if not later:
                 self.update_background()
         return found
@@ -1656,15 +1651,6 @@ class BallDetector:
         with_colour = cfg.colour != 'any' and colour_frame
         known = with_colour and self._bg_colour is not None     # the background's colour
         out = []
-        large = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] > cfg.max_area]
-        if large:
-            # Their union and its box in the frame, for the background update to take.
-            lx, ly = stats[large, 0].min(), stats[large, 1].min()
-            lx1 = (stats[large, 0] + stats[large, 2]).max()
-            ly1 = (stats[large, 1] + stats[large, 3]).max()
-            table = np.zeros(n, np.uint8)
-            table[large] = 255
-            self._large = (table[labels[ly:ly1, lx:lx1]], x0 + int(lx), y0 + int(ly))
         for i in range(1, n):
             area = stats[i, cv2.CC_STAT_AREA]
             if area < cfg.min_area or area > cfg.max_area:
@@ -1717,15 +1703,11 @@ class BallDetector:
             if expected is not None:
                 fitted = self._fit_centre(frame, blob_u, blob_v, expected, search)
             u, v = (blob_u, blob_v) if fitted is None else fitted
-            # A blob on the pixels last taken at once (a large change) is what moved of that
-            # change since: it comes after the others, which it crowded out.
-            moved = self._on_taken(sub, ux, uy)
-            out.append((moved, Detection(float(u), float(v), float(area), float(width),
-                                         float(total / area), float(hidden),
-                                         fitted is not None, blob_u, blob_v, sure,
-                                         bright_width, bright_length)))
-        out.sort(key=lambda m: (not m[1].colour_sure, m[0], -m[1].strength * m[1].area))
-        return [d for _, d in out[:cfg.max_candidates]]
+            out.append(Detection(float(u), float(v), float(area), float(width),
+                                 float(total / area), float(hidden), fitted is not None,
+                                 blob_u, blob_v, sure, bright_width, bright_length))
+        out.sort(key=lambda d: (not d.colour_sure, -d.strength * d.area))
+        return out[:cfg.max_candidates]
 
     def _exposure_level(self):
         """:func:`exposure_level` of the background."""
@@ -1868,26 +1850,10 @@ class BallDetector:
             self.fits.append((fitter, best[0]))
         return best[0][0] + ax, best[0][1] + ay
 
-    def _on_taken(self, sub, x0, y0):
-        """Whether blob ``sub`` (uint8, at x0, y0 of the frame) lies on pixels last taken
-        at once into the background."""
-        if self._taken is None:
-            return False
-        taken, tx, ty = self._taken
-        h, w = sub.shape
-        ax, ay = max(x0, tx), max(y0, ty)
-        bx, by = min(x0 + w, tx + taken.shape[1]), min(y0 + h, ty + taken.shape[0])
-        return bx > ax and by > ay and bool(np.any(
-            taken[ay - ty:by - ty, ax - tx:bx - tx] & (sub[ay - y0:by - y0, ax - x0:bx - x0] > 0)))
-
-    def _update_background(self, frame, window, mask, x0, y0, large=None):
+    def _update_background(self, frame, window, mask, x0, y0):
         """Exponential average of the frame into the background, except under blobs (``mask``,
-        at x0, y0, grown by 2 pixels). A blob larger than any ball (``max_area``: a person
-        walking by, a chair moved) is taken into it at once, grown the same: held out, a
-        person's old place stayed a "ghost" beside them for good, and a ball passing there
-        merged with it into a blob too large to be measured; learnt at the rate, the fading
-        ghost crumbled into ball-sized blobs. ``window``: the grey of the part of the frame
-        searched (at x0, y0; None: none), the frame's grey when it is all of it.
+        at x0, y0, grown by 2 pixels). ``window``: the grey of the part of the frame searched
+        (at x0, y0; None: none), the frame's grey when it is all of it.
 
         OpenCV's masked average costs three times the plain one (0.35 against 0.13 ms a
         640 x 480 colour frame, on a camera thread every ``background_every`` frames): it runs
@@ -1900,11 +1866,6 @@ class BallDetector:
         rate = self.config.background_rate
         h, w = gray.shape
         bx = by = bw = bh = 0
-        if large is not None:
-            blobs, lx, ly = large
-            mask = mask.copy()
-            ox, oy = lx - x0, ly - y0
-            mask[oy:oy + blobs.shape[0], ox:ox + blobs.shape[1]] &= blobs ^ 255
         if mask is not None:
             grown = cv2.dilate(mask, _GROW_KERNEL)
             bx, by, bw, bh = cv2.boundingRect(grown)
@@ -1922,18 +1883,6 @@ class BallDetector:
                 for part in rest:
                     if background[part].size:
                         cv2.accumulateWeighted(image[part], background[part], rate)
-        if large is not None:
-            # Grown as the blobs held out are, within the frame.
-            gx, gy = max(lx - 2, 0), max(ly - 2, 0)
-            gx1, gy1 = min(lx + blobs.shape[1] + 2, w), min(ly + blobs.shape[0] + 2, h)
-            taken = np.zeros((gy1 - gy, gx1 - gx), np.uint8)
-            taken[ly - gy:ly - gy + blobs.shape[0], lx - gx:lx - gx + blobs.shape[1]] = blobs
-            taken = cv2.dilate(taken, _GROW_KERNEL) > 0
-            box = (slice(gy, gy1), slice(gx, gx1))
-            for image, background in backgrounds:
-                np.copyto(background[box], image[box],
-                          where=taken if image.ndim == 2 else taken[:, :, None])
-            self._taken = (taken, gx, gy)
         self._bg8 = cv2.convertScaleAbs(self.background)
         if len(backgrounds) > 1:
             self._bg_colour8 = cv2.convertScaleAbs(self._bg_colour)
