@@ -319,8 +319,8 @@ class StrikeNode(Node):
     def _status(self):
         """The status on /diagnostics: WARN when, since the last report, predictions were
         dropped, strokes came too late to send, struck balls were lost before the plane or
-        predictions were lost in the input queue;
-        the totals, and the callback's time over the latest predictions."""
+        predictions were lost in the input queue; the totals, and the callback's time over
+        the latest predictions."""
         level, new, values = self.counts_status.report(
             {'predictions_received': self.n_received, 'commands_published': self.n_commands,
              'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
