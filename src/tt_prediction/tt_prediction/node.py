@@ -215,9 +215,9 @@ class PredictionNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         states_qos = QoSProfile(depth=STATE_QUEUE_DEPTH,
                                 reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.lost = LostMessages()        # states lost before the callback
+        self.queue_lost = LostMessages()        # states lost before the callback
         self.sub = subscribe_input(self, BallState, 'ball/state', self.on_state, states_qos,
-                                   lost=self.lost)
+                                   lost=self.queue_lost)
         self.counts_status = CountsStatus(('states_dropped', 'states_late', 'states_lost'),
                                           self.work)
         report_status(self, 'predictions', '', self._status)
@@ -255,7 +255,7 @@ class PredictionNode(Node):
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
                 f'{np.percentile(times, 99):.3f} ms (last {len(times)}); {stamps}; '
                 f'{self.n_late} received more than {LATE_S * 1e3:.0f} ms after their stamp; '
-                f'{self.lost.count} lost in the input queue')
+                f'{self.queue_lost.count} lost in the input queue')
 
     def _status(self):
         """The status on /diagnostics: WARN when states were dropped, came late or were lost in
@@ -264,7 +264,7 @@ class PredictionNode(Node):
         level, new, values = self.counts_status.report(
             {'states_received': self.n_received, 'predictions_published': self.n_predicted,
              'states_dropped': self.n_dropped, 'states_late': self.n_late,
-             'states_lost': self.lost.count})
+             'states_lost': self.queue_lost.count})
         message = (f"{new['states_received']} states, {new['predictions_published']} "
                    f"predictions, {new['states_dropped']} dropped, {new['states_late']} "
                    f'received more than {LATE_S * 1e3:.0f} ms after their stamp, '

@@ -268,10 +268,10 @@ def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
         g.spin_until(lambda: g.node.n_received == 1, 20.0, 'the first prediction')
         for track in range(2, 42):                 # 40 at once, nothing taken meanwhile
             g.pub.publish(prediction_msg(track))
-        g.spin_until(lambda: g.node.n_received + g.node.lost.count == 41, 20.0,
+        g.spin_until(lambda: g.node.n_received + g.node.queue_lost.count == 41, 20.0,
                      'every prediction received or counted lost')
-        assert g.node.lost.count >= 40 - 5        # the queue holds 5
-        assert (f', {g.node.lost.count} predictions lost in the input queue; '
+        assert g.node.queue_lost.count >= 40 - 5        # the queue holds 5
+        assert (f', {g.node.queue_lost.count} predictions lost in the input queue; '
                 in g.node.work_summary())
 
         def lost(status):
@@ -279,7 +279,7 @@ def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
 
         g.spin_until(lambda: any(lost(r) for r in reports), 10.0, 'a report counting them')
         status = next(r for r in reports if lost(r))
-        assert lost(status) == g.node.lost.count and status.level == DiagnosticStatus.WARN
+        assert lost(status) == g.node.queue_lost.count and status.level == DiagnosticStatus.WARN
         assert f', {lost(status)} predictions lost in the input queue, ' in status.message
 
 

@@ -211,9 +211,9 @@ class StrikeNode(Node):
         # Names relative to the node's namespace (/strike/command in the root one).
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
-        self.lost = LostMessages()        # predictions lost before the callback
+        self.queue_lost = LostMessages()        # predictions lost before the callback
         self.sub = subscribe_input(self, BallPrediction, 'ball/prediction',
-                                   self.on_prediction, reliable, lost=self.lost)
+                                   self.on_prediction, reliable, lost=self.queue_lost)
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
                                                    self.on_target, reliable)
         self.create_timer(STROKE_CHECK_S, self._check_strokes)
@@ -311,8 +311,8 @@ class StrikeNode(Node):
         return (f'{self.n_received} predictions, {self.n_commands} commands, '
                 f'{self.n_dropped} dropped, {self.n_too_late} too late, {self.n_committed} '
                 f'after their stroke was sent, {self.n_lost} struck balls lost before the '
-                f'plane, {self.lost.count} predictions lost in the input queue; callback median '
-                f'{np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
+                f'plane, {self.queue_lost.count} predictions lost in the input queue; callback '
+                f'median {np.median(times):.3f} ms, p99 {np.percentile(times, 99):.3f} ms, max '
                 f'{times.max():.3f} ms (last {len(times)}); tracks (predictions/commands, '
                 f"first command's status; {ok} with an ok stroke): {tracks}")
 
@@ -325,7 +325,7 @@ class StrikeNode(Node):
             {'predictions_received': self.n_received, 'commands_published': self.n_commands,
              'predictions_dropped': self.n_dropped, 'strokes_too_late': self.n_too_late,
              'after_stroke_sent': self.n_committed, 'struck_balls_lost': self.n_lost,
-             'predictions_lost': self.lost.count})
+             'predictions_lost': self.queue_lost.count})
         message = (f"{new['predictions_received']} predictions, {new['commands_published']} "
                    f"commands, {new['predictions_dropped']} dropped, {new['strokes_too_late']} "
                    f"too late, {new['struck_balls_lost']} struck balls lost, "
