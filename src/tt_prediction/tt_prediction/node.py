@@ -10,7 +10,6 @@ markers follow at a lower rate. Invalid or stale states are dropped with a throt
 import dataclasses
 import gc
 import sys
-import threading
 
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -26,6 +25,7 @@ from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import ThrottledLog, due
 from tt_ros.timebase import TimeBaseCheck
+from tt_ros.worker import LatestWorker
 from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -138,43 +138,6 @@ class _Track:
                 <= TRACK_JUMP_M + TRACK_JUMP_SPEED * min(dt, TRACK_JUMP_DT))
 
 
-class _LatestWorker:
-    """Runs ``work(request)`` in a thread of its own for the latest request submitted, so
-    that the state callback never waits for work whose result can come later (the covariance
-    propagation, about 1 ms; the path message, a few ms to build and serialise). A request
-    submitted while the thread is busy replaces any that is still waiting."""
-
-    def __init__(self, name, work):
-        self._work = work
-        self._request = None
-        self._stop = False
-        self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def submit(self, request):
-        with self._lock:
-            self._request = request
-        self._wake.set()
-
-    def _run(self):
-        while True:
-            self._wake.wait()
-            with self._lock:
-                request, self._request = self._request, None
-                self._wake.clear()
-            if self._stop:
-                return
-            if request is not None:
-                self._work(request)
-
-    def stop(self):
-        self._stop = True
-        self._wake.set()
-        self._thread.join(timeout=5.0)
-
-
 class PredictionNode(Node):
     """Predicts bounce, hit point and landing zone for every ball state it receives."""
 
@@ -196,8 +159,8 @@ class PredictionNode(Node):
         self.out = BallPrediction()
         self.path = Path()
         self.n_bad_covariance = 0
-        self.uncertainty_worker = _LatestWorker('uncertainty', self._propagate)
-        self.path_worker = _LatestWorker('path', self._publish_path)
+        self.uncertainty_worker = LatestWorker('uncertainty', self._propagate)
+        self.path_worker = LatestWorker('path', self._publish_path)
         self.tracks = {}
         self.last_path_ns = None
         self.stamps_ns = None             # (earliest, latest) valid stamp received, ns

@@ -1,0 +1,39 @@
+"""tt_ros.worker: the latest request's work, in a thread of its own."""
+
+import threading
+
+from tt_ros.worker import LatestWorker
+
+
+def test_work_runs_off_the_caller_and_a_waiting_request_gives_way_to_a_newer_one():
+    started, release, done = threading.Event(), threading.Event(), threading.Event()
+    ran = []
+
+    def work(request):
+        ran.append((request, threading.current_thread().name))
+        if request == 1:
+            started.set()
+            release.wait(10.0)
+        if request == 3:
+            done.set()
+
+    worker = LatestWorker('test-worker', work)
+    try:
+        worker.submit(1)
+        assert started.wait(10.0)
+        worker.submit(2)                 # waits while 1 runs ...
+        worker.submit(3)                 # ... and gives way to 3
+        release.set()
+        assert done.wait(10.0)
+    finally:
+        worker.stop()
+    assert ran == [(1, 'test-worker'), (3, 'test-worker')]
+
+
+def test_stop_ends_the_thread():
+    done = threading.Event()
+    worker = LatestWorker('test-worker', lambda request: done.set())
+    worker.submit('only')
+    assert done.wait(10.0)
+    worker.stop()
+    assert not worker._thread.is_alive()

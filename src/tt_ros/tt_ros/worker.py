@@ -1,0 +1,42 @@
+"""Work whose result can come later, run off the callback (pure: no rclpy)."""
+
+import threading
+
+
+class LatestWorker:
+    """Runs ``work(request)`` in a thread of its own for the latest request submitted, so
+    that a subscription's callback never waits for work whose result can come later
+    (prediction_node's covariance propagation and path message, strike_node's in-zone
+    probability). A request submitted while the thread is busy replaces any that is still
+    waiting: only the newest is worth the time."""
+
+    def __init__(self, name, work):
+        self._work = work
+        self._request = None
+        self._stop = False
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, request):
+        with self._lock:
+            self._request = request
+        self._wake.set()
+
+    def _run(self):
+        while True:
+            self._wake.wait()
+            with self._lock:
+                request, self._request = self._request, None
+                self._wake.clear()
+            if self._stop:
+                return
+            if request is not None:
+                self._work(request)
+
+    def stop(self):
+        """Ends the thread once its current work is done."""
+        self._stop = True
+        self._wake.set()
+        self._thread.join(timeout=5.0)
