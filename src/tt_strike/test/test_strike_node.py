@@ -387,6 +387,29 @@ def test_probability_is_reused_within_its_period():
             assert (p1 == p2) == same and p2 <= p1
 
 
+def test_a_due_probability_is_refreshed_behind_the_command_not_before_it():
+    # The ensemble's 1024 flights take 15-30 ms: worked out before each due command, they
+    # made the callback's p99 45 ms in make demo and lost predictions in its queue. A ball's
+    # first value still comes with its first command; a refresh (here of a prediction 0.2 s
+    # later, whose much wider covariance lowers it) comes with the commands after it.
+    with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
+        narrow, wide, after = prediction_msg(4), prediction_msg(4), prediction_msg(4)
+        wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
+        for msg in (wide, after):
+            msg.header.stamp.nanosec += 200_000_000
+        g.pub.publish(narrow)
+        g.spin_until(lambda: len(g.commands) == 1, 30.0, 'the first command')
+        g.pub.publish(wide)
+        g.spin_until(lambda: len(g.commands) == 2 and g.node.probabilities, 30.0,
+                     'the second command and its refreshed probability')
+        g.pub.publish(after)
+        g.spin_until(lambda: len(g.commands) == 3, 30.0, 'the third command')
+        first, second, third = (c.in_zone_probability for c in g.commands)
+        assert 0.0 < first <= 1.0
+        assert second == first                     # sent without waiting for the refresh
+        assert third < first                       # the refresh: the wider spread
+
+
 def test_no_probability_is_sent_once_it_is_no_longer_computed():
     """in_zone_probability set false while a track's value was held for reuse: the track sent
     that value on every command for ever (a walk-through, 6 Dec 2026); a command says NaN

@@ -41,19 +41,21 @@ from tt_ros.messages import stamp_ns as to_ns
 from tt_ros.parameters import Param, Parameters
 from tt_ros.ratelimit import ThrottledLog, due
 from tt_ros.timebase import TimeBaseCheck, same_time_base
+from tt_ros.worker import LatestWorker
 from tt_ros.worktime import CallbackTimes
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tt_msgs.msg import BallPrediction, StrikeCommand, StrikeTarget
 
 from .hitpoint import choose
-from .robust import check_covariance, noise_covariance
+from .robust import check_covariance, in_zone_probability, landing_ensemble, noise_covariance
 from .solver import (
     MAX_RACKET_SPEED_RANGE,
     NET_CLEARANCE_RANGE,
     StrikeSettings,
     StrikeSolution,
     resolve_target,
+    scored_zone,
     solve,
 )
 from .workspace import load_workspace
@@ -82,8 +84,10 @@ PARAMETERS = (
     Param('in_zone_probability', True, 'compute the in-zone probability (1024 more flights, '
           'about 30 ms)'),
     Param('probability_rate_hz', 10.0, "rate of the in-zone probability per track and target, "
-          "per the predictions' stamps; in between the last value is reused (always computed "
-          'with aim_inside_zone); 0: every prediction', 'Hz', 0.0, 1000.0),
+          "per the predictions' stamps; in between the last value is reused, and refreshed "
+          "in a thread behind the commands (a ball's first value, every value with "
+          'aim_inside_zone, and at 0 every prediction: worked out before the command)', 'Hz',
+          0.0, 1000.0),
     Param('velocity_sigma_fraction', 0.02, 'velocity std at the hit point per component, as a '
           'fraction of the speed (BallPrediction carries only the position covariance)',
           lo=0.0, hi=1.0),
@@ -175,6 +179,11 @@ class TrackTally:
     """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
     probability: tuple = None
     """The last in-zone probability worked out for it: (zone, point), stamp (ns), value."""
+    requested_ns: int = None
+    """Stamp of the prediction whose probability the worker was last asked for, ns."""
+    ball: int = 0
+    """Balls seen under this id before the current one (a probability worked out for an
+    earlier ball is not its)."""
 
 
 class StrikeNode(Node):
@@ -212,6 +221,10 @@ class StrikeNode(Node):
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         self.queue_lost = LostMessages()        # predictions lost before the callback
+        # In-zone probabilities refreshed behind the commands (_refresh_probability): the
+        # worker appends (track id, ball, aim, stamp ns, value), the callback takes them.
+        self.probabilities = collections.deque()
+        self.probability_worker = LatestWorker('probability', self._refresh_probability)
         self.sub = subscribe_input(self, BallPrediction, 'ball/prediction',
                                    self.on_prediction, reliable, lost=self.queue_lost)
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
@@ -286,8 +299,28 @@ class StrikeNode(Node):
 
     def _probability_due(self, tally, aim, stamp_ns):
         last = tally.probability
-        return (last is None or last[0] != aim
-                or due(stamp_ns, last[1], self.p.probability_rate_hz))
+        if last is None or last[0] != aim:
+            return True
+        asked = last[1] if tally.requested_ns is None else max(last[1], tally.requested_ns)
+        return due(stamp_ns, asked, self.p.probability_rate_hz)
+
+    def _refresh_probability(self, request):
+        """In the worker's thread: the in-zone probability of a stroke already sent (the
+        ensemble's 1024 flights, 15-30 ms, their kernel without the GIL), handed back to the
+        callback through ``self.probabilities``."""
+        track_id, ball, aim, stamp_ns, hit_state, sol, cov, samples = request
+        value = in_zone_probability(landing_ensemble(hit_state, cov, sol.normal,
+                                                     sol.racket_velocity, self.params, samples),
+                                    scored_zone(sol))
+        self.probabilities.append((track_id, ball, aim, stamp_ns, value))
+
+    def _take_probabilities(self):
+        """The worker's refreshed probabilities into their tracks (their ball's still)."""
+        while self.probabilities:
+            track_id, ball, aim, stamp_ns, value = self.probabilities.popleft()
+            tally = self.tracks.get(track_id)
+            if tally is not None and tally.ball == ball:
+                tally.probability = (aim, stamp_ns, value)
 
     def _tally(self, track_id):
         """The counts of track ``track_id`` (the latest :data:`TALLIED_TRACKS` are kept)."""
@@ -342,6 +375,7 @@ class StrikeNode(Node):
         return self.work.count
 
     def _on_prediction(self, msg):
+        self._take_probabilities()
         tally = self._tally(msg.track_id)
         tally.received += 1
         if not msg.hit_valid:
@@ -388,14 +422,20 @@ class StrikeNode(Node):
         if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
                 or (tally.hit_t is not None and stamp > tally.hit_t + KEPT_HIT_MARGIN_S)):
             self._judge_stroke(msg.track_id, tally)   # the old ball is over
-            tally.hit_t = tally.probability = None   # another ball under a used id
-            tally.checked = False
+            tally.hit_t = tally.probability = tally.requested_ns = None  # another ball
+            tally.checked = False                                           # under a used id
+            tally.ball += 1
         tally.stamp = stamp
         tally.plane_t = hit_t
         cov = None
         if self.p.in_zone_probability and (
                 settings.aim_inside_zone or self._probability_due(tally, aim, stamp_ns)):
             cov = self._covariance(msg, state)
+        # A value the ball has is refreshed behind the command, not before it (15-30 ms).
+        refresh = cov is not None and not (
+            settings.aim_inside_zone or self.p.probability_rate_hz <= 0.0
+            or tally.probability is None or tally.probability[0] != aim)
+        solve_cov = None if refresh else cov
         now = self.get_clock().now().nanoseconds * 1e-9
         if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
             now = -math.inf                          # no hit-time check: not comparable
@@ -412,13 +452,13 @@ class StrikeNode(Node):
             # The workspace's limit too, as in the workspace's mode (it was the parameter's
             # alone: a stroke of 1.9 m/s sent to an arm rated 1.0; a walk-through).
             plane = dataclasses.replace(settings, max_racket_speed=ws.max_racket_speed)
-            sol = solve(state, self.params, settings=plane, covariance=cov, **target)
+            sol = solve(state, self.params, settings=plane, covariance=solve_cov, **target)
             status, reason = sol.status, sol.reason
             if sol.feasible:
                 tally.hit_t = hit_t
         else:
             plan = choose(state, self.params, ws, t0=hit_t, now=now, settings=settings,
-                          covariance=cov, bounced=True, keep_t=tally.hit_t, **target)
+                          covariance=solve_cov, bounced=True, keep_t=tally.hit_t, **target)
             if plan.status == 'too_late':
                 self._too_late(tally, plan.reason)
                 return
@@ -428,13 +468,18 @@ class StrikeNode(Node):
                 tally.hit_t = hit.t
             if sol is None:
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
-        if cov is not None and sol.feasible:
+        if solve_cov is not None and sol.feasible:
             tally.probability = (aim, stamp_ns, sol.in_zone_probability)
         elif (sol.feasible and self.p.in_zone_probability and tally.probability
               and tally.probability[0] == aim):
             # Reused between computations only while they go on: after in_zone_probability
             # was set false, a track sent its last value for ever (a walk-through).
             sol.in_zone_probability = tally.probability[2]
+            if refresh:
+                tally.requested_ns = stamp_ns
+                self.probability_worker.submit((msg.track_id, tally.ball, aim, stamp_ns,
+                                                hit.state, sol, cov,
+                                                settings.probability_samples))
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
@@ -535,6 +580,10 @@ class StrikeNode(Node):
             marker(2, Marker.CYLINDER, (0.1, 0.8, 0.1), (0.06, 0.06, 0.005)).pose.position = \
                 point_msg(sol.landing)
         return markers
+
+    def destroy_node(self):
+        self.probability_worker.stop()
+        return super().destroy_node()
 
 
 def main(args=None):
