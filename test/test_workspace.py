@@ -74,6 +74,45 @@ def test_env_file_keeps_discovery_on_this_machine():
     assert out.stdout.strip() == 'LOCALHOST'
 
 
+SEARCH_PATHS = ('PATH', 'LD_LIBRARY_PATH', 'PYTHONPATH', 'AMENT_PREFIX_PATH', 'CMAKE_PREFIX_PATH',
+                'COLCON_PREFIX_PATH')
+
+
+def _sourced(env, times=1):
+    """The search paths (name -> list of entries) and TT_WORKSPACE after sourcing env.sh."""
+    script = ('set +u; ' + f'. {TOP}/env.sh; ' * times
+              + 'for v in TT_WORKSPACE ' + ' '.join(SEARCH_PATHS) + '; do echo "$v=${!v}"; done')
+    out = subprocess.run(['bash', '-c', script], env=env, capture_output=True, text=True,
+                         check=True).stdout
+    values = dict(line.split('=', 1) for line in out.splitlines())
+    return values.pop('TT_WORKSPACE'), {k: v.split(':') if v else [] for k, v in values.items()}
+
+
+def test_env_file_leaves_another_tt_workspace_sourced_before():
+    # A Python 3.11 clone built and tested from a shell where /work/main's env.sh (3.12) was
+    # sourced: its builds chained /work/main's install, and its processes loaded /work/main's
+    # tt_msgs library in half of the runs (ros_wheels_bootstrapper shuffles LD_LIBRARY_PATH);
+    # the first message published aborted (6 Dec 2026).
+    other = '/tmp/another-tt'
+    env = {**os.environ, 'TT_WORKSPACE': other,
+           'LD_LIBRARY_PATH': f'{other}/install/tt_msgs/lib:/opt/kept/lib',
+           'PYTHONPATH': f'{other}/install/tt_ros/lib/python3.12/site-packages',
+           'COLCON_PREFIX_PATH': other + '/install',
+           'AMENT_PREFIX_PATH': f'{other}/.venv:{other}/install/tt_msgs',
+           'CMAKE_PREFIX_PATH': other,
+           'PATH': f'{other}/.venv/bin:{other}-not-it/bin:' + os.environ['PATH']}
+    workspace, paths = _sourced(env)
+    assert workspace == str(TOP)
+    for name, entries in paths.items():
+        assert not [e for e in entries if e == other or e.startswith(other + '/')], name
+    assert '/opt/kept/lib' in paths['LD_LIBRARY_PATH']
+    assert f'{other}-not-it/bin' in paths['PATH']
+    assert f'{TOP}/.venv/bin' in paths['PATH']
+    # Its own workspace's paths stay when it is sourced again.
+    workspace, again = _sourced(env, times=2)
+    assert f'{TOP}/.venv' in again['AMENT_PREFIX_PATH'] and f'{TOP}/.venv/bin' in again['PATH']
+
+
 @pytest.mark.parametrize('name, fields', [
     ('BallState', {'header', 'position', 'velocity', 'spin', 'covariance', 'track_id'}),
     ('BallPrediction', {'status', 'bounce_point', 'bounce_zone', 'bounce_half', 'hit_point',
