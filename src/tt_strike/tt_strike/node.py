@@ -315,11 +315,13 @@ class StrikeNode(Node):
         self.probabilities.append((track_id, ball, aim, stamp_ns, value))
 
     def _take_probabilities(self):
-        """The worker's refreshed probabilities into their tracks (their ball's still)."""
+        """The worker's refreshed probabilities into their tracks: their ball's still, and
+        not older than a value worked out since (aim_inside_zone set meanwhile)."""
         while self.probabilities:
             track_id, ball, aim, stamp_ns, value = self.probabilities.popleft()
             tally = self.tracks.get(track_id)
-            if tally is not None and tally.ball == ball:
+            if (tally is not None and tally.ball == ball
+                    and (tally.probability is None or stamp_ns >= tally.probability[1])):
                 tally.probability = (aim, stamp_ns, value)
 
     def _tally(self, track_id):
