@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from tt_prediction.ball import ModelParams
 from tt_prediction.predict import predict
-from tt_strike.hitpoint import choose
+from tt_strike.hitpoint import SWITCH_MARGIN, choose
 from tt_strike.workspace import TEMPLATE, Workspace, WorkspaceError, load_workspace
 import yaml
 
@@ -136,7 +136,7 @@ def test_a_ball_keeps_its_hit_time_from_one_prediction_to_the_next():
     # all (an arm following the commands would chase it). Kept, the hit time is chosen once;
     # once it is closer than min_time_before_hit, the arm is on its way: too_late, kept.
     ws = load_workspace()
-    keep, chosen = None, []
+    keep, chosen, solved = None, [], []
     for k in range(200):
         now = k / 150.0
         plan = choose(BALL, PARAMS, ws, now=now, target_zone=5, keep_t=keep)
@@ -144,7 +144,13 @@ def test_a_ball_keeps_its_hit_time_from_one_prediction_to_the_next():
             break
         keep = plan.hit.t
         chosen.append(plan.hit)
+        solved.append((plan.candidates, plan.score))
     assert plan.status == 'too_late' and 'kept' in plan.reason, plan.reason
+    # A kept hit scoring 1 - SWITCH_MARGIN or more cannot be beaten (scores are at most 1):
+    # the other candidates are not solved.
+    assert solved[0][0] >= 2
+    beyond = [n for n, score in solved[1:] if score >= 1.0 - SWITCH_MARGIN]
+    assert beyond and set(beyond) == {1}
     assert keep - now < ws.min_time_before_hit <= keep - (now - 1 / 150.0)
     assert len(chosen) > 50
     assert {h.t for h in chosen} == {chosen[0].t}
