@@ -37,3 +37,26 @@ def test_stop_ends_the_thread():
     assert done.wait(10.0)
     worker.stop()
     assert not worker._thread.is_alive()
+
+
+def test_an_error_is_told_and_the_next_request_is_worked_on():
+    errors, told, done = [], threading.Event(), threading.Event()
+
+    def work(request):
+        if request == 'bad':
+            raise ValueError('bad request')
+        done.set()
+
+    def on_error(exc):
+        errors.append(exc)
+        told.set()
+
+    worker = LatestWorker('test-worker', work, on_error=on_error)
+    try:
+        worker.submit('bad')
+        assert told.wait(10.0)
+        worker.submit('good')
+        assert done.wait(10.0)
+    finally:
+        worker.stop()
+    assert [str(e) for e in errors] == ['bad request']

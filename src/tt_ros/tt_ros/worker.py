@@ -8,10 +8,13 @@ class LatestWorker:
     that a subscription's callback never waits for work whose result can come later
     (prediction_node's covariance propagation and path message, strike_node's in-zone
     probability). A request submitted while the thread is busy replaces any that is still
-    waiting: only the newest is worth the time."""
+    waiting: only the newest is worth the time. ``on_error(exc)``, if given, is told of an
+    exception the work raised, and the thread goes on with the next request (without it the
+    thread ends there, and no later request is worked on)."""
 
-    def __init__(self, name, work):
+    def __init__(self, name, work, on_error=None):
         self._work = work
+        self._on_error = on_error
         self._request = None
         self._stop = False
         self._lock = threading.Lock()
@@ -32,8 +35,14 @@ class LatestWorker:
                 self._wake.clear()
             if self._stop:
                 return
-            if request is not None:
+            if request is None:
+                continue
+            try:
                 self._work(request)
+            except Exception as exc:            # noqa: BLE001 (told, then the next one)
+                if self._on_error is None:
+                    raise
+                self._on_error(exc)
 
     def stop(self):
         """Ends the thread once its current work is done."""

@@ -410,6 +410,60 @@ def test_a_due_probability_is_refreshed_behind_the_command_not_before_it():
         assert third < first                       # the refresh: the wider spread
 
 
+def test_a_probability_is_worked_out_before_the_command_after_one_from_no_covariance_or_a_gap():
+    # A walk-through of the refresh behind the commands (6 Dec 2026): a ball's first
+    # prediction carries no hit covariance (all zeros: the position taken as exact), and its
+    # optimistic value was sent for the next 100 ms of commands; and after in_zone_probability
+    # was off and on again, a value 0.6 s old was sent. Both are now worked out before the
+    # command that follows them.
+    def at(ms, cov_sigma):
+        msg = prediction_msg(4)
+        msg.header.stamp.nanosec += ms * 1_000_000
+        msg.hit_covariance = (np.eye(3) * cov_sigma ** 2).ravel().tolist()
+        return msg
+
+    with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
+        g.pub.publish(at(0, 0.0))
+        g.spin_until(lambda: len(g.commands) == 1, 30.0, 'the first command')
+        g.pub.publish(at(10, 0.05))
+        g.spin_until(lambda: len(g.commands) == 2, 30.0, 'the second command')
+        unknown, wide = (c.in_zone_probability for c in g.commands)
+        assert 0.0 < wide < unknown <= 1.0
+        g.node.set_parameters([Parameter('in_zone_probability', value=False)])
+        g.pub.publish(at(100, 0.05))
+        g.spin_until(lambda: len(g.commands) == 3, 30.0, 'the third command')
+        assert math.isnan(g.commands[2].in_zone_probability)
+        g.node.set_parameters([Parameter('in_zone_probability', value=True)])
+        g.pub.publish(at(400, 0.002))
+        g.spin_until(lambda: len(g.commands) == 4, 30.0, 'the fourth command')
+        assert g.commands[3].in_zone_probability > wide    # its own narrow covariance's
+
+
+def test_replayed_struck_balls_are_judged_by_the_stamps_without_check_hit_time():
+    # A bag played without --clock: its hit times minutes before the node clock. With
+    # check_hit_time false every struck ball was judged lost at its first prediction, while
+    # the rest of its predictions were still coming (a walk-through, 6 Dec 2026).
+    with Graph([Parameter('check_hit_time', value=False)]) as g:
+        g.set_clock(1100.0)                  # the stamps' time base, 1000 s on
+        first, followed = prediction_msg(8), prediction_msg(8)
+        followed.header.stamp.nanosec = 590_000_000
+        g.pub.publish(first)
+        g.spin_until(lambda: len(g.commands) == 1, 20.0, 'the first command')
+        g.node._check_strokes()
+        assert not g.node.tracks[8].checked
+        g.pub.publish(followed)
+        g.spin_until(lambda: len(g.commands) == 2, 20.0, 'the second command')
+        later = prediction_msg(20)             # another ball, 1.2 s on
+        later.header.stamp.sec += 1
+        later.header.stamp.nanosec = 200_000_000
+        later.hit_time.sec += 1
+        later.hit_time.nanosec = 800_000_000
+        g.pub.publish(later)
+        g.spin_until(lambda: len(g.commands) == 3, 20.0, "the other ball's command")
+        g.node._check_strokes()
+        assert g.node.tracks[8].checked and g.node.n_lost == 0
+
+
 def test_no_probability_is_sent_once_it_is_no_longer_computed():
     """in_zone_probability set false while a track's value was held for reuse: the track sent
     that value on every command for ever (a walk-through, 6 Dec 2026); a command says NaN

@@ -103,7 +103,8 @@ PARAMETERS = (
           'hitting plane) instead of choosing along the path inside the workspace'),
     Param('check_hit_time', True, 'do not send strikes whose hit time is past or closer than '
           "the workspace's min_time_before_hit by the node's clock (false: for replays whose "
-          'stamps are not on the node clock, e.g. a bag played without --clock)'),
+          'stamps are not on the node clock, e.g. a bag played without --clock; a struck '
+          "ball's loss is then judged by the predictions' stamps)"),
 )
 
 
@@ -178,7 +179,8 @@ class TrackTally:
     checked: bool = False
     """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
     probability: tuple = None
-    """The last in-zone probability worked out for it: (zone, point), stamp (ns), value."""
+    """The last in-zone probability worked out for it: (zone, point), stamp (ns), value, and
+    whether the prediction's hit_covariance was known (not all zeros)."""
     requested_ns: int = None
     """Stamp of the prediction whose probability the worker was last asked for, ns."""
     ball: int = 0
@@ -212,6 +214,7 @@ class StrikeNode(Node):
                        keep_t=plan.hit.t)
         self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
         self.n_lost = 0                   # struck balls lost before the plane
+        self.last_stamp = -math.inf       # the last valid prediction's stamp, s
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -224,7 +227,9 @@ class StrikeNode(Node):
         # In-zone probabilities refreshed behind the commands (_refresh_probability): the
         # worker appends (track id, ball, aim, stamp ns, value), the callback takes them.
         self.probabilities = collections.deque()
-        self.probability_worker = LatestWorker('probability', self._refresh_probability)
+        self.probability_worker = LatestWorker(
+            'probability', self._refresh_probability, on_error=lambda exc: self.warn(
+                'refresh', 1.0, f'in-zone probability not refreshed: {exc!r}'))
         self.sub = subscribe_input(self, BallPrediction, 'ball/prediction',
                                    self.on_prediction, reliable, lost=self.queue_lost)
         self.sub_target = self.create_subscription(StrikeTarget, 'strike/target',
@@ -297,32 +302,42 @@ class StrikeNode(Node):
         cov[:3, :3] = 0.5 * (pos + pos.T)             # symmetric within rounding
         return cov
 
-    def _probability_due(self, tally, aim, stamp_ns):
+    def _probability_plan(self, tally, aim, stamp_ns, known):
+        """Whether this prediction's command gets an in-zone probability worked out anew, and
+        whether that may be done behind the command: (due, behind). Behind only when the
+        track has a value of this target from within two periods, from a known covariance
+        if this one is known: else (a ball's first value, one after an interval without any,
+        the first from a known covariance) before it, as with aim_inside_zone and at rate 0.
+        ``known``: the prediction's hit_covariance is not all zeros (unknown)."""
+        if not self.p.in_zone_probability:
+            return False, False
+        rate = self.p.probability_rate_hz
         last = tally.probability
-        if last is None or last[0] != aim:
-            return True
+        if (self.settings.aim_inside_zone or rate <= 0.0 or last is None or last[0] != aim
+                or (known and not last[3]) or not 0 <= stamp_ns - last[1] <= 2e9 / rate):
+            return True, False
         asked = last[1] if tally.requested_ns is None else max(last[1], tally.requested_ns)
-        return due(stamp_ns, asked, self.p.probability_rate_hz)
+        return due(stamp_ns, asked, rate), True
 
     def _refresh_probability(self, request):
         """In the worker's thread: the in-zone probability of a stroke already sent (the
         ensemble's 1024 flights, 15-30 ms, their kernel without the GIL), handed back to the
         callback through ``self.probabilities``."""
-        track_id, ball, aim, stamp_ns, hit_state, sol, cov, samples = request
+        track_id, ball, aim, stamp_ns, known, hit_state, sol, cov, samples = request
         value = in_zone_probability(landing_ensemble(hit_state, cov, sol.normal,
                                                      sol.racket_velocity, self.params, samples),
                                     scored_zone(sol))
-        self.probabilities.append((track_id, ball, aim, stamp_ns, value))
+        self.probabilities.append((track_id, ball, (aim, stamp_ns, value, known)))
 
     def _take_probabilities(self):
         """The worker's refreshed probabilities into their tracks: their ball's still, and
         not older than a value worked out since (aim_inside_zone set meanwhile)."""
         while self.probabilities:
-            track_id, ball, aim, stamp_ns, value = self.probabilities.popleft()
+            track_id, ball, result = self.probabilities.popleft()
             tally = self.tracks.get(track_id)
             if (tally is not None and tally.ball == ball
-                    and (tally.probability is None or stamp_ns >= tally.probability[1])):
-                tally.probability = (aim, stamp_ns, value)
+                    and (tally.probability is None or result[1] >= tally.probability[1])):
+                tally.probability = result
 
     def _tally(self, track_id):
         """The counts of track ``track_id`` (the latest :data:`TALLIED_TRACKS` are kept)."""
@@ -427,16 +442,13 @@ class StrikeNode(Node):
             tally.hit_t = tally.probability = tally.requested_ns = None  # another ball
             tally.checked = False                                           # under a used id
             tally.ball += 1
-        tally.stamp = stamp
+        tally.stamp = self.last_stamp = stamp
         tally.plane_t = hit_t
-        cov = None
-        if self.p.in_zone_probability and (
-                settings.aim_inside_zone or self._probability_due(tally, aim, stamp_ns)):
-            cov = self._covariance(msg, state)
+        known = any(msg.hit_covariance)
+        due_now, behind = self._probability_plan(tally, aim, stamp_ns, known)
+        cov = self._covariance(msg, state) if due_now else None
         # A value the ball has is refreshed behind the command, not before it (15-30 ms).
-        refresh = cov is not None and not (
-            settings.aim_inside_zone or self.p.probability_rate_hz <= 0.0
-            or tally.probability is None or tally.probability[0] != aim)
+        refresh = due_now and behind
         solve_cov = None if refresh else cov
         now = self.get_clock().now().nanoseconds * 1e-9
         if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
@@ -471,7 +483,7 @@ class StrikeNode(Node):
             if sol is None:
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if solve_cov is not None and sol.feasible:
-            tally.probability = (aim, stamp_ns, sol.in_zone_probability)
+            tally.probability = (aim, stamp_ns, sol.in_zone_probability, known)
         elif (sol.feasible and self.p.in_zone_probability and tally.probability
               and tally.probability[0] == aim):
             # Reused between computations only while they go on: after in_zone_probability
@@ -479,7 +491,7 @@ class StrikeNode(Node):
             sol.in_zone_probability = tally.probability[2]
             if refresh:
                 tally.requested_ns = stamp_ns
-                self.probability_worker.submit((msg.track_id, tally.ball, aim, stamp_ns,
+                self.probability_worker.submit((msg.track_id, tally.ball, aim, stamp_ns, known,
                                                 hit.state, sol, cov,
                                                 settings.probability_samples))
         out = self._command(msg, sol, hit, status, reason)
@@ -495,8 +507,12 @@ class StrikeNode(Node):
 
     def _check_strokes(self):
         """Each struck ball whose hit time is LOST_JUDGED_AFTER_S past by the node clock:
-        :meth:`_judge_stroke`."""
+        :meth:`_judge_stroke`. Without check_hit_time, by the last prediction's stamp: a bag
+        played without --clock has its hit times minutes before the clock, and every struck
+        ball was judged lost at its first prediction (a walk-through, 6 Dec 2026)."""
         now = self.get_clock().now().nanoseconds * 1e-9
+        if not self.p.check_hit_time:
+            now = self.last_stamp
         for track_id, tally in self.tracks.items():
             if (tally.hit_t is not None and same_time_base(tally.hit_t, now)
                     and now >= tally.hit_t + LOST_JUDGED_AFTER_S):
