@@ -85,9 +85,9 @@ PARAMETERS = (
           'about 30 ms)'),
     Param('probability_rate_hz', 10.0, "rate of the in-zone probability per track and target, "
           "per the predictions' stamps; in between the last value is reused, and refreshed "
-          "in a thread behind the commands (a ball's first value, every value with "
-          'aim_inside_zone, and at 0 every prediction: worked out before the command)', 'Hz',
-          0.0, 1000.0),
+          "in a thread behind the commands (before the command: a ball's first value, the "
+          'first from a known hit_covariance, one after none for two periods, every one with '
+          'aim_inside_zone or at 0, every prediction)', 'Hz', 0.0, 1000.0),
     Param('velocity_sigma_fraction', 0.02, 'velocity std at the hit point per component, as a '
           'fraction of the speed (BallPrediction carries only the position covariance)',
           lo=0.0, hi=1.0),
@@ -225,7 +225,7 @@ class StrikeNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         self.queue_lost = LostMessages()        # predictions lost before the callback
         # In-zone probabilities refreshed behind the commands (_refresh_probability): the
-        # worker appends (track id, ball, aim, stamp ns, value), the callback takes them.
+        # worker appends (track id, ball, TrackTally.probability), the callback takes them.
         self.probabilities = collections.deque()
         self.probability_worker = LatestWorker(
             'probability', self._refresh_probability, on_error=lambda exc: self.warn(
