@@ -390,13 +390,13 @@ def test_probability_is_reused_within_its_period():
 def test_a_due_probability_is_refreshed_behind_the_command_not_before_it():
     # The ensemble's 1024 flights take 15-30 ms: worked out before each due command, they
     # made the callback's p99 45 ms in make demo and lost predictions in its queue. A ball's
-    # first value still comes with its first command; a refresh (here of a prediction 0.2 s
+    # first value still comes with its first command; a refresh (here of a prediction 0.15 s
     # later, whose much wider covariance lowers it) comes with the commands after it.
     with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
         narrow, wide, after = prediction_msg(4), prediction_msg(4), prediction_msg(4)
         wide.hit_covariance = (np.eye(3) * 0.05 ** 2).ravel().tolist()
         for msg in (wide, after):
-            msg.header.stamp.nanosec += 200_000_000
+            msg.header.stamp.nanosec += 150_000_000
         g.pub.publish(narrow)
         g.spin_until(lambda: len(g.commands) == 1, 30.0, 'the first command')
         g.pub.publish(wide)
