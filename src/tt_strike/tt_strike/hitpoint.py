@@ -24,7 +24,7 @@ for a candidate whose score is more than SWITCH_MARGIN higher, or when it is no 
 within reach or feasible. Once it is closer than ``min_time_before_hit`` the arm is on its
 way: the status is too_late, not a new hit point further on. A kept hit point that scores
 1 - SWITCH_MARGIN or more cannot be beaten: the other candidates are not solved (most of a
-ball's predictions, a fifth of the work).
+ball's later predictions: one solve instead of up to five, a third of the time or less).
 
 Statuses: ok; no_hit_point (no bounce on the robot's half: the prediction's status and
 reason); unreachable (the path never comes within reach, or no solution puts the racket

@@ -25,6 +25,7 @@ counts, with each of the latest tracks' predictions, commands and first command'
 import collections
 import dataclasses
 import math
+import typing
 
 import numpy as np
 from rclpy.node import Node
@@ -158,6 +159,18 @@ STROKE_CHECK_S = 0.1
 """Period of that check, s."""
 
 
+class Probability(typing.NamedTuple):
+    """An in-zone probability worked out for a track."""
+
+    aim: tuple
+    """The target it was worked out for: (zone, point)."""
+    stamp_ns: int
+    """Stamp of the prediction it was worked out from, ns."""
+    value: float
+    known: bool
+    """That prediction's hit_covariance was known (not all zeros)."""
+
+
 @dataclasses.dataclass
 class TrackTally:
     """What one track (ball) got from this node."""
@@ -178,9 +191,8 @@ class TrackTally:
     """Its last prediction's hit time (the ball's crossing of the hitting plane), s."""
     checked: bool = False
     """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
-    probability: tuple = None
-    """The last in-zone probability worked out for it: (zone, point), stamp (ns), value, and
-    whether the prediction's hit_covariance was known (not all zeros)."""
+    probability: 'Probability' = None
+    """The last in-zone probability worked out for it."""
     requested_ns: int = None
     """Stamp of the prediction whose probability the worker was last asked for, ns."""
     ball: int = 0
@@ -225,7 +237,7 @@ class StrikeNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         self.queue_lost = LostMessages()        # predictions lost before the callback
         # In-zone probabilities refreshed behind the commands (_refresh_probability): the
-        # worker appends (track id, ball, TrackTally.probability), the callback takes them.
+        # worker appends (track id, ball, Probability), the callback takes them.
         self.probabilities = collections.deque()
         self.probability_worker = LatestWorker(
             'probability', self._refresh_probability, on_error=lambda exc: self.warn(
@@ -303,31 +315,34 @@ class StrikeNode(Node):
         return cov
 
     def _probability_plan(self, tally, aim, stamp_ns, known):
-        """Whether this prediction's command gets an in-zone probability worked out anew, and
-        whether that may be done behind the command: (due, behind). Behind only when the
-        track has a value of this target from within two periods, from a known covariance
-        if this one is known: else (a ball's first value, one after an interval without any,
-        the first from a known covariance) before it, as with aim_inside_zone and at rate 0.
-        ``known``: the prediction's hit_covariance is not all zeros (unknown)."""
+        """When this prediction's in-zone probability is worked out: 'before' its command,
+        'behind' it (in the worker's thread) or None (the track's value reused, or none).
+        Behind only when the track has a value of this target from within two periods, from
+        a known covariance if this one is known; else (a ball's first value, one after an
+        interval without any, the first from a known covariance) before, as with
+        aim_inside_zone and at rate 0. ``known``: the prediction's hit_covariance is not all
+        zeros (unknown)."""
         if not self.p.in_zone_probability:
-            return False, False
+            return None
         rate = self.p.probability_rate_hz
         last = tally.probability
-        if (self.settings.aim_inside_zone or rate <= 0.0 or last is None or last[0] != aim
-                or (known and not last[3]) or not 0 <= stamp_ns - last[1] <= 2e9 / rate):
-            return True, False
-        asked = last[1] if tally.requested_ns is None else max(last[1], tally.requested_ns)
-        return due(stamp_ns, asked, rate), True
+        if (self.settings.aim_inside_zone or rate <= 0.0 or last is None or last.aim != aim
+                or (known and not last.known)
+                or not 0 <= stamp_ns - last.stamp_ns <= 2e9 / rate):
+            return 'before'
+        asked = last.stamp_ns if tally.requested_ns is None else max(last.stamp_ns,
+                                                                     tally.requested_ns)
+        return 'behind' if due(stamp_ns, asked, rate) else None
 
     def _refresh_probability(self, request):
         """In the worker's thread: the in-zone probability of a stroke already sent (the
         ensemble's 1024 flights, 15-30 ms, their kernel without the GIL), handed back to the
         callback through ``self.probabilities``."""
-        track_id, ball, aim, stamp_ns, known, hit_state, sol, cov, samples = request
+        track_id, ball, asked, hit_state, sol, cov, samples = request
         value = in_zone_probability(landing_ensemble(hit_state, cov, sol.normal,
                                                      sol.racket_velocity, self.params, samples),
                                     scored_zone(sol))
-        self.probabilities.append((track_id, ball, (aim, stamp_ns, value, known)))
+        self.probabilities.append((track_id, ball, asked._replace(value=value)))
 
     def _take_probabilities(self):
         """The worker's refreshed probabilities into their tracks: their ball's still, and
@@ -336,7 +351,8 @@ class StrikeNode(Node):
             track_id, ball, result = self.probabilities.popleft()
             tally = self.tracks.get(track_id)
             if (tally is not None and tally.ball == ball
-                    and (tally.probability is None or result[1] >= tally.probability[1])):
+                    and (tally.probability is None
+                         or result.stamp_ns >= tally.probability.stamp_ns)):
                 tally.probability = result
 
     def _tally(self, track_id):
@@ -445,11 +461,10 @@ class StrikeNode(Node):
         tally.stamp = self.last_stamp = stamp
         tally.plane_t = hit_t
         known = any(msg.hit_covariance)
-        due_now, behind = self._probability_plan(tally, aim, stamp_ns, known)
-        cov = self._covariance(msg, state) if due_now else None
         # A value the ball has is refreshed behind the command, not before it (15-30 ms).
-        refresh = due_now and behind
-        solve_cov = None if refresh else cov
+        when = self._probability_plan(tally, aim, stamp_ns, known)
+        cov = self._covariance(msg, state) if when else None
+        solve_cov = cov if when == 'before' else None
         now = self.get_clock().now().nanoseconds * 1e-9
         if not self.time_base(hit_t, now):           # or now 0: use_sim_time, no /clock yet
             now = -math.inf                          # no hit-time check: not comparable
@@ -483,17 +498,17 @@ class StrikeNode(Node):
             if sol is None:
                 sol = StrikeSolution(status, reason, target_point=point, target_zone=zone)
         if solve_cov is not None and sol.feasible:
-            tally.probability = (aim, stamp_ns, sol.in_zone_probability, known)
+            tally.probability = Probability(aim, stamp_ns, sol.in_zone_probability, known)
         elif (sol.feasible and self.p.in_zone_probability and tally.probability
-              and tally.probability[0] == aim):
+              and tally.probability.aim == aim):
             # Reused between computations only while they go on: after in_zone_probability
             # was set false, a track sent its last value for ever (a walk-through).
-            sol.in_zone_probability = tally.probability[2]
-            if refresh:
+            sol.in_zone_probability = tally.probability.value
+            if when == 'behind':
                 tally.requested_ns = stamp_ns
-                self.probability_worker.submit((msg.track_id, tally.ball, aim, stamp_ns, known,
-                                                hit.state, sol, cov,
-                                                settings.probability_samples))
+                self.probability_worker.submit((
+                    msg.track_id, tally.ball, Probability(aim, stamp_ns, math.nan, known),
+                    hit.state, sol, cov, settings.probability_samples))
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
