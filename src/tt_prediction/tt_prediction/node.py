@@ -332,7 +332,7 @@ class PredictionNode(Node):
         self.pub.publish(out)
         self.n_predicted += 1
         if request is not None:         # after the publish: the prediction goes out first
-            self.uncertainty_worker.submit(request)
+            self.uncertainty_worker.submit(request, key=msg.track_id)
         if due(stamp_ns, self.last_path_ns, self.p.path_rate_hz):
             self.last_path_ns = stamp_ns
             self.path_worker.submit((msg, stamp_ns, state, plane_x, bounced))

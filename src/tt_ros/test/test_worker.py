@@ -60,3 +60,31 @@ def test_an_error_is_told_and_the_next_request_is_worked_on():
     finally:
         worker.stop()
     assert [str(e) for e in errors] == ['bad request']
+
+
+def test_requests_of_other_keys_wait_their_turn_and_each_key_keeps_its_latest():
+    # Two balls at once: one slot for all made one track's request replace the other's
+    # (strike_node's refreshed in-zone probability, prediction_node's hit covariance).
+    started, release, done = threading.Event(), threading.Event(), threading.Event()
+    ran = []
+
+    def work(request):
+        ran.append(request)
+        if request == 'busy':
+            started.set()
+            release.wait(10.0)
+        if len(ran) == 3:
+            done.set()
+
+    worker = LatestWorker('test-worker', work)
+    try:
+        worker.submit('busy', key=6)
+        assert started.wait(10.0)
+        worker.submit('4 old', key=4)
+        worker.submit('5', key=5)
+        worker.submit('4 new', key=4)    # replaces 4's waiting one, not 5's
+        release.set()
+        assert done.wait(10.0)
+    finally:
+        worker.stop()
+    assert ran == ['busy', '5', '4 new']

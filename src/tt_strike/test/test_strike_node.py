@@ -4,6 +4,7 @@
 import math
 import pathlib
 import re
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
@@ -699,6 +700,44 @@ def test_probability_is_reused_per_track():
         p4, p5, p4_again = (c.in_zone_probability for c in g.commands)
         assert [c.track_id for c in g.commands] == [4, 5, 4]
         assert p4_again == p4
+
+
+def test_two_balls_at_once_each_get_their_probability_refreshed():
+    # The refresh worker had one slot for every track: a request of ball 4 waiting while
+    # the worker was busy was replaced by ball 5's, and ball 4 sent its old value for two
+    # more periods. The worker is held on ball 6's refresh while 4's and 5's are asked for.
+    with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
+        def at(track_id, ms, sigma):
+            msg = prediction_msg(track_id)
+            msg.header.stamp.nanosec += ms * 1_000_000
+            msg.hit_covariance = (np.eye(3) * sigma ** 2).ravel().tolist()
+            return msg
+
+        for track_id in (6, 4, 5):
+            g.pub.publish(at(track_id, 0, 0.002))
+        g.spin_until(lambda: len(g.commands) == 3, 30.0, 'the first commands')
+        narrow = {c.track_id: c.in_zone_probability for c in g.commands}
+        work = g.node.probability_worker._work
+        started, release = threading.Event(), threading.Event()
+
+        def held(request):
+            started.set()
+            release.wait(30.0)
+            work(request)
+
+        g.node.probability_worker._work = held
+        g.pub.publish(at(6, 150, 0.05))
+        g.spin_until(started.is_set, 30.0, "ball 6's refresh started")
+        g.pub.publish(at(4, 150, 0.05))
+        g.pub.publish(at(5, 150, 0.05))
+        g.spin_until(lambda: len(g.commands) == 6, 30.0, 'the wide commands')
+        release.set()
+        g.spin_until(lambda: len(g.node.probabilities) == 3, 30.0, 'three refreshes')
+        g.pub.publish(at(4, 160, 0.05))
+        g.pub.publish(at(5, 160, 0.05))
+        g.spin_until(lambda: len(g.commands) == 8, 30.0, 'the commands after them')
+        for c in g.commands[6:]:
+            assert c.in_zone_probability < narrow[c.track_id]     # the wider spread's
 
 
 def test_start_up_compiles_what_a_ball_keeping_its_hit_time_runs():

@@ -508,7 +508,7 @@ class StrikeNode(Node):
                 tally.requested_ns = stamp_ns
                 self.probability_worker.submit((
                     msg.track_id, tally.ball, Probability(aim, stamp_ns, math.nan, known),
-                    hit.state, sol, cov, settings.probability_samples))
+                    hit.state, sol, cov, settings.probability_samples), key=msg.track_id)
         out = self._command(msg, sol, hit, status, reason)
         self.pub.publish(out)
         self.n_commands += 1
