@@ -444,8 +444,9 @@ def test_replayed_struck_balls_are_judged_by_the_stamps_without_check_hit_time()
     # A bag played without --clock: its hit times minutes before the node clock. With
     # check_hit_time false every struck ball was judged lost at its first prediction, while
     # the rest of its predictions were still coming (a walk-through, 6 Dec 2026).
-    with Graph([Parameter('check_hit_time', value=False)]) as g:
-        g.set_clock(1100.0)                  # the stamps' time base, 1000 s on
+    # The node on the system clock (its timer judges), the stamps' time base decades before.
+    with Graph([Parameter('check_hit_time', value=False),
+                Parameter('use_sim_time', value=False)]) as g:
         first, followed = prediction_msg(8), prediction_msg(8)
         followed.header.stamp.nanosec = 590_000_000
         g.pub.publish(first)
@@ -463,6 +464,12 @@ def test_replayed_struck_balls_are_judged_by_the_stamps_without_check_hit_time()
         g.spin_until(lambda: len(g.commands) == 3, 20.0, "the other ball's command")
         g.node._check_strokes()
         assert g.node.tracks[8].checked and g.node.n_lost == 0
+        # Ball 20's only prediction came 0.6 s before the plane, the last of the replay:
+        # nothing moved the stamps on to its hit time, and it was never judged. It is once
+        # the predictions have stopped for INPUT_OVER_S.
+        assert not g.node.tracks[20].checked
+        g.spin_until(lambda: g.node.tracks[20].checked, 20.0, 'the last ball judged')
+        assert g.node.n_lost == 1
 
 
 def test_no_probability_is_sent_once_it_is_no_longer_computed():

@@ -25,6 +25,7 @@ counts, with each of the latest tracks' predictions, commands and first command'
 import collections
 import dataclasses
 import math
+import time
 import typing
 
 import numpy as np
@@ -157,6 +158,10 @@ clock, s, or when another ball takes its track id: predictions up to this late (
 machine's queues) still count as following it."""
 STROKE_CHECK_S = 0.1
 """Period of that check, s."""
+INPUT_OVER_S = 2.0
+"""Without check_hit_time (the stamps on no clock of the node's), every struck ball is judged
+once no prediction has come for this long (s, monotonic time): the replay is over or paused,
+and nothing else moves the stamps' clock on to its hit time."""
 
 
 class Probability(typing.NamedTuple):
@@ -227,6 +232,7 @@ class StrikeNode(Node):
         self.n_commands = self.n_dropped = self.n_too_late = self.n_committed = 0
         self.n_lost = 0                   # struck balls lost before the plane
         self.last_stamp = -math.inf       # the last valid prediction's stamp, s
+        self.last_arrival = -math.inf     # time.monotonic() when a prediction last came, s
         self.tracks = collections.OrderedDict()   # track id -> TrackTally, the latest last
         self.work = CallbackTimes()       # the callback's time for the last predictions
         self.time_base = TimeBaseCheck(self.get_logger().warning)
@@ -408,6 +414,7 @@ class StrikeNode(Node):
         return self.work.count
 
     def _on_prediction(self, msg):
+        self.last_arrival = time.monotonic()
         self._take_probabilities()
         tally = self._tally(msg.track_id)
         tally.received += 1
@@ -524,13 +531,17 @@ class StrikeNode(Node):
         """Each struck ball whose hit time is LOST_JUDGED_AFTER_S past by the node clock:
         :meth:`_judge_stroke`. Without check_hit_time, by the last prediction's stamp: a bag
         played without --clock has its hit times minutes before the clock, and every struck
-        ball was judged lost at its first prediction (a walk-through, 6 Dec 2026)."""
+        ball was judged lost at its first prediction (a walk-through, 6 Dec 2026); and every
+        struck ball once no prediction has come for INPUT_OVER_S (one lost at a bag's end was
+        never judged)."""
         now = self.get_clock().now().nanoseconds * 1e-9
+        over = False
         if not self.p.check_hit_time:
             now = self.last_stamp
+            over = time.monotonic() - self.last_arrival >= INPUT_OVER_S
         for track_id, tally in self.tracks.items():
-            if (tally.hit_t is not None and same_time_base(tally.hit_t, now)
-                    and now >= tally.hit_t + LOST_JUDGED_AFTER_S):
+            if over or (tally.hit_t is not None and same_time_base(tally.hit_t, now)
+                        and now >= tally.hit_t + LOST_JUDGED_AFTER_S):
                 self._judge_stroke(track_id, tally)
 
     def _judge_stroke(self, track_id, tally):
