@@ -631,3 +631,29 @@ def test_a_trial_copy_of_the_filter_leaves_the_second_filter_alone():
 def test_a_spin_outlier_rate_outside_0_to_1_is_refused(rate):
     with pytest.raises(ValueError, match='spin_outlier_rate must be'):
         FilterConfig(spin_outlier_rate=rate)
+
+
+def test_smoothed_covariances_stay_positive_semi_definite_under_a_wide_spin_prior():
+    """Under perception's spin prior (250 rad/s standard deviation) the smoother's
+    covariances, C0 + G (C_next - C_pred) G^T as a difference, had negative eigenvalues in a
+    track's first 0.2 s (tt-perceive --smooth: down to -108, and prediction_node then ignored
+    those states' covariance). A covariance has none: each smoothed one, in the coordinates
+    of its own standard deviations, must have no eigenvalue below -1e-9."""
+    rng = np.random.default_rng(4)
+    prior, noise = 250.0, 5e-4
+    cfg = FilterConfig(position_noise=noise, spin_prior=prior, accel_noise_speed=0.0)
+    times = np.arange(0.0, 0.45, 1.0 / 150.0)
+    R = np.eye(3) * noise ** 2
+    start_cov = np.diag([noise ** 2] * 3 + [2 * noise ** 2 * 150.0 ** 2 + 0.02 ** 2] * 3
+                        + [prior ** 2] * 3)
+    worst = 0.0
+    for spin in ([0.0, 380.0, -120.0], [40.0, -250.0, 60.0], [0.0, 0.0, 0.0]):
+        s0 = INCOMING.copy()
+        s0[6:] = spin
+        truth, _ = _with_rebound_noise(s0, times, cfg, rng)
+        z = truth[:, :3] + rng.normal(0.0, noise, (len(times), 3))
+        steps = _run_filter(ModelParams(), cfg, times, z, R, start_cov, spin=np.zeros(3))
+        for _, C in smooth(steps, ModelParams(), cfg):
+            sd = np.sqrt(np.abs(np.diag(C)))
+            worst = min(worst, float(np.linalg.eigvalsh(C / np.outer(sd, sd)).min()))
+    assert worst >= -1e-9, worst

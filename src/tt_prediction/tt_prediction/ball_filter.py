@@ -835,7 +835,8 @@ def smooth(steps, params=None, config=None):
     list of (x (9,), P (9, 9))
         The state and covariance at each step's time given every measurement of the run, those
         after it too: x_k + G (x_{k+1}^s - x_{k+1|k}), P_k + G (P_{k+1}^s - P_{k+1|k}) G^T with
-        G = P_k F^T P_{k+1|k}^-1. The prediction x_{k+1|k}, P_{k+1|k} is retraced with the
+        G = P_k F^T P_{k+1|k}^-1 (where that covariance is not positive semi-definite, the same
+        sum in a form that is). The prediction x_{k+1|k}, P_{k+1|k} is retraced with the
         filter's own flight, rebound and process noise (:func:`_predict_to`); F is the
         Jacobian of the same map (:func:`_flight_map_jacobian`), a bounce in between
         included. For offline use (``tt-perceive``): a state that waits for later frames is
@@ -855,8 +856,30 @@ def smooth(steps, params=None, config=None):
         G = np.linalg.solve(C_pred, F @ C0).T          # C0 F^T C_pred^-1 (both symmetric)
         x_next, C_next = out[k + 1]
         C = C0 + G @ (C_next - C_pred) @ G.T
-        out[k] = (x0 + G @ (x_next - x_pred), 0.5 * (C + C.T))
+        C = 0.5 * (C + C.T)
+        sd = np.sqrt(np.diag(C0))
+        if np.linalg.eigvalsh(C / np.outer(sd, sd))[0] < 0.0:
+            # The difference lost its sign where C_pred, propagated with the filter's own
+            # linearisation, and this finite-difference F imply a process noise Q = C_pred -
+            # F C0 F^T a little indefinite (under perception's spin prior of 250 rad/s:
+            # tt-perceive --smooth wrote covariances with eigenvalues down to -108; a
+            # walk-through, 7 Dec 2026). The same sum for this G, with C_pred = F C0 F^T + Q,
+            # as positive semi-definite terms, Q's negative part left out (a little wider).
+            A = np.eye(9) - G @ F
+            Q = _positive_part(C_pred - F @ C0 @ F.T, np.sqrt(np.diag(C_pred)))
+            C = A @ C0 @ A.T + G @ (Q + C_next) @ G.T
+            C = 0.5 * (C + C.T)
+        out[k] = (x0 + G @ (x_next - x_pred), C)
     return out
+
+
+def _positive_part(Q, scale):
+    """The positive semi-definite part of the symmetric ``Q``: its negative eigenvalues set to
+    0, in the coordinates where ``scale`` (each state's standard deviation) is 1."""
+    Qs = Q / np.outer(scale, scale)
+    values, vectors = np.linalg.eigh(0.5 * (Qs + Qs.T))
+    Qs = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return Qs * np.outer(scale, scale)
 
 
 # ----------------------------------------------------------------------------------------------
