@@ -483,6 +483,16 @@ def test_service_list_type_and_call_against_a_service_the_test_serves(graph, top
         "ros2 service: std_srvs/srv/SetBool_Request has no field 'dat'"]
 
 
+def test_service_call_timeout_bounds_the_wait_for_a_service_never_served(topic):
+    # --timeout bounded the wait for the response only: a call to a service nobody serves
+    # waited for ever (a walk-through, 7 Dec 2026).
+    rc, out, err = ros2('service', 'call', f'{topic}/nobody', 'std_srvs/srv/SetBool',
+                        '{data: true}', '--timeout', '2')
+    assert rc == 1 and out == ''
+    assert error_lines(err)[-1] == (f'ros2 service: no service {topic}/nobody within 2 s '
+                                    '(--timeout): nothing sent'), err
+
+
 @pytest.mark.parametrize('verb', ['action', 'launch'])
 def test_a_ros2cli_verb_tt_does_not_have_is_named_so(verb):
     # argparse said "invalid choice" after `ros2 node info` had listed services (a ROS

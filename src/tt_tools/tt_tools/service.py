@@ -1,6 +1,8 @@
 """``ros2 service list | type | find | call`` on rclpy."""
 
 import difflib
+import math
+import time
 
 from tt_tools.argtypes import positive_float
 from tt_tools.introspect import (
@@ -69,11 +71,18 @@ def service_call(args):
     with CliNode('service_call') as cli:
         client = cli.node.create_client(cls, name)
 
+        # --timeout bounds the wait for the service too: it waited for one never served
+        # for ever (a walk-through, 7 Dec 2026).
+        deadline = time.monotonic() + (args.timeout if args.timeout is not None else math.inf)
+
         def ready():
             served = _served_types(cli, name)
             if served and wanted not in served:
                 raise ValueError(f'{name} is served as {", ".join(sorted(served))}, not {wanted}')
             return client.service_is_ready()
+
+        def ready_or_late():
+            return ready() or time.monotonic() >= deadline
 
         def waiting():
             others = [s for s in _services(cli) if s != name]     # this client's own left out
@@ -81,8 +90,11 @@ def service_call(args):
             hint = f"; did you mean '{close[0]}'?" if close else ''
             return f'waiting for the service {name} (not in the graph yet){hint}'
 
-        if not cli.wait_saying(ready, waiting):
+        if not cli.wait_saying(ready_or_late, waiting):
             return 0
+        if not client.service_is_ready():
+            raise ValueError(f'no service {name} within {args.timeout:g} s (--timeout): '
+                             'nothing sent')
         # Ready means the server reads requests; it answers once its response writer has
         # matched this client too: discovery settled first, as the request is sent once (a
         # service need not be idempotent).
@@ -91,7 +103,8 @@ def service_call(args):
                                   now=lambda: cli.node.get_clock().now().to_msg())
         write(f'requester: making request: {request!r}\n\n')
         future = client.call_async(request)
-        if not cli.spin_until(future.done, timeout=args.timeout):
+        if not cli.spin_until(future.done, timeout=max(deadline - time.monotonic(), 0.0)
+                              if args.timeout is not None else None):
             if cli.stopped:
                 return 0
             raise ValueError(f'no response from {name} within {args.timeout:g} s (the request '
@@ -130,6 +143,7 @@ def add_arguments(sub):
                    help="request fields as YAML, e.g. '{names: [stale_after_s]}' (a Time field "
                         "may be 'now')")
     p.add_argument('--timeout', type=positive_float, default=None,
-                   help='give up (exit 1) when no response came within this many seconds '
-                        '(default: wait until one comes or Ctrl-C)')
+                   help='give up (exit 1) when no response came within this many seconds, '
+                        'the wait for the service included (default: wait until one comes '
+                        'or Ctrl-C)')
     p.set_defaults(func=service_call)
