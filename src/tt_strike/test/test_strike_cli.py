@@ -113,6 +113,19 @@ def test_bad_input_is_a_one_line_error(line, what, monkeypatch, capsys):
     assert err.startswith('tt-strike: line 2:') and err.count('\n') == 1 and what in err
 
 
+def test_aim_inside_zone_refuses_a_line_without_covariance(monkeypatch, capsys):
+    # It was answered without a word: in_zone_probability null, aimed at the zone's centre
+    # (strike_node refuses the same setting without the probability; a walk-through).
+    cov = (np.eye(9) * 1e-4).ravel().tolist()
+    code, out, err = run([dict(BALL, target_zone=3, covariance=cov), dict(BALL, target_zone=3)],
+                         monkeypatch, capsys, args=['--aim-inside-zone'])
+    assert code == 2 and out == [] and err.count('\n') == 1
+    assert err.startswith('tt-strike: line 2: --aim-inside-zone needs "covariance"')
+    code, out, err = run([dict(BALL, target_zone=3, covariance=cov)], monkeypatch, capsys,
+                         args=['--aim-inside-zone'])
+    assert code == 0 and len(out) == 1 and 0.0 < out[0]['in_zone_probability'] <= 1.0
+
+
 def test_a_covariance_symmetric_within_rounding_is_taken(monkeypatch, capsys):
     cov = np.eye(9) * 1e-6
     cov[0, 1], cov[1, 0] = 1e-7, 1e-7 * (1 + 1e-12)

@@ -24,6 +24,7 @@ workspace file (naming the key).
 """
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -56,8 +57,10 @@ INPUT_FIELDS = ('t', 'p', 'v', 'w', 'target_zone', 'target_point', 'covariance')
 without a word, and the stroke went out without its in-zone probability)."""
 
 
-def parse_strike_line(text, lineno, radius):
-    """(t, state9, zone or None, point or None, covariance or None) of one input line."""
+def parse_strike_line(text, lineno, radius, needs_covariance=False):
+    """(t, state9, zone or None, point or None, covariance or None) of one input line;
+    ``needs_covariance`` (--aim-inside-zone): a line without one is refused (it was answered
+    without a word, aimed at the zone's centre)."""
     data = parse_object(text, lineno, INPUT_FIELDS)
     t, state = parse_state(data, lineno, radius)
     zone, point = data.get('target_zone'), data.get('target_point')
@@ -71,6 +74,9 @@ def parse_strike_line(text, lineno, radius):
     except ValueError as exc:
         raise InputError(f'line {lineno}: {exc}') from None
     cov = data.get('covariance')
+    if cov is None and needs_covariance:
+        raise InputError(f'line {lineno}: --aim-inside-zone needs "covariance" (81 numbers, '
+                         "9x9: the state's, to aim where the ball lands in the zone most often)")
     if cov is not None:
         ok = (isinstance(cov, list) and len(cov) == 81
               and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in cov))
@@ -168,7 +174,8 @@ def main(argv=None):
         # Read with --hit-plane-x too: its racket speed limit and least time before the hit
         # apply there as in strike_node's use_hit_plane (a missing file was not even named).
         workspace = load_workspace(args.workspace)
-        params, balls = read_input(args.model, args.input, parse_strike_line)
+        params, balls = read_input(args.model, args.input, functools.partial(
+            parse_strike_line, needs_covariance=args.aim_inside_zone))
     except ValueError as exc:                  # InputError, WorkspaceError are ValueErrors
         print(f'tt-strike: {exc}', file=sys.stderr)
         return 2
