@@ -162,6 +162,20 @@ def test_demo_refuses_a_hit_plane_its_balls_cannot_reach_before_writing(tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize('option, value', [('--balls', '0'), ('--rate', '0'), ('--rate', 'nan')])
+def test_demo_names_the_one_bad_option(tmp_path, capsys, option, value):
+    # '--balls must be >= 1 and --rate > 0' named both for one bad value (a walk-through).
+    from tt_tools import demo
+    with pytest.raises(SystemExit) as exit_:
+        demo.main(['--out', str(tmp_path / 'demo'), option, value])
+    assert exit_.value.code == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if 'error:' in line]
+    assert len(errors) == 1 and option in errors[0] and f'got {value}' in errors[0]
+    other = {'--balls': '--rate', '--rate': '--balls'}[option]
+    assert other not in errors[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_demo_refuses_an_out_that_is_a_file_before_writing(tmp_path, capsys):
     # --out is a folder: an existing file is one error line and exit 2 (it was a
     # FileExistsError traceback once the recording was made), the file untouched.
