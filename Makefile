@@ -14,11 +14,11 @@ all: build
 setup:
 	@scripts/setup_workspace.sh --no-build
 
-# colcon build, re-run when any package source changes.
-build: install/.tt-built
+# colcon build, re-run when any package source changes (the script stamps it). setup first:
+# its check of TT_PYTHON against .venv (a demo with TT_PYTHON=3.11 ran 3.12's without a word).
+build: setup install/.tt-built
 install/.tt-built: $(SRC_PY) requirements.txt constraints.txt scripts/setup_workspace.sh
 	@scripts/setup_workspace.sh
-	@touch $@
 
 lint: setup
 	@$(ENV) ruff check src test scripts bench

@@ -163,5 +163,6 @@ from tt_prediction.ball_filter import FilterConfig
 from tt_prediction.params import ModelParams
 warm_up(ModelParams(), FilterConfig())'
   )
+  touch "$top/install/.tt-built"     # make build's stamp: either route leaves it built
 fi
 say "ready: source $top/env.sh"
