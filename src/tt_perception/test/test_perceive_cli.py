@@ -582,6 +582,9 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{rig}', '--bag', '{tmp}/killed'], 1,
      '{tmp}/killed: not a readable rosbag2 bag: incomplete: killed_0.mcap without '
      'metadata.yaml (a recording that did not end: killed?)'),
+    # "Expected metadata file '<the folder>' does not exist" (a walk-through, 7 Dec 2026).
+    (['--rig', '{rig}', '--bag', '{tmp}/emptydir'], 1,
+     '{tmp}/emptydir: not a readable rosbag2 bag: no metadata.yaml in it'),
     (['--rig', '{rig}', '--model', '{tmp}/absent_model.yaml'], 2, 'absent_model.yaml'),
     (['--rig', '{rig}', '--out-bag', '{tmp}'], 2, '--out-bag {tmp}: already exists'),
     (['--rig', '{rig}', '--out-bag', '{tmp}/dangling'], 2,
@@ -593,7 +596,8 @@ def test_a_bag_without_images_or_of_another_size_for_a_camera_is_refused(scene, 
     (['--rig', '{nosrc}'], 2, 'cameras[1] (cam1): no source'),
 ], ids=['missing rig', 'rig is a folder', 'empty rig', 'topics without a bag', 'missing bag',
         'bag metadata not YAML',
-        'killed bag', 'missing model', 'existing output bag', 'dangling link as output bag',
+        'killed bag', 'empty folder as bag', 'missing model', 'existing output bag',
+        'dangling link as output bag',
         'output bag under a file', 'output bag inside --out', 'two cameras at one place',
         'camera without a source'])
 def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args, code, expect):
@@ -603,6 +607,7 @@ def test_bad_input_is_one_line_and_writes_nothing(scene, tmp_path, capsys, args,
     (tmp_path / 'empty.yaml').write_text('')
     (tmp_path / 'dangling').symlink_to(tmp_path / 'nowhere')
     (tmp_path / 'killed').mkdir()
+    (tmp_path / 'emptydir').mkdir()
     (tmp_path / 'killed' / 'killed_0.mcap').write_bytes(b'\x89MCAP0\r\n')
     (tmp_path / 'badbag').mkdir()          # the YAML parser's error spans five lines
     (tmp_path / 'badbag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [9\n')

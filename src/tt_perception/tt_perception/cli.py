@@ -88,12 +88,11 @@ def bag_frames(rig, bag, notes=None):
     refused); a camera without any adds a line to ``notes``."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
-    from tt_ros.bagfile import incomplete_reason
+    from tt_ros.bagfile import bag_problem
     topics = {cam.source: k for k, cam in enumerate(rig.cameras)}
-    if not os.path.exists(bag):
-        raise InputError(f'{bag}: not a readable rosbag2 bag: no such file or folder')
-    if incomplete_reason(bag):     # rosbags: 'Expected metadata file ... does not exist'
-        raise InputError(f'{bag}: not a readable rosbag2 bag: {incomplete_reason(bag)}')
+    problem = bag_problem(bag)
+    if problem:
+        raise InputError(f'{bag}: not a readable rosbag2 bag: {problem}')
     try:
         reader = AnyReader([pathlib.Path(bag)],
                            default_typestore=get_typestore(Stores.ROS2_JAZZY))

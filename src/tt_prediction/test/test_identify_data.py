@@ -315,8 +315,20 @@ def test_a_bag_whose_recording_was_killed_is_named_so(tmp_path, capsys):
     (bag / 'metadata.yaml').unlink()
     out = tmp_path / 'out'
     code, err = _run(capsys, [str(bag), '--out', str(out)])
-    assert code == 2 and err == [f'tt-identify: {bag}: a bag without metadata.yaml (a '
-                                 'recording that did not end: killed?)']
+    assert code == 2 and err == [f'tt-identify: {bag}: not a readable rosbag2 bag: incomplete: '
+                                 'bag.mcap without metadata.yaml (a recording that did not '
+                                 'end: killed?)']
+    assert not out.exists()
+
+
+def test_what_is_no_bag_is_named_so_before_rosbags_reads_it(tmp_path, capsys):
+    # rosbags said "Unrecognized storage format ''" of an empty file (a walk-through).
+    empty = tmp_path / 'emptyf'
+    empty.write_text('')
+    out = tmp_path / 'out'
+    code, err = _run(capsys, [str(empty), '--out', str(out)])
+    assert code == 2 and err == [f'tt-identify: {empty}: not a readable rosbag2 bag: expected '
+                                 'a directory with metadata.yaml, or a .mcap or .db3 file']
     assert not out.exists()
 
 

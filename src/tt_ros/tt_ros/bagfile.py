@@ -136,6 +136,22 @@ def incomplete_reason(folder):
             'killed?)' if storage else '')
 
 
+def bag_problem(path):
+    """Why ``path`` is no rosbag2 bag a reader can open, one line, or '' (a directory with
+    metadata.yaml, or a .mcap or .db3 file, whose contents the reader then checks). Said
+    before rosbags is asked: it said "Expected metadata file '<the folder>' does not exist"
+    of an empty folder and "Unrecognized storage format ''" of an empty file."""
+    if not os.path.exists(path):
+        return 'no such file or folder'
+    if os.path.isdir(path):
+        if os.path.isfile(os.path.join(path, 'metadata.yaml')):
+            return ''
+        return incomplete_reason(path) or 'no metadata.yaml in it'
+    if str(path).endswith(('.mcap', '.db3')):
+        return ''
+    return 'expected a directory with metadata.yaml, or a .mcap or .db3 file'
+
+
 def open_bag(path):
     """An open rosbags Reader for the bag directory ``path`` (or a storage file in it:
     :func:`bag_folder`); BagError with a one-line reason.

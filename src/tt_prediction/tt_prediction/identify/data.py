@@ -292,9 +292,10 @@ def load_bag(path, topic=None):
     messages are split by ``track_id``; PointStamped streams at gaps over TRACK_GAP.
     """
     from rosbags.highlevel import AnyReader
-    if os.path.isdir(path) and not os.path.isfile(os.path.join(path, 'metadata.yaml')):
-        raise DataError(f'{path}: a bag without metadata.yaml (a recording that did not end: '
-                        'killed?)')
+    from tt_ros.bagfile import bag_problem
+    problem = bag_problem(path)
+    if problem:
+        raise DataError(f'{path}: not a readable rosbag2 bag: {problem}')
     try:
         reader = AnyReader([pathlib.Path(path)], default_typestore=_bag_typestore())
         reader.open()
