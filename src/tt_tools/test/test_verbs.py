@@ -483,6 +483,13 @@ def test_service_list_type_and_call_against_a_service_the_test_serves(graph, top
         "ros2 service: std_srvs/srv/SetBool_Request has no field 'dat'"]
 
 
+def test_param_set_without_a_value_is_a_usage_error():
+    # Exit 1 where every other usage error exits 2 (docs/tools.md; a walk-through).
+    rc, out, err = ros2('param', 'set', '/nobody', 'stale_after_s')
+    assert rc == 2 and out == '' and error_lines(err) == [
+        'ros2 param: parameters must be given as name value pairs: got 1 argument(s)']
+
+
 def test_service_call_timeout_bounds_the_wait_for_a_service_never_served(topic):
     # --timeout bounded the wait for the response only: a call to a service nobody serves
     # waited for ever (a walk-through, 7 Dec 2026).

@@ -30,3 +30,8 @@ positive_int = _number(int, 1, inclusive=True)
 """An integer >= 1 (a window, a count)."""
 non_negative_int = _number(int, 0, inclusive=True)
 """An integer >= 0 (a count where 0 means no limit)."""
+
+
+class UsageError(ValueError):
+    """A command line argparse cannot check (``param set``'s name value pairs): one line,
+    exit 2, as argparse's own usage errors."""

@@ -22,7 +22,7 @@ from tt_ros.errors import one_line_reason
 from tt_ros.executor import names_a_node, parameter_items, parameter_sections, section_matches
 import yaml
 
-from tt_tools.argtypes import positive_float
+from tt_tools.argtypes import UsageError, positive_float
 from tt_tools.output import say, write
 from tt_tools.rosutil import (
     LATE_NODE_S,
@@ -305,7 +305,7 @@ def param_set(args):
     node_name = absolute_node_name(args.node_name)
     pairs = args.params_and_values
     if len(pairs) % 2:
-        raise ValueError('parameters must be given as name value pairs: '
+        raise UsageError('parameters must be given as name value pairs: '
                          f'got {len(pairs)} argument(s)')
     names, texts = pairs[::2], pairs[1::2]
     with CliNode('param_set') as cli:

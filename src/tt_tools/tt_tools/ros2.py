@@ -181,6 +181,7 @@ LAUNCH_HINT = ('; the graph starts with `ros2 run tt_tools bringup --params-file
 
 
 def _main(argv):
+    from tt_tools.argtypes import UsageError
     from tt_tools.run import RunError
 
     if argv[:1] and argv[0] in ROS2CLI_ONLY:
@@ -209,6 +210,9 @@ def _main(argv):
         return args.func(args)
     except BrokenPipeError:
         raise
+    except UsageError as exc:
+        print(f'ros2 {args.verb}: {exc}', file=sys.stderr)
+        return 2
     except errors as exc:  # bad input: one line (without rcl's source file and line)
         print(f'ros2 {args.verb}: {_one_line(exc)}', file=sys.stderr)
     except KeyError as exc:  # an unknown message field
