@@ -67,6 +67,25 @@ def test_large_object_and_static_things_are_not_balls():
     assert d.detect(disc(scene.copy(), (90.0, 60.0), 18.0)) == []        # racket-sized
 
 
+def test_the_largest_ball_follows_the_cameras_focal_length():
+    # A ball 40 mm across 1.0 m from a 1920 x 1080 camera with a 60 degree lens (focal
+    # length 1663 px) is 2 r f / d = 66.5 px wide. Sized in pixels for a 640 x 480 camera
+    # (30 px), it was refused: synth's hall at 1920 x 1080 lost a ball's last 15 frames, as
+    # it came to the robot. Through a 640 x 480 camera (554 px) a blob that size would be a
+    # ball 0.33 m away, nearer than NEAREST_BALL_M: refused, as before.
+    focal_1080p = 960.0 / np.tan(np.radians(30.0))
+    radius_px = 0.02 * focal_1080p / 1.0
+    background = np.full((200, 240, 3), BACKGROUND, np.uint8)
+    ball = disc(background.copy(), (120.3, 100.6), radius_px)
+    near = BallDetector(DetectorConfig(colour='white'), focal=focal_1080p)
+    near.detect(background)
+    found = near.detect(ball)
+    assert len(found) == 1 and np.hypot(found[0].u - 120.3, found[0].v - 100.6) < 0.1
+    far = BallDetector(DetectorConfig(colour='white'), focal=554.256)
+    far.detect(background)
+    assert far.detect(ball) == []
+
+
 def test_search_window_and_a_blob_cut_by_it():
     d = detector()
     frame = disc(np.full((120, 160, 3), BACKGROUND, np.uint8), (70.0, 60.0), 5.0)

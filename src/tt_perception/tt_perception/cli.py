@@ -165,7 +165,8 @@ def detections_per_camera(rig, frames, colours, detector_config=None):
     the frames with one detection, (times, normalised (n, 2)), and ``tracks`` every
     detection linked into image tracks (:func:`tt_perception.sync.image_tracks`)."""
     base = detector_config or DetectorConfig()
-    detectors = {c: [BallDetector(dataclasses.replace(base, colour=c, white_bgr=cam.white_bgr))
+    detectors = {c: [BallDetector(dataclasses.replace(base, colour=c, white_bgr=cam.white_bgr),
+                                  cam.focal)
                      for cam in rig.cameras]
                  for c in colours}
     found = {c: [([], []) for _ in rig.cameras] for c in colours}

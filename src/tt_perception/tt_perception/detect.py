@@ -52,6 +52,17 @@ EXPOSURE_STEPS = 21
 at 150 fps)."""
 
 
+NEAREST_BALL_M = 0.739
+"""The nearest a ball comes to a camera, m, for the pixel sizes :func:`sized_for` sets: a
+ball 40 mm across 30 px wide through a 640 x 480 camera with a 60 degree lens (focal length
+554 px; 1280 x 720: 60 px, 1920 x 1080: 90 px). With these sizes fixed in pixels, a 1920 x
+1080 camera's ball was refused once nearer than 2.2 m: a hall scene's last 15 frames, the
+ball coming to the robot (synth, 7 Dec 2026)."""
+REFERENCE_FOCAL_PX = 554.256
+"""The focal length, pixels, of the camera a :class:`BallDetector` is sized for when it is
+not told its own (synth.demo_rig at 640 x 480)."""
+
+
 @dataclasses.dataclass
 class DetectorConfig:
     """Thresholds of :class:`BallDetector` (pixels, grey levels)."""
@@ -65,10 +76,12 @@ class DetectorConfig:
     grey as what is behind it."""
     min_area: int = 4
     """Smallest blob area, pixels."""
-    max_area: int = 900
-    """Largest blob area, pixels (a near, motion-blurred ball)."""
-    max_width: float = 30.0
-    """Largest blob width across its motion (ball diameter), pixels."""
+    max_area: int = 0
+    """Largest blob area, pixels (a near, motion-blurred ball); 0: the largest width's square
+    (:func:`sized_for`)."""
+    max_width: float = 0.0
+    """Largest blob width across its motion (ball diameter), pixels; 0: a ball at
+    NEAREST_BALL_M from the camera (:func:`sized_for`)."""
     colour: str = 'any'
     """Ball colour: 'white', 'orange' or 'any'."""
     white_bgr: tuple = (1.0, 1.0, 1.0)
@@ -79,8 +92,9 @@ class DetectorConfig:
     """Weight of a new frame in the running background (per update)."""
     background_every: int = 3
     """Frames between two updates of the background."""
-    roi_half_size: int = 40
-    """Half size of the search window around a predicted position, pixels."""
+    roi_half_size: int = 0
+    """Half size of the search window around a predicted position, pixels; 0: 4/3 of the
+    largest width (:func:`sized_for`)."""
     max_candidates: int = 4
     """Most blobs returned per frame (the largest differences first)."""
     silhouette_threshold: float = 14.0
@@ -1514,11 +1528,23 @@ def _usable_pixels(grey, patch, colour_background, background, u, v, reach, shad
     return obs[:n], bg[:n], xs[:n], ys[:n]
 
 
-class BallDetector:
-    """Detector of one camera (it keeps that camera's background)."""
+def sized_for(config, focal, ball_radius=0.02):
+    """``config`` with its pixel sizes left at 0 set for a camera of focal length ``focal``
+    (pixels) and a ball of ``ball_radius`` (m): ``max_width`` the ball's diameter at
+    NEAREST_BALL_M, ``max_area`` its square and ``roi_half_size`` 4/3 of it (30 px, 900 px
+    and 40 px at 554 px)."""
+    width = config.max_width or 2.0 * ball_radius * focal / NEAREST_BALL_M
+    return dataclasses.replace(config, max_width=width,
+                               max_area=config.max_area or round(width ** 2),
+                               roi_half_size=config.roi_half_size or round(width * 4.0 / 3.0))
 
-    def __init__(self, config=None):
-        self.config = config or DetectorConfig()
+
+class BallDetector:
+    """Detector of one camera (it keeps that camera's background). ``focal``: the camera's
+    focal length, pixels, for the pixel sizes of ``config`` left at 0 (:func:`sized_for`)."""
+
+    def __init__(self, config=None, focal=REFERENCE_FOCAL_PX, ball_radius=0.02):
+        self.config = sized_for(config or DetectorConfig(), focal, ball_radius)
         self.background = None
         self._bg8 = None
         self._bg_colour = None

@@ -63,7 +63,13 @@ from .camstream import (
     open_v4l2,
     warm_up,
 )
-from .detect import EXPOSURE_RANGE, IMAGE_BLUR_RANGE, RESPONSE_GAMMA_RANGE, DetectorConfig
+from .detect import (
+    EXPOSURE_RANGE,
+    IMAGE_BLUR_RANGE,
+    NEAREST_BALL_M,
+    RESPONSE_GAMMA_RANGE,
+    DetectorConfig,
+)
 from .pipeline import PERCEPTION_FILTER, Pipeline, TrackerConfig
 from .sources import (
     FrameRateCheck,
@@ -116,12 +122,14 @@ PARAMETERS = tuple(Param(*spec, read_only=True) for spec in (
      'the pixels of a ball that fewer than min_area pixels changed in grey touch', '', 2,
      255),
     ('min_area', DetectorConfig.min_area, 'Smallest ball blob', 'pixels', 1, 10000),
-    ('max_area', DetectorConfig.max_area, 'Largest ball blob (near, motion-blurred)',
-     'pixels', 4, 1000000),
-    ('max_width', DetectorConfig.max_width, 'Largest ball diameter in the image', 'pixels',
-     2, 1000),
+    ('max_area', DetectorConfig.max_area, 'Largest ball blob (near, motion-blurred); 0: '
+     "max_width's square", 'pixels', 0, 1000000),
+    ('max_width', DetectorConfig.max_width, 'Largest ball diameter in the image; 0: a ball '
+     f'{NEAREST_BALL_M:g} m from each camera, by its focal length (30 px at 554 px)', 'pixels',
+     0, 1000),
     ('roi_half_size', DetectorConfig.roi_half_size,
-     'Half size of the search window around the predicted ball', 'pixels', 8, 2000),
+     'Half size of the search window around the predicted ball; 0: 4/3 of max_width',
+     'pixels', 0, 2000),
     ('exposure', DetectorConfig.exposure,
      'Exposure time of the cameras (the motion blur of the ball); tt-perceive prints each '
      "camera's, estimated from a recording", 's', *EXPOSURE_RANGE),
@@ -244,7 +252,7 @@ def ball_state_message(est, t_ref, frame_id):
 def check_parameters(values):
     """perception_node's cross-parameter rule on all its ``values``: the one-line reason they
     are refused, or None (min_area above max_area let no blob pass: 0 states, no word)."""
-    if values['min_area'] > values['max_area']:
+    if values['max_area'] and values['min_area'] > values['max_area']:
         return (f"min_area ({values['min_area']} pixels) must not exceed max_area "
                 f"({values['max_area']} pixels)")
     return None
@@ -374,6 +382,11 @@ class PerceptionNode(Node):
                                 backfill=self._p('backfill'), backfill_after=0.0)
         self.rig = rig
         self.pipeline = Pipeline(rig, params, detector, filt, tracker)
+        for cam, d in zip(rig.cameras, self.pipeline.detectors, strict=True):
+            if d.config.min_area > d.config.max_area:
+                raise StartupError(f"min_area ({d.config.min_area} pixels) must not exceed "
+                                   f"camera {cam.name}'s max_area ({d.config.max_area} pixels, "
+                                   'from its focal length)')
         with said_if_slow(self.get_logger(), KERNELS_LOADING):
             warm_up(params, filt, rig.fps)  # compiled kernels loaded before the first frame
         files, devices = [], []

@@ -702,7 +702,8 @@ class Pipeline:
         self.cameras = rig.cameras
         self.params = params or ModelParams()
         dcfg = detector_config or DetectorConfig()
-        self.detectors = [BallDetector(dataclasses.replace(dcfg, white_bgr=cam.white_bgr))
+        self.detectors = [BallDetector(dataclasses.replace(dcfg, white_bgr=cam.white_bgr),
+                                       cam.focal, self.params.radius)
                           for cam in self.cameras]
         self.matcher = Matcher(len(self.cameras), 1.0 / rig.fps)
         self.tracker = Tracker(rig.fps, self.params, filter_config, tracker_config)
