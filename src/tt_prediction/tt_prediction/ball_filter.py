@@ -857,7 +857,7 @@ def smooth(steps, params=None, config=None):
         x_next, C_next = out[k + 1]
         C = C0 + G @ (C_next - C_pred) @ G.T
         C = 0.5 * (C + C.T)
-        sd = np.sqrt(np.diag(C0))
+        sd = np.sqrt(np.maximum(np.diag(C0), 1e-300))
         if np.linalg.eigvalsh(C / np.outer(sd, sd))[0] < 0.0:
             # The difference lost its sign where C_pred, propagated with the filter's own
             # linearisation, and this finite-difference F imply a process noise Q = C_pred -
@@ -876,6 +876,7 @@ def smooth(steps, params=None, config=None):
 def _positive_part(Q, scale):
     """The positive semi-definite part of the symmetric ``Q``: its negative eigenvalues set to
     0, in the coordinates where ``scale`` (each state's standard deviation) is 1."""
+    scale = np.maximum(scale, 1e-150)
     Qs = Q / np.outer(scale, scale)
     values, vectors = np.linalg.eigh(0.5 * (Qs + Qs.T))
     Qs = (vectors * np.maximum(values, 0.0)) @ vectors.T
