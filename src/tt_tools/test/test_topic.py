@@ -397,6 +397,13 @@ def test_node_list_warns_of_nodes_that_share_a_name(graph):
         assert [line for line in error_lines(proc.stderr) if 'WARNING' in line] == [
             f'WARNING: nodes in the graph share an exact name: /{graph.node.get_name()} (2); '
             'their topics, services and parameters are not told apart']
+        # A parameter verb reached one of them without a word (a walk-through).
+        proc = Ros2Process('param', 'list', f'/{graph.node.get_name()}')
+        graph.spin_until(lambda: proc.proc.poll() is not None, 60, 'ros2 param list')
+        assert proc.wait() == 0, proc.stderr
+        assert [line for line in error_lines(proc.stderr) if 'WARNING' in line] == [
+            f'WARNING: 2 nodes in the graph are named /{graph.node.get_name()}; this reaches '
+            'one of them, not told which']
     finally:
         twin.destroy_node()
 

@@ -29,6 +29,7 @@ from tt_tools.rosutil import (
     CliNode,
     absolute_node_name,
     add_spin_time_argument,
+    node_name_counts,
     node_names,
 )
 
@@ -73,8 +74,20 @@ def _client(cli, node_name, srv_type, args):
     """
     service = f'{node_name}/{SERVICES[srv_type]}'
     client = cli.node.create_client(srv_type, service)
-    if cli.settle(args.spin_time, done=client.service_is_ready):
+
+    def ready():
+        # The node's name comes apart from its services; with it, the names of the nodes of
+        # its process. Two of that name: this reaches one of them, which had no word (a
+        # walk-through; ros2 node list warns).
+        cli.spin_until(lambda: node_name in node_names(cli, hidden=True), timeout=LATE_NODE_S)
+        shared = node_name_counts(cli)[node_name]
+        if shared > 1:
+            say(f'WARNING: {shared} nodes in the graph are named {node_name}; this reaches '
+                'one of them, not told which')
         return client
+
+    if cli.settle(args.spin_time, done=client.service_is_ready):
+        return ready()
     if cli.stopped:
         return None
     # Discovery can settle before a busy machine has announced every node: a node not seen
@@ -82,13 +95,13 @@ def _client(cli, node_name, srv_type, args):
     if cli.spin_until(lambda: client.service_is_ready()
                       or node_name in node_names(cli, hidden=True),
                       timeout=min(args.timeout, LATE_NODE_S)) and client.service_is_ready():
-        return client
+        return ready()
     if cli.stopped:
         return None
     if node_name not in node_names(cli, hidden=True):
         raise ValueError(f"Node '{node_name}' not found")
     if cli.spin_until(client.service_is_ready, timeout=args.timeout):
-        return client
+        return ready()
     if cli.stopped:
         return None
     raise ValueError(f"node '{node_name}' does not answer on {service} within "

@@ -1,5 +1,6 @@
 """ROS glue shared by the ``ros2`` verbs: a short-lived node with clean SIGINT/SIGTERM, QoS."""
 
+import collections
 import faulthandler
 import os
 import signal
@@ -311,6 +312,12 @@ def node_names(cli, hidden=False):
     return sorted({node_full_name(name, ns)
                    for name, ns in cli.node.get_node_names_and_namespaces()
                    if hidden or not name.startswith('_')})
+
+
+def node_name_counts(cli):
+    """How many nodes ``cli`` (a :class:`CliNode`) has discovered under each full name."""
+    return collections.Counter(node_full_name(name, ns)
+                               for name, ns in cli.node.get_node_names_and_namespaces())
 
 
 def topic_type(node, topic):

@@ -49,6 +49,7 @@ from tt_tools.rosutil import (
     graph_names,
     hidden_name,
     node_full_name,
+    node_name_counts,
     node_names,
     qos_matching,
     topic_type,
@@ -121,8 +122,7 @@ def node_list(args):
     with CliNode('node_list') as cli:
         cli.settle(args.spin_time)
         names = node_names(cli, hidden=args.all)
-        counts = collections.Counter(node_full_name(name, ns) for name, ns
-                                     in cli.node.get_node_names_and_namespaces())
+        counts = node_name_counts(cli)
     shared = [f'{name} ({counts[name]})' for name in names if counts[name] > 1]
     if shared:
         # Listed once like any other; two strike_nodes command the arm both, and a parameter
