@@ -58,6 +58,9 @@ ball 40 mm across 30 px wide through a 640 x 480 camera with a 60 degree lens (f
 554 px; 1280 x 720: 60 px, 1920 x 1080: 90 px). With these sizes fixed in pixels, a 1920 x
 1080 camera's ball was refused once nearer than 2.2 m: a hall scene's last 15 frames, the
 ball coming to the robot (synth, 7 Dec 2026)."""
+BALL_RADIUS_M = 0.02
+"""A regulation ball's radius, m (ModelParams.radius), for the sizes of a detector not told
+its ball's."""
 REFERENCE_FOCAL_PX = 554.256
 """The focal length, pixels, of the camera a :class:`BallDetector` is sized for when it is
 not told its own (synth.demo_rig at 640 x 480)."""
@@ -1528,7 +1531,7 @@ def _usable_pixels(grey, patch, colour_background, background, u, v, reach, shad
     return obs[:n], bg[:n], xs[:n], ys[:n]
 
 
-def sized_for(config, focal, ball_radius=0.02):
+def sized_for(config, focal, ball_radius=BALL_RADIUS_M):
     """``config`` with its pixel sizes left at 0 set for a camera of focal length ``focal``
     (pixels) and a ball of ``ball_radius`` (m): ``max_width`` the ball's diameter at
     NEAREST_BALL_M, ``max_area`` its square and ``roi_half_size`` 4/3 of it (30 px, 900 px
@@ -1543,7 +1546,7 @@ class BallDetector:
     """Detector of one camera (it keeps that camera's background). ``focal``: the camera's
     focal length, pixels, for the pixel sizes of ``config`` left at 0 (:func:`sized_for`)."""
 
-    def __init__(self, config=None, focal=REFERENCE_FOCAL_PX, ball_radius=0.02):
+    def __init__(self, config=None, focal=REFERENCE_FOCAL_PX, ball_radius=BALL_RADIUS_M):
         self.config = sized_for(config or DetectorConfig(), focal, ball_radius)
         self.background = None
         self._bg8 = None

@@ -72,11 +72,13 @@ class Graph(testing.Graph):
         self.node.get_clock().set_ros_time_override(rclpy.time.Time(nanoseconds=round(t * 1e9)))
 
 
-def prediction_msg(track_id, state=INCOMING, hit_valid=True):
+def prediction_msg(track_id, state=INCOMING, hit_valid=True, after_ms=0, hit_sigma=0.002):
+    """A prediction of ``state`` stamped 100 s + ``after_ms``, its hit position's standard
+    deviation ``hit_sigma`` (m) on each axis."""
     pred = predict(np.array(state), PARAMS)
     assert pred.status == 'ok'
     msg = BallPrediction()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = 100, 5
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 100, 5 + after_ms * 1_000_000
     msg.header.frame_id = 'table'
     msg.track_id = track_id
     msg.status = 'ok' if hit_valid else 'net'
@@ -85,7 +87,7 @@ def prediction_msg(track_id, state=INCOMING, hit_valid=True):
     msg.hit_point.x, msg.hit_point.y, msg.hit_point.z = pred.hit.p.tolist()
     msg.hit_velocity.x, msg.hit_velocity.y, msg.hit_velocity.z = pred.hit.v.tolist()
     msg.hit_spin.x, msg.hit_spin.y, msg.hit_spin.z = pred.hit.w.tolist()
-    msg.hit_covariance = (np.eye(3) * 4e-6).ravel().tolist()
+    msg.hit_covariance = (np.eye(3) * hit_sigma ** 2).ravel().tolist()
     msg.hit_plane_x = -1.5
     return msg
 
@@ -418,10 +420,7 @@ def test_a_probability_is_worked_out_before_the_command_after_one_from_no_covari
     # was off and on again, a value 0.6 s old was sent. Both are now worked out before the
     # command that follows them.
     def at(ms, cov_sigma):
-        msg = prediction_msg(4)
-        msg.header.stamp.nanosec += ms * 1_000_000
-        msg.hit_covariance = (np.eye(3) * cov_sigma ** 2).ravel().tolist()
-        return msg
+        return prediction_msg(4, after_ms=ms, hit_sigma=cov_sigma)
 
     with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
         g.pub.publish(at(0, 0.0))
@@ -715,10 +714,7 @@ def test_two_balls_at_once_each_get_their_probability_refreshed():
     # more periods. The worker is held on ball 6's refresh while 4's and 5's are asked for.
     with Graph([Parameter('probability_rate_hz', value=10.0)]) as g:
         def at(track_id, ms, sigma):
-            msg = prediction_msg(track_id)
-            msg.header.stamp.nanosec += ms * 1_000_000
-            msg.hit_covariance = (np.eye(3) * sigma ** 2).ravel().tolist()
-            return msg
+            return prediction_msg(track_id, after_ms=ms, hit_sigma=sigma)
 
         for track_id in (6, 4, 5):
             g.pub.publish(at(track_id, 0, 0.002))

@@ -103,8 +103,7 @@ def service_call(args):
                                   now=lambda: cli.node.get_clock().now().to_msg())
         write(f'requester: making request: {request!r}\n\n')
         future = client.call_async(request)
-        if not cli.spin_until(future.done, timeout=max(deadline - time.monotonic(), 0.0)
-                              if args.timeout is not None else None):
+        if not cli.spin_until(future.done, timeout=deadline - time.monotonic()):
             if cli.stopped:
                 return 0
             raise ValueError(f'no response from {name} within {args.timeout:g} s (the request '
