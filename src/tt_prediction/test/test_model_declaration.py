@@ -206,6 +206,20 @@ def test_friction_depends_on_slip_speed():
     assert math.isclose(mu, 0.25 + 0.02 * (vt - 4.0))
 
 
+def test_gravity_along_a_table_not_level_adds_to_the_flight_as_it_is():
+    # Eq. 8 with g = (g_x, g_y, -g): a ball at rest in still air accelerates by g alone, and
+    # a moving one by g_x, g_y more than over a level table, whatever drag and Magnus do.
+    p = NOMINAL.replace(gravity_x=0.17, gravity_y=-0.05)
+    a = np.empty(9)
+    ball.flight_derivative(np.zeros(9), p.packed(), a)
+    assert a[3:6] == pytest.approx([0.17, -0.05, -9.8], abs=1e-15)
+    s = np.array([1.0, 0.2, 0.3, -5.0, 0.4, 1.0, 10.0, -150.0, 30.0])
+    level = np.empty(9)
+    ball.flight_derivative(s, NOMINAL.packed(), level)
+    ball.flight_derivative(s, p.packed(), a)
+    assert a[3:6] - level[3:6] == pytest.approx([0.17, -0.05, 0.0], abs=1e-12)
+
+
 def test_the_predictor_runs_the_effects_that_model_yaml_selects(tmp_path):
     # What tt-identify writes is what prediction_node and tt-predict load (load_model) and
     # run. Without air (c_d = c_m = 0) the flight is a parabola, so the bounce and the hit

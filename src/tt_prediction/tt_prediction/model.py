@@ -25,6 +25,8 @@ from .params import (
     I_ET_SPIN_SLOPE,
     I_ET_TANGENTIAL,
     I_GRAVITY,
+    I_GRAVITY_X,
+    I_GRAVITY_Y,
     I_KP,
     I_MASS,
     I_MU,
@@ -75,7 +77,8 @@ def flight_derivative(s, P, out):
 
     Eq. 8: m a = m g - 1/2 C_D rho A |u| u + 4/3 C_M pi rho r^3 (w x u), with u = v - wind
     the air-relative velocity (u = v in the paper's still air), C_D and C_M with their
-    speed and spin-ratio effects, and dw/dt = -spin_decay w (0 in the paper: constant spin).
+    speed and spin-ratio effects, g = (gravity_x, gravity_y, -gravity) (along -z in the
+    paper: a level table) and dw/dt = -spin_decay w (0 in the paper: constant spin).
 
     Parameters
     ----------
@@ -97,8 +100,9 @@ def flight_derivative(s, P, out):
     out[0] = s[3]
     out[1] = s[4]
     out[2] = s[5]
-    out[3] = -drag * ux + lift * (wy * uz - wz * uy)
-    out[4] = -drag * uy + lift * (wz * ux - wx * uz)
+    # Eq. 8; g = (gravity_x, gravity_y, -gravity): a table not level (0 in the paper).
+    out[3] = P[I_GRAVITY_X] - drag * ux + lift * (wy * uz - wz * uy)
+    out[4] = P[I_GRAVITY_Y] - drag * uy + lift * (wz * ux - wx * uz)
     out[5] = -P[I_GRAVITY] - drag * uz + lift * (wx * uy - wy * ux)
     k = P[I_SPIN_DECAY]
     out[6] = -k * wx

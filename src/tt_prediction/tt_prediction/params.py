@@ -192,6 +192,12 @@ FIELDS = (
           'Slip-speed-dependent friction: mu += slope (|v_T| - SLIP_SPEED_REF), v_T the '
           'tangential contact velocity before the bounce (eqs. 1-6).',
           effect='table_friction_slip'),
+    Field('gravity_x', 0.0, 'm/s^2', (-1.0, 1.0),
+          "Gravity along the table's x axis: a table (or the frame it is measured in) not "
+          'level, a = (gravity_x, gravity_y, -gravity) + ... in eq. 8 (0.17 m/s^2 a degree).',
+          effect='gravity_tilt'),
+    Field('gravity_y', 0.0, 'm/s^2', (-1.0, 1.0),
+          "Gravity along the table's y axis (see gravity_x).", effect='gravity_tilt'),
 )
 """The declaration of every model parameter, in packed order."""
 
@@ -222,6 +228,10 @@ EFFECTS = (
            'the ball grips the table and springs back (tangential compliance, like the '
            "rubber's k_p): the contact velocity reverses, v_T' = -e_x v_T, spin overshoots",
            needs='bounces'),
+    Effect('gravity_tilt', ('gravity_x', 'gravity_y'),
+           'the table is not level: gravity has a part along it, (g_x, g_y) m/s^2 in the '
+           "table frame (0.17 m/s^2 a degree); a constant acceleration, where a draft's "
+           'grows with the speed'),
 )
 """The declaration of the model effects (identification adds measurement effects)."""
 
@@ -261,6 +271,8 @@ I_CD_SPIN_SLOPE = INDEX['c_d_spin_ratio_slope']
 I_ET_TANGENTIAL = INDEX['e_t_tangential']
 I_ET_SPIN_SLOPE = INDEX['e_t_spin_slope']
 I_MU_SLIP_SLOPE = INDEX['mu_slip_slope']
+I_GRAVITY_X = INDEX['gravity_x']
+I_GRAVITY_Y = INDEX['gravity_y']
 INDEX_NAMES = tuple(name for name in dir() if name.startswith('I_'))
 """The names of the index constants above (tt_prediction.ball exports them)."""
 

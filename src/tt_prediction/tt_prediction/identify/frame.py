@@ -33,8 +33,9 @@ tracks starting past the plane) besides one where a few tracks are returns."""
 TILT_SLOPE = 5e-3
 """A slope of the bounces' contact heights over the table (m per m, 0.29 deg) warned of when
 it is also TILT_SIGMAS standard errors from 0: the table is tilted in the data's frame (a
-frame levelled 1 deg off puts gravity 0.17 m/s^2 along the table, which tt-identify's effects
-then fit as something else). Contact heights scatter by about 1 mm (mpi_launcher 0.93 mm,
+frame levelled 1 deg off puts gravity 0.17 m/s^2 along the table; the frame levelled with
+the table, that is the gravity_tilt effect, and unlevelled, the model's level table meets the
+bounces off their plane). Contact heights scatter by about 1 mm (mpi_launcher 0.93 mm,
 mpi_pam 0.80 mm over 71 and 50 bounces; slopes 1.3 +- 0.9 and 12.7 +- 6.0 mm/m, the latter's
 bounces spread over 0.1 m of x)."""
 TILT_SIGMAS = 4.0
@@ -179,6 +180,6 @@ def tilt_warning(points):
                          for b, e, axis in tilted)
     angle = np.degrees(np.arctan(np.hypot(coef[1], coef[2])))
     return (f'the contact heights of the {len(q)} located bounces rise by {rises}: the '
-            f'table is tilted by {angle:.2f} deg in the data frame, where gravity is taken '
-            f'along -z; level the frame with the table ({FRAME}), or the effects fit '
-            f'g sin(tilt) along the table as something else')
+            f'table is tilted by {angle:.2f} deg in the data frame, where the model has it '
+            f'level; level the frame with the table ({FRAME}): what then remains of gravity '
+            f'along the table, a table not level, is the gravity_tilt effect')
