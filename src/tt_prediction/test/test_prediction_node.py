@@ -298,6 +298,27 @@ def test_a_state_stamped_ahead_of_the_node_clock_is_predicted_and_warned_of(grap
     assert len(said) == 1 and 'stamped 900 ms ahead of the node clock' in said[0], said
 
 
+def test_a_state_from_before_the_clock_went_back_is_said_so_not_a_clock_disagreement(
+        graph, monkeypatch):
+    # ros2 bag play --loop --clock: the next pass's /clock can reach the node before the last
+    # state of this pass (another topic), which was then dropped as 'the clocks disagree'.
+    said = []
+    monkeypatch.setattr(graph.node.warn, '_log', said.append)
+    end = T0 + 5_000_000_000
+    graph.set_clock(end)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=end, track_id=2))
+    graph.spin_until(lambda: len(graph.predictions) == 1, 10.0, "the pass's prediction")
+    graph.set_clock(T0)                             # the bag starts over
+    graph.pub.publish(graph.state(GOOD, stamp_ns=end + 10_000_000, track_id=2))
+    graph.pub.publish(graph.state(GOOD, stamp_ns=end + 200_000_000, track_id=3))
+    graph.spin_until(lambda: graph.node.n_received == 3, 10.0, 'both states')
+    assert graph.node.n_dropped == 2 and len(graph.predictions) == 1
+    assert len(said) == 2, said          # each kind once a second
+    assert 'which went back from' in said[0] and 'a bag played again' in said[0], said
+    # Further ahead than the clock ever was: that is a clock that disagrees.
+    assert 'the clocks disagree' in said[1] and '5.200 s ahead' in said[1], said
+
+
 def test_the_exit_lines_stamps_are_the_earliest_and_latest_valid_ones(graph):
     # Its stamps were the first and the last state received: a dropped state stamped 0 after
     # the others made it read 'stamps <first> to 0.000000000 s'.

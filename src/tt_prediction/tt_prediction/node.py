@@ -164,6 +164,7 @@ class PredictionNode(Node):
         self.tracks = {}
         self.last_path_ns = None
         self.stamps_ns = None             # (earliest, latest) valid stamp received, ns
+        self.clock_high_ns = 0            # the latest node clock seen by a state, ns
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
@@ -244,6 +245,7 @@ class PredictionNode(Node):
         self.stamps_ns = (min(low, stamp_ns), max(high, stamp_ns))
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
+        clock_high_ns, self.clock_high_ns = self.clock_high_ns, max(self.clock_high_ns, now_ns)
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
             self.time_base(stamp_ns * 1e-9, 0.0)         # (said once if it lasts)
         elif stale > 0.0:
@@ -253,8 +255,16 @@ class PredictionNode(Node):
                     self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                     return
                 if -age > MAX_LEAD_S:
-                    self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
-                               f'{MAX_LEAD_S:g} s): the clocks disagree')
+                    if stamp_ns <= clock_high_ns + AHEAD_S * 1e9:
+                        # A looped bag: its /clock starts the next pass as the last states
+                        # of this one are on their way (another topic), so the node judged
+                        # them against the new time (a walk-through, 7 Dec 2026).
+                        self._drop(f'looped: stamp {-age:.3f} s ahead of the node clock, '
+                                   f'which went back from {clock_high_ns * 1e-9:.3f} s (a bag '
+                                   'played again): a state of before it')
+                    else:
+                        self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
+                                   f'{MAX_LEAD_S:g} s): the clocks disagree')
                     return
                 if -age > AHEAD_S:
                     self.warn('ahead', 5.0,
