@@ -196,6 +196,8 @@ class TrackTally:
     """Its last prediction's hit time (the ball's crossing of the hitting plane), s."""
     checked: bool = False
     """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
+    lost_before: int = 0
+    """Predictions this node had lost in its input queue when it took the last one."""
     probability: 'Probability' = None
     """The last in-zone probability worked out for it."""
     requested_ns: int = None
@@ -467,6 +469,7 @@ class StrikeNode(Node):
             tally.ball += 1
         tally.stamp = self.last_stamp = stamp
         tally.plane_t = hit_t
+        tally.lost_before = self.queue_lost.count
         known = any(msg.hit_covariance)
         # A value the ball has is refreshed behind the command, not before it (15-30 ms).
         when = self._probability_plan(tally, aim, stamp_ns, known)
@@ -554,12 +557,15 @@ class StrikeNode(Node):
         early = tally.plane_t - tally.stamp
         if early > LOST_BEFORE_PLANE_S:
             self.n_lost += 1
+            queued = self.queue_lost.count - tally.lost_before
+            why = (f"{queued} predictions were lost in this node's input queue since (it "
+                   'falls behind: a faster replay, or a busy machine)' if queued else
+                   'no prediction with a hit point since: no state from perception, or '
+                   'predictions without a hit, no_bounce say')
             self.get_logger().warning(
                 f'track {track_id}: struck at {tally.hit_t:.3f} s, but its last prediction '
                 f'came {1e3 * early:.0f} ms before it reached the hitting plane: the ball was '
-                'lost on the way (no prediction with a hit point since: no state from '
-                'perception, or predictions without a hit, no_bounce say), the stroke went '
-                'on that prediction')
+                f'lost on the way ({why}), the stroke went on that prediction')
 
     def _too_late(self, tally, why):
         """A strike too close to its hit time: not sent. Counted and logged, unless a feasible
