@@ -270,6 +270,18 @@ def test_each_kind_of_dropped_state_is_said_at_most_once_a_second(graph, monkeyp
     assert graph.node.n_dropped == len(sent)
     kinds = [line.split(': ')[1].split(' ')[0] for line in said]
     assert kinds == ['stale', 'frame', 'position'], said
+    # The stale states had a valid header: their stamps are the exit line's.
+    assert '; stamps ' in graph.node.work_summary()
+
+
+def test_the_exit_line_of_a_node_whose_states_were_all_in_another_frame_says_so(graph):
+    # It said 'no valid stamp' for states stamped right but in frame 'world' (a walk-through).
+    world = graph.state(GOOD)
+    world.header.frame_id = 'world'
+    graph.pub.publish(world)
+    graph.spin_until(lambda: graph.node.n_received == 1, 10.0, 'the state')
+    assert graph.node.n_dropped == 1
+    assert '; no state with a valid header (stamp, frame); ' in graph.node.work_summary()
 
 
 def test_states_received_late_are_counted_in_the_exit_line(graph):

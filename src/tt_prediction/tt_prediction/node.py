@@ -213,7 +213,7 @@ class PredictionNode(Node):
         times = self.work.latest_ms()
         if not len(times):
             return 'no state received'
-        stamps = ('no valid stamp' if self.stamps_ns is None else
+        stamps = ('no state with a valid header (stamp, frame)' if self.stamps_ns is None else
                   'stamps {} to {} s'.format(*map(seconds_text, self.stamps_ns)))
         return (f'{self.n_received} states, {self.n_predicted} predictions, {self.n_dropped} '
                 f'dropped; callback median {np.median(times):.3f} ms, p99 '
