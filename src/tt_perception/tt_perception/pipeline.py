@@ -363,7 +363,7 @@ class Tracker:
         self.filter_config = filter_config or PERCEPTION_FILTER
         self.config = config or TrackerConfig()
         self.period = 1.0 / fps
-        self.gravity = np.array([0.0, 0.0, -self.params.gravity])
+        self.gravity = self.params.gravity_vector
         self.packed = self.params.packed()
         self.filter = None
         self.track_id = 0

@@ -213,6 +213,7 @@ def test_gravity_along_a_table_not_level_adds_to_the_flight_as_it_is():
     a = np.empty(9)
     ball.flight_derivative(np.zeros(9), p.packed(), a)
     assert a[3:6] == pytest.approx([0.17, -0.05, -9.8], abs=1e-15)
+    assert p.gravity_vector.tolist() == [0.17, -0.05, -9.8]   # the filters' start
     s = np.array([1.0, 0.2, 0.3, -5.0, 0.4, 1.0, 10.0, -150.0, 30.0])
     level = np.empty(9)
     ball.flight_derivative(s, NOMINAL.packed(), level)

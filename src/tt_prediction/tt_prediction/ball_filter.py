@@ -921,7 +921,7 @@ class TrackFilter:
         self._last = None          # the latest valid sample (t, p)
         self._before = None        # the one before it
         self._seen_bounce = None
-        self._g = np.array([self.params.gravity_x, self.params.gravity_y, -self.params.gravity])
+        self._g = self.params.gravity_vector
         self._R = np.eye(3) * self.config.position_noise ** 2
 
     @property

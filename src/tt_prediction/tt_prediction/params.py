@@ -343,6 +343,11 @@ class ModelParams:
                 raise ValueError(f'model parameter {name} must be positive')
 
     @property
+    def gravity_vector(self):
+        """Gravity in the table frame, (gravity_x, gravity_y, -gravity), m/s^2 (eq. 8)."""
+        return np.array([self.gravity_x, self.gravity_y, -self.gravity])
+
+    @property
     def inertia(self):
         """Moment of inertia of a thin spherical shell, (2/3) m r^2, kg m^2."""
         return 2.0 / 3.0 * self.mass * self.radius ** 2
