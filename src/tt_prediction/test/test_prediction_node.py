@@ -310,6 +310,26 @@ def test_a_state_stamped_ahead_of_the_node_clock_is_predicted_and_warned_of(grap
     assert len(said) == 1 and 'stamped 900 ms ahead of the node clock' in said[0], said
 
 
+def test_a_state_ahead_by_less_than_a_step_of_the_simulated_clock_is_not_warned_of(graph,
+                                                                                  monkeypatch):
+    # ros2 bag play -r 2 --clock: /clock at 40 Hz of wall time steps by 50 ms of bag time, and
+    # states 53 ms ahead of it were told as clocks that disagree (a walk-through, 7 Dec 2026).
+    said = []
+    monkeypatch.setattr(graph.node.warn, '_log', said.append)
+    step = 50_000_000
+    for k in range(1, 7):             # the first at the clock: the node knows no step yet
+        graph.set_clock(T0 + k * step)
+        ahead = 60_000_000 if k > 1 else 0
+        graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + k * step + ahead, track_id=2))
+        graph.spin_until(lambda k=k: graph.node.n_received == k, 10.0, f'state {k}')
+    assert said == [] and graph.node.n_dropped == 0
+    # Ahead by more than the step and 50 ms: the clocks disagree.
+    graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + 6 * step + 150_000_000, track_id=3))
+    graph.spin_until(lambda: graph.node.n_received == 7, 10.0, 'the state ahead')
+    assert len(said) == 1 and 'stamped 150 ms ahead of the node clock (more than the 100 ms' \
+        in said[0], said
+
+
 def test_a_state_from_before_the_clock_went_back_is_said_so_not_a_clock_disagreement(
         graph, monkeypatch):
     # ros2 bag play --loop --clock: the next pass's /clock can reach the node before the last

@@ -7,6 +7,7 @@ markers follow at a lower rate. Invalid or stale states are dropped with a throt
 (nothing is published for them).
 """
 
+import collections
 import dataclasses
 import gc
 import sys
@@ -57,7 +58,12 @@ AHEAD_S = 0.05
 is predicted and warned of (at most every 5 s): an exposure cannot be later than its state's
 arrival, so the clocks disagree by at least that much, and the hit time with them (0.9 s
 ahead was struck 'ok' without a word; a walk-through, 6 Dec 2026). Not less: a bag's /clock
-at ros2 bag play's 40 Hz runs up to 25 ms behind the states played with it."""
+at ros2 bag play's 40 Hz runs up to 25 ms behind the states played with it. On a simulated
+clock the node adds its step (CLOCK_STEPS): at -r 2 that /clock steps by 50 ms of bag time
+(a walk-through, 7 Dec 2026, was told of states 53 ms ahead)."""
+CLOCK_STEPS = 15
+"""On a simulated clock (use_sim_time), the median of the last this many steps of the node
+clock between states is taken for the step of /clock, by which it lags a state at most."""
 TRACK_GAP_S = 1.0
 """A state of a remembered track id stamped this much after the track's last state (or
 more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ball
@@ -165,6 +171,8 @@ class PredictionNode(Node):
         self.last_path_ns = None
         self.stamps_ns = None             # (earliest, latest) valid stamp received, ns
         self.clock_high_ns = 0            # the latest node clock seen by a state, ns
+        self.clock_steps = collections.deque(maxlen=CLOCK_STEPS)  # simulated clock's, ns
+        self.clock_seen_ns = 0            # the node clock at the last state, ns
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
@@ -197,6 +205,16 @@ class PredictionNode(Node):
         self.n_dropped += 1
         self.warn('drop:' + why.replace(':', ' ').split(' ', 1)[0], 1.0,
                   f'ball state dropped: {why}')
+
+    def _clock_step_s(self, now_ns):
+        """The simulated clock's step (s): the median of its last CLOCK_STEPS steps between
+        states (0 on the system clock, and before any step)."""
+        last, self.clock_seen_ns = self.clock_seen_ns, now_ns
+        if not self.get_clock().ros_time_is_active:
+            return 0.0
+        if last and 0 < now_ns - last <= MAX_LEAD_S * 1e9:    # not a pause, nor a jump back
+            self.clock_steps.append(now_ns - last)
+        return float(np.median(self.clock_steps)) * 1e-9 if self.clock_steps else 0.0
 
     def on_state(self, msg):
         self.work.call(self._on_state, msg)
@@ -246,6 +264,7 @@ class PredictionNode(Node):
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
         clock_high_ns, self.clock_high_ns = self.clock_high_ns, max(self.clock_high_ns, now_ns)
+        lag_s = AHEAD_S + self._clock_step_s(now_ns)
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
             self.time_base(stamp_ns * 1e-9, 0.0)         # (said once if it lasts)
         elif stale > 0.0:
@@ -266,10 +285,11 @@ class PredictionNode(Node):
                         self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
                                    f'{MAX_LEAD_S:g} s): the clocks disagree')
                     return
-                if -age > AHEAD_S:
+                if -age > lag_s:
                     self.warn('ahead', 5.0,
-                              f'a state stamped {-age * 1e3:.0f} ms ahead of the node clock: '
-                              'the clocks disagree (its hit time is off by as much)')
+                              f'a state stamped {-age * 1e3:.0f} ms ahead of the node clock '
+                              f'(more than the {lag_s * 1e3:.0f} ms it may lag): the clocks '
+                              'disagree (its hit time is off by as much)')
                 if age > LATE_S:
                     self.n_late += 1
                     self.warn('late', 5.0,
