@@ -15,6 +15,7 @@ from tt_prediction.identify import segment as segment_module
 from tt_prediction.identify.data import Track
 from tt_prediction.identify.frame import (
     frame_warnings,
+    height_warning,
     median_flight_acceleration,
     tilt_warning,
 )
@@ -116,6 +117,23 @@ def test_a_frame_tilted_by_a_degree_against_the_table_is_named_with_its_angle(ax
     assert warning is not None and f'mm per m along {axis}' in warning
     angle = float(warning.split('tilted by ')[1].split(' deg')[0])
     assert angle == pytest.approx(1.0, abs=0.25)
+
+@pytest.mark.parametrize('offset', [0.008, -0.006])
+def test_a_table_surface_off_z_0_is_named_with_its_height(offset):
+    # A table 8 mm high in the data frame had gravity_or_scale selected (g 10.14) without a
+    # word (a researcher's walk-through, 7 Dec 2026). The bounces located in the data sit a
+    # ball radius above the surface: there, off by the offset; unshifted, within 1 mm.
+    tracks = make_tracks(16, TRUE, seed=11)
+    level, _, _ = prepare(tracks, TRUE.radius)
+    assert height_warning([b.p for tr in level for b in tr.bounces], TRUE.radius) is None
+    shifted = [Track(tr.name, tr.t, tr.p + [0.0, 0.0, offset], tr.spin) for tr in tracks]
+    prepared, _, _ = prepare(shifted, TRUE.radius)
+    warning = height_warning([b.p for tr in prepared for b in tr.bounces], TRUE.radius)
+    assert warning is not None
+    said = float(warning.split('surface is at z = ')[1].split(' mm')[0])
+    assert said == pytest.approx(1e3 * offset, abs=1.0)
+    assert f'shift the positions by {-said:+.1f} mm in z' in warning
+
 
 def test_a_long_track_of_a_ball_rolling_on_the_table_raises_no_frame_warning():
     # A tracker's dump may hold 20 s of a ball rolling on the table: its 0.1 s pieces (no

@@ -15,7 +15,9 @@ tt-identify and tt-predict --tracks check what physics fixes in that frame:
 - the hitting plane: some track should cross x = hit_plane_x, on the robot's side, and an
   incoming ball crosses it moving along -x (towards the robot);
 - the surface is level (after segmentation, :func:`tilt_warning`): the located bounces'
-  contact heights do not rise along x or y.
+  contact heights do not rise along x or y;
+- the surface is at z = 0 (after segmentation, :func:`height_warning`): the located bounces'
+  contact heights are a ball radius, give or take a few millimetres.
 """
 
 import numpy as np
@@ -39,6 +41,12 @@ bounces off their plane). Contact heights scatter by about 1 mm (mpi_launcher 0.
 mpi_pam 0.80 mm over 71 and 50 bounces; slopes 1.3 +- 0.9 and 12.7 +- 6.0 mm/m, the latter's
 bounces spread over 0.1 m of x)."""
 TILT_SIGMAS = 4.0
+HEIGHT_OFF = 4e-3
+"""The located bounces' mean contact height further than this from the ball radius (m), and
+TILT_SIGMAS standard errors, is warned of: the table's surface is not at z = 0 in the data's
+frame. A table 8 mm high had tt-identify select gravity_or_scale (g 10.14) without a word (a
+researcher's walk-through, 7 Dec 2026), which made the replay's short leads worse; the real
+sets read -0.62 +- 0.11 mm (mpi_launcher, 71 bounces) and -1.46 +- 0.12 mm (mpi_pam, 50)."""
 TURN_WINDOW = 0.1
 """An upward turn: the lowest sample within this time either side, the ball at least two
 radii higher on both sides within it, s."""
@@ -183,3 +191,22 @@ def tilt_warning(points):
             f'table is tilted by {angle:.2f} deg in the data frame, where the model has it '
             f'level; level the frame with the table ({FRAME}): what then remains of gravity '
             f'along the table, a table not level, is the gravity_tilt effect')
+
+
+def height_warning(points, radius):
+    """One line when the bounces' contact points ``points`` (k, 3), m, table frame, are on
+    average more than HEIGHT_OFF and TILT_SIGMAS standard errors above or below the ball's
+    centre on a table at z = 0 (``radius``, m); None when not, or with fewer than 6 bounces."""
+    z = np.asarray(points, dtype=float).reshape(-1, 3)[:, 2]
+    if len(z) < 6:
+        return None
+    off = float(np.mean(z)) - radius
+    se = float(np.std(z, ddof=1)) / np.sqrt(len(z))
+    if abs(off) <= HEIGHT_OFF or abs(off) <= TILT_SIGMAS * se:
+        return None
+    return (f"the ball's centre at the {len(z)} located bounces is {1e3 * off:+.1f} +- "
+            f'{1e3 * se:.1f} mm from a ball radius ({1e3 * radius:g} mm) above z = 0: the '
+            f"table's surface is at z = {1e3 * off:+.1f} mm in the data frame; shift the "
+            f'positions by {-1e3 * off:+.1f} mm in z ({FRAME}), or the effects fit the '
+            'offset as something else (gravity_or_scale, say)')
+

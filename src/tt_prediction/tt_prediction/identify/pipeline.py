@@ -18,7 +18,7 @@ from . import diagnose, evaluate, fitting
 from .blas import blas_threads
 from .data import DataError
 from .effects import LIBRARY, applicable, too_small
-from .frame import frame_warnings, tilt_warning
+from .frame import frame_warnings, height_warning, tilt_warning
 from .segment import segment
 
 PENALTY_PER_PARAM = 0.02
@@ -126,8 +126,9 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
     warnings = frame_warnings([(tr.name, tr.t, tr.p) for tr in tracks], base,
                               hit_plane_x)
     prepared, dropped, notes = prepare(tracks, base.radius)
-    tilt = tilt_warning([b.p for tr in prepared for b in tr.bounces])
-    warnings += [tilt] if tilt else []
+    contacts = [b.p for tr in prepared for b in tr.bounces]
+    warnings += [w for w in (tilt_warning(contacts), height_warning(contacts, base.radius))
+                 if w]
     if len(prepared) < 2:
         first = next(iter(dropped.items()), None)
         why = f'; {first[0]}: {first[1]}' if first else ''
