@@ -10,6 +10,7 @@
 """
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -164,3 +165,45 @@ def test_rebound_correlations_carry_the_t_test_p_value_and_the_report_says_if_si
     assert 'n = 16' in weak and 'not significant' in weak
     assert 'not significant' not in report._correlation(-0.8, 0.0002, 16)
     assert report._correlation(-0.35, None, 16) == 'r = -0.35 (n = 16)'
+    # Three correlations tested together: each against 5 % / 3 (Bonferroni). With nothing
+    # planted, p = 0.021 of one of them was called significant (a walk-through).
+    assert 'not significant' not in report._correlation(-0.51, 0.021, 20)
+    assert 'not significant at 5% over 3 tests' in report._correlation(-0.51, 0.021, 20, 3)
+    assert 'not significant' not in report._correlation(-0.51, 0.012, 20, 3)
+
+
+def test_the_report_says_what_the_numbers_mean():
+    # The wording a researcher's walk-through found wrong or missing (7 Dec 2026), from a
+    # result as identify returns it (the numbers of that walk-through's sets).
+    from tt_prediction.identify import report
+
+    result = identify(make_tracks(10, ModelParams(mass=3.0e-3), seed=3), folds=2)
+    result = json.loads(json.dumps({k: v for k, v in result.items() if not k.startswith('_')}
+                                   | {'sources': ['synthetic']}))      # as report.json
+    assert result['selected_effects'] == [] and not result['dropped_for_prediction']
+    text = report.markdown(result)
+    # Flights see C_D / m and C_M / m: a ball 3.0 g for 2.7 g reads both 10 % low.
+    drag = float(text.split('C_D × ')[1][:4])
+    lift = float(text.split('C_M × ')[1][:4])
+    assert drag == pytest.approx(0.9, abs=0.03) and lift == pytest.approx(0.9, abs=0.03)
+    assert 'Both off by one factor' in text and 'a mass × 1.1' in text
+    # The rebound's residual against where on the table the ball lands, too (a table livelier
+    # in its middle than at its edges was told by impact speed and spin alone).
+    assert "over 3 tests), with the distance to the table's nearest edge r = " in text
+    # Held-out fit RMS against the tracks' own noise (make_tracks: 1.5 mm per axis).
+    assert result['data']['position_noise_mm'] == pytest.approx(1.5, rel=0.1)
+    assert 'the model follows the data to about their noise' in text
+    misfit = dict(result, final=dict(result['final'], heldout_fit_rms_mm=6.6))
+    assert 'the data hold something neither the model nor its library has' in \
+        report.markdown(misfit)
+    # Nothing selected because what paid on the fit did not predict better: not 'nothing
+    # pays'.
+    dropped = dict(result, dropped_for_prediction=['table_restitution_speed'])
+    selected = report.markdown(dropped).split('**Selected:** ')[1].split('\n')[0]
+    assert 'did not lower the held-out prediction errors' in selected
+    assert 'pays for its parameters' not in selected
+    # A selected effect is said with its mechanism.
+    chosen = dict(result, selected_effects=['gravity_or_scale'])
+    selected = report.markdown(chosen).split('**Selected:** ')[1].split('\n')[0]
+    assert selected.startswith('gravity_or_scale (gravity, ') and 'clock running fast' \
+        in selected

@@ -12,6 +12,7 @@ and spin.
 import numpy as np
 import scipy.stats
 
+from ..ball import HALF_LENGTH, HALF_WIDTH
 from . import fitting
 
 MIN_FLIGHT_SAMPLES = 10
@@ -106,11 +107,12 @@ def binned(t, values, bins=12):
 def rebound_summary(tracks, globals_, states):
     """Measured bounces against the model: the per-bounce restitution e_t = -v_z'/v_z and
     friction mu = |dv_horizontal| / ((1 + e_t) |v_z|) (exact while the ball slides), their
-    mean +- std, and the correlation of the restitution residual with impact speed and with
-    the fitted spin at impact, each with its p-value (``corr_*_p``): a few bounces give
-    sizeable r by chance (r = -0.35 from 16 bounces has p = 0.18)."""
+    mean +- std, and the correlation of the restitution residual with impact speed, with
+    the fitted spin at impact and with the bounce's distance to the table's nearest edge
+    (m; a table that is livelier in its middle), each with its p-value (``corr_*_p``): a few
+    bounces give sizeable r by chance (r = -0.35 from 16 bounces has p = 0.18)."""
     P, k = globals_.packed(), globals_.spin_scale
-    e, mu, speed, spin, e_model = [], [], [], [], []
+    e, mu, speed, spin, e_model, edge = [], [], [], [], [], []
     g = globals_.params()
     for tr, x in zip(tracks, states, strict=True):
         if not tr.bounces:
@@ -122,11 +124,12 @@ def rebound_summary(tracks, globals_, states):
             e.append(ei)
             mu.append(np.linalg.norm(b.v_out[:2] - b.v_in[:2]) / ((1 + ei) * abs(b.v_in[2])))
             speed.append(abs(b.v_in[2]))
+            edge.append(min(HALF_LENGTH - abs(b.p[0]), HALF_WIDTH - abs(b.p[1])))
             spin.append(float(np.linalg.norm(m[6:9])) if np.all(np.isfinite(m)) else np.nan)
             e_model.append(g.e_t + g.e_t_speed_slope * (abs(b.v_in[2]) - 3.0))
     if not e:
         return None
-    e, mu, speed, spin = map(np.array, (e, mu, speed, spin))
+    e, mu, speed, spin, edge = map(np.array, (e, mu, speed, spin, edge))
     res = e - np.clip(np.array(e_model), 0.0, 1.0)
     ok = np.isfinite(spin)
     return {
@@ -139,5 +142,7 @@ def rebound_summary(tracks, globals_, states):
         'corr_spin': round(_corr(res[ok], spin[ok]), 3),
         'corr_spin_p': _corr_p(res[ok], spin[ok]),
         'n_bounces_with_spin': int(ok.sum()),
+        'corr_edge_distance': round(_corr(res, edge), 3),
+        'corr_edge_distance_p': _corr_p(res, edge),
         'impact_speed': speed.tolist(), 'e_t_measured': e.tolist(),
     }

@@ -28,7 +28,8 @@ LIBRARY = MODEL_EFFECTS + (
            needs='bounces_no_spin'),
     Effect('gravity_or_scale', ('gravity',),
            'gravity, or equivalently a position-scale error of the calibration '
-           '(g_apparent = s g), differs from 9.8 m/s^2'),
+           '(g_apparent = s g) or stamps from a clock running fast by e (g_apparent = '
+           'g / (1 + e)^2), differs from 9.8 m/s^2'),
 )
 """Every candidate effect: the model's, then those of the measurement (spin bias, time
 offset) and of the calibration (gravity or scale)."""

@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from ..ball import ModelParams
+from ..ball_filter import estimate_measurement_noise
 from . import diagnose, evaluate, fitting
 from .blas import blas_threads
 from .data import DataError
@@ -213,6 +214,8 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
             'tracks_spin_estimated': sum(tr.spin_source == 'estimated' for tr in tracks),
             'folds': folds, 'hit_plane_x': hit_plane_x,
             'predict_window_s': evaluate.PREDICT_WINDOW,
+            'position_noise_mm': round(1e3 * estimate_measurement_noise(
+                (tr.t[tr.mask], tr.p[tr.mask]) for tr in prepared)[0], 3),
         },
         'paper_style': {'per_trajectory': paper, 'pooled': _round(g_base.as_dict())},
         'baseline': {'params': _round(g_base.as_dict()), 'heldout_fit_rms_mm':

@@ -5,6 +5,7 @@ end, so an interrupted or failed run never leaves a half-written report that loo
 """
 
 import json
+import math
 import os
 
 import matplotlib
@@ -47,16 +48,20 @@ def _fmt(value, nd=3):
 
 
 SIGNIFICANCE = 0.05
-"""A correlation with a larger two-sided p-value is reported as not significant."""
+"""A correlation with a larger two-sided p-value is reported as not significant; of several
+tested together, each against SIGNIFICANCE over their number (Bonferroni): with nothing
+planted, one of two at p = 0.021 was called significant (a researcher's walk-through)."""
 
 
-def _correlation(r, p, n):
-    """'r = -0.35 (n = 16, p = 0.18: not significant)'; p None (a report.json written before
-    p-values were) gives r and n alone."""
+def _correlation(r, p, n, tests=1):
+    """'r = -0.35 (n = 16, p = 0.18: not significant at 5%)', one of ``tests`` correlations
+    tested together ('at 5% over 3 tests'); p None (a report.json written before p-values
+    were) gives r and n alone."""
     if p is None:
         return f'r = {r} (n = {n})'
-    verdict = 'significant' if p < SIGNIFICANCE else 'not significant'
-    return f'r = {r} (n = {n}, p = {p:.2g}: {verdict} at {SIGNIFICANCE:.0%})'
+    verdict = 'significant' if p < SIGNIFICANCE / tests else 'not significant'
+    over = f' over {tests} tests' if tests > 1 else ''
+    return f'r = {r} (n = {n}, p = {p:.2g}: {verdict} at {SIGNIFICANCE:.0%}{over})'
 
 
 def markdown(r):
@@ -86,6 +91,13 @@ def markdown(r):
     if 'mean' in p['c_m']:
         lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f} (n = "
                      f"{p['c_m']['n']}, the tracks with measured spin); paper 0.069 ± 0.029.")
+        drag, lift = p['c_d']['mean'] / 0.54, p['c_m']['mean'] / 0.069
+        lines.append(f"Against the paper's: C_D × {drag:.2f}, C_M × {lift:.2f}." + (
+            ' Both off by one factor: flights measure C_D ρ A / m and C_M ρ r³ / m, not the '
+            "coefficients and the ball apart, so a ball of another mass than the model's, "
+            f'or another air density, reads so (a mass × {1.0 / (0.5 * (drag + lift)):.2f}?). '
+            'Change the mass or the coefficients in model.yaml, not both.'
+            if abs(drag - lift) < 0.05 and abs(0.5 * (drag + lift) - 1.0) > 0.05 else ''))
     else:
         lines.append(f"C_M fixed at {p['c_m']['fixed']:.4g}: {p['c_m']['note']}. Fitted |ω| = "
                      f"{p['spin_abs_rad_s']['mean']:.0f} ± {p['spin_abs_rad_s']['std']:.0f}"
@@ -109,13 +121,13 @@ def markdown(r):
                      f"{_fmt(s['acc_std'])} | {c['t']} | {c['speed']} | {c['spin']} | "
                      f"{c['spin_ratio']} | {c['heading']} |")
     if reb:
-        lines += ['', 'Rebound: restitution residual correlates with impact speed '
-                      + _correlation(reb['corr_impact_speed'], reb.get('corr_impact_speed_p'),
-                                     reb['n_bounces'])
-                      + ', with spin '
-                      + _correlation(reb['corr_spin'], reb.get('corr_spin_p'),
-                                     reb.get('n_bounces_with_spin', reb['n_bounces']))
-                      + '.']
+        n, n_spin = reb['n_bounces'], reb.get('n_bounces_with_spin', reb['n_bounces'])
+        tests = [('impact speed', 'corr_impact_speed', n), ('spin', 'corr_spin', n_spin),
+                 ("the distance to the table's nearest edge", 'corr_edge_distance', n)]
+        tests = [t for t in tests if t[1] in reb]          # an older report.json: two
+        lines += ['', 'Rebound: restitution residual correlates with ' + ', with '.join(
+            f'{what} ' + _correlation(reb[key], reb.get(key + '_p'), count, len(tests))
+            for what, key, count in tests) + '.']
     lines += ['', '## Effects tested', '', r['selection_rule'] + '.', '',
               '| effect | round | fitted parameters (all tracks) | held-out gain | '
               'penalty | effect size mm | pays |', '|---|---|---|---|---|---|---|']
@@ -130,6 +142,9 @@ def markdown(r):
     sel = r['selected_effects']
     none = ('none. No effect of the library pays for its parameters on held-out data; the '
             'residual shape is shown below.')
+    if r.get('dropped_for_prediction'):
+        none = ('none. What paid on the fit did not lower the held-out prediction errors '
+                '(above); the residual shape is shown below.')
     if r.get('selection_note'):
         none = f"none: {r['selection_note']}."
     if r.get('dropped_for_prediction'):
@@ -139,7 +154,10 @@ def markdown(r):
     if at_bound:
         lines += ['', 'Fitted at a bound of the plausible range (not selected): '
                   + ', '.join(dict.fromkeys(at_bound)) + '.']
-    lines += ['', '**Selected:** ' + (', '.join(sel) if sel else none),
+    mechanisms = {e['name']: e.get('mechanism') for e in r['effects_tested']}
+    lines += ['', '**Selected:** ' + ('; '.join(f'{name} ({mechanisms[name]})'
+                                               if mechanisms.get(name) else name
+                                               for name in sel) if sel else none),
               '', '## Held-out errors before and after', '',
               f"{d['folds']}-fold cross-validation by trajectory; prediction from the first "
               f"{1e3 * d['predict_window_s']:.0f} ms of each track; hitting plane "
@@ -150,6 +168,15 @@ def markdown(r):
         lines.append(f"| {name} | {_fmt(s['heldout_fit_rms_mm'], 2)} | {_fmt(s['rms_mm'], 1)}"
                      f" | {_fmt(s['bounce_err_mm'], 1)} | {_fmt(s['hit_err_mm'], 1)} "
                      f"({_fmt(s['hit_err_median_mm'], 1)}) | {_fmt(s['zone_accuracy'])} |")
+    noise = d.get('position_noise_mm')
+    if noise and math.isfinite(noise):
+        ratio = f['heldout_fit_rms_mm'] / noise
+        lines += ['', f"The final model's held-out fit RMS, {f['heldout_fit_rms_mm']:.2f} mm, is "
+                      f"{ratio:.1f} times the tracks' own noise ({noise:.2f} mm per axis, from "
+                      'local fits of 7 samples): ' + (
+                          'the data hold something neither the model nor its library has; '
+                          'the residual plots show where along the tracks.' if ratio > 2.0
+                          else 'the model follows the data to about their noise.')]
     names = list(dict.fromkeys([*b['params'], *f['params']]))
     lines += ['', '## Parameters', '', '| parameter | baseline | final |', '|---|---|---|']
     lines += [f"| {n} | {_fmt(b['params'].get(n), 4)} | {_fmt(f['params'].get(n), 4)} |"
