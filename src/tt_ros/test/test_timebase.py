@@ -25,6 +25,10 @@ def test_each_other_time_base_is_warned_of_once():
     assert len(warnings) == 2
     assert warnings[0].startswith('stamps are -7200 s from the node clock')
     assert warnings[1].startswith('stamps are 7200 s from the node clock')
+    # Live (a tracker stamping with its camera's clock from 0), the fix is the stamps', not
+    # a /clock (a walk-through, 7 Dec 2026): both are said.
+    assert 'live, stamp in ROS time' in warnings[0] and 'replayed, run with use_sim_time' \
+        in warnings[0]
 
 
 def test_stamps_scattered_over_hours_warn_a_bounded_number_of_times():

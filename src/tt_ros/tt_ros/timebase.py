@@ -29,10 +29,12 @@ def same_time_base(stamp_s, now_s):
 def mismatch_warning(offset_s):
     """The one-line warning for stamps ``offset_s`` s from the node clock."""
     return (f'stamps are {offset_s:.0f} s from the node clock: another time base (a recording '
-            'without /clock?), so time checks against the clock are off for them; run with '
-            "use_sim_time:=true and a /clock on the stamps' time base (ros2 bag play --clock "
-            "publishes the bag's record times: for stamps in video time play the /clock the "
-            'bag recorded, as a topic, without --clock; perception_node publish_clock:=true)')
+            'without /clock, or a live publisher stamping with its own clock?), so time checks '
+            "against the clock are off for them; live, stamp in ROS time (a camera's "
+            'exposure mapped onto the node clock); replayed, run with use_sim_time:=true and a '
+            "/clock on the stamps' time base (ros2 bag play --clock publishes the bag's record "
+            'times: for stamps in video time play the /clock the bag recorded, as a topic, '
+            'without --clock; perception_node publish_clock:=true)')
 
 
 class TimeBaseCheck:
