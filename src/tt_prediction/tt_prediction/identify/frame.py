@@ -209,4 +209,3 @@ def height_warning(points, radius):
             f"table's surface is at z = {1e3 * off:+.1f} mm in the data frame; shift the "
             f'positions by {-1e3 * off:+.1f} mm in z ({FRAME}), or the effects fit the '
             'offset as something else (gravity_or_scale, say)')
-
