@@ -170,6 +170,19 @@ def test_rebound_correlations_carry_the_t_test_p_value_and_the_report_says_if_si
     assert 'not significant' not in report._correlation(-0.51, 0.021, 20)
     assert 'not significant at 5% over 3 tests' in report._correlation(-0.51, 0.021, 20, 3)
     assert 'not significant' not in report._correlation(-0.51, 0.012, 20, 3)
+    # Held: a restitution that falls with impact speed alone, faster balls landing nearer
+    # the edge. Raw, the edge distance correlates; with the speed held it does not, and a
+    # restitution that does depend on it still shows. p from t with n - 3 degrees of freedom.
+    speed = rng.uniform(2.0, 5.0, 60)
+    edge = 0.8 - 0.1 * speed + rng.normal(0.0, 0.03, 60)
+    noise = rng.normal(0.0, 0.005, 60)
+    speed_only = -0.03 * speed + noise
+    assert diagnose._corr(speed_only, edge) > 0.5
+    r, p = diagnose._partial(speed_only, edge, speed)
+    assert abs(r) < 0.3 and p > 0.05
+    r, p = diagnose._partial(speed_only + 0.3 * edge, edge, speed)
+    t = r * np.sqrt(57 / (1 - r * r))
+    assert r > 0.5 and p == pytest.approx(2 * stats.t.sf(abs(t), 57), rel=1e-9)
 
 
 def test_the_report_says_what_the_numbers_mean():
@@ -189,7 +202,8 @@ def test_the_report_says_what_the_numbers_mean():
     assert 'Both off by one factor' in text and 'a mass × 1.1' in text
     # The rebound's residual against where on the table the ball lands, too (a table livelier
     # in its middle than at its edges was told by impact speed and spin alone).
-    assert "over 3 tests), with the distance to the table's nearest edge r = " in text
+    assert ("over 3 tests), with the distance to the table's nearest edge, the impact speed "
+            'held, r = ') in text
     # Held-out fit RMS against the tracks' own noise (make_tracks: 1.5 mm per axis).
     assert result['data']['position_noise_mm'] == pytest.approx(1.5, rel=0.1)
     assert 'the model follows the data to about their noise' in text

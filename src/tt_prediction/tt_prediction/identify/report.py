@@ -122,9 +122,12 @@ def markdown(r):
                      f"{c['spin_ratio']} | {c['heading']} |")
     if reb:
         n, n_spin = reb['n_bounces'], reb.get('n_bounces_with_spin', reb['n_bounces'])
-        tests = [('impact speed', 'corr_impact_speed', n), ('spin', 'corr_spin', n_spin),
-                 ("the distance to the table's nearest edge", 'corr_edge_distance', n)]
-        tests = [t for t in tests if t[1] in reb]          # an older report.json: two
+        held = 'corr_spin_speed_held' in reb               # not in an older report.json
+        tests = [('impact speed', 'corr_impact_speed', n)] + (
+            [('spin, the impact speed held,', 'corr_spin_speed_held', n_spin),
+             ("the distance to the table's nearest edge, the impact speed held,",
+              'corr_edge_distance_speed_held', n)] if held else
+            [('spin', 'corr_spin', n_spin)])
         lines += ['', 'Rebound: restitution residual correlates with ' + ', with '.join(
             f'{what} ' + _correlation(reb[key], reb.get(key + '_p'), count, len(tests))
             for what, key, count in tests) + '.']
