@@ -118,6 +118,7 @@ def test_a_frame_tilted_by_a_degree_against_the_table_is_named_with_its_angle(ax
     angle = float(warning.split('tilted by ')[1].split(' deg')[0])
     assert angle == pytest.approx(1.0, abs=0.25)
 
+
 @pytest.mark.parametrize('offset', [0.008, -0.006])
 def test_a_table_surface_off_z_0_is_named_with_its_height(offset):
     # A table 8 mm high in the data frame had gravity_or_scale selected (g 10.14) without a

@@ -180,9 +180,18 @@ def test_rebound_correlations_carry_the_t_test_p_value_and_the_report_says_if_si
     assert diagnose._corr(speed_only, edge) > 0.5
     r, p = diagnose._partial(speed_only, edge, speed)
     assert abs(r) < 0.3 and p > 0.05
-    r, p = diagnose._partial(speed_only + 0.3 * edge, edge, speed)
+    livelier = speed_only + 0.3 * edge
+    r, p = diagnose._partial(livelier, edge, speed)
+    # The textbook's partial correlation from the three pairwise ones.
+    r_ab, r_az, r_bz = (np.corrcoef(u, v)[0, 1] for u, v in ((livelier, edge),
+                                                             (livelier, speed), (edge, speed)))
+    assert r == pytest.approx((r_ab - r_az * r_bz) / np.sqrt((1 - r_az ** 2) * (1 - r_bz ** 2)),
+                              rel=1e-9)
     t = r * np.sqrt(57 / (1 - r * r))
     assert r > 0.5 and p == pytest.approx(2 * stats.t.sf(abs(t), 57), rel=1e-9)
+    # A residual that is constant, or all the speed's, has no partial correlation.
+    assert diagnose._partial(np.full(60, 0.123), edge, speed) == (0.0, 1.0)
+    assert diagnose._partial(2.0 * speed + 1.0, edge, speed) == (0.0, 1.0)
 
 
 def test_the_report_says_what_the_numbers_mean():
@@ -207,6 +216,12 @@ def test_the_report_says_what_the_numbers_mean():
     # Held-out fit RMS against the tracks' own noise (make_tracks: 1.5 mm per axis).
     assert result['data']['position_noise_mm'] == pytest.approx(1.5, rel=0.1)
     assert 'the model follows the data to about their noise' in text
+    # No piece of track long enough to tell the noise: null in report.json (not NaN, which is
+    # no JSON), and no line.
+    from tt_prediction.identify.pipeline import _noise_mm
+    assert _noise_mm([]) is None
+    unknown = dict(result, data=dict(result['data'], position_noise_mm=None))
+    assert "the tracks' own noise" not in report.markdown(unknown)
     misfit = dict(result, final=dict(result['final'], heldout_fit_rms_mm=6.6))
     assert 'the data hold something neither the model nor its library has' in \
         report.markdown(misfit)
@@ -214,7 +229,9 @@ def test_the_report_says_what_the_numbers_mean():
     # pays'.
     dropped = dict(result, dropped_for_prediction=['table_restitution_speed'])
     selected = report.markdown(dropped).split('**Selected:** ')[1].split('\n')[0]
-    assert 'did not lower the held-out prediction errors' in selected
+    assert 'Paid on the fit but dropped because the held-out prediction error did not drop ' \
+        'with them: table_restitution_speed.' in report.markdown(dropped)
+    assert selected.startswith('none (what paid is above)')
     assert 'pays for its parameters' not in selected
     # A selected effect is said with its mechanism.
     chosen = dict(result, selected_effects=['gravity_or_scale'])

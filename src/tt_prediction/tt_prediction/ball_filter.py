@@ -1255,7 +1255,11 @@ NOISE_OUTLIER = 6.0
 standard deviations holds an outlier (or a bounce): it is left out of the estimate."""
 
 
-def estimate_measurement_noise(tracks, window=7):
+NOISE_WINDOW = 7
+"""Samples of each local fit of :func:`estimate_measurement_noise`."""
+
+
+def estimate_measurement_noise(tracks, window=NOISE_WINDOW):
     """Position and stamp noise of measured tracks, from local fits: (m, s).
 
     Each run of ``window`` consecutive samples gets a least-squares quadratic in time per axis

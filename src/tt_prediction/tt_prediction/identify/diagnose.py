@@ -83,7 +83,12 @@ def _partial(a, b, z):
     n = len(a)
     if n < 4:
         return 0.0, 1.0
-    r = _corr(_held(a, z), _held(b, z))
+    a_held, b_held = _held(a, z), _held(b, z)
+    # What z explains of a or b whole leaves rounding (1e-17), not a variable: no r.
+    if any(np.std(h) <= 1e-9 * (np.std(x) + abs(np.mean(x))) for h, x in ((a_held, a),
+                                                                          (b_held, b))):
+        return 0.0, 1.0
+    r = _corr(a_held, b_held)
     if abs(r) >= 1.0:
         return r, 0.0
     t = r * np.sqrt((n - 3) / (1.0 - r * r))

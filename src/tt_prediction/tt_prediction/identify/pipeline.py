@@ -10,6 +10,7 @@ usable tracks nothing is tested or selected, and the report says so (``selection
 """
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -59,6 +60,13 @@ def _mean_std(values):
 
 def _round(d, nd=5):
     return {k: round(float(v), nd) for k, v in d.items()}
+
+
+def _noise_mm(prepared):
+    """The tracks' position noise per axis (mm, from local fits: estimate_measurement_noise),
+    or None where no piece of track allows it (JSON has no NaN)."""
+    noise = estimate_measurement_noise((tr.t[tr.mask], tr.p[tr.mask]) for tr in prepared)[0]
+    return round(1e3 * noise, 3) if math.isfinite(noise) else None
 
 
 def _pooled_from_tracks_c_m(prepared, g, states, c_m, max_nfev):
@@ -214,8 +222,7 @@ def _identify(tracks, base, folds, hit_plane_x, progress, max_nfev):
             'tracks_spin_estimated': sum(tr.spin_source == 'estimated' for tr in tracks),
             'folds': folds, 'hit_plane_x': hit_plane_x,
             'predict_window_s': evaluate.PREDICT_WINDOW,
-            'position_noise_mm': round(1e3 * estimate_measurement_noise(
-                (tr.t[tr.mask], tr.p[tr.mask]) for tr in prepared)[0], 3),
+            'position_noise_mm': _noise_mm(prepared),
         },
         'paper_style': {'per_trajectory': paper, 'pooled': _round(g_base.as_dict())},
         'baseline': {'params': _round(g_base.as_dict()), 'heldout_fit_rms_mm':

@@ -11,6 +11,7 @@ import os
 import matplotlib
 import numpy as np
 
+from ..ball_filter import NOISE_WINDOW
 from ..staged import staged_folder
 from .diagnose import binned
 
@@ -47,6 +48,10 @@ def _fmt(value, nd=3):
     return str(value)
 
 
+PAPER_C_D = 0.54
+"""The paper's drag coefficient (MODEL.md, "Constants"), against which C_D is reported."""
+PAPER_C_M = 0.069
+"""The paper's Magnus coefficient."""
 SIGNIFICANCE = 0.05
 """A correlation with a larger two-sided p-value is reported as not significant; of several
 tested together, each against SIGNIFICANCE over their number (Bonferroni): with nothing
@@ -87,11 +92,12 @@ def markdown(r):
     p = r['paper_style']['per_trajectory']
     lines += ['', '## Paper-style coefficients (eq. 9)', '',
               f"Per trajectory: C_D = {p['c_d']['mean']:.3f} ± {p['c_d']['std']:.3f} "
-              f"(n = {p['c_d']['n']}); paper 0.54 ± 0.074."]
+              f"(n = {p['c_d']['n']}); paper {PAPER_C_D} ± 0.074."]
     if 'mean' in p['c_m']:
         lines.append(f"C_M = {p['c_m']['mean']:.3f} ± {p['c_m']['std']:.3f} (n = "
-                     f"{p['c_m']['n']}, the tracks with measured spin); paper 0.069 ± 0.029.")
-        drag, lift = p['c_d']['mean'] / 0.54, p['c_m']['mean'] / 0.069
+                     f"{p['c_m']['n']}, the tracks with measured spin); paper {PAPER_C_M} "
+                     '± 0.029.')
+        drag, lift = p['c_d']['mean'] / PAPER_C_D, p['c_m']['mean'] / PAPER_C_M
         lines.append(f"Against the paper's: C_D × {drag:.2f}, C_M × {lift:.2f}." + (
             ' Both off by one factor: flights measure C_D ρ A / m and C_M ρ r³ / m, not the '
             "coefficients and the ball apart, so a ball of another mass than the model's, "
@@ -146,13 +152,12 @@ def markdown(r):
     none = ('none. No effect of the library pays for its parameters on held-out data; the '
             'residual shape is shown below.')
     if r.get('dropped_for_prediction'):
-        none = ('none. What paid on the fit did not lower the held-out prediction errors '
-                '(above); the residual shape is shown below.')
-    if r.get('selection_note'):
-        none = f"none: {r['selection_note']}."
-    if r.get('dropped_for_prediction'):
         lines += ['', 'Paid on the fit but dropped because the held-out prediction error did '
                   'not drop with them: ' + ', '.join(r['dropped_for_prediction']) + '.']
+        none = 'none (what paid is above); the residual shape is shown below.'
+    if r.get('selection_note'):
+        none = f"none: {r['selection_note']}."
+
     at_bound = [e['name'] for e in r['effects_tested'] if e.get('at_bound')]
     if at_bound:
         lines += ['', 'Fitted at a bound of the plausible range (not selected): '
@@ -176,7 +181,7 @@ def markdown(r):
         ratio = f['heldout_fit_rms_mm'] / noise
         lines += ['', f"The final model's held-out fit RMS, {f['heldout_fit_rms_mm']:.2f} mm, is "
                       f"{ratio:.1f} times the tracks' own noise ({noise:.2f} mm per axis, from "
-                      'local fits of 7 samples): ' + (
+                      f'local fits of {NOISE_WINDOW} samples): ' + (
                           'the data hold something neither the model nor its library has; '
                           'the residual plots show where along the tracks.' if ratio > 2.0
                           else 'the model follows the data to about their noise.')]
