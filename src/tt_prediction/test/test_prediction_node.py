@@ -349,6 +349,13 @@ def test_a_state_from_before_the_clock_went_back_is_said_so_not_a_clock_disagree
     assert 'which went back from' in said[0] and 'a bag played again' in said[0], said
     # Further ahead than the clock ever was: that is a clock that disagrees.
     assert 'the clocks disagree' in said[1] and '5.200 s ahead' in said[1], said
+    # And so is one stamped as the earlier pass's last, once the new pass has run 2 s.
+    reasons = []
+    monkeypatch.setattr(graph.node, '_drop', reasons.append)
+    graph.set_clock(T0 + 2_000_000_000)
+    graph.pub.publish(graph.state(GOOD, stamp_ns=end + 10_000_000, track_id=4))
+    graph.spin_until(lambda: graph.node.n_received == 4, 10.0, 'the state 3 s ahead')
+    assert len(reasons) == 1 and reasons[0].endswith('the clocks disagree'), reasons
 
 
 def test_the_exit_lines_stamps_are_the_earliest_and_latest_valid_ones(graph):

@@ -59,11 +59,15 @@ is predicted and warned of (at most every 5 s): an exposure cannot be later than
 arrival, so the clocks disagree by at least that much, and the hit time with them (0.9 s
 ahead was struck 'ok' without a word; a walk-through, 6 Dec 2026). Not less: a bag's /clock
 at ros2 bag play's 40 Hz runs up to 25 ms behind the states played with it. On a simulated
-clock the node adds its step (CLOCK_STEPS): at -r 2 that /clock steps by 50 ms of bag time
-(a walk-through, 7 Dec 2026, was told of states 53 ms ahead)."""
+clock the node adds its step (CLOCK_STEPS), so 75 ms at ros2 bag play's 40 Hz and 100 ms at
+-r 2, whose /clock steps by 50 ms of bag time (a walk-through, 7 Dec 2026, was told of states
+53 ms ahead as clocks that disagree)."""
 CLOCK_STEPS = 15
 """On a simulated clock (use_sim_time), the median of the last this many steps of the node
 clock between states is taken for the step of /clock, by which it lags a state at most."""
+CLOCK_STEP_MAX_S = 0.1
+"""A step of the simulated clock between two states longer than this is a gap between the
+states, not /clock's step (40 Hz at -r 4), s: sparse states had widened the margin to 1 s."""
 TRACK_GAP_S = 1.0
 """A state of a remembered track id stamped this much after the track's last state (or
 more than OUT_OF_ORDER_S before it) starts the track afresh, s: it is another ball
@@ -134,12 +138,12 @@ class _Track:
 
     def continues(self, state, stamp_ns, gravity):
         """Whether ``state`` (9,), stamped ``stamp_ns``, is the track's ball: stamped within
-        TRACK_GAP_S after its last state and near where it flies (TRACK_JUMP_M)."""
+        TRACK_GAP_S after its last state and near where it flies (TRACK_JUMP_M) under
+        ``gravity`` ((3,), m/s^2: ModelParams.gravity_vector)."""
         if not 0 <= stamp_ns - self.last_ns <= TRACK_GAP_S * 1e9:
             return False
         dt = (stamp_ns - self.last_ns) * 1e-9
-        expect = self.state[:3] + self.state[3:6] * dt
-        expect[2] -= 0.5 * gravity * dt * dt
+        expect = self.state[:3] + self.state[3:6] * dt + 0.5 * gravity * dt * dt
         return (np.linalg.norm(state[:3] - expect)
                 <= TRACK_JUMP_M + TRACK_JUMP_SPEED * min(dt, TRACK_JUMP_DT))
 
@@ -171,6 +175,7 @@ class PredictionNode(Node):
         self.last_path_ns = None
         self.stamps_ns = None             # (earliest, latest) valid stamp received, ns
         self.clock_high_ns = 0            # the latest node clock seen by a state, ns
+        self.clock_back = (0, 0)          # (from, to) of its last jump back, ns
         self.clock_steps = collections.deque(maxlen=CLOCK_STEPS)  # simulated clock's, ns
         self.clock_seen_ns = 0            # the node clock at the last state, ns
         self.work = CallbackTimes()       # the callback's time for the last states
@@ -212,7 +217,7 @@ class PredictionNode(Node):
         last, self.clock_seen_ns = self.clock_seen_ns, now_ns
         if not self.get_clock().ros_time_is_active:
             return 0.0
-        if last and 0 < now_ns - last <= MAX_LEAD_S * 1e9:    # not a pause, nor a jump back
+        if last and 0 < now_ns - last <= CLOCK_STEP_MAX_S * 1e9:   # not a gap between states
             self.clock_steps.append(now_ns - last)
         return float(np.median(self.clock_steps)) * 1e-9 if self.clock_steps else 0.0
 
@@ -263,7 +268,10 @@ class PredictionNode(Node):
         self.stamps_ns = (min(low, stamp_ns), max(high, stamp_ns))
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
-        clock_high_ns, self.clock_high_ns = self.clock_high_ns, max(self.clock_high_ns, now_ns)
+        if now_ns < self.clock_high_ns:                 # the clock went back: a bag looped
+            self.clock_back = (self.clock_high_ns, now_ns)
+        self.clock_high_ns = now_ns if now_ns < self.clock_high_ns else max(
+            self.clock_high_ns, now_ns)
         lag_s = AHEAD_S + self._clock_step_s(now_ns)
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
             self.time_base(stamp_ns * 1e-9, 0.0)         # (said once if it lasts)
@@ -274,12 +282,14 @@ class PredictionNode(Node):
                     self._drop(f'stale: stamp {age:.3f} s old (stale_after_s {stale})')
                     return
                 if -age > MAX_LEAD_S:
-                    if stamp_ns <= clock_high_ns + AHEAD_S * 1e9:
+                    back_from, back_to = self.clock_back
+                    if (back_from and now_ns - back_to <= MAX_LEAD_S * 1e9
+                            and stamp_ns <= back_from + lag_s * 1e9):
                         # A looped bag: its /clock starts the next pass as the last states
                         # of this one are on their way (another topic), so the node judged
                         # them against the new time (a walk-through, 7 Dec 2026).
                         self._drop(f'looped: stamp {-age:.3f} s ahead of the node clock, '
-                                   f'which went back from {clock_high_ns * 1e-9:.3f} s (a bag '
+                                   f'which went back from {back_from * 1e-9:.3f} s (a bag '
                                    'played again): a state of before it')
                     else:
                         self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
@@ -371,7 +381,7 @@ class PredictionNode(Node):
         """The remembered track ``state`` belongs to, made the latest updated (a new one for
         another ball under a used id), or None: a late or repeated state, dropped
         (OUT_OF_ORDER_S)."""
-        gravity = self.params.gravity
+        gravity = self.params.gravity_vector
         track = self.tracks.get(track_id)
         if track is None:
             if len(self.tracks) >= MAX_TRACKS:

@@ -149,7 +149,8 @@ FIELDS = (
     # The paper's parameters (MODEL.md, "Constants").
     Field('mass', 2.7e-3, 'kg', (1.5e-3, 5e-3), 'Ball mass m.'),
     Field('radius', 0.020, 'm', (0.015, 0.025), 'Ball radius r.'),
-    Field('gravity', 9.8, 'm/s^2', (8.0, 12.0), 'Magnitude of gravity g (along -z).'),
+    Field('gravity', 9.8, 'm/s^2', (8.0, 12.0),
+          'Gravity g along -z (its magnitude on a level table; see gravity_x).'),
     Field('air_density', 1.184, 'kg/m^3', (0.5, 1.5), 'Air density rho.'),
     Field('area', 12.5e-4, 'm^2', (7e-4, 2e-3), 'Projected area A (eq. 8).'),
     Field('c_d', 0.54, '1', (0.1, 2.0), 'Drag coefficient C_D (eq. 8).'),

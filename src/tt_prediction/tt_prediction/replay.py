@@ -260,7 +260,7 @@ def _ground_truth(name, t, p, params, plane_x):
             break
         # Cut before any bounce on the robot's half (at a stroke, a gap, a contact it
         # cannot resolve): the ball to return may come after it.
-        start = _next_flight(tc, pc, seg, params.gravity)
+        start = _next_flight(tc, pc, seg, params.gravity_vector)
     if first is None:
         tt, pp = drop_outliers(tc, pc, {}, params.radius)
         return tt, pp, [], None, None
@@ -273,11 +273,12 @@ def _ground_truth(name, t, p, params, plane_x):
 def _next_flight(t, p, seg, gravity):
     """Index of the first of ``t``'s samples past flight ``seg`` that is no longer on it: the
     first of two in a row more than NEXT_FLIGHT_OFF from the ballistic extrapolation of seg's
-    last samples (segment() cuts a few samples before a contact), above the table."""
+    last samples (segment() cuts a few samples before a contact), above the table.
+    ``gravity``: (3,) m/s^2, table frame (ModelParams.gravity_vector)."""
     k = int(np.searchsorted(t, seg.t[-1], side='right'))
     n = min(len(seg.t), 6)
     dt = seg.t[-n:] - seg.t[-1]
-    fall = np.array([0.0, 0.0, -0.5 * gravity])
+    fall = 0.5 * np.asarray(gravity)
     A = np.stack([np.ones(n), dt], axis=1)                   # p0 + v dt + g dt^2 / 2
     coef = np.linalg.lstsq(A, seg.p[-n:] - np.outer(dt ** 2, fall), rcond=None)[0]
     dt = t[k:] - seg.t[-1]
