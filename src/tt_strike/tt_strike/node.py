@@ -198,6 +198,9 @@ class TrackTally:
     """Its stroke's hit time is past and was checked for a lost ball (LOST_BEFORE_PLANE_S)."""
     lost_before: int = 0
     """Predictions this node had lost in its input queue when it took the last one."""
+    lost_by_plane: int = None
+    """... and when it took the first prediction (of any ball) stamped after that one's hit
+    time: losses after the ball was at the plane are not why it was lost (None: none yet)."""
     probability: 'Probability' = None
     """The last in-zone probability worked out for it."""
     requested_ns: int = None
@@ -418,6 +421,11 @@ class StrikeNode(Node):
     def _on_prediction(self, msg):
         self.last_arrival = time.monotonic()
         self._take_probabilities()
+        stamp_s = to_ns(msg.header.stamp) * 1e-9
+        for other in self.tracks.values():      # the balls this one's stamp is past
+            if other.lost_by_plane is None and other.plane_t is not None \
+                    and stamp_s >= other.plane_t:
+                other.lost_by_plane = self.queue_lost.count
         tally = self._tally(msg.track_id)
         tally.received += 1
         if not msg.hit_valid:
@@ -469,7 +477,7 @@ class StrikeNode(Node):
             tally.ball += 1
         tally.stamp = self.last_stamp = stamp
         tally.plane_t = hit_t
-        tally.lost_before = self.queue_lost.count
+        tally.lost_before, tally.lost_by_plane = self.queue_lost.count, None
         known = any(msg.hit_covariance)
         # A value the ball has is refreshed behind the command, not before it (15-30 ms).
         when = self._probability_plan(tally, aim, stamp_ns, known)
@@ -557,7 +565,8 @@ class StrikeNode(Node):
         early = tally.plane_t - tally.stamp
         if early > LOST_BEFORE_PLANE_S:
             self.n_lost += 1
-            queued = self.queue_lost.count - tally.lost_before
+            queued = (self.queue_lost.count if tally.lost_by_plane is None
+                      else tally.lost_by_plane) - tally.lost_before
             why = (f"{queued} predictions were lost in this node's input queue since (it "
                    'falls behind: a faster replay, or a busy machine)' if queued else
                    'no prediction with a hit point since: no state from perception, or '
