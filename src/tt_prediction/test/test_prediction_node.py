@@ -330,6 +330,20 @@ def test_a_state_ahead_by_less_than_a_step_of_the_simulated_clock_is_not_warned_
         in said[0], said
 
 
+def test_sparse_states_do_not_widen_the_margin_of_a_simulated_clock(graph, monkeypatch):
+    # States 0.5 s apart see the clock step by 0.5 s between them: that is their gap, not
+    # /clock's step, and had let states up to 0.55 s ahead pass without a word.
+    said = []
+    monkeypatch.setattr(graph.node.warn, '_log', said.append)
+    for k in range(1, 5):
+        graph.set_clock(T0 + k * 500_000_000)
+        ahead = 120_000_000 if k > 1 else 0
+        graph.pub.publish(graph.state(GOOD, stamp_ns=T0 + k * 500_000_000 + ahead, track_id=k))
+        graph.spin_until(lambda k=k: graph.node.n_received == k, 10.0, f'state {k}')
+    assert len(said) == 1, said                     # warned of, once every 5 s
+    assert 'stamped 120 ms ahead of the node clock (more than the 50 ms it may lag)' in said[0]
+
+
 def test_a_state_from_before_the_clock_went_back_is_said_so_not_a_clock_disagreement(
         graph, monkeypatch):
     # ros2 bag play --loop --clock: the next pass's /clock can reach the node before the last
