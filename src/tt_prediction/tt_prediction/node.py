@@ -174,10 +174,9 @@ class PredictionNode(Node):
         self.tracks = {}
         self.last_path_ns = None
         self.stamps_ns = None             # (earliest, latest) valid stamp received, ns
-        self.clock_high_ns = 0            # the latest node clock seen by a state, ns
+        self.clock_seen_ns = 0            # the node clock at the last state, ns
         self.clock_back = (0, 0)          # (from, to) of its last jump back, ns
         self.clock_steps = collections.deque(maxlen=CLOCK_STEPS)  # simulated clock's, ns
-        self.clock_seen_ns = 0            # the node clock at the last state, ns
         self.work = CallbackTimes()       # the callback's time for the last states
         self.n_predicted = 0
         self.n_dropped = 0
@@ -211,15 +210,21 @@ class PredictionNode(Node):
         self.warn('drop:' + why.replace(':', ' ').split(' ', 1)[0], 1.0,
                   f'ball state dropped: {why}')
 
-    def _clock_step_s(self, now_ns):
-        """The simulated clock's step (s): the median of its last CLOCK_STEPS steps between
-        states (0 on the system clock, and before any step)."""
+    def _clock_seen(self, now_ns):
+        """Take the node clock ``now_ns`` at a state: a jump back (a bag looped) into
+        clock_back, and on a simulated clock its step since the last state into clock_steps
+        (a step up to CLOCK_STEP_MAX_S: a longer one is a gap between states)."""
         last, self.clock_seen_ns = self.clock_seen_ns, now_ns
-        if not self.get_clock().ros_time_is_active:
-            return 0.0
-        if last and 0 < now_ns - last <= CLOCK_STEP_MAX_S * 1e9:   # not a gap between states
+        if now_ns < last:
+            self.clock_back = (last, now_ns)
+        elif last and 0 < now_ns - last <= CLOCK_STEP_MAX_S * 1e9 \
+                and self.get_clock().ros_time_is_active:
             self.clock_steps.append(now_ns - last)
-        return float(np.median(self.clock_steps)) * 1e-9 if self.clock_steps else 0.0
+
+    def _lag_s(self):
+        """How far the node clock may lag a state, s: AHEAD_S, and on a simulated clock the
+        median of its last CLOCK_STEPS steps (0 on the system clock, and before any step)."""
+        return AHEAD_S + (float(np.median(self.clock_steps)) * 1e-9 if self.clock_steps else 0.0)
 
     def on_state(self, msg):
         self.work.call(self._on_state, msg)
@@ -268,11 +273,7 @@ class PredictionNode(Node):
         self.stamps_ns = (min(low, stamp_ns), max(high, stamp_ns))
         stale = self.p.stale_after_s
         now_ns = self.get_clock().now().nanoseconds
-        if now_ns < self.clock_high_ns:                 # the clock went back: a bag looped
-            self.clock_back = (self.clock_high_ns, now_ns)
-        self.clock_high_ns = now_ns if now_ns < self.clock_high_ns else max(
-            self.clock_high_ns, now_ns)
-        lag_s = AHEAD_S + self._clock_step_s(now_ns)
+        self._clock_seen(now_ns)
         if not now_ns:                  # use_sim_time, no /clock yet: nothing to compare
             self.time_base(stamp_ns * 1e-9, 0.0)         # (said once if it lasts)
         elif stale > 0.0:
@@ -284,7 +285,7 @@ class PredictionNode(Node):
                 if -age > MAX_LEAD_S:
                     back_from, back_to = self.clock_back
                     if (back_from and now_ns - back_to <= MAX_LEAD_S * 1e9
-                            and stamp_ns <= back_from + lag_s * 1e9):
+                            and stamp_ns <= back_from + self._lag_s() * 1e9):
                         # A looped bag: its /clock starts the next pass as the last states
                         # of this one are on their way (another topic), so the node judged
                         # them against the new time (a walk-through, 7 Dec 2026).
@@ -295,7 +296,7 @@ class PredictionNode(Node):
                         self._drop(f'stamp {-age:.3f} s ahead of the node clock (more than '
                                    f'{MAX_LEAD_S:g} s): the clocks disagree')
                     return
-                if -age > lag_s:
+                if -age > AHEAD_S and -age > (lag_s := self._lag_s()):
                     self.warn('ahead', 5.0,
                               f'a state stamped {-age * 1e3:.0f} ms ahead of the node clock '
                               f'(more than the {lag_s * 1e3:.0f} ms it may lag): the clocks '
