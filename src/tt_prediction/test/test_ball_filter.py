@@ -24,7 +24,7 @@ EFFECTS = ModelParams(c_d_speed_slope=0.02, c_m_spin_ratio_slope=0.05,
                       c_d_spin_ratio_slope=0.08, spin_decay=0.3, wind=(0.2, -0.1, 0.05),
                       e_t_speed_slope=-0.1, mu_spin_slope=2e-4)
 REBOUND_EFFECTS = ModelParams(e_t_speed_slope=-0.1, mu_spin_slope=2e-4, e_t_spin_slope=0.01,
-                              mu_slip_slope=0.02, e_t_tangential=0.3)
+                              mu_slip_slope=0.02, e_t_tangential=0.3, e_t_edge=-0.08)
 # An incoming ball with top and side spin: bounces on the robot's half, crosses x = -1.2.
 INCOMING = np.array([1.3, 0.1, 0.3, -5.5, -0.2, 1.0, 20.0, -150.0, 40.0])
 
@@ -41,9 +41,11 @@ def _numeric(fun, s, eps):
 
 @pytest.mark.parametrize('params', [ModelParams(), EFFECTS, REBOUND_EFFECTS])
 @pytest.mark.parametrize('spin_y', [-150.0, 0.0, 400.0])
-def test_rebound_jacobian_is_the_derivative_of_eqs_1_to_6(params, spin_y):
+@pytest.mark.parametrize('place', [(-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72)],
+                         ids=['middle', 'near the end line', 'near a side line'])
+def test_rebound_jacobian_is_the_derivative_of_eqs_1_to_6(params, spin_y, place):
     P = params.packed()
-    s = np.array([-0.5, 0.1, 0.02, -4.0, 0.5, -3.0, 25.0, spin_y, 50.0])
+    s = np.array([*place, 0.02, -4.0, 0.5, -3.0, 25.0, spin_y, 50.0])
 
     def rebound(x):
         y = x.copy()

@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 import pytest
+from tt_prediction.ball_filter import rebound_jacobian
 from tt_prediction.identify.effects import LIBRARY
 
 from tt_prediction import ball, params
@@ -111,4 +112,21 @@ def test_effect_changes_the_model_when_switched_on(field):
                 ball.flight_derivative(sp, P1, fp)
                 ball.flight_derivative(sm, P1, fm)
                 num[:, j] = (fp - fm) / (2 * h)
+            np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
+    if rebound_changed:
+        # The filters' Jacobian of eqs. 1-6 must carry it too (central differences; in the
+        # middle of the table, by an end line and by a side line).
+        for x, y in ((-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72)):
+            s = np.array([x, y, 0.02, -4.0, 0.5, -3.0, 25.0, -150.0, 50.0])
+            J = np.empty((9, 9))
+            rebound_jacobian(s, P1, J)
+            num = np.empty((9, 9))
+            for j in range(9):
+                h = 1e-6 * max(1.0, abs(s[j]))
+                sp, sm = s.copy(), s.copy()
+                sp[j] += h
+                sm[j] -= h
+                ball.table_rebound_inplace(sp, P1)
+                ball.table_rebound_inplace(sm, P1)
+                num[:, j] = (sp - sm) / (2 * h)
             np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6 * np.abs(num).max())

@@ -138,8 +138,8 @@ def test_an_effect_left_out_is_not_applied(tmp_path):
     assert ball.load_model(str(path)).c_d == 0.45
 
 
-def _rebound(v, w, params):
-    return ball.table_rebound(np.asarray(v, float), np.asarray(w, float), params)
+def _rebound(v, w, params, position=(0.0, 0.0, 0.0)):
+    return ball.table_rebound(np.asarray(v, float), np.asarray(w, float), params, position)
 
 
 def _contact_velocity(v, w, r=0.020):
@@ -189,6 +189,17 @@ def test_restitution_depends_on_impact_speed_and_spin():
     v1, _ = _rebound(v, w, p)
     # e_t = 0.93 - 0.05 (|v_z| - 3) - 0.01 r |w| = 0.93 - 0 - 0.04
     assert v1[2] == pytest.approx(3.0 * (0.93 - 0.01 * 0.020 * 200.0), rel=1e-12)
+
+
+@pytest.mark.parametrize('place, edge', [((-1.32, 0.1), 0.05), ((1.32, -0.1), 0.05),
+                                         ((-0.6, 0.7425), 0.02), ((0.0, 0.0), 0.7625)])
+def test_restitution_depends_on_how_near_the_ball_lands_to_the_tables_edge(place, edge):
+    # e_t = 0.93 + e_t_edge exp(-d / 0.1 m), d the distance to the nearest edge of the
+    # 2.74 x 1.525 m outline, on either half and either side.
+    v, w = np.array([-4.0, 0.0, -3.0]), np.array([0.0, 0.0, 0.0])
+    v1, _ = _rebound(v, w, NOMINAL.replace(e_t_edge=-0.08), position=(*place, 0.02))
+    assert v1[2] == pytest.approx(3.0 * (0.93 - 0.08 * math.exp(-edge / 0.1)), rel=1e-12)
+    assert ball.edge_distance(*place) == pytest.approx(edge, abs=1e-12)
 
 
 def test_friction_depends_on_slip_speed():

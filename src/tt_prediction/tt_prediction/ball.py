@@ -12,7 +12,8 @@ Equations (MODEL.md, paper numbering):
 
 - :func:`flight_derivative` / :func:`flight_acceleration`: eq. 8 (with its effects);
   :func:`flight_jacobian`: its Jacobian, for filters.
-- :func:`table_rebound` / :func:`table_rebound_inplace`: eqs. 1-6.
+- :func:`table_rebound` / :func:`table_rebound_inplace`: eqs. 1-6 (:func:`table_restitution`:
+  e_t with its effects; :func:`edge_distance`: a bounce's distance to the table's edge).
 - :func:`racket_rebound` / :func:`racket_rebound_inplace`: eq. 7.
 
 Integration: :func:`rk4_step` (one step of eq. 8; :func:`rk4_advance` into a new array),
@@ -44,6 +45,7 @@ from .integrate import (
     rollout_kernel,
 )
 from .model import (
+    edge_distance,
     flight_acceleration,
     flight_derivative,
     flight_jacobian,
@@ -51,9 +53,11 @@ from .model import (
     racket_rebound_inplace,
     table_rebound,
     table_rebound_inplace,
+    table_restitution,
 )
 from .params import (
     DRAG_SPEED_REF,
+    EDGE_LENGTH_REF,
     EFFECT_FIELDS,
     EFFECTS,
     FIELD,
@@ -122,10 +126,12 @@ __all__ = [
     'FIELDS', 'EFFECTS', 'FIELD', 'Field', 'Effect', 'ModelParams', 'load_model',
     'PACKED_FIELDS', 'INDEX', 'INDEX_NAMES', 'N_PACKED', 'SLOT_BOUNDS', 'EFFECT_FIELDS',
     'DRAG_SPEED_REF', 'LIFT_SPIN_RATIO_REF', 'IMPACT_SPEED_REF', 'SLIP_SPEED_REF',
+    'EDGE_LENGTH_REF',
     *INDEX_NAMES,   # I_MASS, I_RADIUS, ...: slots of the packed array (params.py)
     # equations
     'flight_derivative', 'flight_jacobian', 'flight_acceleration', 'table_rebound',
-    'table_rebound_inplace', 'racket_rebound', 'racket_rebound_inplace',
+    'table_rebound_inplace', 'table_restitution', 'edge_distance', 'racket_rebound',
+    'racket_rebound_inplace',
     # integration
     'rk4_step', 'rk4_advance', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event',
     'DEFAULT_STEP',

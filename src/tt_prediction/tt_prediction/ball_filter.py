@@ -44,9 +44,10 @@ from numba import njit
 import numpy as np
 
 from .ball import (
+    EDGE_LENGTH_REF,
     HALF_LENGTH,
     HALF_WIDTH,
-    I_ET,
+    I_ET_EDGE,
     I_ET_SLOPE,
     I_ET_SPIN_SLOPE,
     I_ET_TANGENTIAL,
@@ -54,13 +55,13 @@ from .ball import (
     I_MU_SLIP_SLOPE,
     I_MU_SLOPE,
     I_RADIUS,
-    IMPACT_SPEED_REF,
     SLIP_SPEED_REF,
     ModelParams,
     flight_derivative,
     flight_jacobian,
     rk4_advance,
     table_rebound_inplace,
+    table_restitution,
 )
 
 __all__ = ['AccelNoiseLearner', 'BallFilter', 'FilterConfig', 'SpinPriorLearner', 'TrackFilter',
@@ -199,8 +200,9 @@ def rebound_jacobian(s, P, J):
         v_y' = (1 - alpha) v_y - alpha r w_x,   w_y' = (1 - 3 alpha/2) w_y + 3 alpha/(2r) v_x,
         v_z' = -e_t v_z,                        w_z' = w_z;
     J holds the explicit partials plus (d out / d alpha) (d alpha / d s)^T and
-    (d v_z' / d e_t) (d e_t / d s)^T, with the effects in e_t (impact speed, spin) and mu
-    (spin, slip speed) as :func:`tt_prediction.ball.table_rebound_inplace` has them.
+    (d v_z' / d e_t) (d e_t / d s)^T, with the effects in e_t (impact speed, spin, the
+    distance to the table's edge) and mu (spin, slip speed) as
+    :func:`tt_prediction.ball.table_rebound_inplace` has them.
     """
     for i in range(9):
         for j in range(9):
@@ -225,14 +227,22 @@ def rebound_jacobian(s, P, J):
         dvt[4] = vty / vt
         dvt[6] = r * vty / vt
         dvt[7] = -r * vtx / vt
-    e_raw = (P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
-             + P[I_ET_SPIN_SLOPE] * r * spin)
+    e_raw = table_restitution(s, P)
     e_t = min(max(e_raw, 0.0), 1.0)
     de = np.zeros(9)
     if 0.0 < e_raw < 1.0:
         de[5] = P[I_ET_SLOPE] * sgn
         for j in range(6, 9):
             de[j] = P[I_ET_SPIN_SLOPE] * r * dspin[j]
+        if P[I_ET_EDGE] != 0.0:      # d/dp of e_t_edge exp(-d / L), d the nearer edge's
+            ax, ay = HALF_LENGTH - abs(s[0]), HALF_WIDTH - abs(s[1])
+            d = min(ax, ay)
+            if d > 0.0:
+                k = -P[I_ET_EDGE] * math.exp(-d / EDGE_LENGTH_REF) / EDGE_LENGTH_REF
+                if ax <= ay:
+                    de[0] = k * (-1.0 if s[0] > 0.0 else 1.0)
+                else:
+                    de[1] = k * (-1.0 if s[1] > 0.0 else 1.0)
     mu_raw = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
     mu = max(mu_raw, 0.0)
     dmu = np.zeros(9)

@@ -13,6 +13,7 @@ import numpy as np
 
 from .params import (
     DRAG_SPEED_REF,
+    EDGE_LENGTH_REF,
     I_AREA,
     I_CD,
     I_CD_SLOPE,
@@ -21,6 +22,7 @@ from .params import (
     I_CM_SLOPE,
     I_ER,
     I_ET,
+    I_ET_EDGE,
     I_ET_SLOPE,
     I_ET_SPIN_SLOPE,
     I_ET_TANGENTIAL,
@@ -42,6 +44,7 @@ from .params import (
     LIFT_SPIN_RATIO_REF,
     SLIP_SPEED_REF,
 )
+from .table import HALF_LENGTH, HALF_WIDTH
 
 _NJIT = {'cache': True, 'fastmath': False, 'nogil': True}
 
@@ -189,6 +192,50 @@ def flight_jacobian(s, P, out):
 
 
 @njit(**_NJIT)
+def edge_distance(x, y):
+    """Distance from a table point to the nearest edge of the playing surface's outline.
+
+    Parameters
+    ----------
+    x, y : float
+        Table-frame coordinates of the point, m.
+
+    Returns
+    -------
+    float
+        Distance, m (0 on an edge or off the table).
+    """
+    return max(min(HALF_LENGTH - abs(x), HALF_WIDTH - abs(y)), 0.0)
+
+
+@njit(**_NJIT)
+def table_restitution(s, P):
+    """The table restitution e_t of eqs. 1-6 with its effects, before the clip to [0, 1].
+
+    e_t + e_t_speed_slope (|v_z| - IMPACT_SPEED_REF) + e_t_spin_slope r|w|
+    + e_t_edge exp(-d / EDGE_LENGTH_REF), d the bounce's distance to the table's edge.
+
+    Parameters
+    ----------
+    s : ndarray (9,)
+        State [p (m), v (m/s), w (rad/s)] at contact, table frame.
+    P : ndarray
+        Packed model parameters (:meth:`tt_prediction.params.ModelParams.packed`).
+
+    Returns
+    -------
+    float
+        e_t (dimensionless; the rebound clips it to [0, 1]).
+    """
+    spin = math.sqrt(s[6] * s[6] + s[7] * s[7] + s[8] * s[8])
+    e_t = (P[I_ET] + P[I_ET_SLOPE] * (abs(s[5]) - IMPACT_SPEED_REF)
+           + P[I_ET_SPIN_SLOPE] * P[I_RADIUS] * spin)
+    if P[I_ET_EDGE] != 0.0:
+        e_t += P[I_ET_EDGE] * math.exp(-edge_distance(s[0], s[1]) / EDGE_LENGTH_REF)
+    return e_t
+
+
+@njit(**_NJIT)
 def table_rebound_inplace(s, P):
     """Apply the table rebound (eqs. 1-6, MODEL.md) to the velocity and spin of ``s``.
 
@@ -197,8 +244,8 @@ def table_rebound_inplace(s, P):
     gripping otherwise, alpha = 2/5 (1 + e_x), which leaves the contact velocity at
     v_T' = (1 - 5 alpha / 2) v_T = -e_x v_T. The paper has e_x = 0 (``e_t_tangential``, the
     ball's tangential compliance): nu_s = 1 - 5/2 s > 0 is sliding, rolling (v_T' = 0)
-    otherwise. The effects enter through e_t (impact speed, spin), mu (spin, slip speed)
-    and e_x.
+    otherwise. The effects enter through e_t (impact speed, spin, the place on the table:
+    :func:`table_restitution`), mu (spin, slip speed) and e_x.
 
     Parameters
     ----------
@@ -219,9 +266,7 @@ def table_rebound_inplace(s, P):
     vtx = vx - r * wy                                   # tangential contact velocity
     vty = vy + r * wx
     vt = math.sqrt(vtx * vtx + vty * vty)
-    e_t = (P[I_ET] + P[I_ET_SLOPE] * (abs(vz) - IMPACT_SPEED_REF)
-           + P[I_ET_SPIN_SLOPE] * r * spin)
-    e_t = min(max(e_t, 0.0), 1.0)
+    e_t = min(max(table_restitution(s, P), 0.0), 1.0)
     mu = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
     mu = max(mu, 0.0)
     grip = 0.4 * (1.0 + P[I_ET_TANGENTIAL])             # 2/5 (1 + e_x); 2/5 in the paper
@@ -290,7 +335,7 @@ def racket_rebound_inplace(s, P, normal, racket_velocity):
     s[8] = a * wtz + k_w * r * dz + wn * nz
 
 
-def table_rebound(velocity, spin, params):
+def table_rebound(velocity, spin, params, position=(0.0, 0.0, 0.0)):
     """Velocity and spin just after a table bounce (eqs. 1-6 with the model's effects).
 
     Parameters
@@ -301,6 +346,9 @@ def table_rebound(velocity, spin, params):
         Ball spin at contact, rad/s.
     params : ModelParams
         The model.
+    position : array_like (3,)
+        Where the ball meets the table, table frame, m (the centre by default; only
+        ``e_t_edge`` depends on it).
 
     Returns
     -------
@@ -308,7 +356,7 @@ def table_rebound(velocity, spin, params):
         Just after the bounce, m/s and rad/s.
     """
     s = np.zeros(9)
-    s[3:6], s[6:9] = velocity, spin
+    s[:3], s[3:6], s[6:9] = position, velocity, spin
     table_rebound_inplace(s, params.packed())
     return s[3:6].copy(), s[6:9].copy()
 

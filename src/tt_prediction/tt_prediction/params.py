@@ -80,6 +80,8 @@ IMPACT_SPEED_REF = 3.0
 """Normal impact speed at which e_t equals ``e_t`` when ``e_t_speed_slope`` is on, m/s."""
 SLIP_SPEED_REF = 4.0
 """Tangential contact speed at which mu equals ``mu`` when ``mu_slip_slope`` is on, m/s."""
+EDGE_LENGTH_REF = 0.1
+"""Distance from the table's edge over which ``e_t_edge`` fades by 1/e, m."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,6 +201,11 @@ FIELDS = (
           effect='gravity_tilt'),
     Field('gravity_y', 0.0, 'm/s^2', (-1.0, 1.0),
           "Gravity along the table's y axis (see gravity_x).", effect='gravity_tilt'),
+    Field('e_t_edge', 0.0, '1', (-0.3, 0.3),
+          'Place-dependent restitution, the table top livelier or deader near its edges (the '
+          "frame under it): e_t += e_t_edge exp(-d / EDGE_LENGTH_REF), d the bounce's "
+          'distance to the nearest edge of the playing surface (eqs. 1-6).',
+          effect='table_restitution_edge'),
 )
 """The declaration of every model parameter, in packed order."""
 
@@ -233,6 +240,10 @@ EFFECTS = (
            'the table is not level: gravity has a part along it, (g_x, g_y) m/s^2 in the '
            "table frame (0.17 m/s^2 a degree); a constant acceleration, where a draft's "
            'grows with the speed'),
+    Effect('table_restitution_edge', ('e_t_edge',),
+           'table restitution depends on where the ball lands: the top is livelier or deader '
+           'near its edges, e_t = e_t + e_t_edge exp(-d / 0.1 m), d the distance to the '
+           'nearest edge', needs='bounces'),
 )
 """The declaration of the model effects (identification adds measurement effects)."""
 
@@ -274,6 +285,7 @@ I_ET_SPIN_SLOPE = INDEX['e_t_spin_slope']
 I_MU_SLIP_SLOPE = INDEX['mu_slip_slope']
 I_GRAVITY_X = INDEX['gravity_x']
 I_GRAVITY_Y = INDEX['gravity_y']
+I_ET_EDGE = INDEX['e_t_edge']
 INDEX_NAMES = tuple(name for name in dir() if name.startswith('I_'))
 """The names of the index constants above (tt_prediction.ball exports them)."""
 

@@ -12,7 +12,7 @@ and spin.
 import numpy as np
 import scipy.stats
 
-from ..ball import HALF_LENGTH, HALF_WIDTH
+from ..ball import edge_distance, table_restitution
 from . import fitting
 
 MIN_FLIGHT_SAMPLES = 10
@@ -138,7 +138,6 @@ def rebound_summary(tracks, globals_, states):
     distance to the table's nearest edge (m; a table livelier in its middle)."""
     P, k = globals_.packed(), globals_.spin_scale
     e, mu, speed, spin, e_model, edge = [], [], [], [], [], []
-    g = globals_.params()
     for tr, x in zip(tracks, states, strict=True):
         if not tr.bounces:
             continue
@@ -149,9 +148,10 @@ def rebound_summary(tracks, globals_, states):
             e.append(ei)
             mu.append(np.linalg.norm(b.v_out[:2] - b.v_in[:2]) / ((1 + ei) * abs(b.v_in[2])))
             speed.append(abs(b.v_in[2]))
-            edge.append(min(HALF_LENGTH - abs(b.p[0]), HALF_WIDTH - abs(b.p[1])))
+            edge.append(edge_distance(b.p[0], b.p[1]))
             spin.append(float(np.linalg.norm(m[6:9])) if np.all(np.isfinite(m)) else np.nan)
-            e_model.append(g.e_t + g.e_t_speed_slope * (abs(b.v_in[2]) - 3.0))
+            w = m[6:9] if np.all(np.isfinite(m)) else np.zeros(3)
+            e_model.append(table_restitution(np.concatenate([b.p, b.v_in, w]), P))
     if not e:
         return None
     e, mu, speed, spin, edge = map(np.array, (e, mu, speed, spin, edge))
