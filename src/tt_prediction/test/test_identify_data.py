@@ -508,6 +508,49 @@ def test_a_second_flight_written_into_the_same_file_ends_the_track_before_it():
     seg, _ = segment(Track('fast', t3, p3), min_duration=0.05)
     assert seg is not None and 'samples_after_jump' not in seg.notes
 
+@pytest.mark.parametrize('noise', [0.0, 0.0005, 0.002])
+def test_a_ball_held_still_before_its_launch_is_left_out_and_its_flight_kept(noise):
+    # A tracker's raw track: 0.3 s of the ball in the launcher (still, with the tracker's
+    # noise), then the flight. The launch was taken for a racket contact and the track cut
+    # before it: every track of a researcher's set dropped (a walk-through, 7 Dec 2026).
+    from tt_prediction.identify.data import Track
+    params = ModelParams()
+    state = np.array([1.3, 0.0, 0.3, -5.0, 0.1, 0.8, 0.0, -100.0, 0.0])
+    t_fly, p_fly = _measured(np.arange(0.0, 0.6, 1 / 150), state, params, noise, seed=1)
+    rng = np.random.default_rng(3)
+    t_rest = np.arange(-0.3, 0.0, 1 / 150)
+    p_rest = state[:3] + rng.normal(0.0, noise, (len(t_rest), 3))
+    seg, bounces = segment(Track('launch', np.concatenate([t_rest, t_fly]),
+                                 np.vstack([p_rest, p_fly])))
+    assert seg is not None and len(bounces) == 1
+    # The flight from its second sample on or so (a launch stays within 1 cm of where it
+    # sat for a sample or two); no still sample kept.
+    assert 0.0 < seg.t[0] <= 3 / 150 and seg.t[-1] >= t_fly[-1] - 0.05
+    assert len(t_rest) <= seg.notes['samples_held_still'] <= len(t_rest) + 4
+    # A flight is never held still, not even a ball dropped from rest (its slowest start:
+    # 1 cm in 45 ms).
+    drop = np.array([0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    t_drop, p_drop = _measured(np.arange(0.0, 0.22, 1 / 150), drop, params, noise, seed=2)
+    seg, _ = segment(Track('drop', t_drop, p_drop))
+    assert 'samples_held_still' not in seg.notes
+
+
+def test_a_few_samples_before_an_early_gap_leave_the_flight_after_it():
+    # The tracker lost the ball for 0.2 s after 4 samples: those are no flight to fit; the
+    # track used to end at the gap and be dropped whole (6 of 18 tracks, a walk-through).
+    from tt_prediction.identify.data import Track
+    params = ModelParams()
+    state = np.array([1.3, 0.0, 0.3, -5.0, 0.1, 0.8, 0.0, -100.0, 0.0])
+    t, p = _measured(np.arange(0.0, 0.7, 1 / 150), state, params)
+    keep = (t < 4 / 150 - 1e-9) | (t > 0.2 + 4 / 150)
+    seg, _ = segment(Track('gap', t[keep], p[keep]))
+    assert seg is not None and seg.t[0] > 0.2 and seg.notes['samples_before_gap'] == 4
+    # A long first piece is still the flight, the rest after its gap left out.
+    keep = (t < 0.3) | (t > 0.5)
+    seg, _ = segment(Track('late gap', t[keep], p[keep]))
+    assert seg.t[-1] < 0.3 and seg.notes['samples_after_gap'] == np.sum(t > 0.5)
+
+
 @pytest.mark.parametrize('rate_hz', [150.0, 45.0])
 def test_racket_contact_ends_the_track_and_rolling_is_cut(rate_hz):
     # At 45 Hz the turn was looked for with lines over six samples a side (133 ms), and the

@@ -78,6 +78,12 @@ ROLL_SPEED = 0.3
 """A located bounce with a smaller normal speed after contact is no rebound, m/s."""
 MIN_DURATION = 0.2
 """Tracks shorter than this after cutting are dropped, s."""
+REST_RADIUS = 0.01
+REST_DURATION = 0.1
+"""A track that starts with the ball held still (in a launcher, on a hand or a tee) starts
+with samples within REST_RADIUS (m) of where it starts for longer than REST_DURATION (s):
+no free flight does that (it stays within 1 cm of a point for at most 2 sqrt(2 (0.01 m) /
+g) = 90 ms, at its apex). They are left out, and the first sample after them (the launch)."""
 
 
 @dataclasses.dataclass
@@ -306,6 +312,32 @@ def _first_rolling(t, low):
     return None
 
 
+def _held_still(t, p):
+    """How many samples a track starts with of a ball held still before its flight
+    (:data:`REST_RADIUS`, :data:`REST_DURATION`), and the launch's after them; 0 when it
+    does not start so."""
+    if len(t) < 5:
+        return 0
+    away = np.linalg.norm(p - np.median(p[:5], axis=0), axis=1) > REST_RADIUS
+    gone = np.flatnonzero(away[:-1] & away[1:])       # two in a row: not an outlier
+    n = gone[0] if len(gone) else len(t)
+    if n == 0 or t[n - 1] - t[0] <= REST_DURATION:
+        return 0
+    return min(n + 1, len(t))
+
+
+def _first_flight_piece(t, gaps, min_duration):
+    """Index range (first, end) of the first piece between gaps (``gaps``: the indices the
+    gaps follow) long enough for a flight (8 samples over ``min_duration``): a tracker that
+    loses the ball early in a track leaves a few samples before the gap; the first piece
+    when none is."""
+    bounds = np.concatenate([[0], gaps + 1, [len(t)]])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b - a >= 8 and t[b - 1] - t[a] >= min_duration:
+            return a, b
+    return 0, bounds[1]
+
+
 def _too_little(t, notes, notes_out):
     """Why a track is dropped (one line: what is left, and what each step removed), the
     step counts and the samples left (``samples_of_dropped_tracks``) added to ``notes_out``
@@ -323,22 +355,32 @@ def _too_little(t, notes, notes_out):
 def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
     """A copy of ``track`` cut to what the model explains, and its bounces.
 
-    Steps, each counted in the notes: outliers; the first gap over MAX_GAP ends the track,
-    and so does the first jump (JUMP_SPEED) to another ball; a ball below the table surface
-    ends it; a contact away from the table (racket, net: the velocity turns, cosine below
-    HIT_TURN) ends it; an unresolved bounce or rolling ends it; so does a bounce located off
-    the table's outline (the model's ball bounces only with its centre over the table: such
-    a bounce is data in another frame, or an edge ball).
+    Steps, each counted in the notes: a ball held still before its flight (REST_RADIUS);
+    outliers; the first gap over MAX_GAP ends the track (one after too short a piece to fly
+    in starts it), and so does the first jump (JUMP_SPEED) to another ball; a ball below
+    the table surface ends it; a contact away from the table (racket, net: the velocity
+    turns, cosine below HIT_TURN) ends it; an unresolved bounce or rolling ends it; so does
+    a bounce located off the table's outline (the model's ball bounces only with its centre
+    over the table: such a bounce is data in another frame, or an edge ball).
     Returns ``(track, bounces)`` or ``(None, reason)`` when too little is left (under eight
     samples, or a span under ``min_duration``, s); then the samples each step removed are
     added to the dict ``notes_out`` when given.
     """
     notes = dict(track.notes)
-    t, p = drop_outliers(track.t, track.p, notes, radius)
+    # Before the outliers: noise at rest is not a flight's (a still ball measured without
+    # noise made flight samples spikes).
+    t, p = track.t, track.p
+    still = _held_still(t, p)
+    if still:
+        _count(notes, 'samples_held_still', still)
+        t, p = t[still:], p[still:]
+    t, p = drop_outliers(t, p, notes, radius)
     gaps = np.flatnonzero(np.diff(t) > MAX_GAP)
     if len(gaps):
-        _count(notes, 'samples_after_gap', len(t) - gaps[0] - 1)
-        t, p = t[:gaps[0] + 1], p[:gaps[0] + 1]
+        first, end = _first_flight_piece(t, gaps, min_duration)
+        _count(notes, 'samples_before_gap', first)
+        _count(notes, 'samples_after_gap', len(t) - end)
+        t, p = t[first:end], p[first:end]
     steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
     jumps = np.flatnonzero(steps > np.maximum(JUMP_SPEED * np.diff(t), JUMP_MIN))
     if len(jumps):
