@@ -633,6 +633,27 @@ def test_more_folds_than_tracks_and_the_starting_model_are_said(tmp_path, monkey
     assert 'starting model' not in (out / 'report.md').read_text()
 
 
+def test_flights_left_out_by_cleaning_are_said_on_the_command_line():
+    # A file a session, three flights 1.5 s apart: a file is one flight, the two after
+    # its first gap are left out (2/3 of the samples). It was said in report.json only.
+    from tt_prediction.identify.data import Track
+    from tt_prediction.identify.pipeline import cleaning_warning, prepare
+    from tt_prediction.identify.synthetic import make_tracks
+    flights = make_tracks(12, ModelParams(), seed=6)
+    groups = [flights[k:k + 3] for k in range(0, 12, 3)]
+    sessions = [Track(f's{k}', np.concatenate([tr.t + 1.5 * i for i, tr in enumerate(group)]),
+                      np.vstack([tr.p for tr in group])) for k, group in enumerate(groups)]
+    prepared, dropped, notes = prepare(sessions, 0.02)
+    line = cleaning_warning(sessions, prepared, dropped, notes)
+    after_gaps = notes['samples_after_gap'] / sum(len(tr.t) for tr in sessions)
+    assert 0.6 < after_gaps < 0.7              # the second and third flights of each file
+    said = int(line.split('cleaning left out ')[1].split(' %')[0])
+    assert 100 * after_gaps <= said <= 100 * after_gaps + 10
+    assert 'samples_after_gap' in line and 'one flight' in line and ' tracks' not in line
+    # One flight a file: nothing to say.
+    assert cleaning_warning(flights, *prepare(flights, 0.02)) == ''
+
+
 def test_report_folder_replaces_the_old_one_with_the_mode_of_the_umask(tmp_path,
                                                                        monkeypatch):
     """The report is staged in a private temporary folder; the folder that takes DIR's place
