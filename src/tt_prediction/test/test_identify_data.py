@@ -49,9 +49,13 @@ def _folder(tmp_path, files):
     # A track file given for its folder was 'not a readable rosbag2 bag'.
     ({'a.csv': 't,x,y,z\n' + ''.join(f'{0.01 * i},{0.1 * i},0,0.3\n' for i in range(20))},
      'data/a.csv: a track file; DATA is the folder of track CSV files'),
+    # Decimal commas: "0,01,0,1,0,0,3" was read as t, x, y, z = 0, 1, 0, 1 and blamed on
+    # millimetres (a walk-through, 7 Dec 2026).
+    ({'a.csv': 't,x,y,z\n' + ''.join(f'0,0{i},0,{i},0,0,3\n' for i in range(1, 9))},
+     'a.csv: line 2 has 7 cells, the header 4 (a comma as the decimal separator?)'),
 ], ids=['empty folder', 'wrong header', 'text in number', 'after a blank line',
         'index row without a file', 'one sample', 'nothing usable',
-        'spin in rpm', 'a track file'])
+        'spin in rpm', 'a track file', 'decimal commas'])
 def test_bad_folder_is_one_line_error_and_nothing_written(tmp_path, capsys, files, expect):
     folder = _folder(tmp_path, files)
     out = tmp_path / 'out'
@@ -81,16 +85,31 @@ def test_a_byte_order_mark_and_the_columns_in_another_order_read_the_same(tmp_pa
     assert np.array_equal(b[0].spin, (1.0, 2.0, 3.0))
 
 
-def test_an_empty_cell_is_a_value_not_measured_and_its_row_is_dropped(tmp_path):
-    # pandas writes NaN as an empty cell; such a row counts as a non-finite one (it was
-    # refused: "'' is not a number").
+@pytest.mark.parametrize('missing', ['', 'NaN', 'NA', '#N/A', 'null'])
+def test_an_empty_cell_is_a_value_not_measured_and_its_row_is_dropped(tmp_path, missing):
+    # pandas writes NaN as an empty cell (or NaN), R as NA, a spreadsheet #N/A; such a row
+    # counts as a non-finite one (it was refused: "'' is not a number", "'NA' is not...").
     t = np.arange(20) * 0.01
     rows = [f'{ti},{1.0 - 5 * ti},0.1,0.3' for ti in t]
-    rows[7] = f'{t[7]},,0.1,0.3'
-    folder = _folder(tmp_path, {'a.csv': 't,x,y,z\n' + '\n'.join(rows) + '\n'})
+    rows[7] = f'{t[7]},{missing},0.1,0.3'
+    index = f'file,wx,wy,wz\na.csv,{missing},{missing},{missing}\n'
+    folder = _folder(tmp_path, {'a.csv': 't,x,y,z\n' + '\n'.join(rows) + '\n',
+                                'index.csv': index})
     track = load([str(folder)])[0]
     assert len(track.t) == 19 and 0.07 not in track.t
     assert track.notes['non_finite_rows'] == 1
+    assert track.spin is None          # not measured: the spin is fitted with the state
+
+
+def test_column_names_in_upper_case_and_hidden_files_of_another_system(tmp_path):
+    # An index's WX, WY, WZ were left alone as other columns: the set read as without
+    # measured spin, without a word. A Mac's ._a.csv beside a.csv (no text) refused the set.
+    t = np.arange(20) * 0.01
+    track = 'T,X,Y,Z\n' + ''.join(f'{ti},{1.0 - 5 * ti},0.1,0.3\n' for ti in t)
+    folder = _folder(tmp_path, {'a.csv': track, 'Index.csv': 'File,WX,WY,WZ\na.csv,1,2,3\n'})
+    (folder / '._a.csv').write_bytes(b'\x00\x05\x16\x07\xb0 Mac OS X')
+    (tr,) = load([str(folder)])
+    assert np.array_equal(tr.spin, (1.0, 2.0, 3.0)) and np.array_equal(tr.t, t)
 
 
 def test_an_output_that_would_replace_the_data_is_refused_before_any_work(tmp_path, capsys,

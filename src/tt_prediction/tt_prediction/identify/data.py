@@ -94,13 +94,31 @@ def _read_csv(path):
     if not numbered:
         raise DataError(f'{path}: empty file')
     lines, rows = zip(*numbered, strict=True)
-    return [c.strip() for c in rows[0]], list(rows[1:]), list(lines[1:])
+    # Names in any case ('WX' is wx: an index's spin under upper-case names was left alone
+    # as another column, and the set read as without measured spin; a walk-through).
+    header = [c.strip().lower() for c in rows[0]]
+    for row, line in zip(rows[1:], lines[1:], strict=True):
+        if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
+            raise DataError(f'{path}: line {line} has {len(row)} cells, the header '
+                            f'{len(header)} (a comma as the decimal separator?)')
+    return header, list(rows[1:]), list(lines[1:])
+
+
+NOT_MEASURED = ('', 'nan', 'na', 'n/a', '#n/a', 'null', 'none')
+"""Cells that mean a value not measured (pandas and MATLAB write NaN, R NA, a spreadsheet
+#N/A or nothing), in any case."""
+
+
+def _number(cell):
+    """A CSV cell's value: NaN for one of :data:`NOT_MEASURED`; ValueError otherwise."""
+    return math.nan if cell.lower() in NOT_MEASURED else float(cell)
 
 
 def read_track_csv(path):
     """Read one trajectory CSV (header ``t,x,y,z``, then any other columns; the four may
-    come in any order) into ``(t, p)``. An empty cell is a value not measured (NaN, as pandas
-    writes it): its row is dropped later with the other non-finite ones."""
+    come in any order, names in any case) into ``(t, p)``. An empty cell, NaN or NA
+    (:data:`NOT_MEASURED`) is a value not measured: its row is dropped later with the other
+    non-finite ones."""
     header, rows, lines = _read_csv(path)
     need = ('t', 'x', 'y', 'z')
     if not set(need) <= set(header):
@@ -119,7 +137,7 @@ def read_track_csv(path):
         for j, col in enumerate(cols):
             cell = row[col].strip()
             try:
-                values[i, j] = float(cell) if cell else math.nan
+                values[i, j] = _number(cell)
             except ValueError:
                 raise DataError(f"{path}: line {lines[i]}, column '{header[col]}': "
                                 f'{cell!r} is not a number') from None
@@ -178,7 +196,7 @@ def read_index(path):
         row = row + [''] * (len(header) - len(row))
         cells = [row[c].strip() for c in spin_cols]
         spin = None
-        if any(cells):
+        if any(c.lower() not in NOT_MEASURED for c in cells):
             try:
                 spin = np.array([float(c) for c in cells])
             except ValueError:
@@ -234,8 +252,11 @@ def folder_tracks(folder):
         raise DataError(f'{folder}: not a folder of track CSV files')
     try:
         # .csv in any case (a .CSV from another system is a track file too).
+        # Not a hidden file: a copy from a Mac leaves ._0000.csv beside 0000.csv, which is
+        # no text, and the set was refused for it (a walk-through).
         files = sorted(f for f in os.listdir(folder)
-                       if f.lower().endswith('.csv') and f.lower() != 'index.csv')   # any case
+                       if f.lower().endswith('.csv') and f.lower() != 'index.csv'
+                       and not f.startswith('.'))
     except OSError as exc:
         raise DataError(f'{folder}: cannot list: {exc.strerror}') from None
     if not files:
