@@ -145,3 +145,37 @@ def test_a_holder_a_killed_run_left_in_the_output_is_taken_and_removed(tmp_path,
     with staged_folder(out, 'tt-tool') as tmp:
         _write_new(tmp)
     _holds_only_the_new_output(out)
+
+
+@pytest.mark.parametrize('sig_name', ['SIGINT', 'SIGTERM'])
+def test_a_command_stopped_while_it_stages_leaves_the_earlier_output_alone(tmp_path,
+                                                                           sig_name):
+    # `timeout` and batch systems stop a command with SIGTERM: it ended tt-identify at once
+    # and left its hidden staging folder, half written, beside --out (a walk-through,
+    # 7 Dec 2026). Through tt_ros.entry.run, as every console script starts, it is a
+    # Ctrl-C: one line, status 130, the earlier output as it was and no holder left.
+    import signal
+    import subprocess
+    import sys
+    out = _earlier_output(tmp_path)
+    (tmp_path / 'stager.py').write_text(
+        'import threading\n'
+        'from tt_prediction.staged import staged_folder\n'
+        'def main():\n'
+        f'    with staged_folder({str(out)!r}, "tool") as tmp:\n'
+        '        open(tmp + "/summary.json", "w").write("{}")\n'
+        '        print("staged", flush=True)\n'
+        '        threading.Event().wait()\n')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path)] + sys.path))
+    proc = subprocess.Popen(
+        [sys.executable, '-c', "import sys; from tt_ros.entry import run; "
+                               "sys.exit(run('stager:main', 'tool'))"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert proc.stdout.readline() == 'staged\n'
+    proc.send_signal(getattr(signal, sig_name))
+    _, err = proc.communicate(timeout=30)
+    assert (proc.returncode, err) == (130, 'tool: interrupted\n')
+    assert sorted(p.name for p in tmp_path.iterdir()) in (['out', 'stager.py'],
+                                                        ['__pycache__', 'out', 'stager.py'])
+    assert sorted(p.name for p in out.iterdir()) == ['old.csv', 'summary.json']

@@ -79,11 +79,12 @@ def run(target, name, quiet=False):
     result (the exit status), through :func:`finish_output`. A KeyboardInterrupt before the
     function has taken over Ctrl-C (during the imports, say) returns 0 without a word when
     ``quiet`` (a node: it stopped before it started), else prints ``<name>: interrupted`` on
-    stderr and returns :data:`INTERRUPTED_EXIT`. A node takes SIGTERM as SIGINT from the
-    start too (run_node does once it runs): bringup and service managers stop nodes with it."""
+    stderr and returns :data:`INTERRUPTED_EXIT`. SIGTERM is taken as SIGINT from the start:
+    bringup and service managers stop nodes with it (run_node does once it runs), and
+    ``timeout`` or a batch system a command, whose staged output was left behind half
+    written when SIGTERM ended the process at once (a walk-through, 7 Dec 2026)."""
     module, _, function = target.partition(':')
-    if quiet:
-        signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         return finish_output(getattr(importlib.import_module(module), function), name)
     except (KeyboardInterrupt, ImportError) as exc:
