@@ -71,6 +71,21 @@ def test_the_ends_of_the_node_range_are_accepted(capsys, tmp_path, plane):
     assert rc == 0 and err == '' and len(out.splitlines()) == 1
 
 
+@pytest.mark.parametrize('args, shows', [
+    (['-h'], '--tracks DIR --out OUT'),            # both modes in the usage
+    (['--tracks', '-h'], '--filter-config'),       # was "--tracks: expected one argument"
+    (['--tracks', 'DIR', '--help'], '--no-learn'),
+])
+def test_help_of_both_modes_names_the_planes_range(capsys, args, shows):
+    # The range [-3, 0] m was said only by the error of a value outside it.
+    try:
+        status = cli.main(args)
+    except SystemExit as exc:                      # argparse's own -h
+        status = exc.code
+    out = capsys.readouterr().out
+    assert status == 0 and shows in out and 'in [-3, 0]' in out
+
+
 def test_a_missing_input_file_is_named_once(capsys, tmp_path):
     path = str(tmp_path / 'absent.jsonl')
     rc = cli.main(['--input', path])

@@ -111,6 +111,25 @@ def test_rows_for_every_sample_and_the_lead_time_summary(data, tmp_path, capsys)
     assert f'/{fifty:.1f} mm, textbook ' in said.err            # the line quotes the summary
 
 
+def test_an_output_rows_t_is_the_inputs_value_written_short(data, tmp_path):
+    # Epoch stamps: 1765084800.123 came out 1765084800.122999907 (%.9f of the same double;
+    # a walk-through, 7 Dec 2026): a join on t as text failed. Now the shortest decimal that
+    # reads back as the input's value.
+    _, tracks = data
+    name, t, p = tracks[0]
+    epoch = np.round(1765084800.0 + t, 6)
+    folder = tmp_path / 'epoch'
+    folder.mkdir()
+    (folder / name).write_text('t,x,y,z\n' + ''.join(
+        f'{ti:.6f},{pi[0]:.6f},{pi[1]:.6f},{pi[2]:.6f}\n' for ti, pi in zip(epoch, p,
+                                                                           strict=True)))
+    out = tmp_path / 'out'
+    assert main(['--tracks', str(folder), '--out', str(out), '--hit-plane-x', str(PLANE)]) == 0
+    _, rows = _rows(out / name)
+    assert [float(r[0]) for r in rows] == epoch.tolist()
+    assert [r[0] for r in rows] == [f'{ti:.6f}'.rstrip('0').rstrip('.') for ti in epoch]
+
+
 def test_bad_samples_still_give_rows_and_predictions_resume(data, tmp_path):
     """Spikes, a 50 ms gap, duplicate and unsorted stamps, NaN rows and a second bounce."""
     _, tracks = data

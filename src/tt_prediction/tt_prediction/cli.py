@@ -179,6 +179,11 @@ def add_version(parser, package='tt_prediction'):
     parser.add_argument('--version', action='version', version=f'%(prog)s {number}')
 
 
+HIT_PLANE_HELP = (f'x of the hitting plane, m, in [{HIT_PLANE_X_RANGE[0]:g}, '
+                  f"{HIT_PLANE_X_RANGE[1]:g}] (the robot's half) (default: %(default)s)")
+"""The ``--hit-plane-x`` option's help, the same in every command."""
+
+
 def hit_plane_error(value):
     """Why ``value`` cannot be a ``--hit-plane-x``, or '': it must be finite and inside
     HIT_PLANE_X_RANGE, the range of the prediction node's ``hit_plane_x`` parameter too."""
@@ -208,15 +213,17 @@ def main(argv=None):
         return tracks_main(argv)
     parser = argparse.ArgumentParser(
         prog='tt-predict', description=__doc__.splitlines()[0],
+        usage='%(prog)s [-h] [--version] [--input FILE] [--model FILE] [--hit-plane-x X]\n'
+              '       %(prog)s --tracks DIR --out OUT [options]   (tt-predict --tracks -h)',
         epilog='Input and output formats: see docs/prediction.md. Replay of measured tracks: '
-               'tt-predict --tracks DIR --out OUT (tt-predict --tracks DIR -h).')
+               'tt-predict --tracks DIR --out OUT (tt-predict --tracks -h).')
     add_version(parser)
     parser.add_argument('--input', metavar='FILE', help="JSON Lines file (default or '-': "
                         'stdin)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
     parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,
-                        metavar='X', help='hitting plane x, m (default: %(default)s)')
+                        metavar='X', help=HIT_PLANE_HELP)
     args = parser.parse_args(argv)
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:

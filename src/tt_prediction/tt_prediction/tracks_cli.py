@@ -28,7 +28,7 @@ import yaml
 
 from .ball import load_model
 from .ball_filter import FilterConfig, estimate_measurement_noise
-from .cli import add_version, hit_plane_error
+from .cli import HIT_PLANE_HELP, add_version, hit_plane_error
 from .identify.data import DataError, clean_samples, folder_tracks, index_path, read_track_csv
 from .identify.frame import frame_warnings
 from .predict import DEFAULT_HIT_PLANE_X
@@ -36,10 +36,20 @@ from .replay import COLUMNS, Learning, given_spin_warning, replay_tracks
 from .staged import interruptible, output_folder_error, staged_folder
 from .units import outside_room
 
-# Times to the ns (rows are joined to the input's by their t: at %.6f an input's 0.005658100
-# came out 0.005658; a walk-through, 6 Dec 2026), positions to the um.
-_FORMATS = (('%.9f',) + ('%.6f',) * 3 + ('%.5f',) * 3 + ('%.3f',) * 3
+# Predicted times to the ns, positions to the um; the input's t as the shortest decimal that
+# reads back as it (rows are joined to the input's by their t: at %.6f an input's 0.005658100
+# came out 0.005658, at %.9f an epoch stamp's 1765084800.123 1765084800.122999907; walk-
+# throughs, 6 and 7 Dec 2026).
+_FORMATS = ((None,) + ('%.6f',) * 3 + ('%.5f',) * 3 + ('%.3f',) * 3
             + ('%.9f',) + ('%.6f',) * 2 + ('%.9f',) + ('%.6f',) * 3)
+
+
+def _cell(fmt, v):
+    """One value of an output row: '' where there is none, the input's t (``fmt`` None) as
+    its shortest decimal."""
+    if not math.isfinite(v):
+        return ''
+    return np.format_float_positional(v, unique=True, trim='-') if fmt is None else fmt % v
 
 
 def read_tracks(folder):
@@ -181,8 +191,8 @@ def write_rows(path, rows):
     with open(path, 'w') as f:
         f.write(','.join(COLUMNS) + '\n')
         for row in rows:
-            f.write(','.join('' if not math.isfinite(v) else fmt % v
-                             for fmt, v in zip(_FORMATS, row, strict=True)) + '\n')
+            f.write(','.join(_cell(fmt, v) for fmt, v in zip(_FORMATS, row, strict=True))
+                    + '\n')
 
 
 def node_params(config, model_path, command):
@@ -240,12 +250,14 @@ def _main(argv=None):
         epilog='Output format and measured numbers: see docs/prediction.md.')
     add_version(parser)
     parser.add_argument('--tracks', metavar='DIR', required=True,
-                        help='data set: track CSVs t,x,y,z and index.csv')
-    parser.add_argument('--out', metavar='OUT', required=True, help='output folder')
+                        help='data set: track CSVs t,x,y,z (s, m, table frame) and index.csv '
+                             '(spin wx,wy,wz, rad/s)')
+    parser.add_argument('--out', metavar='OUT', required=True,
+                        help='output folder (replaced as a whole once every row is written)')
     parser.add_argument('--model', metavar='FILE',
                         help='model.yaml written by tt-identify (default: nominal model)')
     parser.add_argument('--hit-plane-x', type=float, default=DEFAULT_HIT_PLANE_X,
-                        metavar='X', help='hitting plane x, m (default: %(default)s)')
+                        metavar='X', help=HIT_PLANE_HELP)
     parser.add_argument('--filter-config', metavar='FILE',
                         help='YAML of FilterConfig fields (default: defaults, position noise '
                              'estimated from the data)')
@@ -256,6 +268,9 @@ def _main(argv=None):
                              "bounce_velocity_noise and the model's table restitution, "
                              'Magnus coefficient and gravity (default: learn them from the '
                              'tracks before each one, docs/prediction.md)')
+    if any(a in ('-h', '--help') for a in argv):     # before --tracks, which wants its DIR
+        parser.print_help()
+        return 0
     args = parser.parse_args(argv)
     plane_error = hit_plane_error(args.hit_plane_x)
     if plane_error:

@@ -10,7 +10,7 @@ import re
 import sys
 
 from ..ball import load_model
-from ..cli import add_version, hit_plane_error
+from ..cli import HIT_PLANE_HELP, add_version, hit_plane_error
 from ..staged import output_folder_error
 from .data import DataError, load
 from .pipeline import identify
@@ -47,16 +47,17 @@ def main(argv=None):
                                      description=__doc__.splitlines()[0].replace('``', ''))
     add_version(parser)
     parser.add_argument('data', nargs='+', metavar='DATA',
-                        help='trajectory folder or rosbag2 bag')
-    parser.add_argument('--out', required=True, metavar='DIR', help='output folder')
+                        help='trajectory folder (track CSVs t,x,y,z in s and m, table frame; '
+                             'index.csv with spin wx,wy,wz in rad/s) or rosbag2 bag')
+    parser.add_argument('--out', required=True, metavar='DIR',
+                        help='output folder (replaced as a whole once the report is complete)')
     parser.add_argument('--model', default='', help='base model.yaml (default: nominal)')
     parser.add_argument('--topic', default=None, help='bag topic (default: the only one)')
     parser.add_argument('--folds', type=int, default=5,
                         help='cross-validation folds (by trajectory), >= 2 '
                              '(default: %(default)s)')
     parser.add_argument('--hit-plane-x', type=float, default=-1.5,
-                        help='x of the hitting plane for the hit-plane error, m '
-                             '(default: %(default)s)')
+                        metavar='X', help=HIT_PLANE_HELP)
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     args = parser.parse_args(argv)
     # One line, as every other bad input (argparse's error printed its usage block first).
