@@ -41,8 +41,10 @@ def _numeric(fun, s, eps):
 
 @pytest.mark.parametrize('params', [ModelParams(), EFFECTS, REBOUND_EFFECTS])
 @pytest.mark.parametrize('spin_y', [-150.0, 0.0, 400.0])
-@pytest.mark.parametrize('place', [(-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72)],
-                         ids=['middle', 'near the end line', 'near a side line'])
+@pytest.mark.parametrize('place', [(-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72), (1.31, 0.1),
+                                   (0.9, 0.72)],
+                         ids=['middle', 'near the end line', 'near a side line',
+                              'near the far end line', 'near the other side line'])
 def test_rebound_jacobian_is_the_derivative_of_eqs_1_to_6(params, spin_y, place):
     P = params.packed()
     s = np.array([*place, 0.02, -4.0, 0.5, -3.0, 25.0, spin_y, 50.0])

@@ -115,8 +115,8 @@ def test_effect_changes_the_model_when_switched_on(field):
             np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
     if rebound_changed:
         # The filters' Jacobian of eqs. 1-6 must carry it too (central differences; in the
-        # middle of the table, by an end line and by a side line).
-        for x, y in ((-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72)):
+        # middle of the table, by either end line and either side line).
+        for x, y in ((-0.5, 0.1), (-1.31, 0.1), (-0.9, -0.72), (1.31, 0.1), (0.9, 0.72)):
             s = np.array([x, y, 0.02, -4.0, 0.5, -3.0, 25.0, -150.0, 50.0])
             J = np.empty((9, 9))
             rebound_jacobian(s, P1, J)

@@ -242,8 +242,8 @@ EFFECTS = (
            'grows with the speed'),
     Effect('table_restitution_edge', ('e_t_edge',),
            'table restitution depends on where the ball lands: the top is livelier or deader '
-           'near its edges, e_t = e_t + e_t_edge exp(-d / 0.1 m), d the distance to the '
-           'nearest edge', needs='bounces'),
+           f'near its edges, e_t = e_t + e_t_edge exp(-d / {EDGE_LENGTH_REF:g} m), d the '
+           'distance to the nearest edge', needs='bounces'),
 )
 """The declaration of the model effects (identification adds measurement effects)."""
 

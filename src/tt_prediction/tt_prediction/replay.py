@@ -110,9 +110,11 @@ def replay_samples(t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_X, s
     return _replay_samples(t, p, params, config, hit_plane_x, spin)[0]
 
 
-def _replay_samples(t, p, params, config, hit_plane_x, spin):
+def _replay_samples(t, p, params, config, hit_plane_x, spin, from_t=None):
     """:func:`replay_samples`'s rows, the NIS of the filter's accepted samples and the time
-    the filter took its second filter's state (None: never)."""
+    the filter took its second filter's state (None: never). Samples before ``from_t`` (s)
+    are not fed to the filter (their rows hold no state): a ball held still before its
+    launch, which a camera's tracker does not follow as a flight."""
     t = np.asarray(t, dtype=float)
     p = np.asarray(p, dtype=float)
     order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind='stable')
@@ -127,7 +129,7 @@ def _replay_samples(t, p, params, config, hit_plane_x, spin):
     packed = params.packed()
     outlier_t = None
     for k, ti in enumerate(rows[:, 0].tolist()):
-        if not math.isfinite(ti):
+        if not math.isfinite(ti) or (from_t is not None and ti < from_t):
             continue
         status = tf.add(ti, p[k])
         if not tf.running:
@@ -237,12 +239,14 @@ def crossing_noise(t, p, bounce_times, plane_x, position_noise, stamp_noise, dra
 
 def _ground_truth(name, t, p, params, plane_x):
     """Cleaned samples, located bounces (:class:`tt_prediction.identify.segment.Bounce`)
-    and measured crossing of one track's incoming flight, and the time that flight starts
-    where the track holds another before it (a rally: the ball goes out and is struck back,
-    or is lost for a while), else None."""
+    and measured crossing of one track's incoming flight, the time that flight starts where
+    the track holds another before it (a rally: the ball goes out and is struck back, or is
+    lost for a while) or the ball held still before its launch, else None; and the time the
+    ball was launched after it was held still (segment's ``samples_held_still``), else
+    None."""
     tc, pc, notes = clean_samples(name, t, p)
     if len(tc) < 3:
-        return tc, pc, [], None, None
+        return tc, pc, [], None, None, None
     first = scored = None
     start = 0
     while len(tc) - start >= 8:
@@ -263,11 +267,12 @@ def _ground_truth(name, t, p, params, plane_x):
         start = _next_flight(tc, pc, seg, params.gravity_vector)
     if first is None:
         tt, pp = drop_outliers(tc, pc, {}, params.radius)
-        return tt, pp, [], None, None
+        return tt, pp, [], None, None, None
+    launched = float(first[0].t[0]) if first[0].notes.get('samples_held_still') else None
     seg, bounces, start = scored or first
     times = [(b.t, b.p[0]) for b in bounces]
     return (seg.t, seg.p, bounces, measured_crossing(seg.t, seg.p, times, plane_x),
-            float(seg.t[0]) if start else None)
+            float(seg.t[0]) if start or launched is not None else None, launched)
 
 
 def _next_flight(t, p, seg, gravity):
@@ -314,9 +319,9 @@ def replay_track(name, t, p, params, config=None, hit_plane_x=DEFAULT_HIT_PLANE_
                  spin=None):
     """:class:`TrackReplay` of one track (see :func:`replay_samples`)."""
     config = config or FilterConfig()
-    rows, nis, outlier_t = _replay_samples(t, p, params, config, hit_plane_x, spin)
-    tt, pp, bounces, crossing, flight_t = _ground_truth(
+    tt, pp, bounces, crossing, flight_t, launched = _ground_truth(
         name, np.asarray(t, float), np.asarray(p, float), params, hit_plane_x)
+    rows, nis, outlier_t = _replay_samples(t, p, params, config, hit_plane_x, spin, launched)
     if flight_t is not None:
         first = flight_t                    # lead times count from the incoming flight
     else:
@@ -541,7 +546,7 @@ def restitution_observation(rp, params):
     Measured from the data alone: the located bounce's normal velocities (quadratic fits on
     each side of the contact, :func:`tt_prediction.identify.segment.locate_bounce`) give
     -v_z'/v_z, and their fits' standard errors its own. What ``params``' effects add to e_t
-    at this bounce (impact speed, spin: eqs. 1-6 as
+    at this bounce (impact speed, spin, place: eqs. 1-6 as
     :func:`tt_prediction.ball.table_rebound_inplace` has them, with the measured incoming
     velocity and the filter's last spin before the contact) is taken off, so the value is
     the model's e_t for this bounce.

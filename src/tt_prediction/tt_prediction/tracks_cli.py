@@ -268,6 +268,7 @@ def _main(argv=None):
                              "bounce_velocity_noise and the model's table restitution, "
                              'Magnus coefficient and gravity (default: learn them from the '
                              'tracks before each one, docs/prediction.md)')
+    argv = sys.argv[1:] if argv is None else argv
     if any(a in ('-h', '--help') for a in argv):     # before --tracks, which wants its DIR
         parser.print_help()
         return 0

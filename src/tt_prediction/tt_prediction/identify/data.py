@@ -46,6 +46,11 @@ class Track:
     (by perception or a filter: not used as a measurement) or '' (none given)."""
 
 
+LOADER_REMOVED = ('outside_room_rows', 'non_finite_rows', 'duplicate_stamps_merged')
+"""The notes of :func:`clean_samples` that count rows it removed (``unsorted_rows`` counts
+rows it kept, sorted)."""
+
+
 def clean_samples(name, t, p):
     """Drop rows outside the room (a few wild samples; most of them: DataError, a file in
     millimetres) and non-finite rows, sort by time, merge duplicate stamps (mean position).
@@ -94,14 +99,25 @@ def _read_csv(path):
     if not numbered:
         raise DataError(f'{path}: empty file')
     lines, rows = zip(*numbered, strict=True)
-    # Names in any case ('WX' is wx: an index's spin under upper-case names was left alone
-    # as another column, and the set read as without measured spin; a walk-through).
-    header = [c.strip().lower() for c in rows[0]]
+    header = [c.strip() for c in rows[0]]
     for row, line in zip(rows[1:], lines[1:], strict=True):
         if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
             raise DataError(f'{path}: line {line} has {len(row)} cells, the header '
                             f'{len(header)} (a comma as the decimal separator?)')
     return header, list(rows[1:]), list(lines[1:])
+
+
+def _our_names(header, ours):
+    """``header`` with each name of ``ours`` that no column has exactly taken from a column
+    that has it in another case: 'WX' is wx (an index's spin under upper-case names was left
+    alone as another column, and the set read as without measured spin; a walk-through,
+    7 Dec 2026), while 't,x,y,z,X,Y,Z' keeps x, y, z and leaves X, Y, Z alone."""
+    named = list(header)
+    for name in ours:
+        if name not in header:
+            named = [name if h.lower() == name else n for h, n in zip(header, named,
+                                                                     strict=True)]
+    return named
 
 
 NOT_MEASURED = ('', 'nan', 'na', 'n/a', '#n/a', 'null', 'none')
@@ -121,6 +137,7 @@ def read_track_csv(path):
     non-finite ones."""
     header, rows, lines = _read_csv(path)
     need = ('t', 'x', 'y', 'z')
+    header = _our_names(header, need)
     if not set(need) <= set(header):
         raise DataError(f"{path}: header must name the columns 't,x,y,z', "
                         f"got '{','.join(header)}'")
@@ -179,6 +196,7 @@ def read_index(path):
     if not os.path.exists(path):
         return {}
     header, rows, lines = _read_csv(path)
+    header = _our_names(header, ('file', *INDEX_SPIN, 'label', 'spin_source'))
     spin_named = [c for c in INDEX_SPIN if c in header]
     if 'file' not in header or 0 < len(spin_named) < 3:
         raise DataError(f"{path}: header must name the column 'file', and 'wx,wy,wz' for "

@@ -18,7 +18,7 @@ from ..ball import ModelParams
 from ..ball_filter import estimate_measurement_noise
 from . import diagnose, evaluate, fitting
 from .blas import blas_threads
-from .data import DataError
+from .data import LOADER_REMOVED, DataError
 from .effects import LIBRARY, applicable, too_small
 from .frame import frame_warnings, height_warning, tilt_warning
 from .segment import MAX_GAP, segment
@@ -59,17 +59,19 @@ def cleaning_warning(tracks, prepared, dropped, notes):
     samples: how much, the steps that took most, and what a file is read as; '' otherwise.
     (A walk-through's one file a session of flights lost 74 % of its samples without a
     word on the command line.)"""
-    loaded = sum(len(tr.t) for tr in tracks)
+    # The rows the loader removed (clean_samples) count too; unsorted rows are all kept.
+    loaded = sum(len(tr.t) for tr in tracks) + sum(notes.get(k, 0) for k in LOADER_REMOVED)
     used = sum(len(tr.t) for tr in prepared)
     if not loaded or (not dropped and used >= (1.0 - LEFT_OUT_WARNING) * loaded):
         return ''
     steps = sorted(((n, k) for k, n in notes.items()
-                    if k != 'samples_of_dropped_tracks' and n), reverse=True)[:3]
+                    if k not in ('samples_of_dropped_tracks', 'unsorted_rows') and n),
+                   reverse=True)[:3]
     most = ', '.join(f'{k} {n}' for n, k in steps)
     gone = f' and dropped {len(dropped)} of {len(tracks)} tracks' if dropped else ''
     return (f'cleaning left out {100.0 * (1.0 - used / loaded):.0f} % of the samples'
-            f'{gone} ({most}): a file is read as one flight, up to its first gap over '
-            f'{MAX_GAP:g} s, jump to another ball, racket contact, unresolved bounce or roll '
+            f'{gone} ({most}): a file is read as one flight, which a gap over {MAX_GAP:g} s, '
+            'a jump to another ball, a racket contact, an unresolved bounce or a roll ends '
             '(report.json: data.samples_dropped, data.tracks_dropped)')
 
 

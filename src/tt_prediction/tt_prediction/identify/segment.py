@@ -69,6 +69,12 @@ this time on either side, s (3 to 6 samples)."""
 HIT_TURN = 0.5
 """A contact away from the table (racket, net, hand) turns the velocity: the cosine between
 the velocities fitted before and after it falls below this."""
+HIT_CHANGE = 1.0
+"""... and changes it by more than this, m/s, and three times the noise of that change (from
+the track's own position noise): gravity turns a slow ball at its apex as much
+(a toss straight up turns by 180 degrees) but changes its velocity by only g times the
+windows' spacing, about 0.33 m/s (a review's tosses lost all but their first 20-50 ms as
+'after racket contact', 7 Dec 2026); a stroke changes it by metres a second."""
 ROLL_DURATION = 0.05
 """Longer than this within ROLL_HEIGHT of the contact height is rolling, s (a rebound at
 ROLL_SPEED spends ~0.08 s there, one at 1 m/s ~0.024 s)."""
@@ -79,11 +85,13 @@ ROLL_SPEED = 0.3
 MIN_DURATION = 0.2
 """Tracks shorter than this after cutting are dropped, s."""
 REST_RADIUS = 0.01
-REST_DURATION = 0.1
+REST_DURATION = 0.15
 """A track that starts with the ball held still (in a launcher, on a hand or a tee) starts
 with samples within REST_RADIUS (m) of where it starts for longer than REST_DURATION (s):
-no free flight does that (it stays within 1 cm of a point for at most 2 sqrt(2 (0.01 m) /
-g) = 90 ms, at its apex). They are left out, and the first sample after them (the launch)."""
+no free flight does that (through its apex a ball stays within a band 2 cm high, 1 cm either
+side of a point, for at most 2 sqrt(2 (0.02 m) / g) = 128 ms; 0.1 s cut up to 133 ms of a
+toss in a review, 7 Dec 2026). They are left out, and the first sample after them (the
+launch)."""
 
 
 @dataclasses.dataclass
@@ -157,6 +165,17 @@ def _midpoint_offsets(t, p):
     return p[1:-1] - (1.0 - w) * p[:-2] - w * p[2:]
 
 
+def _noise(t, p):
+    """The track's position noise per axis (3,), m: from each sample's offset from its
+    neighbours' midpoint, less gravity's (a chord under the parabola by g d1 d2 / 2: 1.4 mm
+    at 60 Hz), noise sqrt(1.5) sigma per axis; the median absolute of a normal is 0.6745 of
+    its standard deviation."""
+    g = np.array([0.0, 0.0, -GRAVITY])
+    off = (_midpoint_offsets(t, p)
+           + 0.5 * g * ((t[1:-1] - t[:-2]) * (t[2:] - t[1:-1]))[:, None])
+    return np.median(np.abs(off), axis=0) / (0.6745 * math.sqrt(1.5))
+
+
 def _spikes(t, p, radius):
     """Mask (n,) of the samples off the flights on both sides of them by far more than the
     track's noise (:data:`SPIKE_SIGMAS`); samples nearer the table than BOUNCE_HEIGHT above
@@ -166,12 +185,7 @@ def _spikes(t, p, radius):
     if n < 10 or not np.all(np.diff(t) > 0.0):
         return bad
     g = np.array([0.0, 0.0, -GRAVITY])
-    # Offset from the neighbours' midpoint, less gravity's (a chord under the parabola by
-    # g d1 d2 / 2: 1.4 mm at 60 Hz): noise sqrt(1.5) sigma per axis; the median absolute of
-    # a normal is 0.6745 of its standard deviation.
-    off = (_midpoint_offsets(t, p)
-           + 0.5 * g * ((t[1:-1] - t[:-2]) * (t[2:] - t[1:-1]))[:, None])
-    sigma = np.median(np.abs(off), axis=0) / (0.6745 * math.sqrt(1.5))
+    sigma = _noise(t, p)
     i = np.arange(2, n - 2)
 
     def flight(a, b):       # from samples a, b (constant acceleration g) to sample i
@@ -279,17 +293,19 @@ def locate_bounce(t, p, i):
     return None if best is None else best[1]
 
 
-def _turn_cosines(t, p, half=6):
+def _turns(t, p, half=6):
     """Cosine between the velocities fitted (lines over ``half`` samples) before and after
-    each sample; 1 where there are too few samples. Line fits over several samples keep
-    the time-stamp jitter of real trackers from looking like a contact."""
+    each sample, and the size of the change between them (m/s); 1 and 0 where there are too
+    few samples. Line fits over several samples keep the time-stamp jitter of real trackers
+    from looking like a contact."""
     n = len(t)
-    cos = np.ones(n)
+    cos, change = np.ones(n), np.zeros(n)
     for i in range(half, n - half + 1):
         vb = np.polyfit(t[i - half:i], p[i - half:i], 1)[0]
         va = np.polyfit(t[i:i + half], p[i:i + half], 1)[0]
         cos[i] = vb @ va / max(np.linalg.norm(vb) * np.linalg.norm(va), 1e-9)
-    return cos
+        change[i] = np.linalg.norm(va - vb)
+    return cos, change
 
 
 def _gains_speed(bounce):
@@ -396,10 +412,15 @@ def segment(track, radius=0.02, notes_out=None, min_duration=MIN_DURATION):
         # reached 110-135 ms back from a racket contact and cut the flight there).
         step = float(np.median(np.diff(t)))
         half = int(np.clip(round(HIT_WINDOW / step), 3, 6)) if step > 0.0 else 6
-        cos = _turn_cosines(t, p, half)
+        cos, change = _turns(t, p, half)
+        # The change's noise: a line's slope over `half` samples `step` apart, before and
+        # after, on each of three axes (500 Hz at 2 mm made 1 m/s of it at a toss's apex).
+        spread = step * math.sqrt(half * (half * half - 1) / 12.0)     # sqrt(sum (t - mean)^2)
+        noise = math.sqrt(2.0) * float(np.linalg.norm(_noise(t, p))) / max(spread, 1e-9)
         # Away from the table: no sample of either fitting window near the surface.
         z_low = np.array([p[max(i - half, 0):i + half, 2].min() for i in range(len(t))])
-        hits = np.flatnonzero((cos < HIT_TURN) & (z_low > radius + BOUNCE_HEIGHT))
+        hits = np.flatnonzero((cos < HIT_TURN) & (change > HIT_CHANGE + 3.0 * noise)
+                              & (z_low > radius + BOUNCE_HEIGHT))
         if len(hits):
             # The contact is before the sharpest turn from there on (its first sample after
             # the contact, without noise); one more sample is left out as a margin for noise.
