@@ -696,6 +696,12 @@ def test_flights_left_out_by_cleaning_are_said_on_the_command_line():
     said = int(line.split('cleaning left out ')[1].split(' %')[0])
     assert 200 / 3 <= said <= 200 / 3 + 10 and 'non_finite_rows' in line
     assert 'unsorted_rows' not in line
+    # A ball held still before its launch is no flight left out.
+    held = [Track(tr.name, np.r_[tr.t[0] - np.arange(60, 0, -1) / 150, tr.t],
+                  np.r_[np.repeat(tr.p[:1], 60, axis=0), tr.p]) for tr in flights]
+    prepared, dropped, notes = prepare(held, 0.02)
+    assert notes['samples_held_still'] >= 60 * len(held)
+    assert cleaning_warning(held, prepared, dropped, notes) == ''
 
 
 def test_report_folder_replaces_the_old_one_with_the_mode_of_the_umask(tmp_path,

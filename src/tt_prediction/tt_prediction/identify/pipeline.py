@@ -59,13 +59,16 @@ def cleaning_warning(tracks, prepared, dropped, notes):
     samples: how much, the steps that took most, and what a file is read as; '' otherwise.
     (A walk-through's one file a session of flights lost 74 % of its samples without a
     word on the command line.)"""
-    # The rows the loader removed (clean_samples) count too; unsorted rows are all kept.
-    loaded = sum(len(tr.t) for tr in tracks) + sum(notes.get(k, 0) for k in LOADER_REMOVED)
+    # The rows the loader removed (clean_samples) count too; unsorted rows are all kept; a
+    # ball held still before its launch is no flight (its samples are not counted).
+    loaded = (sum(len(tr.t) for tr in tracks) + sum(notes.get(k, 0) for k in LOADER_REMOVED)
+              - notes.get('samples_held_still', 0))
     used = sum(len(tr.t) for tr in prepared)
     if not loaded or (not dropped and used >= (1.0 - LEFT_OUT_WARNING) * loaded):
         return ''
     steps = sorted(((n, k) for k, n in notes.items()
-                    if k not in ('samples_of_dropped_tracks', 'unsorted_rows') and n),
+                    if k not in ('samples_of_dropped_tracks', 'unsorted_rows',
+                                 'samples_held_still') and n),
                    reverse=True)[:3]
     most = ', '.join(f'{k} {n}' for n, k in steps)
     gone = f' and dropped {len(dropped)} of {len(tracks)} tracks' if dropped else ''
