@@ -292,6 +292,32 @@ def test_play_paces_messages_and_clock_by_bag_time_over_rate(recorded, monkeypat
         assert ns - first == pytest.approx(k / clock_hz * rate * 1e9, abs=2)
 
 
+@pytest.mark.parametrize('matched_after', [3, 0, None])
+def test_play_says_what_went_out_before_a_subscriber_matched(recorded, monkeypatch, capfd,
+                                                            matched_after):
+    # A plain play into nodes already running: discovery matched prediction_node 3.5 s into
+    # a 5 s bag, and what went out before reached no one, without a word (a walk-through,
+    # 7 Dec 2026). Here each topic's subscriber matches after its first 3 messages; or is
+    # there from the start (0); or never comes (None: nobody listens, nothing lost).
+    checks = {}
+
+    def subscription_count(self):
+        checks[self.topic_name] = checks.get(self.topic_name, 0) + 1
+        if matched_after is None:
+            return 0
+        return int(checks[self.topic_name] > matched_after)
+    monkeypatch.setattr(rclpy.publisher.Publisher, 'get_subscription_count',
+                        subscription_count)
+    out, _, _ = recorded
+    _play_on_fake_time(monkeypatch, [str(out)])
+    warned = [line for line in capfd.readouterr().err.splitlines() if 'matched' in line]
+    expected = sorted(f'[WARN] 3 of {len(msgs)} messages on {topic} went out before its '
+                      'subscriber matched, to no one: --wait-for-subscribers waits for the '
+                      'subscribers first' for topic, msgs in _bag_messages(out).items()
+                      if len(msgs) > 3) if matched_after == 3 else []
+    assert sorted(warned) == expected and (expected or matched_after != 3)
+
+
 def test_play_clock_stops_at_the_bags_end_when_the_player_wakes_late(recorded, monkeypatch):
     # Every wait 15 ms longer than asked, as on a busy machine: /clock's timer then runs
     # while the last message is overdue. The bag time it publishes stays within the bag (it
