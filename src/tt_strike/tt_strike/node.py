@@ -12,8 +12,8 @@ this ball). A strike whose hit time is past or closer than ``min_time_before_hit
 node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit_time`` false:
 no such check, for replays; none either, with one warning, for hit times on another time base
 than the node clock, :mod:`tt_ros.timebase`); once a ball's feasible stroke was sent and its
-hit comes that close, the arm is on its way: its further predictions are counted
-(``n_committed``), not warned of. Predictions without a hit point, with
+hit comes that close, the arm is on its way: its further predictions, and those without a
+hit point once it is past the plane, are counted (``n_committed``), not warned of. Predictions without a hit point, with
 non-finite numbers or with a ``hit_covariance`` that is not symmetric, not positive
 semi-definite or wider than 1 m (all zeros: unknown, the position taken as exact) are
 dropped with a throttled
@@ -433,8 +433,10 @@ class StrikeNode(Node):
             if (tally.commands and msg.status == 'no_hit'
                     and 0.0 <= stamp - tally.stamp <= NEW_BALL_GAP_S):
                 # The struck ball past the plane: what every ball does once struck, not a
-                # warning each (a ROS user's walk-through); a new ball under its id is not.
-                self.n_dropped += 1
+                # warning each (a ROS user's walk-through), nor a drop that set /diagnostics
+                # to WARN for every ball struck (another, 7 Dec 2026); a new ball under its
+                # id is not.
+                self.n_committed += 1
                 self.get_logger().debug(f'track {msg.track_id}: no hit point after its '
                                         f'stroke (prediction status {msg.status!r})')
             else:
