@@ -250,6 +250,7 @@ class Parameters:
         self.apply = apply
         self.values = Values()
         self._source = None
+        self._refused = None        # the refusal _pre_set logged for the set under way
         for spec in specs:
             node.declare_parameter(spec.name, spec.default, ParameterDescriptor(
                 description=spec.description, dynamic_typing=True))
@@ -299,15 +300,25 @@ class Parameters:
         return result
 
     def _pre_set(self, parameters):
-        """Coerce what can be (an int for a float): the value keeps its parameter's type."""
+        """Coerce what can be (an int for a float): the value keeps its parameter's type.
+        A set rclpy refuses before the node's check (a number outside the descriptor's
+        range, a read-only parameter) is logged here as the node's own refusals are: `ros2
+        param set /prediction_node stale_after_s -1` was refused to the caller only, with
+        nothing in the node's log (a walk-through, 7 Dec 2026)."""
         out = []
+        self._refused = None
         for p in parameters:
             spec = self.specs.get(p.name)
             if spec is not None:
                 try:
                     value = coerce(spec, p.value)
-                except ParameterError:
-                    value = None        # refused in _on_set, with its reason
+                    reason = (f'{p.name} is read-only (set at start: --ros-args -p '
+                              f'{p.name}:=...)' if spec.read_only else None)
+                except ParameterError as exc:
+                    value, reason = None, str(exc)      # refused by rclpy or in _on_set
+                if reason and self._source is None and self._refused is None:
+                    self.node.get_logger().warning(f'parameter refused: {reason}')
+                    self._refused = reason              # not logged again by _on_set
                 if value is not None and _differs(value, p):
                     p = Parameter(p.name, value=value)
             out.append(p)
@@ -324,7 +335,8 @@ class Parameters:
         except ParameterError as exc:
             reason = str(exc)
         if reason:
-            if self._source is None:            # set_from logs it, naming its topic
+            # set_from logs it, naming its topic; _pre_set may have logged it already.
+            if self._source is None and reason != self._refused:
                 self.node.get_logger().warning(f'parameter refused: {reason}')
             # rclpy has already given the stored descriptor of a dynamically typed parameter
             # the refused value's type (Node._apply_descriptor, before the callbacks): the

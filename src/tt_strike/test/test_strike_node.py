@@ -207,6 +207,25 @@ def test_target_topic_and_parameter_change_the_zone():
         assert g.commands[2].target_point.x == 0.5
 
 
+def test_a_parameter_set_that_rclpy_refuses_is_logged_by_the_node_once():
+    # Out of the descriptor's range or read-only, rclpy refused the set before the node's
+    # check: the caller saw why, the node's log had nothing (a walk-through, 7 Dec 2026).
+    # A value the node's own check refuses is still logged once.
+    with Graph() as g:
+        logged = []
+        logger = g.node.get_logger()
+        g.node.get_logger = lambda: _Recorder(logger, logged)
+        for name, value in (('target_zone', 12), ('net_clearance', 0.0),
+                            ('workspace_file', 'other.yaml'), ('target_zone', 'abc')):
+            assert not g.node.set_parameters([Parameter(name, value=value)])[0].successful
+        refused = [line for line in logged if 'refused' in line]
+        assert refused[0] == 'parameter refused: target_zone: 12 is not an integer in [0, 9]'
+        assert refused[1] == 'parameter refused: net_clearance: 0.0 is not a number in [0.02, 1] m'
+        assert refused[2].startswith('parameter refused: workspace_file is read-only')
+        assert refused[3].startswith("parameter refused: target_zone: 'abc' is not")
+        assert len(refused) == 4
+
+
 def test_invalid_predictions_publish_nothing_and_infeasible_is_reported():
     with Graph([Parameter('max_racket_speed', value=0.2)]) as g:
         g.pub.publish(prediction_msg(1, hit_valid=False))

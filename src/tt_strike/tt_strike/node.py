@@ -13,11 +13,11 @@ node's clock is not sent: it is counted (``n_too_late``) and logged (``check_hit
 no such check, for replays; none either, with one warning, for hit times on another time base
 than the node clock, :mod:`tt_ros.timebase`); once a ball's feasible stroke was sent and its
 hit comes that close, the arm is on its way: its further predictions, and those without a
-hit point once it is past the plane, are counted (``n_committed``), not warned of. Predictions without a hit point, with
-non-finite numbers or with a ``hit_covariance`` that is not symmetric, not positive
-semi-definite or wider than 1 m (all zeros: unknown, the position taken as exact) are
-dropped with a throttled
-warning: nothing is published for them. A bad
+hit point once it is past the plane, are counted (``n_committed``), not warned of.
+Predictions without a hit point, with non-finite numbers or with a ``hit_covariance`` that
+is not symmetric, not positive semi-definite or wider than 1 m (all zeros: unknown, the
+position taken as exact) are dropped with a throttled warning: nothing is published for
+them. A bad
 workspace file stops the node at start with a one-line reason. At exit it logs one line of
 counts, with each of the latest tracks' predictions, commands and first command's status.
 """
