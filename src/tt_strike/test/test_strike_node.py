@@ -288,6 +288,8 @@ def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
         reports = g.diagnostics()
         g.pub.publish(prediction_msg(1))
         g.spin_until(lambda: g.node.n_received == 1, 20.0, 'the first prediction')
+        warned = []
+        g.node.warn = lambda key, period, text: warned.append(text)
         for track in range(2, 42):                 # 40 at once, nothing taken meanwhile
             g.pub.publish(prediction_msg(track))
         g.spin_until(lambda: g.node.n_received + g.node.queue_lost.count == 41, 20.0,
@@ -295,6 +297,9 @@ def test_predictions_lost_in_the_input_queue_are_counted_and_warned_of():
         assert g.node.queue_lost.count >= 40 - 5        # the queue holds 5
         assert (f', {g.node.queue_lost.count} predictions lost in the input queue; '
                 in g.node.work_summary())
+        # Warned of while it goes on too, not only in the exit line and /diagnostics.
+        lost_lines = [w for w in warned if 'lost in the input queue so far' in w]
+        assert lost_lines and lost_lines[-1].startswith(f'{g.node.queue_lost.count} ')
 
         def lost(status):
             return int(next(kv.value for kv in status.values if kv.key == 'predictions_lost'))

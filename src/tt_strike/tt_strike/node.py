@@ -247,6 +247,7 @@ class StrikeNode(Node):
         self.pub = self.create_publisher(StrikeCommand, 'strike/command', reliable)
         self.pub_markers = self.create_publisher(MarkerArray, 'tt/markers', reliable)
         self.queue_lost = LostMessages()        # predictions lost before the callback
+        self.queue_lost_said = 0                # ... as many as the last warning said
         # In-zone probabilities refreshed behind the commands (_refresh_probability): the
         # worker appends (track id, ball, Probability), the callback takes them.
         self.probabilities = collections.deque()
@@ -421,6 +422,11 @@ class StrikeNode(Node):
     def _on_prediction(self, msg):
         self.last_arrival = time.monotonic()
         self._take_probabilities()
+        if self.queue_lost.count > self.queue_lost_said:   # said in the exit line only before
+            self.queue_lost_said = self.queue_lost.count    # (a ROS walk-through, -r 2)
+            self.warn('queue_lost', 5.0, f'{self.queue_lost.count} predictions lost in the '
+                      'input queue so far (it keeps the latest 5): this node falls behind '
+                      'its input (a faster replay, or a busy machine)')
         stamp_s = to_ns(msg.header.stamp) * 1e-9
         for other in self.tracks.values():      # the balls this one's stamp is past
             if other.lost_by_plane is None and other.plane_t is not None \
