@@ -351,8 +351,7 @@ def _say_unheard(pubs, unheard, sent):
     messages that went out before it did: they reached no one. A plain play into nodes
     already running lost the first 1-3.5 s of a bag (discovery), all of a 2.5 s one at -r 2,
     with nothing said (a walk-through, 7 Dec 2026); a topic nobody subscribes is no loss."""
-    for pub in pubs:
-        topic = pub.topic_name
+    for topic, pub in {pub.topic_name: pub for pub in pubs}.items():   # a topic once
         if unheard.get(topic) and pub.get_subscription_count():
             _say(f'[WARN] {unheard[topic]} of {sent[topic]} messages on {topic} went out '
                  'before its subscriber matched, to no one: --wait-for-subscribers waits for '
