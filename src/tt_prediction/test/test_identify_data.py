@@ -554,17 +554,21 @@ def test_a_ball_held_still_before_its_launch_is_left_out_and_its_flight_kept(noi
     assert len(t_rest) <= seg.notes['samples_held_still'] <= len(t_rest) + 4
     # A flight is never held still: not a ball dropped from rest, nor one tossed up from
     # below its apex, its slowest passage (a 2 cm band for 2 sqrt(2 (0.02 m) / g) = 128 ms;
-    # a review's toss 1.6 cm below the apex lost 133 ms to the first rule), at 30 to 500 Hz.
-    for rate in (30.0, 150.0, 500.0):
+    # a review's toss 1.6 cm below the apex lost 133 ms to the first rule), at 25 to 500 Hz.
+    for rate in (25.0, 30.0, 150.0, 500.0):
         for below in (0.0, 0.005, 0.01, 0.016, 0.02):
             toss = np.array([0.5, 0.0, 0.6, 0.02, 0.0, math.sqrt(2 * 9.8 * below),
                              0.0, 0.0, 0.0])
             t_toss, p_toss = _measured(np.arange(0.0, 0.3, 1 / rate), toss, params, noise,
                                        seed=2)
             seg, _ = segment(Track('toss', t_toss, p_toss))
-            # The whole flight: its apex is no racket contact either (a turn, but by 0.3
-            # m/s: what gravity does; a toss lost all but its first 20-50 ms to it).
             assert len(seg.t) >= len(t_toss) - 2 and not seg.notes, (rate, below, seg.notes)
+        # Nor is its apex a racket contact, mid-track: a turn, but what gravity does (a toss
+        # lost all but its first 20-50 ms to it; at 25 Hz the turn's fits are 120 ms apart).
+        toss = np.array([0.5, 0.0, 0.5, 0.02, 0.0, 2.94, 0.0, 0.0, 0.0])    # apex at 0.3 s
+        t_toss, p_toss = _measured(np.arange(0.0, 0.6, 1 / rate), toss, params, noise, seed=3)
+        seg, _ = segment(Track('toss', t_toss, p_toss))
+        assert len(seg.t) >= len(t_toss) - 2 and not seg.notes, (rate, seg.notes)
 
 
 def test_a_few_samples_before_an_early_gap_leave_the_flight_after_it():
@@ -702,6 +706,10 @@ def test_flights_left_out_by_cleaning_are_said_on_the_command_line():
     prepared, dropped, notes = prepare(held, 0.02)
     assert notes['samples_held_still'] >= 60 * len(held)
     assert cleaning_warning(held, prepared, dropped, notes) == ''
+    # ... but a file of a ball never launched is a track dropped (a review: said nothing).
+    still = [Track('still', np.arange(60) / 150, np.repeat(flights[0].p[:1], 60, axis=0))]
+    line = cleaning_warning(still, *prepare(still, 0.02))
+    assert line.startswith('cleaning left out 100 % of the samples and dropped 1 of 1')
 
 
 def test_report_folder_replaces_the_old_one_with_the_mode_of_the_umask(tmp_path,

@@ -310,12 +310,13 @@ class Parameters:
         for p in parameters:
             spec = self.specs.get(p.name)
             if spec is not None:
+                reason = (f'{p.name} is read-only (set at start: --ros-args -p '
+                          f'{p.name}:=...)' if spec.read_only else None)   # rclpy's first
                 try:
                     value = coerce(spec, p.value)
-                    reason = (f'{p.name} is read-only (set at start: --ros-args -p '
-                              f'{p.name}:=...)' if spec.read_only else None)
                 except ParameterError as exc:
-                    value, reason = None, str(exc)      # refused by rclpy or in _on_set
+                    value = None                        # refused by rclpy or in _on_set
+                    reason = reason or str(exc)
                 if reason and self._source is None and self._refused is None:
                     self.node.get_logger().warning(f'parameter refused: {reason}')
                     self._refused = reason              # not logged again by _on_set
@@ -325,6 +326,7 @@ class Parameters:
         return out
 
     def _on_set(self, parameters):
+        refused, self._refused = self._refused, None    # what _pre_set logged for this set
         proposed = dict(self.values)
         try:
             for p in parameters:
@@ -336,7 +338,7 @@ class Parameters:
             reason = str(exc)
         if reason:
             # set_from logs it, naming its topic; _pre_set may have logged it already.
-            if self._source is None and reason != self._refused:
+            if self._source is None and reason != refused:
                 self.node.get_logger().warning(f'parameter refused: {reason}')
             # rclpy has already given the stored descriptor of a dynamically typed parameter
             # the refused value's type (Node._apply_descriptor, before the callbacks): the

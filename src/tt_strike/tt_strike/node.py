@@ -422,11 +422,13 @@ class StrikeNode(Node):
     def _on_prediction(self, msg):
         self.last_arrival = time.monotonic()
         self._take_probabilities()
-        if self.queue_lost.count > self.queue_lost_said:   # said in the exit line only before
-            self.queue_lost_said = self.queue_lost.count    # (a ROS walk-through, -r 2)
-            self.warn('queue_lost', 5.0, f'{self.queue_lost.count} predictions lost in the '
-                      'input queue so far (it keeps the latest 5): this node falls behind '
-                      'its input (a faster replay, or a busy machine)')
+        # Said in the exit line only before (a ROS walk-through, -r 2); the count a line
+        # the throttle held back said is said by the next.
+        if self.queue_lost.count > self.queue_lost_said and self.warn(
+                'queue_lost', 5.0, f'{self.queue_lost.count} predictions lost in the input '
+                'queue so far (it keeps the latest 5): this node falls behind its input (a '
+                'faster replay, or a busy machine)'):
+            self.queue_lost_said = self.queue_lost.count
         stamp_s = to_ns(msg.header.stamp) * 1e-9
         for other in self.tracks.values():      # the balls this one's stamp is past
             if other.lost_by_plane is None and other.plane_t is not None \
@@ -440,9 +442,13 @@ class StrikeNode(Node):
                     and 0.0 <= stamp - tally.stamp <= NEW_BALL_GAP_S):
                 # The struck ball past the plane: what every ball does once struck, not a
                 # warning each (a ROS user's walk-through), nor a drop that set /diagnostics
-                # to WARN for every ball struck (another, 7 Dec 2026); a new ball under its
-                # id is not.
-                self.n_committed += 1
+                # to WARN for every ball struck (another, 7 Dec 2026); a ball never struck
+                # (its commands infeasible) still counts as dropped, quietly; a new ball
+                # under its id is not this.
+                if tally.hit_t is not None:
+                    self.n_committed += 1
+                else:
+                    self.n_dropped += 1
                 self.get_logger().debug(f'track {msg.track_id}: no hit point after its '
                                         f'stroke (prediction status {msg.status!r})')
             else:

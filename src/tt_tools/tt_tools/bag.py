@@ -7,7 +7,7 @@ import sys
 import time
 
 from rclpy.duration import Duration
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from tt_ros.bagfile import (
     STORAGES,
     BagError,
@@ -301,7 +301,7 @@ def bag_play(args):
             # Bag time now = first + (monotonic time since t0) * rate, never past the window's
             # end: a player woken late (a busy machine) ran its /clock tick 15 ms beyond it.
             state = {'t0': time.monotonic()}
-            unheard, sent = {}, {}        # per topic: messages sent with no subscriber matched
+            unheard, sent = {}, {}        # per publisher: messages sent with no match, all
             tick = None
             if clock_pub is not None:
                 def bag_time_ns():
@@ -327,15 +327,15 @@ def bag_play(args):
                         break
                     pub = pubs[conn.id]
                     if not pub.get_subscription_count():
-                        unheard[pub.topic_name] = unheard.get(pub.topic_name, 0) + 1
-                    sent[pub.topic_name] = sent.get(pub.topic_name, 0) + 1
+                        unheard[conn.id] = unheard.get(conn.id, 0) + 1
+                    sent[conn.id] = sent.get(conn.id, 0) + 1
                     pub.publish(bytes(data))
                     played += 1
                 if not args.loop or not played:
                     break
             for pub in pubs.values():  # let reliable subscribers fetch the last messages
                 pub.wait_for_all_acked(Duration(seconds=1.0))
-            _say_unheard(pubs.values(), unheard, sent)
+            _say_unheard(pubs, unheard, sent)
             # A node's best-effort subscription of a reliable recording (a state from ros2
             # topic pub into prediction_node) lost the last state in 1 of 6 plays.
             if not cli.stopped:
@@ -348,14 +348,21 @@ def bag_play(args):
 
 def _say_unheard(pubs, unheard, sent):
     """Warn, for each topic whose subscriber matched only after the play had begun, of the
-    messages that went out before it did: they reached no one. A plain play into nodes
-    already running lost the first 1-3.5 s of a bag (discovery), all of a 2.5 s one at -r 2,
-    with nothing said (a walk-through, 7 Dec 2026); a topic nobody subscribes is no loss."""
-    for topic, pub in {pub.topic_name: pub for pub in pubs}.items():   # a topic once
-        if unheard.get(topic) and pub.get_subscription_count():
-            _say(f'[WARN] {unheard[topic]} of {sent[topic]} messages on {topic} went out '
-                 'before its subscriber matched, to no one: --wait-for-subscribers waits for '
-                 'the subscribers first')
+    messages that went out before it did (``unheard``, ``sent``: counts by the key of the
+    publisher in ``pubs``): they reached no one (at least those; a match is not seen from
+    the subscriber's side). A plain play into nodes already running lost the first 1-3.5 s
+    of a bag (discovery), all of a 2.5 s one at -r 2, with nothing said (a walk-through, 7
+    Dec 2026). Not a topic nobody subscribes (no loss), nor a transient-local one (a late
+    subscriber gets the latest messages)."""
+    by_topic = {}
+    for key, pub in pubs.items():
+        if (unheard.get(key) and pub.get_subscription_count()
+                and pub.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL):
+            lost, of = by_topic.get(pub.topic_name, (0, 0))
+            by_topic[pub.topic_name] = (lost + unheard[key], of + sent[key])
+    for topic, (lost, of) in sorted(by_topic.items()):
+        _say(f'[WARN] {lost} of {of} messages on {topic} went out before its subscriber '
+             'matched, to no one: --wait-for-subscribers waits for the subscribers first')
 
 
 def _clock_publisher(cli, topic='/clock'):

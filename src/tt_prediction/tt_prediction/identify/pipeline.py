@@ -64,7 +64,7 @@ def cleaning_warning(tracks, prepared, dropped, notes):
     loaded = (sum(len(tr.t) for tr in tracks) + sum(notes.get(k, 0) for k in LOADER_REMOVED)
               - notes.get('samples_held_still', 0))
     used = sum(len(tr.t) for tr in prepared)
-    if not loaded or (not dropped and used >= (1.0 - LEFT_OUT_WARNING) * loaded):
+    if not dropped and (not loaded or used >= (1.0 - LEFT_OUT_WARNING) * loaded):
         return ''
     steps = sorted(((n, k) for k, n in notes.items()
                     if k not in ('samples_of_dropped_tracks', 'unsorted_rows',
@@ -72,7 +72,8 @@ def cleaning_warning(tracks, prepared, dropped, notes):
                    reverse=True)[:3]
     most = ', '.join(f'{k} {n}' for n, k in steps)
     gone = f' and dropped {len(dropped)} of {len(tracks)} tracks' if dropped else ''
-    return (f'cleaning left out {100.0 * (1.0 - used / loaded):.0f} % of the samples'
+    left_out = 100.0 * (1.0 - used / loaded) if loaded else 100.0    # all held still
+    return (f'cleaning left out {left_out:.0f} % of the samples'
             f'{gone} ({most}): a file is read as one flight, which a gap over {MAX_GAP:g} s, '
             'a jump to another ball, a racket contact, an unresolved bounce or a roll ends '
             '(report.json: data.samples_dropped, data.tracks_dropped)')

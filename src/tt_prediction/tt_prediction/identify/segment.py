@@ -70,11 +70,11 @@ HIT_TURN = 0.5
 """A contact away from the table (racket, net, hand) turns the velocity: the cosine between
 the velocities fitted before and after it falls below this."""
 HIT_CHANGE = 1.0
-"""... and changes it by more than this, m/s, and three times the noise of that change (from
-the track's own position noise): gravity turns a slow ball at its apex as much
-(a toss straight up turns by 180 degrees) but changes its velocity by only g times the
-windows' spacing, about 0.33 m/s (a review's tosses lost all but their first 20-50 ms as
-'after racket contact', 7 Dec 2026); a stroke changes it by metres a second."""
+"""... and changes it, beyond what gravity does between the fits (g times their spacing, 0.33
+m/s at 150 Hz, 1 m/s at 30 Hz), by more than this, m/s, and three times the noise of that
+change (from the track's own position noise): gravity turns a slow ball at its apex as
+much (a toss straight up turns by 180 degrees; a review's tosses lost all but their first
+20-50 ms as 'after racket contact', 7 Dec 2026); a stroke changes it by metres a second."""
 ROLL_DURATION = 0.05
 """Longer than this within ROLL_HEIGHT of the contact height is rolling, s (a rebound at
 ROLL_SPEED spends ~0.08 s there, one at 1 m/s ~0.024 s)."""
@@ -295,16 +295,20 @@ def locate_bounce(t, p, i):
 
 def _turns(t, p, half=6):
     """Cosine between the velocities fitted (lines over ``half`` samples) before and after
-    each sample, and the size of the change between them (m/s); 1 and 0 where there are too
-    few samples. Line fits over several samples keep the time-stamp jitter of real trackers
-    from looking like a contact."""
+    each sample, and the size of the change between them beyond gravity's (m/s); 1 and 0
+    where there are too few samples. Line fits over several samples keep the time-stamp
+    jitter of real trackers from looking like a contact."""
     n = len(t)
     cos, change = np.ones(n), np.zeros(n)
+    g = np.array([0.0, 0.0, -GRAVITY])
     for i in range(half, n - half + 1):
         vb = np.polyfit(t[i - half:i], p[i - half:i], 1)[0]
         va = np.polyfit(t[i:i + half], p[i:i + half], 1)[0]
         cos[i] = vb @ va / max(np.linalg.norm(vb) * np.linalg.norm(va), 1e-9)
-        change[i] = np.linalg.norm(va - vb)
+        # Less what gravity does between the windows' middles (1 m/s at 30 Hz, where a
+        # window holds at least 3 samples: 100 ms).
+        spacing = t[i:i + half].mean() - t[i - half:i].mean()
+        change[i] = np.linalg.norm(va - vb - g * spacing)
     return cos, change
 
 
