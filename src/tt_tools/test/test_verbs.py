@@ -139,8 +139,9 @@ def test_param_verbs_on_a_node_with_declared_parameters(graph, param_node):
     # One name not declared among several: that one is named, not all of them.
     assert desc_one_nope[0] == 1 and error_lines(desc_one_nope[2]) == [
         f"ros2 param: node '{n}' has no parameter 'nope'"]
+    # A mistyped name is pointed at the node nearest it (a walk-through, 7 Dec 2026).
     assert get_no_node[0] == 1 and error_lines(get_no_node[2]) == [
-        f"ros2 param: Node '{n}_absent' not found"]
+        f"ros2 param: Node '{n}_absent' not found; did you mean '{n}'?"]
     # Accepted sets change the node's value; refused ones print the reason and exit 1.
     assert set_count[:2] == (0, 'Set parameter successful\n')
     assert set_int[:2] == (0, 'Set parameter successful\n')

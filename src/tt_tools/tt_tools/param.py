@@ -29,6 +29,7 @@ from tt_tools.rosutil import (
     CliNode,
     absolute_node_name,
     add_spin_time_argument,
+    node_hint,
     node_name_counts,
     node_names,
 )
@@ -99,7 +100,7 @@ def _client(cli, node_name, srv_type, args):
     if cli.stopped:
         return None
     if node_name not in node_names(cli, hidden=True):
-        raise ValueError(f"Node '{node_name}' not found")
+        raise ValueError(f"Node '{node_name}' not found{node_hint(cli, node_name)}")
     if cli.spin_until(client.service_is_ready, timeout=args.timeout):
         return ready()
     if cli.stopped:

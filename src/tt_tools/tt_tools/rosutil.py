@@ -1,6 +1,7 @@
 """ROS glue shared by the ``ros2`` verbs: a short-lived node with clean SIGINT/SIGTERM, QoS."""
 
 import collections
+import difflib
 import faulthandler
 import os
 import signal
@@ -312,6 +313,15 @@ def node_names(cli, hidden=False):
     return sorted({node_full_name(name, ns)
                    for name, ns in cli.node.get_node_names_and_namespaces()
                    if hidden or not name.startswith('_')})
+
+
+def node_hint(cli, full_name):
+    """``"; did you mean '<node>'?"`` for the discovered node whose name is nearest the
+    absent ``full_name`` (mistyped: `ros2 node info /predictoin_node` said only that it was
+    not found, where `topic echo` suggests a topic; a walk-through, 7 Dec 2026), else ''."""
+    close = difflib.get_close_matches(full_name, [n for n in node_names(cli)
+                                                  if n != full_name], n=1)
+    return f"; did you mean '{close[0]}'?" if close else ''
 
 
 def node_name_counts(cli):

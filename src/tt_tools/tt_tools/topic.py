@@ -49,6 +49,7 @@ from tt_tools.rosutil import (
     graph_names,
     hidden_name,
     node_full_name,
+    node_hint,
     node_name_counts,
     node_names,
     qos_matching,
@@ -187,7 +188,7 @@ def node_info(args):
                 and cli.spin_until(found, timeout=LATE_NODE_S)):
             cli.settle()
         if not found():
-            raise ValueError(f"Unable to find node '{full}'")
+            raise ValueError(f"Unable to find node '{full}'{node_hint(cli, full)}")
         graph = cli.node
         sections = [
             ('Subscribers', graph.get_subscriber_names_and_types_by_node(name, ns)),
