@@ -46,6 +46,7 @@ from .integrate import (
 )
 from .model import (
     edge_distance,
+    edge_gradient,
     flight_acceleration,
     flight_derivative,
     flight_jacobian,
@@ -130,7 +131,8 @@ __all__ = [
     *INDEX_NAMES,   # I_MASS, I_RADIUS, ...: slots of the packed array (params.py)
     # equations
     'flight_derivative', 'flight_jacobian', 'flight_acceleration', 'table_rebound',
-    'table_rebound_inplace', 'table_restitution', 'edge_distance', 'racket_rebound',
+    'table_rebound_inplace', 'table_restitution', 'edge_distance', 'edge_gradient',
+    'racket_rebound',
     'racket_rebound_inplace',
     # integration
     'rk4_step', 'rk4_advance', 'rollout', 'rollout_kernel', 'landing_kernel', 'Event',

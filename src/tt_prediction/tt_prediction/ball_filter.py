@@ -57,6 +57,8 @@ from .ball import (
     I_RADIUS,
     SLIP_SPEED_REF,
     ModelParams,
+    edge_distance,
+    edge_gradient,
     flight_derivative,
     flight_jacobian,
     rk4_advance,
@@ -234,15 +236,11 @@ def rebound_jacobian(s, P, J):
         de[5] = P[I_ET_SLOPE] * sgn
         for j in range(6, 9):
             de[j] = P[I_ET_SPIN_SLOPE] * r * dspin[j]
-        if P[I_ET_EDGE] != 0.0:      # d/dp of e_t_edge exp(-d / L), d the nearer edge's
-            ax, ay = HALF_LENGTH - abs(s[0]), HALF_WIDTH - abs(s[1])
-            d = min(ax, ay)
-            if d > 0.0:
-                k = -P[I_ET_EDGE] * math.exp(-d / EDGE_LENGTH_REF) / EDGE_LENGTH_REF
-                if ax <= ay:
-                    de[0] = k * (-1.0 if s[0] > 0.0 else 1.0)
-                else:
-                    de[1] = k * (-1.0 if s[1] > 0.0 else 1.0)
+        if P[I_ET_EDGE] != 0.0:      # d/dp of e_t_edge exp(-d / L), d the edge distance
+            k = (-P[I_ET_EDGE] * math.exp(-edge_distance(s[0], s[1]) / EDGE_LENGTH_REF)
+                 / EDGE_LENGTH_REF)
+            gx, gy = edge_gradient(s[0], s[1])
+            de[0], de[1] = k * gx, k * gy
     mu_raw = P[I_MU] + P[I_MU_SLOPE] * spin + P[I_MU_SLIP_SLOPE] * (vt - SLIP_SPEED_REF)
     mu = max(mu_raw, 0.0)
     dmu = np.zeros(9)

@@ -209,6 +209,29 @@ def edge_distance(x, y):
 
 
 @njit(**_NJIT)
+def edge_gradient(x, y):
+    """The derivative of :func:`edge_distance` along x and along y (1/0, 0/1 and their
+    signs: it is the distance to the nearer of the end and side lines; 0, 0 off the table).
+
+    Parameters
+    ----------
+    x, y : float
+        Table-frame coordinates of the point, m.
+
+    Returns
+    -------
+    gx, gy : float
+        d(distance)/dx, d(distance)/dy (dimensionless).
+    """
+    ax, ay = HALF_LENGTH - abs(x), HALF_WIDTH - abs(y)
+    if min(ax, ay) <= 0.0:
+        return 0.0, 0.0
+    if ax <= ay:
+        return (-1.0 if x > 0.0 else 1.0), 0.0
+    return 0.0, (-1.0 if y > 0.0 else 1.0)
+
+
+@njit(**_NJIT)
 def table_restitution(s, P):
     """The table restitution e_t of eqs. 1-6 with its effects, before the clip to [0, 1].
 

@@ -429,15 +429,15 @@ class StrikeNode(Node):
                 'queue so far (it keeps the latest 5): this node falls behind its input (a '
                 'faster replay, or a busy machine)'):
             self.queue_lost_said = self.queue_lost.count
-        stamp_s = to_ns(msg.header.stamp) * 1e-9
+        stamp_ns = to_ns(msg.header.stamp)
+        stamp = stamp_ns * 1e-9
         for other in self.tracks.values():      # the balls this one's stamp is past
             if other.lost_by_plane is None and other.plane_t is not None \
-                    and stamp_s >= other.plane_t:
+                    and stamp >= other.plane_t:
                 other.lost_by_plane = self.queue_lost.count
         tally = self._tally(msg.track_id)
         tally.received += 1
         if not msg.hit_valid:
-            stamp = to_ns(msg.header.stamp) * 1e-9
             if (tally.commands and msg.status == 'no_hit'
                     and 0.0 <= stamp - tally.stamp <= NEW_BALL_GAP_S):
                 # The struck ball past the plane: what every ball does once struck, not a
@@ -454,7 +454,6 @@ class StrikeNode(Node):
             else:
                 self._drop(f'no hit point (prediction status {msg.status!r})')
             return
-        stamp_ns = to_ns(msg.header.stamp)
         why = header_problem(stamp_ns, msg.header.frame_id)
         if why:
             self._drop(why)
@@ -482,7 +481,6 @@ class StrikeNode(Node):
         settings = self.settings
         aim = (zone, tuple(point))
         hit_t = msg.hit_time.sec + 1e-9 * msg.hit_time.nanosec
-        stamp = stamp_ns * 1e-9
         if (stamp < tally.stamp or stamp > tally.stamp + NEW_BALL_GAP_S
                 or (tally.hit_t is not None and stamp > tally.hit_t + KEPT_HIT_MARGIN_S)):
             self._judge_stroke(msg.track_id, tally)   # the old ball is over

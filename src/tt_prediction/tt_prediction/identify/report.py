@@ -11,6 +11,7 @@ import os
 import matplotlib
 import numpy as np
 
+from ..ball import FIELD
 from ..ball_filter import NOISE_WINDOW
 from ..staged import staged_folder
 from .diagnose import binned
@@ -48,9 +49,10 @@ def _fmt(value, nd=3):
     return str(value)
 
 
-PAPER_C_D = 0.54
-"""The paper's drag coefficient (MODEL.md, "Constants"), against which C_D is reported."""
-PAPER_C_M = 0.069
+PAPER_C_D = FIELD['c_d'].default
+"""The paper's drag coefficient (MODEL.md, "Constants": the model's default), against which
+C_D is reported."""
+PAPER_C_M = FIELD['c_m'].default
 """The paper's Magnus coefficient."""
 SIGNIFICANCE = 0.05
 """A correlation with a larger two-sided p-value is reported as not significant; of several
